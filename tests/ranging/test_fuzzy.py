@@ -1,0 +1,68 @@
+"""Fuzzy inference (paper 002 Algorithm 1): triangular memberships, centroid defuzzification."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.ranging.fuzzy import fuzzy_system_from_params, infer, triangle
+
+PARAMS = {
+    "input_range": [0.0, 3.0],
+    "output_range": [0.0, 3.0],
+    "input_sets": {"LE": [-0.5, 0.5, 1.0], "EQ": [0.5, 1.0, 1.5], "MO": [1.0, 1.5, 3.5]},
+    "output_sets": {"LE": [0.2, 0.5, 0.8], "EQ": [0.7, 1.0, 1.3], "MO": [1.2, 1.8, 2.7]},
+    "rules": [["LE", "LE"], ["EQ", "EQ"], ["MO", "MO"]],
+}
+# trapezoid quadrature on 2001 points of a piecewise-linear integrand: error << 1e-5
+ATOL_CENTROID = 1e-5
+
+
+def test_triangle_breakpoints():
+    x = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.2])
+    assert_allclose(triangle(x, (0.0, 0.5, 1.0)), [0.0, 0.5, 1.0, 0.5, 0.0, 0.0], atol=1e-15)
+    # shoulder: left foot == peak
+    assert_allclose(triangle(np.array([0.0, 0.5, 1.0]), (0.0, 0.0, 1.0)), [1.0, 0.5, 0.0], atol=1e-15)
+
+
+def test_output_at_input_peaks_is_output_set_centroid():
+    fis = fuzzy_system_from_params(PARAMS, "test")
+    # at each input peak exactly one rule fires with strength 1 (neighbours are 0 there),
+    # so the output is the centroid of the whole output triangle: (a + b + c) / 3
+    s = infer(fis, np.array([0.5, 1.0, 1.5]))
+    expected = [sum(PARAMS["output_sets"][k]) / 3 for k in ("LE", "EQ", "MO")]
+    assert_allclose(s, expected, rtol=0, atol=ATOL_CENTROID)
+
+
+def test_output_between_peaks_two_rules_clipped():
+    fis = fuzzy_system_from_params(PARAMS, "test")
+    # x = 0.75: LE and EQ both fire at 0.5. Aggregate = max(min(.5, LE), min(.5, EQ)).
+    # Exact centroid of that piecewise-linear area, by a 1e6-point independent quadrature:
+    y = np.linspace(0, 3, 1_000_001)
+    mu = np.maximum(np.minimum(0.5, triangle(y, (0.2, 0.5, 0.8))), np.minimum(0.5, triangle(y, (0.7, 1.0, 1.3))))
+    expected = np.sum(mu * y) / np.sum(mu)
+    assert_allclose(infer(fis, 0.75), expected, atol=ATOL_CENTROID)
+    # by the symmetry of the two clipped sets about 0.75, the centroid is 0.75
+    assert_allclose(infer(fis, 0.75), 0.75, atol=ATOL_CENTROID)
+
+
+def test_monotonic_and_clamped():
+    fis = fuzzy_system_from_params(PARAMS, "test")
+    x = np.linspace(0.0, 3.0, 301)
+    s = infer(fis, x)
+    assert np.all(np.diff(s) >= -1e-9)  # "less SD -> less R": the rule base is ordered
+    assert_allclose(infer(fis, [-5.0, 10.0]), infer(fis, [0.0, 3.0]), atol=0)
+
+
+def test_bad_rule_base_rejected():
+    bad = {**PARAMS, "rules": [["LE", "XX"]]}
+    with pytest.raises(InvalidInputError, match="undefined set"):
+        fuzzy_system_from_params(bad, "ranging_fatci.fuzzy")
+    bad = {**PARAMS, "input_sets": {"LE": [1.0, 0.5, 2.0]}}
+    with pytest.raises(InvalidInputError, match="left <= peak"):
+        fuzzy_system_from_params(bad, "ranging_fatci.fuzzy")
+    gap = {**PARAMS, "input_sets": {**PARAMS["input_sets"], "MO": [1.0, 1.5, 2.0]}}
+    with pytest.raises(InvalidInputError, match="no rule fires at input 2"):
+        fuzzy_system_from_params(gap, "ranging_fatci.fuzzy")
+    with pytest.raises(InvalidInputError, match="unknown key"):
+        fuzzy_system_from_params({**PARAMS, "extra": 1}, "ranging_fatci.fuzzy")

@@ -1,0 +1,275 @@
+"""`tpos batch`: planning, the per-session task, resumability, pools, Dask, the batch record, the CLI.
+
+The batch logic is tested with a stand-in for `process_session` whose behaviour each fake session
+declares in a `behaviour` file (module-level functions, so that spawned workers and Dask can pickle
+them); the real pipeline runs in `test_batch_e2e_sample_logs`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import typer
+from typer.testing import CliRunner
+
+from tpos_cli import batch as b
+from tpos_cli.errors import InvalidInputError, ProcessingError
+
+# --------------------------------------------------------------------------- stand-ins
+
+
+def fake_fingerprint(session_dir: Path, pipeline: str | None) -> tuple[dict[str, str], str]:
+    """What the stand-in pipeline records: sha256 of every file, and a config hash of the name."""
+    inputs = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(session_dir.iterdir()) if p.is_file()}
+    return inputs, hashlib.sha256(f"config:{pipeline}".encode()).hexdigest()
+
+
+def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
+    """Behave as the session's `behaviour` file says; on success write the run atomically."""
+    behaviour = (session_dir / "behaviour").read_text().strip()
+    if behaviour == "invalid":
+        raise InvalidInputError(f"{session_dir.name}/imu.csv: column 'gyro_x', row 7: not a number")
+    if behaviour == "error":
+        raise ProcessingError("filter diverged\nat t = 12.5 s")  # two lines: the row keeps one
+    if behaviour == "bug":
+        raise ZeroDivisionError("division by zero")
+    if behaviour == "crash":
+        os._exit(3)  # a segfault or the OOM killer, as seen from the pool
+    inputs, config_sha = fake_fingerprint(session_dir, pipeline)
+    tmp = run_dir.with_name(f".{run_dir.name}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    n = len(list(run_dir.parent.glob("*.runs"))) if run_dir.parent.exists() else 0
+    summary = {
+        "pipeline": pipeline or "default", "config_sha256": config_sha, "inputs": inputs,
+        "timings_s": {"load": 0.01, "filter": 0.02},
+        "results": {"position": {"rms_h_m": 1.5, "max_h_m": 4.0}, "n_fixes": 10, "ok": True, "label": "x"},
+    }
+    (tmp / "summary.json").write_text(json.dumps(summary))
+    # count how often each session really ran (to prove skips)
+    counter = run_dir.parent / f"{run_dir.name}.runs"
+    counter.write_text(str(int(counter.read_text()) + 1 if counter.exists() else 1))
+    del n
+    if run_dir.exists():
+        shutil.rmtree(run_dir)
+    os.replace(tmp, run_dir)
+    return None  # no summary returned: the task must read summary.json
+
+
+def make_sessions(root: Path, behaviours: dict[str, str]) -> list[Path]:
+    paths = []
+    for name, behaviour in behaviours.items():
+        d = root / name
+        d.mkdir(parents=True)
+        (d / "behaviour").write_text(behaviour)
+        (d / "imu.csv").write_text(f"t,gyro_x\n0,{len(name)}\n")
+        paths.append(d)
+    return paths
+
+
+def runs(out: Path, name: str) -> int:
+    f = out / f"{name}.runs"
+    return int(f.read_text()) if f.exists() else 0
+
+
+def tasks_for(sessions, out, **kw):
+    return b.plan_batch(sessions, out, "p1", **kw)
+
+
+# --------------------------------------------------------------------------- planning
+
+
+def test_expand_sessions_globs_dirs_and_list_files(tmp_path):
+    make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok", "c": "ok"})
+    (tmp_path / "logs" / "README.md").write_text("not a session")
+    lst = tmp_path / "list.txt"
+    lst.write_text("# field week\nlogs/c   # re-run\n\nlogs/a\n")
+    got = b.expand_sessions(["logs/b", "list.txt", "logs/*"], cwd=tmp_path)
+    # order of first mention, no repeats, README ignored by the glob, list paths relative to the list
+    assert [p.name for p in got] == ["b", "c", "a"]
+    assert all(p.is_absolute() for p in got)
+
+
+@pytest.mark.parametrize("spec", ["nothing/*", "missing_dir"])
+def test_expand_sessions_names_what_matched_nothing(tmp_path, spec):
+    with pytest.raises(InvalidInputError, match=spec.replace("*", r"\*")):
+        b.expand_sessions([spec], cwd=tmp_path)
+
+
+def test_plan_rejects_two_sessions_with_one_name(tmp_path):
+    s1 = make_sessions(tmp_path / "day1", {"run": "ok"})
+    s2 = make_sessions(tmp_path / "day2", {"run": "ok"})
+    with pytest.raises(InvalidInputError, match="share the name 'run'"):
+        b.plan_batch(s1 + s2, tmp_path / "out")
+    (t,) = b.plan_batch(s1, tmp_path / "out", "drive-smooth")
+    assert Path(t.run_dir) == (tmp_path / "out" / "run").resolve() and t.pipeline == "drive-smooth"
+
+
+# --------------------------------------------------------------------------- the task
+
+
+@pytest.mark.parametrize(
+    ("behaviour", "exit_code", "message"),
+    [
+        ("invalid", 2, "s/imu.csv: column 'gyro_x', row 7: not a number"),
+        ("error", 1, "filter diverged at t = 12.5 s"),
+        ("bug", 1, "ZeroDivisionError: division by zero (at test_batch.py:"),
+    ],
+)
+def test_task_turns_errors_into_one_line_rows(tmp_path, behaviour, exit_code, message):
+    (s,) = make_sessions(tmp_path, {"s": behaviour})
+    (task,) = tasks_for([s], tmp_path / "out")
+    r = b.run_session_task(task, fake_process, fake_fingerprint)
+    assert (r.status, r.exit_code) == ("failed", exit_code)
+    assert r.error.startswith(message) and "\n" not in r.error
+    assert not (tmp_path / "out" / "s").exists()  # nothing half-written
+
+
+def test_task_ok_reads_summary_and_report_figures(tmp_path):
+    (s,) = make_sessions(tmp_path, {"s": "ok"})
+    (plain,) = tasks_for([s], tmp_path / "out")
+    r = b.run_session_task(plain, fake_process, fake_fingerprint)
+    assert (r.status, r.exit_code, r.error, r.pipeline) == ("ok", 0, "", "p1")
+    assert r.timings_s == {"load": 0.01, "filter": 0.02}
+    assert r.accuracy == {}  # only with report
+    (rep,) = tasks_for([s], tmp_path / "out", report=True, force=True)
+    r = b.run_session_task(rep, fake_process, fake_fingerprint)
+    # numeric results flattened with dotted keys; booleans and strings are not figures
+    assert r.accuracy == {"position.rms_h_m": 1.5, "position.max_h_m": 4.0, "n_fixes": 10.0}
+
+
+def test_resume_skips_current_runs_and_redoes_changed_or_half_written_ones(tmp_path):
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok", "c": "ok", "d": "ok"})
+    out = tmp_path / "out"
+    first = b.run_batch(tasks_for(sessions, out), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    assert [r.status for r in first.results] == ["ok"] * 4 and first.exit_code == 0
+
+    (sessions[0] / "imu.csv").write_text("t,gyro_x\n0,99\n")  # a: input changed
+    (sessions[1] / "gps.csv").write_text("t,lat\n0,1\n")  # b: a new input file appeared
+    shutil.rmtree(out / "c")  # c: killed midway: only the temporary directory is left
+    (out / ".c.tmp").mkdir()
+    second = b.run_batch(tasks_for(sessions, out), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    assert [r.status for r in second.results] == ["ok", "ok", "ok", "skipped"]
+    assert [runs(out, n) for n in "abcd"] == [2, 2, 2, 1]
+    assert second.results[3].timings_s == {"load": 0.01, "filter": 0.02}  # a skipped row still reports
+
+    other_pipeline = b.run_batch(b.plan_batch(sessions, out, "p2"), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    assert [r.status for r in other_pipeline.results] == ["ok"] * 4  # config hash changed
+
+    forced = b.run_batch(b.plan_batch(sessions, out, "p2", force=True), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    assert [r.status for r in forced.results] == ["ok"] * 4
+    assert [runs(out, n) for n in "abcd"] == [4, 4, 4, 3]
+
+
+def test_corrupt_summary_is_not_a_finished_run(tmp_path):
+    (s,) = make_sessions(tmp_path, {"s": "ok"})
+    (task,) = tasks_for([s], tmp_path / "out")
+    b.run_session_task(task, fake_process, fake_fingerprint)
+    (tmp_path / "out" / "s" / "summary.json").write_text('{"inputs": {"imu.csv"')  # truncated
+    assert b.finished_summary(task, fake_fingerprint) is None
+    assert b.run_session_task(task, fake_process, fake_fingerprint).status == "ok"
+
+
+# --------------------------------------------------------------------------- executors
+
+
+def test_process_pool_isolates_failures_and_crashes(tmp_path):
+    behaviours = {"s0": "ok", "s1": "error", "s2": "crash", "s3": "ok", "s4": "invalid", "s5": "ok"}
+    sessions = make_sessions(tmp_path / "logs", behaviours)
+    seen = []
+    res = b.run_batch(tasks_for(sessions, tmp_path / "out"), jobs=2, process=fake_process,
+                      fingerprint=fake_fingerprint, on_result=lambda r: seen.append(r.name))
+    assert [r.name for r in res.results] == list(behaviours)  # rows in task order
+    assert sorted(seen) == sorted(behaviours)  # every row reported once as it completed
+    assert [r.status for r in res.results] == ["ok", "failed", "failed", "ok", "failed", "ok"]
+    assert res.results[2].error.startswith("worker process died")
+    assert [r.exit_code for r in res.results] == [0, 1, 1, 0, 2, 0]
+    assert res.exit_code == 1 and res.jobs == 2
+    # the good sessions ran in worker processes, not in this one
+    workers = {r.worker for r in res.results if r.status == "ok"}
+    assert all(w and not w.endswith(f":{os.getpid()}") for w in workers)
+
+
+def test_dask_local_cluster_runs_the_same_task(tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "invalid", "c": "ok"})
+    out = tmp_path / "out"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
+        res = b.run_batch(tasks_for(sessions, out), scheduler=cluster.scheduler_address,
+                          process=fake_process, fingerprint=fake_fingerprint)
+        assert [r.status for r in res.results] == ["ok", "failed", "ok"]
+        assert res.results[1].exit_code == 2 and "row 7" in res.results[1].error
+        assert res.scheduler == cluster.scheduler_address
+        again = b.run_batch(tasks_for(sessions, out), scheduler=cluster.scheduler_address,
+                            process=fake_process, fingerprint=fake_fingerprint)
+        assert [r.status for r in again.results] == ["skipped", "failed", "skipped"]
+    assert runs(out, "a") == 1 and runs(out, "c") == 1
+
+
+def test_bad_jobs_is_invalid_input(tmp_path):
+    with pytest.raises(InvalidInputError, match="--jobs"):
+        b.run_batch((), jobs=0)
+
+
+# --------------------------------------------------------------------------- the record
+
+
+def test_batch_record_has_one_row_per_session(tmp_path):
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "error"})
+    tasks = tasks_for(sessions, tmp_path / "out", report=True)
+    res = b.run_batch(tasks, jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    lost = b._failed(tasks[1], "worker process died (NaN time)")  # a lost task: no time measured
+    res = b.BatchResult(res.root, (res.results[0], lost), res.wall_time_s, 1, None)
+    json_path, pq_path = b.write_batch_record(res, pipeline="p1")
+    doc = json.loads(json_path.read_text())
+    assert doc["counts"] == {"ok": 1, "skipped": 0, "failed": 1} and doc["exit_code"] == 1
+    assert [s["name"] for s in doc["sessions"]] == ["a", "b"]
+    assert doc["sessions"][1]["time_s"] is None and doc["sessions"][1]["error"] == "worker process died (NaN time)"
+    df = pd.read_parquet(pq_path)
+    assert list(df["name"]) == ["a", "b"] and list(df["status"]) == ["ok", "failed"]
+    assert df.loc[0, "acc.position.rms_h_m"] == 1.5 and df.loc[0, "timing.filter"] == 0.02
+    assert pd.isna(df.loc[1, "acc.position.rms_h_m"])
+    assert b.key_accuracy_figures(res.results) == ["position.max_h_m", "position.rms_h_m", "n_fixes"]
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+@pytest.fixture
+def cli(monkeypatch):
+    from tpos_cli.cli.batch import batch
+
+    monkeypatch.setattr(b, "_default_process", fake_process)
+    monkeypatch.setattr(b, "current_fingerprint", fake_fingerprint)
+    app = typer.Typer()
+    app.command()(batch)
+    runner = CliRunner()
+    return lambda *args: runner.invoke(app, [str(a) for a in args])
+
+
+def test_cli_exit_codes_table_and_resume(tmp_path, cli):
+    make_sessions(tmp_path / "logs", {"good1": "ok", "broken": "invalid", "good2": "ok"})
+    out = tmp_path / "out"
+    r = cli(f"{tmp_path}/logs/*", "--out", out, "-j", "1", "--report")
+    assert r.exit_code == 1, r.output
+    assert "broken/imu.csv: column 'gyro_x', row 7: not a number" in r.output
+    assert "2 ok, 0 skipped, 1 failed" in r.output and "rms_h_m" in r.output
+    assert (out / "good1" / "summary.json").exists() and not (out / "broken").exists()
+    r = cli(f"{tmp_path}/logs/good*", "--out", out, "-j", "1")
+    assert r.exit_code == 0, r.output
+    assert "0 ok, 2 skipped, 0 failed" in r.output
+    assert json.loads((out / "batch.json").read_text())["counts"]["skipped"] == 2
+
+
+@pytest.mark.parametrize("args", [["nowhere/*", "--out", "o"], ["logs/*", "--out", "o", "--jobs", "0"], ["logs/*"]])
+def test_cli_bad_arguments_exit_2(tmp_path, cli, args, monkeypatch):
+    make_sessions(tmp_path / "logs", {"a": "ok"})
+    monkeypatch.chdir(tmp_path)
+    assert cli(*args).exit_code == 2
+    assert not (tmp_path / "o").exists()

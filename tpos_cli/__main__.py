@@ -1,0 +1,3 @@
+from tpos_cli.cli import main
+
+main()

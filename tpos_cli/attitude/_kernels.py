@@ -1,0 +1,251 @@
+"""Compiled per-sample loops of the attitude local filters (paper 000 Eq. 16-26).
+
+Two models share this module:
+
+- `run_full`: error-state DCM filter valid at any roll. Nominal `C_nb` (FRD->NED) propagated by
+  Eq. 17-19 with the gyro; error state x = [phi (3, NED attitude error, C_true = exp(phi) C_hat),
+  gyro bias error (3)]; measurements are gravity (Eq. 5), magnetic heading (Eq. 8) and the exact
+  three-beam range differences (contract geometry behind Eq. 10). The same kernel runs backward in
+  time on reversed, negated gyro samples.
+- `run_paper8`: the paper's 8-state linear DCM filter (Eq. 16, 21-22) in its own RFU/ENU frames.
+
+Kalman algebra is `tpos_cli.filters.kalman` (Joseph form); nothing here re-implements it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from tpos_cli.filters.kalman import predict, update
+from tpos_cli.frames._kernels import orthonormalize, rotvec_to_dcm, skew
+
+# measurement kinds, bit flags in `use`
+USE_ACC = 1
+USE_MAG = 2
+USE_RANGE = 4
+
+
+@njit(cache=True)
+def _wrap(a):
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@njit(cache=True)
+def range_diff_model(C, n_wall, o2_b, o3_b):
+    """Predicted (d1-d2, d1-d3) and their Jacobian w.r.t. phi (2x3); beams along body x.
+
+    d_i = (D - n.C o_i) / (n.C e_x) for a plane n.p = D, so d1 - d_i = n.C o_i / n.C e_x.
+    With C = exp(phi) C_hat, d(n.C o)/dphi = (C o x n)^T.
+    """
+    u = C[:, 0]
+    c = n_wall @ u
+    p2 = C @ o2_b
+    p3 = C @ o3_b
+    a2 = n_wall @ p2
+    a3 = n_wall @ p3
+    h = np.empty(2)
+    h[0] = a2 / c
+    h[1] = a3 / c
+    du = np.cross(u, n_wall)
+    H = np.zeros((2, 3))
+    H[0, :] = np.cross(p2, n_wall) / c - a2 * du / (c * c)
+    H[1, :] = np.cross(p3, n_wall) / c - a3 * du / (c * c)
+    return h, H, c
+
+
+@njit(cache=True)
+def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
+             r_acc, acc_tol, gyro_tol, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
+             n_wall, o2_b, o3_b, r_rng, rng_gate,
+             out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
+    """Forward (or, on reversed inputs, backward) error-state attitude filter.
+
+    t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
+    `use` bit flags; C0 (3,3), bias0 (3,), P0 (6,6); w_ie_n, g_n (3,) NED Earth rate and
+    gravity; q_att rad^2 per sample, q_bias (rad/s)^2 per second; r_acc (m/s^2)^2;
+    acc_tol m/s^2 and gyro_tol rad/s define "quasi-static" for the gravity update;
+    r_mag_ut uT^2; decl rad; mag_ref (norm uT, dip rad); tolerances uT and rad
+    (mag_norm_tol <= 0 disables the check); n_wall (3,) NED unit wall normal; o2_b, o3_b (3,)
+    LR2/LR3 offsets FRD m; r_rng (2,2) m^2; rng_gate chi2(2) gate (<= 0: none).
+    Outputs are filled for each sample (the posterior after that sample).
+    """
+    N = t.shape[0]
+    C = C0.copy()
+    b = bias0.copy()
+    P = P0.copy()
+    x = np.zeros(6)
+    Phi = np.eye(6)
+    Qd = np.zeros((6, 6))
+    gnorm = np.sqrt(g_n @ g_n)
+    for k in range(N):
+        if k > 0:
+            dt = t[k] - t[k - 1]
+            w = gyro[k] - b - C.T @ w_ie_n  # Eq. 19: omega_nb = omega_ib - C_bn omega_ie
+            Phi[:, :] = np.eye(6)
+            Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + noise)
+            Qd[:, :] = 0.0
+            for i in range(3):
+                Qd[i, i] = q_att
+                Qd[3 + i, 3 + i] = q_bias * abs(dt)
+            predict(x, P, Phi, Qd)
+            C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
+        out_nis_acc[k] = np.nan
+        out_nis_mag[k] = np.nan
+        out_nis_rng[k] = np.nan
+        out_mag_ok[k] = True
+        # gravity: f_b = C^T f_n with f_n = -g_n (Eq. 5)
+        if use & USE_ACC:
+            f = acc[k]
+            fn = np.sqrt(f @ f)
+            wg = gyro[k] - b
+            if abs(fn - gnorm) < acc_tol and np.sqrt(wg @ wg) < gyro_tol:
+                f_n = -g_n
+                h = C.T @ f_n
+                H = np.zeros((3, 6))
+                H[:, 0:3] = C.T @ skew(f_n)
+                z = f - h
+                R = np.eye(3) * r_acc
+                x[:] = 0.0
+                out_nis_acc[k] = update(x, P, z, H, R)
+                C = rotvec_to_dcm(x[0:3]) @ C
+                b += x[3:6]
+                x[:] = 0.0
+        # magnetic heading (Eq. 8): azimuth of the levelled field is the declination
+        if use & USE_MAG:
+            m = mag[k]
+            if not np.isnan(m[0]):
+                v = C @ m
+                hn2 = v[0] * v[0] + v[1] * v[1]
+                mn = np.sqrt(m @ m)
+                dip = np.arctan2(v[2], np.sqrt(hn2))
+                ok = True
+                if mag_norm_tol > 0.0:
+                    if abs(mn - mag_ref[0]) > mag_norm_tol or abs(dip - mag_ref[1]) > mag_dip_tol:
+                        ok = False
+                out_mag_ok[k] = ok
+                if ok and hn2 > 1e-6:
+                    az = np.arctan2(v[1], v[0])
+                    H = np.zeros((1, 6))
+                    H[0, 0] = -v[0] * v[2] / hn2
+                    H[0, 1] = -v[1] * v[2] / hn2
+                    H[0, 2] = 1.0
+                    z = np.empty(1)
+                    z[0] = _wrap(decl - az)
+                    R = np.empty((1, 1))
+                    R[0, 0] = r_mag_ut / hn2
+                    x[:] = 0.0
+                    out_nis_mag[k] = update(x, P, z, H, R)
+                    C = rotvec_to_dcm(x[0:3]) @ C
+                    b += x[3:6]
+                    x[:] = 0.0
+        # three-beam range differences (exact plane geometry)
+        if use & USE_RANGE:
+            if not (np.isnan(rdiff[k, 0]) or np.isnan(rdiff[k, 1])):
+                hr, Hr, c = range_diff_model(C, n_wall, o2_b, o3_b)
+                if c > 0.2:
+                    H = np.zeros((2, 6))
+                    H[:, 0:3] = Hr
+                    z = rdiff[k] - hr
+                    S = Hr @ P[0:3, 0:3] @ Hr.T + r_rng
+                    nis = z @ np.linalg.solve(S, z)
+                    out_nis_rng[k] = nis
+                    if rng_gate <= 0.0 or nis < rng_gate:
+                        x[:] = 0.0
+                        update(x, P, z, H, r_rng)
+                        C = rotvec_to_dcm(x[0:3]) @ C
+                        b += x[3:6]
+                        x[:] = 0.0
+        C = orthonormalize(C)
+        out_C[k] = C
+        out_P[k] = P
+        out_bias[k] = b
+
+
+@njit(cache=True)
+def _paper8_F(w):
+    """Eq. 21 system matrix: rows of C obey d(row)/dt = row x omega (from Eq. 17)."""
+    F = np.zeros((8, 8))
+    Wt = -skew(w)  # d(row)/dt = -[w x] row
+    F[0:3, 0:3] = Wt
+    F[3:6, 3:6] = Wt
+    F[6, 7] = w[0]  # dC32/dt = w_x C33 (C31 = 0 without roll)
+    F[7, 6] = -w[0]  # dC33/dt = -w_x C32
+    return F
+
+
+@njit(cache=True)
+def paper8_obs(theta, psi):
+    """Eq. 22 observation vector: the 8 DCM elements of Eq. 16 from pitch and yaw (ENU/RFU)."""
+    z = np.empty(8)
+    z[0] = np.cos(psi)
+    z[1] = np.cos(theta) * np.sin(psi)
+    z[2] = -np.sin(theta) * np.sin(psi)
+    z[3] = -np.sin(psi)
+    z[4] = np.cos(theta) * np.cos(psi)
+    z[5] = -np.sin(theta) * np.cos(psi)
+    z[6] = np.sin(theta)
+    z[7] = np.cos(theta)
+    return z
+
+
+@njit(cache=True)
+def paper8_obs_jac(theta, psi):
+    """d z / d(theta, psi), (8, 2)."""
+    J = np.zeros((8, 2))
+    st, ct, sp, cp = np.sin(theta), np.cos(theta), np.sin(psi), np.cos(psi)
+    J[0, 1] = -sp
+    J[1, 0] = -st * sp
+    J[1, 1] = ct * cp
+    J[2, 0] = -ct * sp
+    J[2, 1] = -st * cp
+    J[3, 1] = -cp
+    J[4, 0] = -st * cp
+    J[4, 1] = -ct * sp
+    J[5, 0] = -ct * cp
+    J[5, 1] = st * sp
+    J[6, 0] = ct
+    J[7, 0] = -st
+    return J
+
+
+@njit(cache=True)
+def run_paper8(t, gyro_rfu, obs, obs_var, x0, P0, w_ie_enu, q_elem, r_floor, gate,
+               out_x, out_P, out_nis):
+    """Paper 000 Eq. 21-26 with H = I8; obs (N,2) = (theta, psi) rad per sample (NaN = none).
+
+    obs_var (N,2) rad^2; R = J diag(obs_var) J^T + r_floor I (the floor stands for the
+    linearization of the rank-2 map (theta, psi) -> 8 elements, which the paper's R ignores).
+    q_elem: process noise per element per sample. gate <= 0: no innovation gate.
+    """
+    N = t.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    H = np.eye(8)
+    Qd = np.eye(8) * q_elem
+    for k in range(N):
+        if k > 0:
+            dt = t[k] - t[k - 1]
+            C = np.zeros((3, 3))
+            C[0, :] = x[0:3]
+            C[1, :] = x[3:6]
+            C[2, 1] = x[6]
+            C[2, 2] = x[7]
+            w = gyro_rfu[k] - C.T @ w_ie_enu  # Eq. 19
+            F = _paper8_F(w)
+            Fdt = F * dt
+            Phi = np.eye(8) + Fdt + 0.5 * (Fdt @ Fdt)
+            predict(x, P, Phi, Qd)
+        out_nis[k] = np.nan
+        if not (np.isnan(obs[k, 0]) or np.isnan(obs[k, 1])):
+            z = paper8_obs(obs[k, 0], obs[k, 1])
+            J = paper8_obs_jac(obs[k, 0], obs[k, 1])
+            R = J @ np.diag(obs_var[k]) @ J.T + np.eye(8) * r_floor
+            nu = z - x
+            S = P + R
+            nis = nu @ np.linalg.solve(S, nu)
+            out_nis[k] = nis
+            if gate <= 0.0 or nis < gate:
+                update(x, P, z, H, R)
+        out_x[k] = x
+        out_P[k] = P

@@ -1,0 +1,266 @@
+"""Local attitude filters of paper 000 (Sect. 5.1): gyro-only, LF1 (acc/mag) and LF2 (three LRs).
+
+`model = "full"` (default) is an error-state DCM filter valid at any roll; `model = "paper8"` is
+the paper's 8-state simplified DCM filter (Eq. 16, 21-22), which assumes zero roll. Both return an
+`AttitudeSolution` with `C_nb` (FRD->NED) and the NED attitude-error covariance `P_att`
+(C_true = exp(phi) C_hat), so the master filter and the targeting code see one interface.
+The upper-bounding of Eq. 23 (P0/beta, Q/beta) is applied by the caller through `beta`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tpos_cli.attitude import _kernels as K
+from tpos_cli.frames import earth
+from tpos_cli.frames.rotation import axes_to_dcm, dcm_to_euler
+
+# C_bs for the paper's RFU body axes, and the fixed ENU->NED swap: the one place where the
+# paper's frames meet the package's (docs/architecture.md).
+C_FRD_RFU = axes_to_dcm("RFU")
+C_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+@dataclass(frozen=True)
+class FilterNoise:
+    """Sensor noise in SI units: per-sample white noise SDs and the initial gyro-bias SD."""
+
+    gyro_noise_rps: float
+    gyro_bias_rps: float
+    gyro_bias_rw_rps_rts: float
+    acc_noise_mps2: float
+    mag_noise_ut: float
+    range_sigma_m: float
+
+
+@dataclass(frozen=True)
+class FilterSetup:
+    """Everything a local filter needs besides the samples.
+
+    lat_rad, h_m: observer position (Earth rate and gravity). C0 (3,3), bias0_rps (3,),
+    P0 (6,6) initial state (attitude error NED rad^2, gyro bias (rad/s)^2). beta: Eq. 23-24
+    information share. mag_ref = (norm uT, dip rad) of the undisturbed field; wall_n_ned (3,)
+    unit normal of the wall the beams hit; baselines in m (contract `[rangefinders]`).
+    """
+
+    lat_rad: float
+    h_m: float
+    C0: np.ndarray
+    bias0_rps: np.ndarray
+    P0: np.ndarray
+    noise: FilterNoise
+    declination_rad: float = 0.0
+    mag_ref: tuple[float, float] = (0.0, 0.0)
+    mag_norm_tol_ut: float = 0.0  # <= 0: no magnetic fault gating inside LF1
+    mag_dip_tol_rad: float = np.radians(5.0)
+    acc_static_tol_mps2: float = 0.5
+    gyro_static_tol_rps: float = np.radians(90.0)
+    wall_n_ned: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
+    baseline_12_m: float = 0.2
+    baseline_13_m: float = 0.2
+    range_gate_chi2: float = 0.0
+    beta: float = 1.0
+
+
+@dataclass(frozen=True)
+class AttitudeSolution:
+    """One attitude solution over the IMU samples.
+
+    C_nb (N,3,3) FRD->NED; P_att (N,3,3) rad^2 NED error covariance; bias_rps (N,3) or None;
+    nis: {"acc"|"mag"|"range"|"obs": (N,) NaN where no update}; mag_ok (N,) bool or None.
+    """
+
+    name: str
+    t_s: np.ndarray
+    C_nb: np.ndarray
+    P_att: np.ndarray
+    bias_rps: np.ndarray | None = None
+    nis: dict = field(default_factory=dict)
+    mag_ok: np.ndarray | None = None
+    x8: np.ndarray | None = None  # paper8 model only: the 8 DCM states (N,8) and covariance
+    P8: np.ndarray | None = None
+
+    def euler_deg(self):
+        """(N,3) roll, pitch, yaw in degrees, yaw in [0, 360)."""
+        r, p, y = dcm_to_euler(self.C_nb)
+        out = np.degrees(np.stack([r, p, y], axis=-1))
+        out[:, 2] %= 360.0
+        return out
+
+    def euler_sigma_deg(self):
+        """(N,3) SD of roll, pitch, yaw (deg) from P_att (phi = M d(roll, pitch, yaw))."""
+        return euler_sigma_deg(self.C_nb, self.P_att)
+
+
+def euler_sigma_deg(C_nb, P_att):
+    """SD of roll, pitch, yaw (deg) for NED attitude-error covariances P_att (N,3,3).
+
+    phi = d_yaw e_D + d_pitch Rz(yaw) e_E + d_roll C_nb e_x, so d_euler = M^-1 phi.
+    """
+    _, _, yaw = dcm_to_euler(C_nb)
+    M = np.zeros(C_nb.shape)
+    M[:, :, 0] = C_nb[:, :, 0]
+    M[:, 0, 1] = -np.sin(yaw)
+    M[:, 1, 1] = np.cos(yaw)
+    M[:, 2, 2] = 1.0
+    Mi = np.linalg.inv(M)
+    cov = Mi @ P_att @ np.swapaxes(Mi, 1, 2)
+    return np.degrees(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None)))
+
+
+def range_differences(t_imu_s, t_rng_s, range_m):
+    """(N,2) d1-d2, d1-d3 attached to the first IMU sample at or after each range sample.
+
+    NaN where no return (any of the three beams missing) or no range sample in the interval.
+    """
+    out = np.full((t_imu_s.size, 2), np.nan)
+    if t_rng_s is None or len(t_rng_s) == 0:
+        return out
+    r = np.asarray(range_m, dtype=float)
+    idx = np.searchsorted(t_imu_s, t_rng_s, side="left")
+    keep = idx < t_imu_s.size
+    d = np.stack([r[:, 0] - r[:, 1], r[:, 0] - r[:, 2]], axis=-1)
+    out[idx[keep]] = d[keep]
+    return out
+
+
+def _nav_vectors(setup: FilterSetup):
+    w_ie = earth.earth_rate_ned_rps(setup.lat_rad)
+    g_n = earth.gravity_ned_mps2(setup.lat_rad, setup.h_m)
+    return np.ascontiguousarray(w_ie, dtype=float), np.ascontiguousarray(g_n, dtype=float)
+
+
+def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: FilterSetup, use: int,
+             backward: bool = False) -> AttitudeSolution:
+    """Run the full-attitude error-state local filter (forward, or backward in time).
+
+    `use` is a combination of `_kernels.USE_ACC | USE_MAG | USE_RANGE` (0: gyro only).
+    Backward: the same kernel on time-reversed samples with negated rates (the rate of row k
+    covers (t_{k-1}, t_k], so it moves one row when reversed); `setup.C0`, `bias0_rps` are then
+    the state at the LAST sample.
+    """
+    n = t_s.size
+    noise = setup.noise
+    w_ie, g_n = _nav_vectors(setup)
+    mag = np.full((n, 3), np.nan) if mag_b_ut is None else np.asarray(mag_b_ut, dtype=float)
+    rd = np.full((n, 2), np.nan) if rdiff_m is None else np.asarray(rdiff_m, dtype=float)
+    gyro = np.asarray(gyro_b_rps, dtype=float)
+    acc = np.asarray(acc_b_mps2, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    bias0 = np.asarray(setup.bias0_rps, dtype=float)
+    if backward:
+        t = -t[::-1]
+        g = np.zeros_like(gyro)
+        g[1:] = -gyro[::-1][:-1]  # reversed interval j covers original (t_{N-1-j}, t_{N-j}]
+        gyro, acc, mag, rd = g, acc[::-1], mag[::-1], rd[::-1]
+        w_ie = -w_ie
+        bias0 = -bias0
+    beta = setup.beta
+    o2 = np.array([0.0, -setup.baseline_12_m, 0.0])  # LR2 left of LR1 (FRD y is right)
+    o3 = np.array([0.0, 0.0, setup.baseline_13_m])  # LR3 below LR1 (FRD z is down)
+    r_rng = noise.range_sigma_m**2 * np.array([[2.0, 1.0], [1.0, 2.0]])  # d1 shared by both
+    out_C = np.empty((n, 3, 3))
+    out_P = np.empty((n, 6, 6))
+    out_b = np.empty((n, 3))
+    nis_a, nis_m, nis_r = np.empty(n), np.empty(n), np.empty(n)
+    mag_ok = np.empty(n, dtype=np.bool_)
+    dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
+    K.run_full(
+        np.ascontiguousarray(t), np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
+        np.ascontiguousarray(mag), np.ascontiguousarray(rd), int(use),
+        np.ascontiguousarray(setup.C0, dtype=float), np.ascontiguousarray(bias0),
+        np.ascontiguousarray(setup.P0, dtype=float) / beta, w_ie, g_n,
+        (noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_bias_rw_rps_rts**2 / beta,
+        noise.acc_noise_mps2**2, setup.acc_static_tol_mps2, setup.gyro_static_tol_rps,
+        noise.mag_noise_ut**2, setup.declination_rad,
+        np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),
+        setup.mag_norm_tol_ut, setup.mag_dip_tol_rad,
+        np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3, r_rng, setup.range_gate_chi2,
+        out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok,
+    )
+    if backward:
+        out_C, out_P, out_b = out_C[::-1], out_P[::-1], -out_b[::-1]
+        nis_a, nis_m, nis_r, mag_ok = nis_a[::-1], nis_m[::-1], nis_r[::-1], mag_ok[::-1]
+    return AttitudeSolution(
+        name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(out_C),
+        P_att=np.ascontiguousarray(out_P[:, 0:3, 0:3]), bias_rps=out_b,
+        nis={"acc": nis_a, "mag": nis_m, "range": nis_r},
+        mag_ok=mag_ok if (use & K.USE_MAG) else None,
+    )
+
+
+# ---------------------------------------------------------------- paper's 8-state model
+
+
+def paper_dcm_from_frd(C_nb):
+    """Paper's C_b^n (RFU body -> ENU nav, Eq. 16) from the package's C_nb (FRD -> NED)."""
+    return C_NED_ENU.T @ C_nb @ C_FRD_RFU
+
+
+def frd_from_paper_dcm(C_p):
+    """Package C_nb (FRD -> NED) from the paper's C_b^n (RFU -> ENU), projected onto SO(3)."""
+    U, _, Vt = np.linalg.svd(C_p)
+    D = np.ones(C_p.shape[:-1])
+    D[..., 2] = np.sign(np.linalg.det(U @ Vt))
+    R = (U * D[..., None, :]) @ Vt
+    return C_NED_ENU @ R @ C_FRD_RFU.T
+
+
+def run_paper8(name, t_s, gyro_b_rps, pitch_yaw_obs_rad, obs_var_rad2, setup: FilterSetup,
+               q_elem: float | None = None, r_floor: float = 1e-8, gate: float = 0.0) -> AttitudeSolution:
+    """Paper 000 8-state DCM filter (Eq. 16, 21-26) from per-sample (pitch, yaw) observations.
+
+    pitch_yaw_obs_rad (N,2): Eq. 9 (LF1) or Eq. 15 (LF2) angles, NaN where no observation;
+    obs_var_rad2 (N,2). Returns P_att mapped to the NED attitude-error form (pitch/yaw only;
+    roll is not a state of this model and gets the variance of its initial value).
+    """
+    n = t_s.size
+    noise = setup.noise
+    w_ie, _ = _nav_vectors(setup)
+    w_ie_enu = C_NED_ENU.T @ w_ie
+    gyro_rfu = np.asarray(gyro_b_rps, dtype=float) @ C_FRD_RFU  # v_rfu = C_bs^T v_frd
+    Cp0 = paper_dcm_from_frd(np.asarray(setup.C0, dtype=float))
+    x0 = np.array([Cp0[0, 0], Cp0[0, 1], Cp0[0, 2], Cp0[1, 0], Cp0[1, 1], Cp0[1, 2], Cp0[2, 1], Cp0[2, 2]])
+    dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
+    if q_elem is None:
+        # element noise of a rotation error of the per-sample gyro noise plus the bias growth
+        q_elem = (noise.gyro_noise_rps * dt_mean) ** 2 + (noise.gyro_bias_rps * dt_mean) ** 2
+    var_att0 = float(np.max(np.diag(setup.P0)[0:3]))
+    P0 = np.eye(8) * var_att0 / setup.beta
+    out_x = np.empty((n, 8))
+    out_P = np.empty((n, 8, 8))
+    nis = np.empty(n)
+    K.run_paper8(np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(gyro_rfu),
+                 np.ascontiguousarray(pitch_yaw_obs_rad, dtype=float),
+                 np.ascontiguousarray(obs_var_rad2, dtype=float), x0, P0, w_ie_enu,
+                 q_elem / setup.beta, r_floor, gate, out_x, out_P, nis)
+    return paper8_solution(name, t_s, out_x, out_P, nis)
+
+
+def paper8_solution(name, t_s, x8, P8, nis=None) -> AttitudeSolution:
+    """Wrap 8-state estimates (N,8), (N,8,8) as an AttitudeSolution (C projected onto SO(3))."""
+    n = x8.shape[0]
+    Cp = np.zeros((n, 3, 3))
+    Cp[:, 0, :] = x8[:, 0:3]
+    Cp[:, 1, :] = x8[:, 3:6]
+    Cp[:, 2, 1] = x8[:, 6]
+    Cp[:, 2, 2] = x8[:, 7]
+    Cp[:, 2, 0] = 0.0
+    C_nb = frd_from_paper_dcm(Cp)
+    # pitch/yaw variances from the second column (C12, C22, C32) = (s_psi c_th, c_psi c_th, s_th)
+    th = np.arcsin(np.clip(x8[:, 6], -1, 1))
+    var_th = P8[:, 6, 6] / np.maximum(np.cos(th) ** 2, 1e-6)
+    var_psi = (P8[:, 1, 1] + P8[:, 4, 4]) / np.maximum(2.0 * np.cos(th) ** 2, 1e-6)
+    _, _, yaw = dcm_to_euler(C_nb)
+    P_att = np.zeros((n, 3, 3))
+    # phi = d_pitch (-sin yaw, cos yaw, 0) + d_yaw e_D (+ roll along the beam, taken as pitch-like)
+    e = np.stack([-np.sin(yaw), np.cos(yaw), np.zeros(n)], axis=-1)
+    P_att += var_th[:, None, None] * (e[:, :, None] * e[:, None, :])
+    P_att[:, 2, 2] += var_psi
+    bx = C_nb[:, :, 0]
+    P_att += var_th[:, None, None] * (bx[:, :, None] * bx[:, None, :])
+    return AttitudeSolution(name=name, t_s=np.asarray(t_s, dtype=float), C_nb=C_nb, P_att=P_att,
+                            nis={"obs": nis if nis is not None else np.full(n, np.nan)},
+                            x8=x8, P8=P8)

@@ -1,0 +1,1 @@
+"""Processing chains: one module per pipeline chain, each exposing `run(session, params, ctx)`."""

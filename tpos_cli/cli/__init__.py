@@ -1,0 +1,46 @@
+"""The `tpos` command line: thin Typer commands over the library; exit codes 0 / 1 / 2.
+
+Each command lives in its own module and is registered below with one line.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from tpos_cli.cli import inspect as _inspect
+from tpos_cli.cli import pipelines as _pipelines
+from tpos_cli.cli import process as _process
+from tpos_cli.cli import validate as _validate
+
+app = typer.Typer(
+    name="tpos",
+    help="Post-process navigation logs from low-cost sensors (MEMS IMU, laser rangefinders, GPS-WAAS, "
+    "ranging anchors) into attitude, trajectory and target positions with an honest accuracy report.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+app.command("validate")(_validate.validate)
+app.command("inspect")(_inspect.inspect)
+app.command("process")(_process.process)
+app.command("pipelines")(_pipelines.pipelines)
+
+
+def main() -> None:
+    """Console-script entry point: a one-line message and exit code 1 for an unexpected failure."""
+    try:
+        app()
+    except SystemExit:
+        raise
+    except KeyboardInterrupt:
+        print("tpos: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except Exception as exc:  # a bug, not bad input: keep the traceback behind an opt-in
+        if os.environ.get("TPOS_DEBUG"):
+            raise
+        print(f"tpos: internal error: {type(exc).__name__}: {exc} (set TPOS_DEBUG=1 for the traceback)", file=sys.stderr)
+        sys.exit(1)

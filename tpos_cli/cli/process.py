@@ -1,0 +1,55 @@
+"""`tpos process`: run a pipeline on a session into a run directory."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import typer
+
+from tpos_cli.cli._common import exit_on_error, parse_window, show_progress
+
+
+def _parse_set(items: list[str]) -> dict:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise typer.BadParameter(f"expected section.key=value, got {item!r}", param_hint="--set")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = value.strip()  # a bare word is a string
+    return out
+
+
+def process(
+    session: Path = typer.Argument(..., help="Session directory (docs/log-format.md)."),
+    pipeline: str = typer.Option(None, "--pipeline", "-p", help="Pipeline name (see `tpos pipelines`) or a TOML file; default: the one for the session's kind."),
+    out: Path = typer.Option(None, "--out", "-o", help="Run directory; default runs/<session>-<pipeline>."),
+    mask_gps: list[str] = typer.Option([], "--mask-gps", help="Withhold GPS in T0:T1 (logger-clock seconds); repeatable. The withheld fixes go to RUN/withheld_gps.parquet for `tpos report`."),
+    set_: list[str] = typer.Option([], "--set", help="Override a pipeline parameter: section.key=value (TOML value); repeatable."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, only the final line."),
+) -> None:
+    """Process SESSION with a pipeline and write trajectory.parquet, targets.parquet (when aimed shots exist)
+    and summary.json into the run directory.
+
+    Outputs appear only when the run completes (written to a temporary directory, then renamed).
+    Exit code 0 means processing completed; it is NOT a claim of accuracy: read the warnings and
+    filter-health figures in summary.json and use `tpos report` against truth.
+
+    Example: tpos process sample_logs/drive_outage -o runs/drive --mask-gps 50:80
+    """
+    windows = [parse_window(w, "--mask-gps") for w in mask_gps]
+    overrides = _parse_set(set_)
+    from tpos_cli.pipeline import process_session
+
+    with exit_on_error():
+        res = process_session(session, pipeline, out, mask_gps_windows=windows, overrides=overrides,
+                              progress=show_progress(quiet))
+    s = res.summary
+    if not quiet:
+        for w in s["warnings"]:
+            typer.echo(f"warning: {w}")
+    typer.echo(f"{s['session']['name']}: {s['pipeline']} -> {res.run_dir} ({', '.join(s['outputs'])}) "
+               f"in {s['timings_s'].get('total', 0):.2f} s")

@@ -1,0 +1,1 @@
+"""Frames, rotations and the WGS-84 Earth model, shared by every pipeline."""

@@ -1,0 +1,111 @@
+"""Rotations: DCM, Euler angles, rotation vectors, quaternions, sensor-axes letters.
+
+Conventions: `C_nb` maps body (FRD) vectors to navigation (NED) vectors; Euler angles are
+roll, pitch, yaw in radians with `C_nb = Rz(yaw) @ Ry(pitch) @ Rx(roll)`. Quaternions are
+scalar-first `[w, x, y, z]`. The numpy API accepts single values or stacks with a leading axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+_AXIS_LETTERS = {
+    "F": (1.0, 0.0, 0.0),
+    "B": (-1.0, 0.0, 0.0),
+    "R": (0.0, 1.0, 0.0),
+    "L": (0.0, -1.0, 0.0),
+    "D": (0.0, 0.0, 1.0),
+    "U": (0.0, 0.0, -1.0),
+}
+
+
+def skew(v):
+    """Cross-product matrix [v x], shape (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def euler_to_dcm(roll_rad, pitch_rad, yaw_rad):
+    """C_nb from roll, pitch, yaw (rad): Rz(yaw) Ry(pitch) Rx(roll); shape (..., 3, 3)."""
+    r, p, y = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (roll_rad, pitch_rad, yaw_rad)))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    out = np.empty(r.shape + (3, 3))
+    out[..., 0, 0] = cp * cy
+    out[..., 0, 1] = -cr * sy + sr * sp * cy
+    out[..., 0, 2] = sr * sy + cr * sp * cy
+    out[..., 1, 0] = cp * sy
+    out[..., 1, 1] = cr * cy + sr * sp * sy
+    out[..., 1, 2] = -sr * cy + cr * sp * sy
+    out[..., 2, 0] = -sp
+    out[..., 2, 1] = sr * cp
+    out[..., 2, 2] = cr * cp
+    return out
+
+
+def dcm_to_euler(C_nb):
+    """(roll, pitch, yaw) in rad from C_nb, each shape (...); yaw in (-pi, pi]."""
+    C = np.asarray(C_nb, dtype=float)
+    roll = np.arctan2(C[..., 2, 1], C[..., 2, 2])
+    pitch = -np.arcsin(np.clip(C[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(C[..., 1, 0], C[..., 0, 0])
+    return roll, pitch, yaw
+
+
+def rotvec_to_dcm(rotvec):
+    """DCM of a rotation vector (axis times angle, rad), shape (..., 3, 3)."""
+    rv = np.asarray(rotvec, dtype=float)
+    return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
+
+
+def dcm_to_rotvec(C):
+    """Rotation vector (rad) of a DCM, shape (..., 3)."""
+    C = np.asarray(C, dtype=float)
+    return Rotation.from_matrix(C.reshape(-1, 3, 3)).as_rotvec().reshape(C.shape[:-2] + (3,))
+
+
+def quat_to_dcm(q):
+    """DCM from scalar-first unit quaternions, shape (..., 3, 3)."""
+    q = np.asarray(q, dtype=float)
+    xyzw = np.concatenate([q[..., 1:], q[..., :1]], axis=-1).reshape(-1, 4)
+    return Rotation.from_quat(xyzw).as_matrix().reshape(q.shape[:-1] + (3, 3))
+
+
+def dcm_to_quat(C):
+    """Scalar-first unit quaternions (w >= 0) from DCMs, shape (..., 4)."""
+    C = np.asarray(C, dtype=float)
+    xyzw = Rotation.from_matrix(C.reshape(-1, 3, 3)).as_quat(canonical=True)
+    return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1).reshape(C.shape[:-2] + (4,))
+
+
+def axes_to_dcm(axes: str):
+    """C_bs: maps a vector logged in the sensor axes named by `axes` to body FRD.
+
+    `axes` is three letters from F, B, R, L, U, D giving where the sensor's x, y, z point
+    (the contract's `[imu] axes`). Raises ValueError unless the letters name a right-handed frame.
+    """
+    if not isinstance(axes, str) or len(axes) != 3 or any(c not in _AXIS_LETTERS for c in axes.upper()):
+        raise ValueError(f"axes must be three letters from F, B, R, L, U, D, got {axes!r}")
+    C = np.array([_AXIS_LETTERS[c] for c in axes.upper()]).T
+    if not np.isclose(np.linalg.det(C), 1.0):
+        raise ValueError(
+            f"axes {axes!r} do not form a right-handed frame (repeated or opposite axes, or a mirror)"
+        )
+    return C
+
+
+def wrap_angle_rad(a):
+    """Wrap angles to (-pi, pi]."""
+    return -((-np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+def wrap_angle_deg(a):
+    """Wrap angles to (-180, 180]."""
+    return -((-np.asarray(a, dtype=float) + 180.0) % 360.0 - 180.0)

@@ -1,0 +1,140 @@
+"""Compiled INS/GPS loop: mechanize every IMU sample, predict at covariance epochs, update at fixes.
+
+The same kernel serves the forward run and the backward run (reversed arrays, earth_sign = -1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from tpos_cli.filters.kalman import discretize, nis_of, predict, update
+from tpos_cli.fusion.nav_errors import (
+    apply_feedback,
+    corrected_increments,
+    error_dynamics,
+    position_jacobian,
+    position_residual,
+    process_noise,
+    velocity_jacobian,
+    velocity_residual,
+)
+from tpos_cli.ins._kernels import mech_step
+
+
+@njit(cache=True)
+def insgps_kernel(
+    t, gyro, acc, nav0, C0, bias0, P0, q, tau_acc_s, tau_gyro_s, earth_sign, cov_step,
+    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate,
+    out_nav, out_C, out_bias,
+    ep_idx, ep_Phi, ep_Ppred, ep_Pfilt, ep_dx, store_rts,
+    innov, nis, accepted,
+):
+    """Closed-loop 15-state INS/GPS filter over a whole log (forward or reversed).
+
+    gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
+    position and velocity variances; NaN velocity -> position-only update. Gate: NIS above
+    gate[m] (m = measurement dimension) rejects the fix. Epochs (covariance steps) every
+    `cov_step` samples and at every fix; per epoch e: ep_idx[e], P_filt, dx (correction fed
+    back), and when store_rts also Phi (from epoch e-1) and P_pred. Returns (n_epochs, status):
+    status 0 ok, else 1 + sample index where an innovation covariance lost positive definiteness.
+    """
+    n = t.shape[0]
+    m_gps = gps_idx.shape[0]
+    nav = nav0.copy()
+    C = C0.copy()
+    bias = bias0.copy()
+    x = np.zeros(15)
+    P = P0.copy()
+    F = np.zeros((15, 15))
+    Qc = np.zeros((15, 15))
+    process_noise(q, Qc)
+    Phi = np.empty((15, 15))
+    Qd = np.empty((15, 15))
+    z = np.empty(6)
+    H = np.zeros((6, 15))
+    R = np.zeros((6, 6))
+    zp = np.empty(3)
+    zv = np.empty(3)
+    f_n = np.empty(3)
+    f_sum = np.zeros(3)
+    dth = np.empty(3)
+    dv = np.empty(3)
+    dth_prev = np.zeros(3)
+    dv_prev = np.zeros(3)
+    w_ib = np.zeros(3)
+    g = 0
+    while g < m_gps and gps_idx[g] < 1:  # fixes at or before the first sample are not used
+        g += 1
+    ep = 0
+    ep_idx[0] = 0
+    ep_Pfilt[0] = P
+    ep_dx[0] = 0.0
+    if store_rts:
+        ep_Phi[0] = np.eye(15)
+        ep_Ppred[0] = P
+    out_nav[0] = nav
+    out_C[0] = C
+    out_bias[0] = bias
+    last = 0
+    dt_sum = 0.0
+    status = 0
+    for k in range(1, n):
+        dt = t[k] - t[k - 1]
+        corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
+        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
+        for i in range(3):
+            dth_prev[i] = dth[i]
+            dv_prev[i] = dv[i]
+            f_sum[i] += f_n[i] * dt
+            w_ib[i] = dth[i] / dt
+        dt_sum += dt
+        is_fix = g < m_gps and gps_idx[g] == k
+        if is_fix or k - last >= cov_step or k == n - 1:
+            error_dynamics(nav, C, f_sum / dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F)
+            discretize(F, Qc, dt_sum, Phi, Qd)
+            predict(x, P, Phi, Qd)
+            ep += 1
+            ep_idx[ep] = k
+            if store_rts:
+                ep_Phi[ep] = Phi
+                ep_Ppred[ep] = P
+            while g < m_gps and gps_idx[g] == k:
+                position_residual(nav, C, lever_b, gps_pos[g], gps_lag[g], zp)
+                has_vel = not np.isnan(gps_vel[g, 0])
+                m = 6 if has_vel else 3
+                Hm = H[:m]
+                position_jacobian(nav, C, lever_b, gps_lag[g], H, 0)
+                Rm = np.zeros((m, m))
+                zm = np.empty(m)
+                for i in range(3):
+                    zm[i] = zp[i]
+                    Rm[i, i] = gps_var[g, i]
+                if has_vel:
+                    velocity_residual(nav, C, lever_b, w_ib, gps_vel[g], zv)
+                    velocity_jacobian(C, lever_b, w_ib, H, 3)
+                    for i in range(3):
+                        zm[3 + i] = zv[i]
+                        Rm[3 + i, 3 + i] = gps_var[g, 3 + i]
+                for i in range(m):
+                    innov[g, i] = zm[i]
+                s = nis_of(x, P, zm, Hm, Rm)
+                nis[g] = s
+                if s <= gate[m]:
+                    r = update(x, P, zm, Hm, Rm)
+                    if r < 0.0:
+                        status = 1 + k
+                        return ep + 1, status
+                    accepted[g] = True
+                g += 1
+            apply_feedback(nav, C, bias, x)
+            ep_dx[ep] = x
+            x[:] = 0.0
+            ep_Pfilt[ep] = P
+            last = k
+            f_sum[:] = 0.0
+            dt_sum = 0.0
+        out_nav[k] = nav
+        out_C[k] = C
+        out_bias[k] = bias
+    return ep + 1, status

@@ -1,0 +1,201 @@
+"""15-state INS error model (paper 003 Eq. 6-10, 15), its feedback, and GPS measurement rows (Eq. 11-12).
+
+Errors are estimate minus truth, position in NED metres (paper 003 uses lat/lon radians and
+rescales in H, Eq. 11; metres make H = I and need no rescaling). The paper's F_INS (Eq. 15) is
+partly garbled in the text; the blocks here follow the standard psi-angle NED model
+(Titterton & Weston 2004, Eq. 12.47-12.49; Groves 2013, Eq. 14.64-14.71) that it transcribes:
+    dp' = dv
+    dv' = [f_n x] phi - C dba - [(2 w_ie + w_en) x] dv + [v x] M dv + (2 g / R) dp_d e_d
+    phi' = -[w_in x] phi + M dv + C dbg
+    dba' = -dba / tau_acc,   dbg' = -dbg / tau_gyro      (first-order Gauss-Markov)
+with M = d(w_en)/d(v). Terms of order w_ie * v / R in position are dropped (below 1e-9 /s).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm
+from tpos_cli.frames.earth import OMEGA_IE_RPS
+from tpos_cli.fusion.layout import ATT, BA, BG, POS, VEL
+from tpos_cli.ins._kernels import cross
+
+
+@njit(cache=True)
+def corrected_increments(gyro_k, acc_k, bias, dt, dtheta, dv):
+    """Bias-corrected increments over one IMU interval, in place: bias = [acc (3), gyro (3)]."""
+    for i in range(3):
+        dv[i] = (acc_k[i] - bias[i]) * dt
+        dtheta[i] = (gyro_k[i] - bias[3 + i]) * dt
+
+
+@njit(cache=True)
+def error_dynamics(nav, C, f_n, earth_sign, tau_acc_s, tau_gyro_s, F):
+    """Write the 15x15 error dynamics into F[:15, :15] (other entries untouched).
+
+    nav (6,), C (3, 3) nominal; f_n (3,) mean specific force in NED over the step;
+    tau <= 0 means a random-walk bias (no decay).
+    """
+    lat, h = nav[0], nav[2]
+    vn, ve, vd = nav[3], nav[4], nav[5]
+    rn, re = radii_m(lat)
+    rn += h
+    re += h
+    tl = np.tan(lat)
+    w_ie = np.zeros(3)
+    w_ie[0] = earth_sign * OMEGA_IE_RPS * np.cos(lat)
+    w_ie[2] = -earth_sign * OMEGA_IE_RPS * np.sin(lat)
+    w_en = np.empty(3)
+    w_en[0] = ve / re
+    w_en[1] = -vn / rn
+    w_en[2] = -ve * tl / re
+    M = np.zeros((3, 3))  # d(w_en)/d(v)
+    M[0, 1] = 1.0 / re
+    M[1, 0] = -1.0 / rn
+    M[2, 1] = -tl / re
+    for i in range(15):
+        for j in range(15):
+            F[i, j] = 0.0
+    for i in range(3):
+        F[POS + i, VEL + i] = 1.0
+    a = 2.0 * w_ie + w_en
+    v = nav[3:6]
+    vxM = np.empty((3, 3))
+    for j in range(3):
+        vxM[:, j] = cross(v, M[:, j])
+    w_in = w_ie + w_en
+    for i in range(3):
+        for j in range(3):
+            F[VEL + i, BA + j] = -C[i, j]
+            F[ATT + i, BG + j] = C[i, j]
+            F[VEL + i, VEL + j] = vxM[i, j]
+            F[ATT + i, VEL + j] = M[i, j]
+    # [f_n x], -[a x], -[w_in x]
+    F[VEL + 0, ATT + 1] += -f_n[2]
+    F[VEL + 0, ATT + 2] += f_n[1]
+    F[VEL + 1, ATT + 0] += f_n[2]
+    F[VEL + 1, ATT + 2] += -f_n[0]
+    F[VEL + 2, ATT + 0] += -f_n[1]
+    F[VEL + 2, ATT + 1] += f_n[0]
+    F[VEL + 0, VEL + 1] += a[2]
+    F[VEL + 0, VEL + 2] += -a[1]
+    F[VEL + 1, VEL + 0] += -a[2]
+    F[VEL + 1, VEL + 2] += a[0]
+    F[VEL + 2, VEL + 0] += a[1]
+    F[VEL + 2, VEL + 1] += -a[0]
+    F[ATT + 0, ATT + 1] = w_in[2]
+    F[ATT + 0, ATT + 2] = -w_in[1]
+    F[ATT + 1, ATT + 0] = -w_in[2]
+    F[ATT + 1, ATT + 2] = w_in[0]
+    F[ATT + 2, ATT + 0] = w_in[1]
+    F[ATT + 2, ATT + 1] = -w_in[0]
+    F[VEL + 2, POS + 2] = 2.0 * normal_gravity(lat, h) / np.sqrt(rn * re)  # gravity gradient
+    for i in range(3):
+        if tau_acc_s > 0.0:
+            F[BA + i, BA + i] = -1.0 / tau_acc_s
+        if tau_gyro_s > 0.0:
+            F[BG + i, BG + i] = -1.0 / tau_gyro_s
+
+
+@njit(cache=True)
+def process_noise(q, Qc):
+    """Continuous noise PSDs on the diagonal of Qc[:15, :15] (paper Eq. 9-10, isotropic sensors,
+    so G Q G^T needs no C). q = [acc white (m/s^2)^2 s, gyro white rad^2/s, acc bias drive,
+    gyro bias drive]."""
+    for i in range(3):
+        Qc[VEL + i, VEL + i] = q[0]
+        Qc[ATT + i, ATT + i] = q[1]
+        Qc[BA + i, BA + i] = q[2]
+        Qc[BG + i, BG + i] = q[3]
+
+
+@njit(cache=True)
+def apply_feedback(nav, C, bias, x):
+    """Feed the error estimate x[:15] back into the nominal state and biases, in place (closed loop)."""
+    lat, h = nav[0], nav[2]
+    rn, re = radii_m(lat)
+    nav[0] = lat - x[POS] / (rn + h)
+    nav[1] = nav[1] - x[POS + 1] / ((re + h) * np.cos(lat))
+    nav[2] = h + x[POS + 2]
+    for i in range(3):
+        nav[3 + i] -= x[VEL + i]
+        bias[i] -= x[BA + i]
+        bias[3 + i] -= x[BG + i]
+    phi = x[ATT : ATT + 3].copy()
+    C[:, :] = rotvec_to_dcm(phi) @ C  # C_true = (I + [phi x]) C_est, exactly as a rotation
+
+
+@njit(cache=True)
+def position_residual(nav, C, lever_b, lla_rad, lag_s, z):
+    """z = INS antenna position at the fix time - fix, NED metres (paper Eq. 12, lever arm added).
+
+    lag_s = t_nominal - t_fix: the nominal is moved back along its velocity to the fix time.
+    """
+    lat, h = nav[0], nav[2]
+    rn, re = radii_m(lat)
+    Cl = C @ lever_b
+    z[0] = (lat - lla_rad[0]) * (rn + h) + Cl[0] - nav[3] * lag_s
+    z[1] = (nav[1] - lla_rad[1]) * (re + h) * np.cos(lat) + Cl[1] - nav[4] * lag_s
+    z[2] = (lla_rad[2] - h) + Cl[2] - nav[5] * lag_s
+
+
+@njit(cache=True)
+def position_jacobian(nav, C, lever_b, lag_s, H, row):
+    """H rows row..row+2 for `position_residual` (clears the first 15 columns of those rows)."""
+    Cl = C @ lever_b
+    for i in range(3):
+        for j in range(15):
+            H[row + i, j] = 0.0
+        H[row + i, POS + i] = 1.0
+        H[row + i, VEL + i] = -lag_s
+    # C_est l - C_true l = [(C l) x] phi
+    H[row + 0, ATT + 1] = -Cl[2]
+    H[row + 0, ATT + 2] = Cl[1]
+    H[row + 1, ATT + 0] = Cl[2]
+    H[row + 1, ATT + 2] = -Cl[0]
+    H[row + 2, ATT + 0] = -Cl[1]
+    H[row + 2, ATT + 1] = Cl[0]
+
+
+@njit(cache=True)
+def velocity_residual(nav, C, lever_b, w_ib_b, vel_ned, z):
+    """z = INS antenna velocity - GPS velocity, m/s (paper Eq. 12)."""
+    u = C @ cross(w_ib_b, lever_b)
+    for i in range(3):
+        z[i] = nav[3 + i] + u[i] - vel_ned[i]
+
+
+@njit(cache=True)
+def velocity_jacobian(C, lever_b, w_ib_b, H, row):
+    """H rows row..row+2 for `velocity_residual`."""
+    u = C @ cross(w_ib_b, lever_b)
+    Cl = np.empty((3, 3))  # C [l x]
+    L = np.zeros((3, 3))
+    L[0, 1] = -lever_b[2]
+    L[0, 2] = lever_b[1]
+    L[1, 0] = lever_b[2]
+    L[1, 2] = -lever_b[0]
+    L[2, 0] = -lever_b[1]
+    L[2, 1] = lever_b[0]
+    Cl[:, :] = C @ L
+    for i in range(3):
+        for j in range(15):
+            H[row + i, j] = 0.0
+        H[row + i, VEL + i] = 1.0
+        for j in range(3):
+            H[row + i, BG + j] = Cl[i, j]
+    H[row + 0, ATT + 1] = -u[2]
+    H[row + 0, ATT + 2] = u[1]
+    H[row + 1, ATT + 0] = u[2]
+    H[row + 1, ATT + 2] = -u[0]
+    H[row + 2, ATT + 0] = -u[1]
+    H[row + 2, ATT + 1] = u[0]
+
+
+def backward_sign() -> np.ndarray:
+    """(15,) signs mapping a backward-run error state to forward-time errors: velocity and gyro bias flip."""
+    s = np.ones(15)
+    s[VEL : VEL + 3] = -1.0
+    s[BG : BG + 3] = -1.0
+    return s

@@ -1,0 +1,65 @@
+"""A plain-data description of a loaded session, for `tpos inspect` (table and --json)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tpos_cli.session import Session
+
+
+def _rate(t: np.ndarray) -> float | None:
+    if t.size < 2 or t[-1] <= t[0]:
+        return None
+    return float(1.0 / np.median(np.diff(np.unique(t))))
+
+
+def describe_session(s: Session) -> dict:
+    """Files, rows, spans, measured rates, gaps, outages, counts and warnings of a session."""
+    t0 = s.t0_s
+    tables: dict[str, dict] = {}
+    imu = s.imu
+    tables["imu"] = {"rows": int(imu.t_s.size), "span_s": float(imu.t_s[-1] - imu.t_s[0]), "rate_hz": _rate(imu.t_s),
+                     "notes": f"axes {s.meta.axes}, nominal {s.meta.rate_hz:g} Hz" + (", magnetometer" if imu.mag_b_ut is not None else "")}
+    if s.gps is not None:
+        g = s.gps
+        fixes = {str(k): int(v) for k, v in zip(*np.unique(g.fix, return_counts=True))}
+        tables["gps"] = {"rows": int(g.t_s.size), "span_s": float(g.t_s[-1] - g.t_s[0]) if g.t_s.size else 0.0,
+                         "rate_hz": _rate(g.t_s), "fix_counts": fixes,
+                         "has_velocity": bool(np.isfinite(g.vel_ned_mps).any()),
+                         "notes": "fix " + ", ".join(f"{k}: {v}" for k, v in fixes.items())}
+    if s.ranges is not None:
+        nan = (~np.isfinite(s.ranges.range_m)).sum(axis=0)
+        tables["ranges"] = {"rows": int(s.ranges.t_s.size), "span_s": float(np.ptp(s.ranges.t_s)), "rate_hz": _rate(s.ranges.t_s),
+                            "no_return": {f"d{i + 1}": int(n) for i, n in enumerate(nan)},
+                            "notes": "no return: " + ", ".join(f"d{i + 1} {int(n)}" for i, n in enumerate(nan))}
+    if s.anchors is not None:
+        tables["anchors"] = {"rows": len(s.anchors.ids), "ids": list(s.anchors.ids),
+                             "notes": "ids " + ", ".join(s.anchors.ids)}
+    if s.anchor_ranges is not None:
+        ar = s.anchor_ranges
+        per = {s.anchors.ids[i]: int(n) for i, n in zip(*np.unique(ar.anchor, return_counts=True))}
+        tables["anchor_ranges"] = {"rows": int(ar.t_s.size), "span_s": float(np.ptp(ar.t_s)), "rate_hz": _rate(ar.t_s),
+                                   "per_anchor": per, "notes": ", ".join(f"{k}: {v}" for k, v in per.items())}
+    if s.range_calibration is not None:
+        tables["range_calibration"] = {"rows": int(s.range_calibration.true_m.size)}
+    if s.targets is not None:
+        roles = {r or "(none)": s.targets.role.count(r) for r in set(s.targets.role)}
+        tables["targets"] = {"rows": len(s.targets.ids), "roles": roles, "notes": ", ".join(f"{k}: {v}" for k, v in roles.items())}
+    if s.shots is not None:
+        tables["shots"] = {"rows": len(s.shots.ids), "notes": f"{np.sum(s.shots.t_end_s - s.shots.t_start_s):.1f} s on points"}
+    if s.truth is not None:
+        tr = s.truth
+        has_att = bool(np.isfinite(tr.rpy_deg).any())
+        tables["truth"] = {"rows": int(tr.t_s.size), "span_s": float(np.ptp(tr.t_s)), "rate_hz": _rate(tr.t_s),
+                           "has_attitude": has_att, "nan_rows": int((~np.isfinite(tr.lla).all(axis=1)).sum()),
+                           "notes": ("attitude, " if has_att else "") + f"{int((~np.isfinite(tr.lla).all(axis=1)).sum())} rows without position"}
+    return {
+        "name": s.meta.name, "kind": s.meta.kind, "path": str(s.path), "t0": t0, "duration_s": s.t_end_s,
+        "start_utc": s.meta.start_utc.isoformat() if s.meta.start_utc else None,
+        "tables": tables,
+        "gps_outages": (s.gps_outages_s + t0).tolist(),
+        "imu_gaps": (s.imu_gaps_s + t0).tolist(),
+        "counts": dict(s.counts),
+        "warnings": list(s.warnings),
+        "file_hashes": dict(s.file_hashes),
+    }

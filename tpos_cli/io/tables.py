@@ -1,0 +1,158 @@
+"""Reading contract tables (CSV or Parquet) with one-line errors naming file, column and row.
+
+Rows are numbered from 1 over the data rows (the CSV header is not a row), so that CSV row r is
+line r + 1 of the file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from tpos_cli.errors import InvalidInputError
+
+
+@dataclass(frozen=True, slots=True)
+class Problem:
+    """One thing wrong with a session: where, and what."""
+
+    file: str
+    message: str
+    column: str | None = None
+    row: int | None = None
+
+    def __str__(self) -> str:
+        where = self.file
+        if self.column is not None:
+            where += f": column '{self.column}'"
+        if self.row is not None:
+            where += f", row {self.row}"
+        return f"{where}: {self.message}"
+
+
+def find_table(session_dir: Path, name: str, csv_only: bool = False) -> Path | None:
+    """Path of table `name` in a session (`name.csv` or `name.parquet`), None if absent."""
+    csv = session_dir / f"{name}.csv"
+    parquet = session_dir / f"{name}.parquet"
+    if not csv_only and csv.exists() and parquet.exists():
+        raise InvalidInputError(
+            f"{session_dir.name}/{name}.*: both {csv.name} and {parquet.name} exist; keep one",
+            [Problem(f"{name}.*", f"both {csv.name} and {parquet.name} exist; keep one")],
+        )
+    if csv.exists():
+        return csv
+    if not csv_only and parquet.exists():
+        return parquet
+    return None
+
+
+def _fail(path: Path, message: str, column: str | None = None, row: int | None = None):
+    p = Problem(path.name, message, column, row)
+    raise InvalidInputError(str(p), [p])
+
+
+def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (), required: tuple[str, ...] = ()) -> pd.DataFrame:
+    """Read a contract table; numeric columns become float64, text columns str (empty for missing).
+
+    Raises InvalidInputError for unreadable files, missing required columns, no data rows, a
+    truncated last line, and cells of numeric columns that are not numbers (first such row).
+    """
+    if path.suffix == ".parquet":
+        df = _read_parquet(path)
+    else:
+        df = _read_csv(path)
+    missing = [c for c in required if c not in df.columns]
+    if missing:
+        _fail(path, f"required column is missing (found: {', '.join(map(str, df.columns)) or 'none'})", missing[0])
+    if len(df) == 0:
+        _fail(path, "the table has a header but no data rows")
+    out = {}
+    for col in numeric:
+        if col in df.columns:
+            out[col] = _to_float(path, df[col], col)
+    for col in text:
+        if col in df.columns:
+            s = df[col]
+            out[col] = np.array(["" if (v is None or (isinstance(v, float) and np.isnan(v))) else str(v).strip() for v in s], dtype=object)
+    return pd.DataFrame(out)
+
+
+def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
+    if pd.api.types.is_bool_dtype(s.dtype):
+        _fail(path, f"boolean values where numbers are required", col, 1)
+    if pd.api.types.is_numeric_dtype(s.dtype):
+        return s.to_numpy(dtype=np.float64, na_value=np.nan)
+    raw = s.astype(object)
+    stripped = raw.map(lambda v: v.strip() if isinstance(v, str) else v)
+    conv = pd.to_numeric(stripped.replace("", np.nan), errors="coerce")
+    bad = conv.isna() & stripped.notna() & (stripped != "")
+    if bad.any():
+        i = int(np.flatnonzero(bad.to_numpy())[0])
+        _fail(path, f"{stripped.iloc[i]!r} is not a number", col, i + 1)
+    return conv.to_numpy(dtype=np.float64, na_value=np.nan)
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
+    return table.to_pandas()
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(65536)
+    except OSError as exc:
+        _fail(path, f"cannot be read ({exc.strerror})")
+    if not head.strip():
+        _fail(path, "the file is empty (no header, no data)")
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        if exc.start < len(head) - 4:  # not merely a character cut by the 64 KiB window
+            _fail(path, "not UTF-8 text (is it a binary or Parquet file named .csv?)")
+    header = head.split(b"\n", 1)[0].decode("utf-8", "replace").strip().lstrip("\ufeff")
+    if "," not in header:
+        for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "pipes")):
+            if sep in header:
+                _fail(path, f"the header is separated by {name}; the contract requires commas", row=None)
+    n_header = len(header.split(","))
+    try:
+        df = pd.read_csv(path, dtype=None, keep_default_na=True, na_values=[""], skipinitialspace=True, encoding="utf-8-sig")
+    except pd.errors.ParserError as exc:
+        msg = str(exc)
+        row = None
+        import re
+
+        m = re.search(r"line (\d+), saw (\d+)", msg)
+        if m:
+            row = int(m.group(1)) - 1
+            _fail(path, f"has {m.group(2)} fields where the header has {n_header}", row=row)
+        _fail(path, f"cannot be parsed as CSV ({msg.splitlines()[0][:160]})")
+    except (UnicodeDecodeError, ValueError) as exc:
+        _fail(path, f"cannot be parsed as CSV ({str(exc).splitlines()[0][:160]})")
+    df.columns = [str(c).strip() for c in df.columns]
+    _check_last_line(path, n_header, len(df))
+    return df
+
+
+def _check_last_line(path: Path, n_header: int, n_rows: int) -> None:
+    """A log cut off mid-write leaves a last line with fewer fields than the header."""
+    with open(path, "rb") as fh:
+        fh.seek(0, 2)
+        size = fh.tell()
+        fh.seek(max(0, size - 4096))
+        tail = fh.read()
+    lines = [ln for ln in tail.split(b"\n") if ln.strip()]
+    if not lines or n_rows == 0:
+        return
+    n_fields = len(lines[-1].decode("utf-8", "replace").split(","))
+    if n_fields < n_header:
+        _fail(path, f"the last line has {n_fields} fields where the header has {n_header} (truncated file?)", row=n_rows)

@@ -1,0 +1,268 @@
+"""Running a pipeline on a session: the one place where stages are wired and outputs written.
+
+`process_session` loads and validates the session, applies `--mask-gps` windows, runs the chain the
+pipeline file names (looked up in the fixed registry `CHAINS`), and writes the run directory
+atomically: everything goes to a temporary sibling directory that is renamed into place only when
+complete, so a failed or killed run leaves no partial output.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import json
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from tpos_cli import __version__, timebase
+from tpos_cli.config import PipelineFile, apply_overrides, config_hash, resolve_pipeline
+from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
+from tpos_cli.session import GpsData, Session, load_session
+
+# Chain name (as written in a pipeline file) -> module of ours holding `run`. A fixed table: a
+# pipeline file can only choose among these.
+CHAINS: dict[str, str] = {
+    "ingest": "tpos_cli.chains.ingest",
+    "target_fkf": "tpos_cli.chains.target_fkf",
+    "drive_smooth": "tpos_cli.chains.drive_smooth",
+    "ranging_fatci": "tpos_cli.chains.ranging_fatci",
+}
+
+ACCURACY_NOTE = (
+    "A zero exit code means processing completed; it is not a claim of accuracy. "
+    "Check the filter-health figures here and run `tpos report` against truth."
+)
+
+
+@dataclass(frozen=True)
+class ChainOutput:
+    """What a chain returns; `pipeline` writes it."""
+
+    trajectory: pd.DataFrame | None = None
+    targets: pd.DataFrame | None = None
+    tables: dict = field(default_factory=dict)
+    files: dict = field(default_factory=dict)
+    summary: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    run_dir: Path
+    summary: dict
+
+
+class RunContext:
+    """Timings, counts, warnings and progress for one run; handed to the chain."""
+
+    def __init__(self, progress: bool = False):
+        self.timings_s: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+        self.warnings: list[str] = []
+        self._progress = progress
+
+    @contextlib.contextmanager
+    def stage(self, name: str):
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings_s[name] = self.timings_s.get(name, 0.0) + time.perf_counter() - t
+
+    def count(self, key: str, n: int = 1) -> None:
+        self.counts[key] = self.counts.get(key, 0) + int(n)
+
+    def warn(self, message: str) -> None:
+        self.warnings.append(message)
+
+    def progress(self, iterable: Iterable, total: int | None = None, label: str = "") -> Iterable:
+        """Wrap a loop in a progress bar when enabled (a TTY and not --quiet)."""
+        if not self._progress:
+            return iterable
+        from rich.progress import track
+
+        return track(iterable, total=total, description=label or "working")
+
+
+def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tuple[Session, pd.DataFrame | None]:
+    """Withhold GPS fixes inside windows given on the logger clock; returns (session, withheld rows)."""
+    if not windows_s:
+        return session, None
+    if session.gps is None:
+        raise InvalidInputError(f"--mask-gps: session {session.meta.name!r} has no gps file")
+    for a, b in windows_s:
+        if not b > a:
+            raise InvalidInputError(f"--mask-gps {a}:{b}: the end must be after the start")
+    g = session.gps
+    rel = np.array(windows_s, dtype=float) - session.t0_s
+    held = timebase.in_intervals(g.t_s, rel)
+    keep = ~held
+
+    def sub(m):
+        return GpsData(t_s=g.t_s[m], lla=g.lla[m], fix=g.fix[m], nsat=g.nsat[m], hdop=g.hdop[m],
+                       vel_ned_mps=g.vel_ned_mps[m], sigma_neu_m=g.sigma_neu_m[m])
+
+    withheld = gps_table(sub(held), session.t0_s)
+    kept = sub(keep)
+    outages = timebase.gps_outages(kept.t_s[kept.valid], 0.0, session.t_end_s)
+    counts = dict(session.counts, gps_withheld_fixes=int(held.sum()))
+    return dataclasses.replace(session, gps=kept, gps_outages_s=outages, counts=counts), withheld
+
+
+def gps_table(g: GpsData, t0_s: float) -> pd.DataFrame:
+    """GPS rows as a contract `gps` table on the logger clock."""
+    return pd.DataFrame({
+        "t": g.t_s + t0_s, "lat": g.lla[:, 0], "lon": g.lla[:, 1], "h": g.lla[:, 2], "fix": g.fix,
+        "nsat": g.nsat, "hdop": g.hdop, "vn": g.vel_ned_mps[:, 0], "ve": g.vel_ned_mps[:, 1],
+        "vd": g.vel_ned_mps[:, 2], "sigma_n": g.sigma_neu_m[:, 0], "sigma_e": g.sigma_neu_m[:, 1],
+        "sigma_u": g.sigma_neu_m[:, 2],
+    })
+
+
+def _chain_run(name: str) -> Callable:
+    if name not in CHAINS:
+        raise InvalidInputError(f"pipeline chain {name!r} is not one of {', '.join(sorted(CHAINS))}")
+    try:
+        module = importlib.import_module(CHAINS[name])
+    except ModuleNotFoundError as exc:
+        raise ProcessingError(f"pipeline chain {name!r} is not available in this tpos build ({exc})") from None
+    return module.run
+
+
+def default_run_dir(session: Session, pipeline: PipelineFile) -> Path:
+    return Path("runs") / f"{session.path.name}-{pipeline.name}"
+
+
+def _check_run_dir(run_dir: Path, session_dir: Path) -> Path:
+    run_dir = run_dir.resolve()
+    if run_dir == session_dir or session_dir.is_relative_to(run_dir):
+        raise InvalidInputError(f"run directory {run_dir} would overwrite the session's input files; choose another -o")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise InvalidInputError(f"run directory {run_dir} exists and is not a directory")
+    if run_dir.exists() and any(run_dir.iterdir()) and not (run_dir / "summary.json").exists():
+        raise InvalidInputError(f"run directory {run_dir} exists and is not a tpos run (no summary.json); refusing to replace it")
+    return run_dir
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, (datetime, Path)):
+        return str(o)
+    if dataclasses.is_dataclass(o):
+        return dataclasses.asdict(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_parquet(df: pd.DataFrame, path: Path, metadata: Mapping[str, str] | None = None) -> None:
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    if metadata:
+        meta = dict(table.schema.metadata or {})
+        meta.update({f"tpos.{k}".encode(): str(v).encode() for k, v in metadata.items()})
+        table = table.replace_schema_metadata(meta)
+    pq.write_table(table, path)
+
+
+def process_session(
+    session_dir: str | Path,
+    pipeline: str | Path | None = None,
+    run_dir: str | Path | None = None,
+    *,
+    mask_gps_windows: Sequence[tuple[float, float]] = (),
+    overrides: Mapping[str, object] | None = None,
+    progress: bool = False,
+) -> RunSummary:
+    """Process one session with one pipeline into a run directory (see docs/architecture.md)."""
+    ctx = RunContext(progress=progress)
+    t_start = time.perf_counter()
+    with ctx.stage("ingest"):
+        session = load_session(session_dir)
+    pipe = resolve_pipeline(pipeline, session.meta.kind)
+    params = apply_overrides(pipe.params, dict(overrides or {}))
+    out_dir = _check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session, pipe), session.path)
+    run = _chain_run(pipe.chain)
+    with ctx.stage("time_alignment"):
+        session, withheld = mask_gps(session, list(mask_gps_windows))
+    try:
+        result: ChainOutput = run(session, params, ctx)
+    except TposError:
+        raise
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as exc:
+        raise ProcessingError(f"{pipe.name} failed on {session.meta.name}: {type(exc).__name__}: {exc}") from exc
+
+    resolved = result.summary.pop("config", None) or params
+    chash = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
+    meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        with ctx.stage("write_outputs"):
+            outputs = []
+            if result.trajectory is not None:
+                write_parquet(result.trajectory, tmp / "trajectory.parquet", meta)
+                outputs.append("trajectory.parquet")
+            if result.targets is not None:
+                write_parquet(result.targets, tmp / "targets.parquet", meta)
+                outputs.append("targets.parquet")
+            for name, df in result.tables.items():
+                write_parquet(df, tmp / f"{name}.parquet", meta)
+                outputs.append(f"{name}.parquet")
+            if withheld is not None:
+                write_parquet(withheld, tmp / "withheld_gps.parquet", meta)
+                outputs.append("withheld_gps.parquet")
+            for name, data in result.files.items():
+                (tmp / name).write_bytes(data)
+                outputs.append(name)
+        ctx.timings_s["total"] = time.perf_counter() - t_start
+        summary = {
+            "tpos_version": __version__,
+            "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "session": {"path": str(session.path), "name": session.meta.name, "kind": session.meta.kind,
+                        "t0": session.t0_s, "duration_s": session.t_end_s, "imu_samples": int(len(session.imu.t_s))},
+            "pipeline": pipe.name,
+            "pipeline_file": str(pipe.path),
+            "chain": pipe.chain,
+            "config": resolved,
+            "config_sha256": chash,
+            "inputs": session.file_hashes,
+            "mask_gps": [list(w) for w in mask_gps_windows],
+            "gps_outages": (session.gps_outages_s + session.t0_s).tolist(),
+            "imu_gaps": (session.imu_gaps_s + session.t0_s).tolist(),
+            "timings_s": {k: round(v, 4) for k, v in ctx.timings_s.items()},
+            "counts": {**session.counts, **ctx.counts},
+            "warnings": [*session.warnings, *ctx.warnings],
+            "results": result.summary,
+            "outputs": outputs + ["summary.json"],
+            "accuracy_note": ACCURACY_NOTE,
+        }
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
+        _replace_dir(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return RunSummary(run_dir=out_dir, summary=summary)
+
+
+def _replace_dir(tmp: Path, out_dir: Path) -> None:
+    """Move the finished temporary directory into place, replacing an older run only now."""
+    old = None
+    if out_dir.exists():
+        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+        out_dir.rename(old)
+    tmp.rename(out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

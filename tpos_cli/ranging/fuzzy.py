@@ -1,0 +1,103 @@
+"""Single-input single-output fuzzy inference system (paper 002, Sec. 4.3, Algorithm 1, Eq. 31).
+
+Mamdani inference: triangular memberships for the input (the range SD) and the output (the
+coefficient S), rules "if input is A then output is B", min implication, max aggregation and
+centroid ("gravity") defuzzification. The measurement noise of a range is then
+`R = S^b R_ref` (Eq. 31). The rule base and breakpoints come from the pipeline TOML.
+
+Eq. 31 is garbled in the text ("Rii1 = Spy Ry"); we read it as `R_k = S_k^b R_ref` applied per
+range with a fixed reference `R_ref`, because a recursive `R_{k+1} = S^b R_k` would drift without
+bound for S != 1 (Fig. 18 shows S oscillating around 1, i.e. a per-epoch scaling).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tpos_cli.errors import InvalidInputError
+
+_GRID_POINTS = 2001  # centroid quadrature; piecewise-linear integrand -> error O(h^2) ~ 1e-7 of the span
+
+
+@dataclass(frozen=True)
+class FuzzySystem:
+    """SISO Mamdani system.
+
+    in_sets, out_sets : name -> (left, peak, right) triangle breakpoints
+    rules : tuple of (input set, output set)
+    in_range, out_range : universes of discourse; inputs are clamped to in_range
+    """
+
+    in_sets: dict[str, tuple[float, float, float]]
+    out_sets: dict[str, tuple[float, float, float]]
+    rules: tuple[tuple[str, str], ...]
+    in_range: tuple[float, float]
+    out_range: tuple[float, float]
+
+
+def triangle(x: np.ndarray, abc: tuple[float, float, float]) -> np.ndarray:
+    """Triangular membership with feet a, c and peak b; a == b or b == c gives a shoulder edge."""
+    a, b, c = abc
+    x = np.asarray(x, dtype=float)
+    left = np.where(x < b, (x - a) / (b - a) if b > a else 1.0, 1.0)
+    right = np.where(x > b, (c - x) / (c - b) if c > b else 1.0, 1.0)
+    return np.clip(np.minimum(left, right), 0.0, 1.0) * ((x >= a) & (x <= c))
+
+
+def fuzzy_system_from_params(p: dict, where: str) -> FuzzySystem:
+    """Build and check a FuzzySystem from the TOML table `[<chain>.fuzzy]`.
+
+    Keys: `input_sets` / `output_sets` (name -> [left, peak, right]), `rules` ([[in, out], ...]),
+    `input_range`, `output_range` ([lo, hi]).
+    """
+    try:
+        in_sets = {str(k): tuple(float(v) for v in abc) for k, abc in p["input_sets"].items()}
+        out_sets = {str(k): tuple(float(v) for v in abc) for k, abc in p["output_sets"].items()}
+        rules = tuple((str(r[0]), str(r[1])) for r in p["rules"])
+        in_range = tuple(float(v) for v in p["input_range"])
+        out_range = tuple(float(v) for v in p["output_range"])
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise InvalidInputError(f"{where}: fuzzy system needs input_sets, output_sets, rules, "
+                                f"input_range, output_range ({exc!r})") from exc
+    unknown = set(p) - {"input_sets", "output_sets", "rules", "input_range", "output_range"}
+    if unknown:
+        raise InvalidInputError(f"{where}: unknown key(s) {sorted(unknown)}")
+    for name, abc in [*in_sets.items(), *out_sets.items()]:
+        if len(abc) != 3 or not abc[0] <= abc[1] <= abc[2] or abc[0] == abc[2]:
+            raise InvalidInputError(f"{where}: set {name!r} must be [left <= peak <= right], got {list(abc)}")
+    for r_in, r_out in rules:
+        if r_in not in in_sets or r_out not in out_sets:
+            raise InvalidInputError(f"{where}: rule [{r_in!r}, {r_out!r}] names an undefined set")
+    if len(in_range) != 2 or len(out_range) != 2 or in_range[0] >= in_range[1] or out_range[0] >= out_range[1]:
+        raise InvalidInputError(f"{where}: input_range/output_range must be [lo, hi] with lo < hi")
+    if not rules:
+        raise InvalidInputError(f"{where}: the rule base is empty")
+    fis = FuzzySystem(in_sets, out_sets, rules, in_range, out_range)  # type: ignore[arg-type]
+    # Every input in the universe must fire some rule, or the output would be undefined there.
+    x = np.linspace(in_range[0], in_range[1], _GRID_POINTS)
+    fired = np.max([triangle(x, in_sets[r_in]) for r_in, _ in rules], axis=0)
+    if np.any(fired <= 0.0):
+        gap = float(x[np.argmax(fired <= 0.0)])
+        raise InvalidInputError(f"{where}: no rule fires at input {gap:g}; the input sets must cover input_range")
+    return fis
+
+
+def infer(fis: FuzzySystem, x: np.ndarray) -> np.ndarray:
+    """Crisp output S for each input x (fuzzify, min-implication, max-aggregation, centroid).
+
+    Inputs are clamped to the input universe; where no rule fires the output is the middle of
+    the output universe (cannot happen with a covering rule base, checked by the tests).
+    """
+    x = np.clip(np.atleast_1d(np.asarray(x, dtype=float)), *fis.in_range)
+    y = np.linspace(fis.out_range[0], fis.out_range[1], _GRID_POINTS)
+    out_mu = {name: triangle(y, abc) for name, abc in fis.out_sets.items()}
+    agg = np.zeros((x.size, y.size))
+    for r_in, r_out in fis.rules:
+        w = triangle(x, fis.in_sets[r_in])  # firing strength of the rule
+        agg = np.maximum(agg, np.minimum(w[:, None], out_mu[r_out][None, :]))
+    area = np.trapezoid(agg, y, axis=1)
+    moment = np.trapezoid(agg * y[None, :], y, axis=1)
+    mid = 0.5 * (fis.out_range[0] + fis.out_range[1])
+    return np.where(area > 0, moment / np.where(area > 0, area, 1.0), mid)

@@ -1,0 +1,249 @@
+"""Errors of each solution of a run against the chosen truth, and the accuracy table.
+
+The accuracy table (`accuracy.parquet`) is long: one row per (solution, target, segment, quantity)
+with the statistics of `metrics.error_stats`. Segments: `all`; `outage` / `gps` (inside / outside
+the GPS outages and `--mask-gps` windows); `outage_k` per window (paper 003's outage errors);
+`movement` (truth's movement phase, BROAD); `withheld` (GPS truth: only the fixes withheld from the
+run, the independent ones). Quantities: `pos_3d_m`, `pos_h_m`, `pos_v_m` (up), `pos_n_m`, `pos_e_m`,
+and with attitude truth `roll_deg`, `pitch_deg`, `yaw_deg` (wrap-aware), `att_deg` (total angle).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.report import metrics
+from tpos_cli.report.rundir import RunData, ordered_solutions
+from tpos_cli.report.truth import ReportTruth, interpolate_attitude, interpolate_flag, interpolate_positions
+
+ROW_KEYS = ("solution", "target", "segment", "quantity")
+COLUMNS = ROW_KEYS + metrics.STAT_FIELDS + ("cep", "ce90")
+POS_QUANTITIES = ("pos_3d_m", "pos_h_m", "pos_v_m", "pos_n_m", "pos_e_m")
+ATT_QUANTITIES = ("roll_deg", "pitch_deg", "yaw_deg", "att_deg")
+
+
+@dataclass(frozen=True)
+class SolutionErrors:
+    """Per-epoch errors of one trajectory solution (NaN where truth does not cover the epoch)."""
+
+    solution: str
+    t: np.ndarray
+    lla: np.ndarray
+    rpy_deg: np.ndarray
+    truth_lla: np.ndarray
+    truth_rpy_deg: np.ndarray | None
+    err_ned_m: np.ndarray
+    att_err_deg: dict[str, np.ndarray] | None
+    outage_index: np.ndarray  # -1 outside windows, else index into RunData.outage_windows
+    in_outage: np.ndarray
+    movement: np.ndarray | None
+    independent: np.ndarray
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    table: pd.DataFrame
+    solutions: tuple[SolutionErrors, ...]
+    targets: pd.DataFrame | None  # one row per (solution, target shot) with errors and sigmas
+    paper_tables: dict[str, pd.DataFrame]
+
+
+def _stat_row(solution, target, segment, quantity, err) -> dict:
+    s = metrics.error_stats(err).as_dict()
+    horiz = quantity == "pos_h_m"
+    return {
+        "solution": solution,
+        "target": target,
+        "segment": segment,
+        "quantity": quantity,
+        **s,
+        "cep": s["p50"] if horiz else np.nan,  # empirical CEP: median horizontal error
+        "ce90": s["p90"] if horiz else np.nan,
+    }
+
+
+def solution_errors(run: RunData, truth: ReportTruth, solution: str) -> SolutionErrors:
+    """Errors of trajectory solution `solution` against `truth.trajectory` at its own epochs."""
+    df = run.trajectory[run.trajectory["solution"] == solution]
+    t = df["t"].to_numpy(float)
+    lla = df[["lat", "lon", "h"]].to_numpy(float)
+    rpy = df[["roll", "pitch", "yaw"]].to_numpy(float)
+    tt = truth.trajectory
+    truth_lla = interpolate_positions(tt.t, tt.lla, t, tt.max_gap_s)
+    offset = None
+    if np.any(tt.lever_arm_b_m != 0.0):
+        # truth is the GPS antenna: move the solution from the IMU point to it, r_a = r + C_nb l_b
+        C_nb = euler_to_dcm(*np.radians(rpy).T)
+        offset = C_nb @ tt.lever_arm_b_m
+    err = metrics.position_errors_ned(lla, truth_lla, offset)
+    att = truth_rpy = None
+    if tt.rpy_deg is not None:
+        truth_rpy = interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s)
+        att = metrics.attitude_errors_deg(rpy, truth_rpy)
+    idx = np.full(t.size, -1)
+    for k, (a, b) in enumerate(run.outage_windows):
+        idx[(t >= a) & (t <= b)] = k
+    in_out = idx >= 0
+    if "outage" in df.columns:  # the chain's own outage flag, when it wrote one
+        in_out |= df["outage"].fillna(False).to_numpy(bool)
+    movement = interpolate_flag(tt.t, tt.movement, t, tt.max_gap_s) if tt.movement is not None else None
+    indep = interpolate_flag(tt.t, tt.independent.astype(float), t, tt.max_gap_s)
+    return SolutionErrors(solution, t, lla, rpy, truth_lla, truth_rpy, err, att, idx, in_out, movement, indep)
+
+
+def _trajectory_rows(run: RunData, se: SolutionErrors, gps_truth: bool) -> list[dict]:
+    series = metrics.split_position_errors(se.err_ned_m)
+    if se.att_err_deg is not None:
+        series.update(se.att_err_deg)
+    segments = {"all": np.ones(se.t.size, dtype=bool)}
+    if len(run.outage_windows) or se.in_outage.any():
+        segments["outage"] = se.in_outage
+        segments["gps"] = ~se.in_outage
+    for k in range(len(run.outage_windows)):
+        segments[f"outage_{k + 1}"] = se.outage_index == k
+    if se.movement is not None:
+        segments["movement"] = se.movement
+    if gps_truth and len(run.mask_windows):
+        segments["withheld"] = se.independent
+    rows = []
+    for seg, m in segments.items():
+        for q, e in series.items():
+            rows.append(_stat_row(se.solution, "", seg, q, np.where(m, e, np.nan)))
+    return rows
+
+
+def target_errors(run: RunData, truth: ReportTruth) -> pd.DataFrame | None:
+    """One row per targets.parquet row whose id has surveyed truth: NEU errors, sigmas, predicted CEP."""
+    if run.targets is None or truth.targets is None:
+        return None
+    lut = {i: k for k, i in enumerate(truth.targets.ids)}
+    df = run.targets[run.targets["id"].isin(lut.keys())].reset_index(drop=True)
+    if df.empty:
+        return None
+    tl = truth.targets.lla[[lut[i] for i in df["id"]]]
+    err = metrics.position_errors_ned(df[["lat", "lon", "h"]].to_numpy(float), tl)
+    out = pd.DataFrame(
+        {
+            "solution": df["solution"].astype(str),
+            "id": df["id"].astype(str),
+            "t_start": df["t_start"].to_numpy(float) if "t_start" in df else np.nan,
+            "range_m": df["range_m"].to_numpy(float) if "range_m" in df else np.nan,
+            "err_n_m": err[:, 0],
+            "err_e_m": err[:, 1],
+            "err_u_m": -err[:, 2],
+            "err_h_m": np.hypot(err[:, 0], err[:, 1]),
+            "err_3d_m": np.linalg.norm(err, axis=1),
+        }
+    )
+    for c in ("sigma_n", "sigma_e", "sigma_u"):
+        out[c + "_m"] = df[c].to_numpy(float) if c in df else np.nan
+    out["cep_pred_m"] = [metrics.cep_from_sigmas(a, b) for a, b in zip(out["sigma_n_m"], out["sigma_e_m"])]
+    return out
+
+
+def _target_rows(te: pd.DataFrame) -> list[dict]:
+    rows = []
+    series = {
+        "pos_3d_m": "err_3d_m",
+        "pos_h_m": "err_h_m",
+        "pos_v_m": "err_u_m",
+        "pos_n_m": "err_n_m",
+        "pos_e_m": "err_e_m",
+    }
+    for sol in ordered_solutions(te["solution"]):
+        d = te[te["solution"] == sol]
+        for tid in ["all"] + list(dict.fromkeys(d["id"])):
+            dd = d if tid == "all" else d[d["id"] == tid]
+            for q, c in series.items():
+                rows.append(_stat_row(sol, tid, "all", q, dd[c].to_numpy(float)))
+    return rows
+
+
+def _get(table: pd.DataFrame, solution, target, segment, quantity, stat) -> float:
+    m = (
+        (table["solution"] == solution)
+        & (table["target"] == target)
+        & (table["segment"] == segment)
+        & (table["quantity"] == quantity)
+    )
+    v = table.loc[m, stat]
+    return float(v.iloc[0]) if len(v) else float("nan")
+
+
+def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.DataFrame]:
+    """The accuracy table reshaped like the papers' tables, where the run reproduces one."""
+    out: dict[str, pd.DataFrame] = {}
+    tgt = table[table["target"] == "all"]
+    if len(tgt):
+        sols = ordered_solutions(tgt["solution"])
+        out["paper000_table4"] = pd.DataFrame(
+            {
+                "solution": sols,
+                "mean_m": [_get(table, s, "all", "all", "pos_3d_m", "mean") for s in sols],
+                "sd_m": [_get(table, s, "all", "all", "pos_3d_m", "sd") for s in sols],
+                "n": [_get(table, s, "all", "all", "pos_3d_m", "n") for s in sols],
+            }
+        )
+    traj = table[table["target"] == ""]
+    if len(traj) and kind == "ranging":
+        sols = ordered_solutions(traj["solution"])
+        g = lambda s, q, st: _get(table, s, "", "all", q, st)  # noqa: E731
+        out["paper002_table1"] = pd.DataFrame(
+            {
+                "solution": sols,
+                "x_min_m": [g(s, "pos_e_m", "min") for s in sols],
+                "x_max_m": [g(s, "pos_e_m", "max") for s in sols],
+                "y_min_m": [g(s, "pos_n_m", "min") for s in sols],
+                "y_max_m": [g(s, "pos_n_m", "max") for s in sols],
+                "x_var_m2": [g(s, "pos_e_m", "sd") ** 2 for s in sols],
+                "y_var_m2": [g(s, "pos_n_m", "sd") ** 2 for s in sols],
+                "max_m": [g(s, "pos_h_m", "max") for s in sols],
+                "average_m": [g(s, "pos_h_m", "mean") for s in sols],
+            }
+        )
+    if len(traj) and len(run.outage_windows):
+        rows = []
+        for k, (a, b) in enumerate(run.outage_windows):
+            for s in ordered_solutions(traj["solution"]):
+                seg = f"outage_{k + 1}"
+                n = _get(table, s, "", seg, "pos_h_m", "n")
+                if not n:
+                    continue
+                rows.append(
+                    {
+                        "outage": k + 1,
+                        "t0": float(a),
+                        "t1": float(b),
+                        "duration_s": float(b - a),
+                        "solution": s,
+                        "rms_h_m": _get(table, s, "", seg, "pos_h_m", "rms"),
+                        "max_h_m": _get(table, s, "", seg, "pos_h_m", "max"),
+                        "rms_v_m": _get(table, s, "", seg, "pos_v_m", "rms"),
+                        "max_3d_m": _get(table, s, "", seg, "pos_3d_m", "max"),
+                    }
+                )
+        if rows:
+            out["paper003_outages"] = pd.DataFrame(rows)
+    return out
+
+
+def compute_accuracy(run: RunData, truth: ReportTruth, kind: str = "") -> Accuracy:
+    """All error statistics of a run against `truth` (see module docstring)."""
+    rows: list[dict] = []
+    sols: list[SolutionErrors] = []
+    if run.trajectory is not None and truth.trajectory is not None:
+        gps_truth = truth.trajectory.source == "gps"
+        for s in ordered_solutions(run.trajectory["solution"]):
+            se = solution_errors(run, truth, s)
+            sols.append(se)
+            rows += _trajectory_rows(run, se, gps_truth)
+    te = target_errors(run, truth)
+    if te is not None:
+        rows += _target_rows(te)
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    table["n"] = table["n"].astype("int64")
+    return Accuracy(table, tuple(sols), te, paper_tables(run, table, kind))

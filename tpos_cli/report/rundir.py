@@ -1,0 +1,106 @@
+"""Reading a run directory (`tpos process` output) for the report: summary, tables, outage windows."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli.errors import InvalidInputError
+
+TRAJECTORY_REQUIRED = ("t", "lat", "lon", "h", "roll", "pitch", "yaw", "solution")
+TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
+INNOVATIONS_REQUIRED = ("t", "solution", "kind", "nis", "dof", "accepted")
+GPS_REQUIRED = ("t", "lat", "lon", "h")
+
+# paper 000 Tables 4-5 list the attitude sources in this order; other solutions follow as found
+SOLUTION_ORDER = ("gyro", "lf1", "lf2", "fkf", "forward", "backward", "smoothed")
+
+
+@dataclass(frozen=True)
+class RunData:
+    path: Path
+    summary: dict
+    trajectory: pd.DataFrame | None
+    targets: pd.DataFrame | None
+    withheld_gps: pd.DataFrame | None
+    innovations: pd.DataFrame | None
+    outage_windows: np.ndarray  # (K, 2) logger clock: GPS outages of the session and --mask-gps windows, merged
+    mask_windows: np.ndarray  # (M, 2) logger clock: the --mask-gps windows alone
+
+
+def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame | None:
+    path = run_dir / name
+    if not path.exists():
+        return None
+    try:
+        df = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises several unrelated types for a damaged file
+        raise InvalidInputError(f"{run_dir.name}/{name}: not a readable Parquet file ({str(exc).splitlines()[0][:160]})") from exc
+    missing = [c for c in required if c not in df.columns]
+    if missing:
+        raise InvalidInputError(f"{run_dir.name}/{name}: column '{missing[0]}': required column is missing")
+    if "solution" in df.columns:
+        df["solution"] = df["solution"].astype(str)
+    return df
+
+
+def windows(value, where: str) -> np.ndarray:
+    """[[t0, t1], ...] from summary.json (lists of pairs); (K, 2) float, sorted by start."""
+    if value is None:
+        return np.empty((0, 2))
+    try:
+        a = np.asarray(value, dtype=float).reshape(-1, 2)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"summary.json: {where}: expected a list of [t0, t1] pairs, got {value!r}"[:300]) from exc
+    return a[np.argsort(a[:, 0], kind="stable")] if a.size else np.empty((0, 2))
+
+
+def merge_windows(*arrays: np.ndarray) -> np.ndarray:
+    """Union of intervals, (K, 2) sorted and non-overlapping."""
+    a = np.concatenate([np.asarray(x, dtype=float).reshape(-1, 2) for x in arrays])
+    if a.size == 0:
+        return np.empty((0, 2))
+    a = a[np.argsort(a[:, 0], kind="stable")]
+    out = [list(a[0])]
+    for s, e in a[1:]:
+        if s <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], e)
+        else:
+            out.append([s, e])
+    return np.asarray(out)
+
+
+def load_run(run_dir: Path) -> RunData:
+    """Read a run directory; raises InvalidInputError when it is not one."""
+    run_dir = Path(run_dir)
+    sp = run_dir / "summary.json"
+    if not run_dir.is_dir() or not sp.exists():
+        raise InvalidInputError(f"{run_dir}: not a run directory (no summary.json); run `tpos process` first")
+    try:
+        summary = json.loads(sp.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInputError(f"{run_dir.name}/summary.json: not readable JSON ({exc})") from exc
+    if not isinstance(summary, dict):
+        raise InvalidInputError(f"{run_dir.name}/summary.json: expected a JSON object")
+    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED)
+    tgts = _read(run_dir, "targets.parquet", TARGETS_REQUIRED)
+    if tgts is not None:
+        tgts["id"] = tgts["id"].astype(str)
+    withheld = _read(run_dir, "withheld_gps.parquet", GPS_REQUIRED)
+    innov = _read(run_dir, "innovations.parquet", INNOVATIONS_REQUIRED)
+    if traj is not None:
+        traj = traj.sort_values(["solution", "t"], kind="stable").reset_index(drop=True)
+    outages = windows(summary.get("gps_outages"), "gps_outages")
+    mask = windows(summary.get("mask_gps"), "mask_gps")
+    return RunData(run_dir, summary, traj, tgts, withheld, innov, merge_windows(outages, mask), mask)
+
+
+def ordered_solutions(names) -> list[str]:
+    """Solution names, known ones in paper order first, the rest in order of appearance."""
+    seen = list(dict.fromkeys(str(n) for n in names))
+    known = [s for s in SOLUTION_ORDER if s in seen]
+    return known + [s for s in seen if s not in known]

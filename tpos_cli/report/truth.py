@@ -1,0 +1,291 @@
+"""Choosing the truth a run is judged against, and interpolating it onto solution epochs.
+
+Order of preference (issue 6): the session's reference trajectory `truth.*`; for targets, the
+`targets.*` points with `role = truth` (GPS-WAAS surveyed, paper 000 section 6.2.1); for trajectories
+without `truth.*`, the GPS fixes themselves, of which only those withheld by `--mask-gps` are
+independent of the run. All times here are on the logger clock (`t = t_s + Session.t0_s`).
+
+Interpolation never extrapolates and never bridges a truth gap: a query epoch is covered only when
+the two truth samples around it are at most `max_gap_s` apart (NaN truth rows are dropped first, so
+BROAD's capture dropouts are gaps). Positions are interpolated linearly in NED about one origin,
+attitude by SLERP.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
+
+GAP_FACTOR = 2.5  # a gap is > 2.5 median intervals: one missed sample plus clock jitter is not a gap
+
+
+@dataclass(frozen=True)
+class TrajectoryTruth:
+    """A reference trajectory on the logger clock.
+
+    `independent` is False for samples that the run also used as input (GPS fixes outside the
+    `--mask-gps` windows); `lever_arm_b_m` (FRD) is where the truth point sits relative to the IMU
+    point (the GPS antenna), zeros for a body-point reference.
+    """
+
+    source: str  # "truth" | "gps"
+    description: str
+    t: np.ndarray
+    lla: np.ndarray
+    rpy_deg: np.ndarray | None
+    movement: np.ndarray | None
+    independent: np.ndarray
+    lever_arm_b_m: np.ndarray
+    max_gap_s: float
+
+
+@dataclass(frozen=True)
+class TargetTruth:
+    """Surveyed target positions (`targets.*` rows with role = truth)."""
+
+    ids: tuple[str, ...]
+    lla: np.ndarray
+    description: str
+
+
+@dataclass(frozen=True)
+class ReportTruth:
+    trajectory: TrajectoryTruth | None
+    targets: TargetTruth | None
+    session_path: str
+    notes: tuple[str, ...] = field(default=())
+
+
+def median_gap_limit(t, factor: float = GAP_FACTOR) -> float:
+    """Largest truth interval that interpolation may bridge: `factor` median sample intervals."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return 0.0
+    return float(factor * np.median(np.diff(t)))
+
+
+def _clean(t, *arrays):
+    """Drop rows with NaN time or NaN in the first array, sort by time, drop duplicate stamps."""
+    t = np.asarray(t, dtype=float)
+    ok = np.isfinite(t) & np.all(np.isfinite(np.asarray(arrays[0], dtype=float).reshape(t.size, -1)), axis=1)
+    idx = np.flatnonzero(ok)
+    idx = idx[np.argsort(t[idx], kind="stable")]
+    ts = t[idx]
+    keep = np.ones(ts.size, dtype=bool)
+    keep[1:] = np.diff(ts) > 0
+    idx = idx[keep]
+    return (t[idx],) + tuple(np.asarray(a)[idx] for a in arrays)
+
+
+def covered(t_truth, t_query, max_gap_s: float):
+    """Bracketing indices (lo, hi) and a mask of the query epochs that truth covers.
+
+    Covered: inside [t_truth[0], t_truth[-1]] and the bracketing samples at most `max_gap_s` apart
+    (an epoch equal to a truth stamp is always covered).
+    """
+    tt = np.asarray(t_truth, dtype=float)
+    tq = np.asarray(t_query, dtype=float)
+    n = tt.size
+    if n == 0:
+        z = np.zeros(tq.shape, dtype=int)
+        return z, z, np.zeros(tq.shape, dtype=bool)
+    hi = np.clip(np.searchsorted(tt, tq, side="left"), 0, n - 1)
+    lo = np.clip(hi - 1, 0, n - 1)
+    exact = tt[hi] == tq
+    lo = np.where(exact, hi, lo)
+    inside = (tq >= tt[0]) & (tq <= tt[-1]) & np.isfinite(tq)
+    ok = inside & (exact | (tt[hi] - tt[lo] <= max_gap_s))
+    return lo, hi, ok
+
+
+def interpolate_positions(t_truth, lla_truth, t_query, max_gap_s: float):
+    """Truth positions at `t_query`, (Q, 3) lla; linear in NED about the first truth point; NaN
+    where not covered."""
+    t, lla = _clean(t_truth, np.asarray(lla_truth, dtype=float).reshape(-1, 3))
+    tq = np.asarray(t_query, dtype=float)
+    out = np.full((tq.size, 3), np.nan)
+    _, _, ok = covered(t, tq, max_gap_s)
+    if not ok.any():
+        return out
+    origin = lla[0]
+    ned = lla_to_ned(lla, origin)
+    ned_q = np.column_stack([np.interp(tq[ok], t, ned[:, i]) for i in range(3)])
+    out[ok] = ned_to_lla(ned_q, origin)
+    return out
+
+
+def interpolate_attitude(t_truth, rpy_deg_truth, t_query, max_gap_s: float):
+    """Truth roll, pitch, yaw (deg) at `t_query` by SLERP, (Q, 3); NaN where not covered."""
+    t, rpy = _clean(t_truth, np.asarray(rpy_deg_truth, dtype=float).reshape(-1, 3))
+    tq = np.asarray(t_query, dtype=float)
+    out = np.full((tq.size, 3), np.nan)
+    _, _, ok = covered(t, tq, max_gap_s)
+    if not ok.any():
+        return out
+    # C_nb = Rz(yaw) Ry(pitch) Rx(roll): scipy intrinsic "ZYX" with (yaw, pitch, roll)
+    rot = Rotation.from_euler("ZYX", rpy[:, ::-1], degrees=True)
+    if t.size == 1:
+        out[ok] = rpy[0]
+        return out
+    ypr = Slerp(t, rot)(tq[ok]).as_euler("ZYX", degrees=True)
+    out[ok] = ypr[:, ::-1]
+    return out
+
+
+def interpolate_flag(t_truth, flag, t_query, max_gap_s: float):
+    """A truth boolean column at `t_query`: True only where both bracketing samples are True."""
+    t, f = _clean(t_truth, np.asarray(flag, dtype=float))
+    lo, hi, ok = covered(t, np.asarray(t_query, dtype=float), max_gap_s)
+    if t.size == 0:
+        return ok
+    return ok & (f[lo] > 0.5) & (f[hi] > 0.5)
+
+
+# ---------------------------------------------------------------- choosing the truth of a run
+
+
+def resolve_session_path(summary: dict, run_dir: Path, override: Path | None) -> Path:
+    """The session directory of a run: `--truth` if given, else summary.json `session.path`
+    (absolute, or relative to the current directory or to the run directory's parent)."""
+    if override is not None:
+        p = Path(override)
+        if not p.is_dir():
+            raise InvalidInputError(f"--truth {override}: not a session directory")
+        return p
+    raw = (summary.get("session") or {}).get("path")
+    if not raw:
+        raise InvalidInputError(f"{run_dir.name}/summary.json: no session.path; give the session with --truth SESSION")
+    p = Path(raw)
+    for cand in ([p] if p.is_absolute() else [Path.cwd() / p, run_dir.parent / p, run_dir / p]):
+        if cand.is_dir():
+            return cand
+    raise InvalidInputError(f"{run_dir.name}/summary.json: session {raw} not found; give it with --truth SESSION")
+
+
+def _truth_from_reference(session) -> TrajectoryTruth | None:
+    tr = session.truth
+    if tr is None:
+        return None
+    t = np.asarray(tr.t_s, dtype=float) + session.t0_s
+    lla = np.asarray(tr.lla, dtype=float)
+    rpy = np.asarray(tr.rpy_deg, dtype=float) if tr.rpy_deg is not None else None
+    has_att = rpy is not None and bool(np.any(np.all(np.isfinite(rpy), axis=1)))
+    movement = None
+    extra = getattr(tr, "extra", None) or {}
+    if "movement" in extra:
+        movement = np.asarray(extra["movement"], dtype=float)
+    ok = np.all(np.isfinite(lla), axis=1)
+    gap = median_gap_limit(np.unique(t[ok])) if ok.sum() > 1 else 0.0
+    n_nan = int((~ok).sum())
+    rate = 1.0 / np.median(np.diff(np.unique(t[ok]))) if ok.sum() > 1 else float("nan")
+    desc = (
+        f"session reference trajectory truth.* ({int(ok.sum())} valid rows at about {rate:.3g} Hz, "
+        f"{t[ok].min() if ok.any() else float('nan'):.2f}..{t[ok].max() if ok.any() else float('nan'):.2f} s"
+        f"{', attitude' if has_att else ', no attitude'}"
+        f"{f', {n_nan} NaN rows skipped' if n_nan else ''}"
+        f"{', movement phase marked' if movement is not None else ''}); interpolation bridges gaps up to {gap:.3g} s; "
+        "its own accuracy is what the data set's publisher states"
+    )
+    return TrajectoryTruth(
+        source="truth",
+        description=desc,
+        t=t,
+        lla=lla,
+        rpy_deg=rpy if has_att else None,
+        movement=movement,
+        independent=np.ones(t.size, dtype=bool),
+        lever_arm_b_m=np.zeros(3),
+        max_gap_s=gap,
+    )
+
+
+def _truth_from_gps(session, withheld, mask_windows) -> TrajectoryTruth | None:
+    """GPS fixes (fix > 0) of the session plus the run's withheld fixes; independent inside masks."""
+    ts, llas, fixes, sig_h = [], [], [], []
+    g = session.gps
+    if g is not None:
+        ok = (np.asarray(g.fix) > 0) & np.all(np.isfinite(g.lla), axis=1)
+        ts.append(np.asarray(g.t_s, dtype=float)[ok] + session.t0_s)
+        llas.append(np.asarray(g.lla, dtype=float)[ok])
+        fixes.append(np.asarray(g.fix)[ok])
+        s = np.asarray(g.sigma_neu_m, dtype=float)[ok] if g.sigma_neu_m is not None else np.full((ok.sum(), 3), np.nan)
+        sig_h.append(np.hypot(s[:, 0], s[:, 1]))
+    if withheld is not None and len(withheld):
+        w = withheld
+        ok = np.all(np.isfinite(w[["t", "lat", "lon", "h"]].to_numpy(float)), axis=1)
+        if "fix" in w:
+            ok &= w["fix"].to_numpy(float) > 0
+        ts.append(w["t"].to_numpy(float)[ok])
+        llas.append(w[["lat", "lon", "h"]].to_numpy(float)[ok])
+        fixes.append(w["fix"].to_numpy(float)[ok].astype(int) if "fix" in w else np.ones(ok.sum(), int))
+        if {"sigma_n", "sigma_e"} <= set(w.columns):
+            sig_h.append(np.hypot(w["sigma_n"].to_numpy(float), w["sigma_e"].to_numpy(float))[ok])
+        else:
+            sig_h.append(np.full(ok.sum(), np.nan))
+    if not ts or sum(a.size for a in ts) == 0:
+        return None
+    t, lla, fix, sh = (np.concatenate(a) for a in (ts, llas, fixes, sig_h))
+    t, lla, fix, sh = _clean(t, lla, fix, sh)
+    mask = np.asarray(mask_windows, dtype=float).reshape(-1, 2)
+    # a withheld window [t0, t1] is closed on the command line; include its end fix
+    indep = np.zeros(t.size, dtype=bool)
+    for a, b in mask:
+        indep |= (t >= a) & (t <= b)
+    gap = median_gap_limit(t)
+    n_waas = int(np.sum(fix == 2))
+    med_sh = float(np.nanmedian(sh)) if np.any(np.isfinite(sh)) else float("nan")
+    quality = f"median reported horizontal SD {med_sh:.2g} m" if np.isfinite(med_sh) else "no reported SD"
+    desc = (
+        f"GPS fixes as truth ({t.size} fixes, {n_waas} SBAS/WAAS, {t.size - n_waas} autonomous; {quality}); "
+        + (
+            f"{int(indep.sum())} fixes withheld by --mask-gps are independent truth; the others were processing input"
+            if mask.size
+            else "all of them were processing input, so agreement with them is not independent accuracy"
+        )
+        + "; compared at the antenna (lever arm applied)"
+    )
+    return TrajectoryTruth(
+        source="gps",
+        description=desc,
+        t=t,
+        lla=lla,
+        rpy_deg=None,
+        movement=None,
+        independent=indep,
+        lever_arm_b_m=np.asarray(session.meta.lever_arm_b_m, dtype=float).reshape(3),
+        max_gap_s=gap,
+    )
+
+
+def _target_truth(session) -> TargetTruth | None:
+    tg = session.targets
+    if tg is None:
+        return None
+    idx = [i for i, r in enumerate(tg.role) if str(r).strip().lower() == "truth"]
+    if not idx:
+        return None
+    ids = tuple(str(tg.ids[i]) for i in idx)
+    lla = np.asarray(tg.lla, dtype=float)[idx]
+    return TargetTruth(ids, lla, f"{len(ids)} surveyed target(s) with role = truth in targets.* (GPS-WAAS survey per the contract)")
+
+
+def choose_truth(session, *, withheld_gps=None, mask_windows=(), need_targets: bool, need_trajectory: bool) -> ReportTruth:
+    """Pick the truth for a run from its session (see module docstring); raises InvalidInputError
+    (exit 2) with a clear message when nothing the run produced can be checked."""
+    traj = _truth_from_reference(session) if need_trajectory else None
+    if need_trajectory and traj is None:
+        traj = _truth_from_gps(session, withheld_gps, mask_windows)
+    tgt = _target_truth(session) if need_targets else None
+    if traj is None and tgt is None:
+        what = " and ".join(w for w, f in (("a trajectory", need_trajectory), ("targets", need_targets)) if f) or "nothing"
+        raise InvalidInputError(
+            f"{Path(str(session.path)).name}: no truth to report against: the run has {what}, but the session has no "
+            "truth.*, no targets.* rows with role = truth, and no GPS fixes; give a session with truth via --truth SESSION"
+        )
+    return ReportTruth(traj, tgt, str(session.path))

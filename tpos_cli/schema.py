@@ -1,0 +1,27 @@
+"""Column names of the contract tables (docs/log-format.md), in one place."""
+
+from __future__ import annotations
+
+IMU_REQUIRED = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+IMU_MAG = ("mag_x", "mag_y", "mag_z")
+RANGES_REQUIRED = ("t", "d1", "d2", "d3")
+GPS_REQUIRED = ("t", "lat", "lon", "h", "fix")
+GPS_OPTIONAL = ("nsat", "hdop", "vn", "ve", "vd", "sigma_n", "sigma_e", "sigma_u")
+ANCHOR_RANGES_REQUIRED = ("t", "id", "range")
+RANGE_CALIBRATION_REQUIRED = ("id", "true_m", "measured_m")
+TARGETS_REQUIRED = ("id", "lat", "lon", "h")
+SHOTS_REQUIRED = ("id", "t_start", "t_end")
+TRUTH_REQUIRED = ("t", "lat", "lon", "h")
+TRUTH_OPTIONAL = ("vn", "ve", "vd", "roll", "pitch", "yaw")
+
+# Tables that may be CSV or Parquet, and those the contract gives as CSV only.
+TABLES_ANY_FORMAT = ("imu", "ranges", "gps", "anchor_ranges", "truth")
+TABLES_CSV_ONLY = ("anchors", "range_calibration", "targets", "shots")
+
+SESSION_KINDS = ("target", "drive", "ranging")
+TARGET_ROLES = ("reference", "truth", "")
+GPS_FIX_VALUES = (0, 1, 2)
+
+# Output tables.
+TRAJECTORY_COLUMNS = ("t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw", "solution")
+TARGET_COLUMNS = ("id", "t_start", "t_end", "range_m", "lat", "lon", "h", "solution")

@@ -1,0 +1,719 @@
+"""Session loading and validation: a session directory (docs/log-format.md) into one `Session`.
+
+`load_session` checks everything the contract requires, collects every problem it finds, and raises
+one `InvalidInputError` listing them (each a one-line `file: column 'c', row r: what`). Oddities the
+contract allows (duplicate stamps, isolated NaN samples, IMU gaps, rows without a fix) are handled,
+counted in `Session.counts` and described in `Session.warnings`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli import schema, timebase
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames import geodetic
+from tpos_cli.frames.rotation import axes_to_dcm
+from tpos_cli.io.tables import Problem, find_table, read_table
+
+# Rates above this cannot be rad/s from a MEMS gyro: 2000 deg/s is the largest full scale of
+# consumer MEMS gyros. Checked on the 99.9th percentile so that a few glitch samples do not trip it.
+GYRO_MAX_PLAUSIBLE_RPS = 34.9
+# A median specific-force magnitude in this band is g units, not m/s^2 (the median of any log,
+# static or moving, sits near 1 g).
+ACC_G_BAND = (0.5, 2.0)
+ACC_MPS2_BAND = (5.0, 15.0)
+
+
+@dataclass(frozen=True)
+class ImuNoise:
+    """Optional `[imu]` noise figures, in the contract's units (None where absent)."""
+
+    gyro_noise_dps: float | None = None
+    gyro_bias_dph: float | None = None
+    acc_noise_mg: float | None = None
+    acc_bias_mg: float | None = None
+    mag_noise_ut: float | None = None
+
+
+@dataclass(frozen=True)
+class Rangefinders:
+    """`[rangefinders]`: LR2 is `baseline_12_m` left of LR1, LR3 `baseline_13_m` below LR1."""
+
+    baseline_12_m: float
+    baseline_13_m: float
+    sigma_m: float | None = None
+
+
+@dataclass(frozen=True)
+class SessionMeta:
+    name: str
+    kind: str
+    start_utc: datetime | None
+    axes: str
+    rate_hz: float
+    imu_noise: ImuNoise
+    rangefinders: Rangefinders | None
+    declination_deg: float | None
+    lever_arm_b_m: np.ndarray  # FRD
+    observer_lla: np.ndarray | None
+    local_origin_lla: np.ndarray | None
+    time_offsets_s: dict
+    hard_iron_ut: np.ndarray | None
+    soft_iron: np.ndarray | None
+    raw: dict
+
+
+@dataclass(frozen=True)
+class ImuData:
+    t_s: np.ndarray
+    gyro_b_rps: np.ndarray
+    acc_b_mps2: np.ndarray
+    mag_b_ut: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class GpsData:
+    t_s: np.ndarray
+    lla: np.ndarray
+    fix: np.ndarray
+    nsat: np.ndarray
+    hdop: np.ndarray
+    vel_ned_mps: np.ndarray
+    sigma_neu_m: np.ndarray
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Rows that carry a usable position fix."""
+        return (self.fix > 0) & np.isfinite(self.lla).all(axis=1)
+
+
+@dataclass(frozen=True)
+class RangeData:
+    t_s: np.ndarray
+    range_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class Anchors:
+    ids: tuple
+    lla: np.ndarray
+    ned_m: np.ndarray
+    origin_lla: np.ndarray
+
+
+@dataclass(frozen=True)
+class AnchorRanges:
+    t_s: np.ndarray
+    anchor: np.ndarray
+    range_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class RangeCalibration:
+    anchor: np.ndarray
+    true_m: np.ndarray
+    measured_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class Targets:
+    ids: tuple
+    lla: np.ndarray
+    role: tuple
+
+
+@dataclass(frozen=True)
+class Shots:
+    ids: tuple
+    t_start_s: np.ndarray
+    t_end_s: np.ndarray
+
+
+@dataclass(frozen=True)
+class Truth:
+    t_s: np.ndarray
+    lla: np.ndarray
+    vel_ned_mps: np.ndarray
+    rpy_deg: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Session:
+    path: Path
+    meta: SessionMeta
+    t0_s: float
+    imu: ImuData
+    gps: GpsData | None
+    ranges: RangeData | None
+    anchors: Anchors | None
+    anchor_ranges: AnchorRanges | None
+    range_calibration: RangeCalibration | None
+    targets: Targets | None
+    shots: Shots | None
+    truth: Truth | None
+    gps_outages_s: np.ndarray
+    imu_gaps_s: np.ndarray
+    counts: dict
+    warnings: tuple
+    file_hashes: dict
+
+    @property
+    def t_end_s(self) -> float:
+        return float(self.imu.t_s[-1])
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+class _Collector:
+    """Gathers problems, counts and warnings while a session loads."""
+
+    def __init__(self, session_dir: Path):
+        self.dir = session_dir
+        self.problems: list[Problem] = []
+        self.counts: dict[str, int] = {}
+        self.warnings: list[str] = []
+
+    def problem(self, file: str, message: str, column: str | None = None, row: int | None = None):
+        self.problems.append(Problem(file, message, column, row))
+
+    def count(self, key: str, n: int):
+        if n:
+            self.counts[key] = self.counts.get(key, 0) + int(n)
+
+    def table(self, name: str, numeric, text=(), required=(), csv_only=False) -> tuple[pd.DataFrame | None, str]:
+        try:
+            path = find_table(self.dir, name, csv_only=csv_only)
+            if path is None:
+                return None, name
+            return read_table(path, tuple(numeric), tuple(text), tuple(required)), path.name
+        except InvalidInputError as exc:
+            self.problems.extend(exc.problems or [Problem(f"{name}.*", str(exc))])
+            return None, name
+
+
+def _number(c: _Collector, section: dict, key: str, where: str, required=False, positive=False):
+    if key not in section:
+        if required:
+            c.problem("session.toml", f"[{where}] {key} is required")
+        return None
+    v = section[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        c.problem("session.toml", f"[{where}] {key} must be a finite number, got {v!r}")
+        return None
+    if positive and v <= 0:
+        c.problem("session.toml", f"[{where}] {key} must be positive, got {v!r}")
+        return None
+    return float(v)
+
+
+def _lla_section(c: _Collector, raw: dict, name: str) -> np.ndarray | None:
+    sec = raw.get(name)
+    if sec is None:
+        return None
+    if not isinstance(sec, dict):
+        c.problem("session.toml", f"[{name}] must be a table with lat, lon, h")
+        return None
+    vals = [_number(c, sec, k, name, required=True) for k in ("lat", "lon", "h")]
+    if any(v is None for v in vals):
+        return None
+    if abs(vals[0]) > 90 or abs(vals[1]) > 180:
+        c.problem("session.toml", f"[{name}] lat/lon out of range ({vals[0]}, {vals[1]})")
+        return None
+    return np.array(vals)
+
+
+def _parse_meta(c: _Collector) -> SessionMeta | None:
+    path = c.dir / "session.toml"
+    if not path.exists():
+        c.problem("session.toml", "missing: every session needs a session.toml")
+        return None
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        c.problem("session.toml", f"not valid TOML ({exc})")
+        return None
+    except UnicodeDecodeError:
+        c.problem("session.toml", "not UTF-8 text")
+        return None
+    n0 = len(c.problems)
+    for sec in ("session", "imu"):
+        if not isinstance(raw.get(sec), dict):
+            c.problem("session.toml", f"[{sec}] section is required")
+    if len(c.problems) > n0:
+        return None
+    s, imu = raw["session"], raw["imu"]
+    name = str(s.get("name", c.dir.name))
+    kind = s.get("kind")
+    if kind not in schema.SESSION_KINDS:
+        c.problem("session.toml", f"[session] kind must be one of {', '.join(schema.SESSION_KINDS)}, got {kind!r}")
+    start_utc = None
+    if "start_utc" in s:
+        v = s["start_utc"]
+        try:
+            start_utc = v if isinstance(v, datetime) else datetime.fromisoformat(str(v).replace("Z", "+00:00"))
+        except ValueError:
+            c.problem("session.toml", f"[session] start_utc is not an ISO-8601 time: {v!r}")
+    axes = imu.get("axes")
+    try:
+        axes_to_dcm(axes)
+    except ValueError as exc:
+        c.problem("session.toml", f"[imu] {exc}")
+    rate = _number(c, imu, "rate_hz", "imu", required=True, positive=True)
+    noise = ImuNoise(**{k: _number(c, imu, k, "imu", positive=False) for k in ImuNoise.__dataclass_fields__})
+    rf = None
+    if "rangefinders" in raw:
+        sec = raw["rangefinders"]
+        b12 = _number(c, sec, "baseline_12_m", "rangefinders", required=True, positive=True)
+        b13 = _number(c, sec, "baseline_13_m", "rangefinders", required=True, positive=True)
+        sig = _number(c, sec, "sigma_m", "rangefinders", positive=True)
+        if b12 is not None and b13 is not None:
+            rf = Rangefinders(b12, b13, sig)
+    mag = raw.get("magnetic", {})
+    decl = _number(c, mag, "declination_deg", "magnetic")
+    hard_iron = soft_iron = None
+    if "hard_iron_ut" in mag:
+        hard_iron = np.asarray(mag["hard_iron_ut"], dtype=float) if _is_matrix(mag["hard_iron_ut"], (3,)) else None
+        if hard_iron is None:
+            c.problem("session.toml", "[magnetic] hard_iron_ut must be three numbers (µT)")
+    if "soft_iron" in mag:
+        soft_iron = np.asarray(mag["soft_iron"], dtype=float) if _is_matrix(mag["soft_iron"], (3, 3)) else None
+        if soft_iron is None:
+            c.problem("session.toml", "[magnetic] soft_iron must be a 3x3 array of numbers")
+    lever = np.zeros(3)
+    gps = raw.get("gps", {})
+    if "lever_arm_m" in gps:
+        if _is_matrix(gps["lever_arm_m"], (3,)):
+            lever = np.asarray(gps["lever_arm_m"], dtype=float)
+        else:
+            c.problem("session.toml", "[gps] lever_arm_m must be three numbers (m, in the IMU's logged axes)")
+    offsets = {}
+    for k, v in raw.get("time", {}).items():
+        val = _number(c, raw["time"], k, "time")
+        if val is not None:
+            offsets[k] = val
+    observer = _lla_section(c, raw, "observer")
+    local = _lla_section(c, raw, "local")
+    if len(c.problems) > n0:
+        return None
+    C_bs = axes_to_dcm(axes)
+    return SessionMeta(
+        name=name, kind=kind, start_utc=start_utc, axes=axes.upper(), rate_hz=rate, imu_noise=noise,
+        rangefinders=rf, declination_deg=decl, lever_arm_b_m=C_bs @ lever, observer_lla=observer,
+        local_origin_lla=local, time_offsets_s=offsets, hard_iron_ut=hard_iron, soft_iron=soft_iron, raw=raw,
+    )
+
+
+def _is_matrix(v, shape) -> bool:
+    try:
+        a = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return a.shape == shape and bool(np.isfinite(a).all())
+
+
+def _check_time(c: _Collector, fname: str, t: np.ndarray, key: str) -> np.ndarray | None:
+    """Time column checks; returns the mask of rows to keep (duplicates dropped), None if invalid."""
+    nan = np.flatnonzero(~np.isfinite(t))
+    if nan.size:
+        c.problem(fname, "time is empty or not finite", "t", int(nan[0]) + 1)
+        return None
+    i = timebase.first_decrease(t)
+    if i is not None:
+        c.problem(fname, f"time goes backwards ({t[i]!r} after {t[i - 1]!r}); t must be non-decreasing", "t", i + 1)
+        return None
+    dup = timebase.duplicate_mask(t)
+    if dup.any():
+        c.count(f"duplicate_stamps_{key}", int(dup.sum()))
+        c.warnings.append(f"{fname}: {int(dup.sum())} duplicate time stamps; the first sample of each kept")
+    return ~dup
+
+
+def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray):
+    for col, v, lim in (("lat", lat, 90.0), ("lon", lon, 180.0)):
+        bad = np.flatnonzero(np.abs(v) > lim)
+        if bad.size:
+            c.problem(fname, f"{v[bad[0]]!r} is outside ±{lim:g} degrees", col, int(bad[0]) + 1)
+
+
+def _load_imu(c: _Collector, meta: SessionMeta):
+    cols = schema.IMU_REQUIRED + schema.IMU_MAG
+    df, fname = c.table("imu", cols, required=schema.IMU_REQUIRED)
+    if df is None:
+        if not any(p.file.startswith("imu") for p in c.problems):
+            c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
+        return None
+    t = df["t"].to_numpy()
+    keep = _check_time(c, fname, t, "imu")
+    if keep is None:
+        return None
+    has_mag = [m in df.columns for m in schema.IMU_MAG]
+    if any(has_mag) and not all(has_mag):
+        missing = [m for m, h in zip(schema.IMU_MAG, has_mag) if not h][0]
+        c.problem(fname, "magnetometer columns come as mag_x, mag_y, mag_z together", missing)
+        return None
+    gyro = df[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
+    acc = df[["acc_x", "acc_y", "acc_z"]].to_numpy()
+    mag = df[list(schema.IMU_MAG)].to_numpy() if all(has_mag) else None
+    finite = np.isfinite(gyro).all(axis=1) & np.isfinite(acc).all(axis=1)
+    if finite.sum() < 2:
+        c.problem(fname, "fewer than two complete samples (gyro and acc all present)")
+        return None
+    nan_rows = ~finite & keep
+    if nan_rows.any():
+        c.count("imu_nan_samples", int(nan_rows.sum()))
+        c.warnings.append(f"{fname}: {int(nan_rows.sum())} samples with empty/NaN gyro or acc values dropped")
+    keep = keep & finite
+    gyro_norm = np.linalg.norm(gyro[keep], axis=1)
+    p999 = float(np.quantile(gyro_norm, 0.999))
+    if p999 > GYRO_MAX_PLAUSIBLE_RPS:
+        row = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)]) + 1
+        c.problem(fname, f"angular rates up to {p999:.1f} (99.9th percentile of |gyro|) only make sense in deg/s; "
+                  "the contract requires rad/s", "gyro_x", row)
+    acc_norm = float(np.median(np.linalg.norm(acc[keep], axis=1)))
+    if ACC_G_BAND[0] <= acc_norm <= ACC_G_BAND[1]:
+        c.problem(fname, f"median |acc| is {acc_norm:.3f}: that is g units; the contract requires m/s² "
+                  "(multiply by 9.80665)", "acc_x", 1)
+    elif not ACC_MPS2_BAND[0] <= acc_norm <= ACC_MPS2_BAND[1]:
+        c.problem(fname, f"median |acc| is {acc_norm:.3g}, which is not gravity in m/s² (about 9.8)", "acc_x", 1)
+    if mag is not None:
+        mag_nan = keep & ~np.isfinite(mag).all(axis=1)
+        if mag_nan.any():
+            c.count("imu_mag_nan_samples", int(mag_nan.sum()))
+            c.warnings.append(f"{fname}: {int(mag_nan.sum())} samples without a magnetometer value (kept; magnetometer treated as missing there)")
+    if any(p.file == fname for p in c.problems):
+        return None
+    C_bs = axes_to_dcm(meta.axes)
+    t = t[keep]
+    gyro_b = gyro[keep] @ C_bs.T
+    acc_b = acc[keep] @ C_bs.T
+    mag_b = None
+    if mag is not None:
+        m = mag[keep]
+        if meta.hard_iron_ut is not None or meta.soft_iron is not None:
+            hi = meta.hard_iron_ut if meta.hard_iron_ut is not None else np.zeros(3)
+            si = meta.soft_iron if meta.soft_iron is not None else np.eye(3)
+            # Calibration is defined in the logged sensor axes: m_cal = S (m_raw - b).
+            m = (m - hi) @ si.T
+        mag_b = m @ C_bs.T
+    nominal = 1.0 / meta.rate_hz
+    gaps = timebase.find_gaps(t, nominal)
+    if len(gaps):
+        c.count("imu_gaps", len(gaps))
+        c.warnings.append(f"{fname}: {len(gaps)} gaps longer than 2.5 sample periods (longest {np.max(gaps[:, 1] - gaps[:, 0]):.3f} s)")
+    measured = (t[-1] - t[0]) / max(len(t) - 1, 1)
+    if abs(measured * meta.rate_hz - 1.0) > 0.1:
+        c.warnings.append(f"{fname}: measured rate {1.0 / measured:.2f} Hz differs from [imu] rate_hz = {meta.rate_hz:g} by more than 10%")
+    return t, gyro_b, acc_b, mag_b, gaps
+
+
+def _offset(meta: SessionMeta, name: str) -> float:
+    return float(meta.time_offsets_s.get(f"{name}_offset_s", 0.0))
+
+
+def _load_gps(c: _Collector, meta: SessionMeta, t0: float):
+    df, fname = c.table("gps", schema.GPS_REQUIRED + schema.GPS_OPTIONAL, required=schema.GPS_REQUIRED)
+    if df is None:
+        return None
+    t = df["t"].to_numpy()
+    keep = _check_time(c, fname, t, "gps")
+    if keep is None:
+        return None
+    fix = df["fix"].to_numpy()
+    bad = np.flatnonzero(~np.isin(fix, schema.GPS_FIX_VALUES))
+    if bad.size:
+        c.problem(fname, f"fix must be 0, 1 or 2, got {fix[bad[0]]!r}", "fix", int(bad[0]) + 1)
+        return None
+    fix = fix.astype(np.int64)
+    lla = df[["lat", "lon", "h"]].to_numpy()
+    _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+    no_pos = (fix > 0) & ~np.isfinite(lla).all(axis=1)
+    if no_pos.any():
+        c.count("gps_fix_without_position", int(no_pos.sum()))
+        c.warnings.append(f"{fname}: {int(no_pos.sum())} rows with fix > 0 but no position, treated as fix = 0")
+        fix = np.where(no_pos, 0, fix)
+    c.count("gps_no_fix_rows", int(((fix == 0) & keep).sum()))
+    for col in ("sigma_n", "sigma_e", "sigma_u", "hdop", "nsat"):
+        if col in df.columns:
+            v = df[col].to_numpy()
+            neg = np.flatnonzero(v < 0)
+            if neg.size:
+                c.problem(fname, f"{v[neg[0]]!r} is negative", col, int(neg[0]) + 1)
+    if any(p.file == fname for p in c.problems):
+        return None
+
+    def opt(cols):
+        return np.column_stack([df[k].to_numpy() if k in df.columns else np.full(len(df), np.nan) for k in cols])
+
+    lla = np.where((fix > 0)[:, None], lla, np.nan)
+    return GpsData(
+        t_s=t[keep] + _offset(meta, "gps") - t0, lla=lla[keep], fix=fix[keep],
+        nsat=opt(["nsat"])[keep, 0], hdop=opt(["hdop"])[keep, 0],
+        vel_ned_mps=opt(["vn", "ve", "vd"])[keep], sigma_neu_m=opt(["sigma_n", "sigma_e", "sigma_u"])[keep],
+    )
+
+
+def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
+    df, fname = c.table("ranges", schema.RANGES_REQUIRED, required=schema.RANGES_REQUIRED)
+    if df is None:
+        return None
+    if meta.rangefinders is None:
+        c.problem("session.toml", "[rangefinders] is required when ranges.* exists (baseline_12_m, baseline_13_m)")
+    t = df["t"].to_numpy()
+    keep = _check_time(c, fname, t, "ranges")
+    if keep is None:
+        return None
+    d = df[["d1", "d2", "d3"]].to_numpy()
+    for j, col in enumerate(("d1", "d2", "d3")):
+        neg = np.flatnonzero(d[:, j] < 0)
+        if neg.size:
+            c.problem(fname, f"negative range {d[neg[0], j]!r} m", col, int(neg[0]) + 1)
+    if any(p.file == fname for p in c.problems):
+        return None
+    c.count("ranges_no_return", int((~np.isfinite(d[keep])).sum()))
+    return RangeData(t_s=t[keep] + _offset(meta, "ranges") - t0, range_m=d[keep])
+
+
+def _load_anchors(c: _Collector, meta: SessionMeta):
+    df, fname = c.table("anchors", ("lat", "lon", "h", "e", "n", "u"), text=("id",), required=("id",), csv_only=True)
+    if df is None:
+        return None
+    ids = tuple(df["id"])
+    has_lla = all(k in df.columns for k in ("lat", "lon", "h"))
+    has_enu = all(k in df.columns for k in ("e", "n", "u"))
+    if not (has_lla or has_enu):
+        c.problem(fname, "anchors need either lat, lon, h or e, n, u columns", "lat" if "lat" not in df.columns else "e")
+        return None
+    empty = [i for i, v in enumerate(ids) if v == ""]
+    if empty:
+        c.problem(fname, "anchor id is empty", "id", empty[0] + 1)
+    dup = pd.Series(ids).duplicated().to_numpy()
+    if dup.any():
+        c.problem(fname, f"anchor id {ids[int(np.argmax(dup))]!r} appears twice", "id", int(np.argmax(dup)) + 1)
+    origin = meta.local_origin_lla
+    if has_lla:
+        lla = df[["lat", "lon", "h"]].to_numpy()
+        _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+        nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
+        if nan.size:
+            c.problem(fname, "anchor position is incomplete", "lat", int(nan[0]) + 1)
+        if origin is None:
+            origin = lla[0].copy()
+    else:
+        enu = df[["e", "n", "u"]].to_numpy()
+        nan = np.flatnonzero(~np.isfinite(enu).all(axis=1))
+        if nan.size:
+            c.problem(fname, "anchor position is incomplete", "e", int(nan[0]) + 1)
+        if origin is None:
+            c.problem("session.toml", "[local] origin (lat, lon, h) is required when anchors.csv gives e, n, u")
+            return None
+    if any(p.file == fname for p in c.problems):
+        return None
+    if has_lla:
+        ned = geodetic.lla_to_ned(lla, origin)
+    else:
+        lla = geodetic.enu_to_lla(enu, origin)
+        ned = np.column_stack([enu[:, 1], enu[:, 0], -enu[:, 2]])
+    return Anchors(ids=ids, lla=lla, ned_m=ned, origin_lla=np.asarray(origin, dtype=float))
+
+
+def _anchor_index(c: _Collector, fname: str, ids: np.ndarray, anchors: Anchors | None) -> np.ndarray | None:
+    if anchors is None:
+        c.problem(fname, "ranges to anchors need anchors.csv with the anchors' positions")
+        return None
+    lookup = {a: i for i, a in enumerate(anchors.ids)}
+    idx = np.array([lookup.get(a, -1) for a in ids], dtype=np.int64)
+    bad = np.flatnonzero(idx < 0)
+    if bad.size:
+        c.problem(fname, f"anchor id {ids[bad[0]]!r} is not in anchors.csv", "id", int(bad[0]) + 1)
+        return None
+    return idx
+
+
+def _load_anchor_ranges(c: _Collector, meta: SessionMeta, t0: float, anchors: Anchors | None):
+    df, fname = c.table("anchor_ranges", ("t", "range"), text=("id",), required=schema.ANCHOR_RANGES_REQUIRED)
+    if df is None:
+        return None
+    t = df["t"].to_numpy()
+    nan = np.flatnonzero(~np.isfinite(t))
+    if nan.size:
+        c.problem(fname, "time is empty or not finite", "t", int(nan[0]) + 1)
+        return None
+    i = timebase.first_decrease(t)
+    if i is not None:  # long format: several rows share one epoch, so only decreases are errors
+        c.problem(fname, f"time goes backwards ({t[i]!r} after {t[i - 1]!r})", "t", i + 1)
+        return None
+    r = df["range"].to_numpy()
+    neg = np.flatnonzero(r < 0)
+    if neg.size:
+        c.problem(fname, f"negative range {r[neg[0]]!r} m", "range", int(neg[0]) + 1)
+        return None
+    idx = _anchor_index(c, fname, df["id"], anchors)
+    if idx is None:
+        return None
+    pair = pd.DataFrame({"t": t, "a": idx}).duplicated().to_numpy()
+    ok = np.isfinite(r) & ~pair
+    c.count("anchor_ranges_missing", int((~np.isfinite(r)).sum()))
+    c.count("duplicate_stamps_anchor_ranges", int(pair.sum()))
+    return AnchorRanges(t_s=t[ok] + _offset(meta, "anchor_ranges") - t0, anchor=idx[ok], range_m=r[ok])
+
+
+def _load_range_calibration(c: _Collector, anchors: Anchors | None):
+    df, fname = c.table("range_calibration", ("true_m", "measured_m"), text=("id",),
+                        required=schema.RANGE_CALIBRATION_REQUIRED, csv_only=True)
+    if df is None:
+        return None
+    tm, mm = df["true_m"].to_numpy(), df["measured_m"].to_numpy()
+    for col, v in (("true_m", tm), ("measured_m", mm)):
+        bad = np.flatnonzero(~np.isfinite(v) | (v < 0))
+        if bad.size:
+            c.problem(fname, f"{v[bad[0]]!r} is not a non-negative distance", col, int(bad[0]) + 1)
+            return None
+    idx = _anchor_index(c, fname, df["id"], anchors)
+    if idx is None:
+        return None
+    return RangeCalibration(anchor=idx, true_m=tm, measured_m=mm)
+
+
+def _load_targets(c: _Collector):
+    df, fname = c.table("targets", ("lat", "lon", "h"), text=("id", "role"), required=schema.TARGETS_REQUIRED, csv_only=True)
+    if df is None:
+        return None
+    ids = tuple(df["id"])
+    roles = tuple(df["role"]) if "role" in df.columns else ("",) * len(ids)
+    bad = [i for i, r in enumerate(roles) if r not in schema.TARGET_ROLES]
+    if bad:
+        c.problem(fname, f"role must be 'reference' or 'truth' (or empty), got {roles[bad[0]]!r}", "role", bad[0] + 1)
+    lla = df[["lat", "lon", "h"]].to_numpy()
+    _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+    nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
+    if nan.size:
+        c.problem(fname, "target position is incomplete", "lat", int(nan[0]) + 1)
+    if any(p.file == fname for p in c.problems):
+        return None
+    return Targets(ids=ids, lla=lla, role=roles)
+
+
+def _load_shots(c: _Collector, t0: float):
+    df, fname = c.table("shots", ("t_start", "t_end"), text=("id",), required=schema.SHOTS_REQUIRED, csv_only=True)
+    if df is None:
+        return None
+    a, b = df["t_start"].to_numpy(), df["t_end"].to_numpy()
+    for col, v in (("t_start", a), ("t_end", b)):
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            c.problem(fname, "time is empty or not finite", col, int(bad[0]) + 1)
+            return None
+    bad = np.flatnonzero(b <= a)
+    if bad.size:
+        c.problem(fname, f"t_end {b[bad[0]]!r} is not after t_start {a[bad[0]]!r}", "t_end", int(bad[0]) + 1)
+        return None
+    return Shots(ids=tuple(df["id"]), t_start_s=a - t0, t_end_s=b - t0)
+
+
+def _load_truth(c: _Collector, t0: float):
+    path = None
+    try:
+        path = find_table(c.dir, "truth")
+    except InvalidInputError as exc:
+        c.problems.extend(exc.problems)
+        return None
+    if path is None:
+        return None
+    df_all = None
+    try:
+        # Truth may carry extra columns (e.g. BROAD's `movement`): keep the numeric ones.
+        import pyarrow.parquet as pq
+
+        names = pq.read_schema(path).names if path.suffix == ".parquet" else pd.read_csv(path, nrows=0).columns.tolist()
+    except Exception:
+        names = []
+    extra_cols = tuple(n for n in names if n not in schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL)
+    df, fname = c.table("truth", schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL + extra_cols, required=("t",))
+    if df is None:
+        return None
+    t = df["t"].to_numpy()
+    keep = _check_time(c, fname, t, "truth")
+    if keep is None:
+        return None
+
+    def opt(cols):
+        return np.column_stack([df[k].to_numpy() if k in df.columns else np.full(len(df), np.nan) for k in cols])
+
+    lla = opt(["lat", "lon", "h"])
+    _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+    if any(p.file == fname for p in c.problems):
+        return None
+    del df_all
+    return Truth(t_s=t[keep] - t0, lla=lla[keep], vel_ned_mps=opt(["vn", "ve", "vd"])[keep],
+                 rpy_deg=opt(["roll", "pitch", "yaw"])[keep],
+                 extra={k: df[k].to_numpy()[keep] for k in extra_cols if k in df.columns})
+
+
+def load_session(path: str | Path) -> Session:
+    """Load and validate a session directory; raises InvalidInputError listing every problem."""
+    session_dir = Path(path)
+    if not session_dir.is_dir():
+        p = Problem(str(session_dir), "not a session directory (it must hold session.toml and imu.*)")
+        raise InvalidInputError(str(p), [p])
+    c = _Collector(session_dir)
+    meta = _parse_meta(c)
+    if meta is None:
+        _raise(c)
+    imu = _load_imu(c, meta)
+    t0 = float(imu[0][0]) if imu is not None else 0.0
+    gps = _load_gps(c, meta, t0)
+    ranges = _load_ranges(c, meta, t0)
+    anchors = _load_anchors(c, meta)
+    anchor_ranges = _load_anchor_ranges(c, meta, t0, anchors)
+    range_cal = _load_range_calibration(c, anchors)
+    targets = _load_targets(c)
+    shots = _load_shots(c, t0)
+    truth = _load_truth(c, t0)
+    if shots is not None and targets is not None:
+        pass  # a shot on a new name is an unknown point: allowed by the contract
+    if c.problems or imu is None:
+        _raise(c)
+    t, gyro_b, acc_b, mag_b, gaps = imu
+    t_rel = t - t0
+    outages = np.empty((0, 2))
+    if gps is not None:
+        outages = timebase.gps_outages(gps.t_s[gps.valid], 0.0, float(t_rel[-1]))
+        if len(outages):
+            c.count("gps_outages", len(outages))
+    hashes = {p.name: sha256_file(p) for p in sorted(session_dir.iterdir()) if p.is_file() and _is_session_file(p.name)}
+    return Session(
+        path=session_dir.resolve(), meta=meta, t0_s=t0,
+        imu=ImuData(t_s=t_rel, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
+                    mag_b_ut=None if mag_b is None else np.ascontiguousarray(mag_b)),
+        gps=gps, ranges=ranges, anchors=anchors, anchor_ranges=anchor_ranges, range_calibration=range_cal,
+        targets=targets, shots=shots, truth=truth, gps_outages_s=outages, imu_gaps_s=gaps - t0,
+        counts=dict(c.counts), warnings=tuple(c.warnings), file_hashes=hashes,
+    )
+
+
+def _is_session_file(name: str) -> bool:
+    stem, _, ext = name.partition(".")
+    return name == "session.toml" or (ext in ("csv", "parquet") and stem in schema.TABLES_ANY_FORMAT + schema.TABLES_CSV_ONLY)
+
+
+def _raise(c: _Collector):
+    problems = c.problems or [Problem("session", "invalid")]
+    first = str(problems[0])
+    more = f" (and {len(problems) - 1} more problem{'s' if len(problems) > 2 else ''})" if len(problems) > 1 else ""
+    raise InvalidInputError(f"{c.dir.name}/{first}{more}", problems)
