@@ -30,6 +30,11 @@ def fake_fingerprint(session_dir: Path, pipeline: str | None) -> tuple[dict[str,
     return inputs, hashlib.sha256(f"config:{pipeline}".encode()).hexdigest()
 
 
+def fake_is_current(session_dir: Path, pipeline: str | None, summary) -> bool:
+    inputs, config_sha = fake_fingerprint(session_dir, pipeline)
+    return summary["inputs"] == inputs and summary["config_sha256"] == config_sha
+
+
 def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
     """Behave as the session's `behaviour` file says; on success write the run atomically."""
     behaviour = (session_dir / "behaviour").read_text().strip()
@@ -125,7 +130,7 @@ def test_plan_rejects_two_sessions_with_one_name(tmp_path):
 def test_task_turns_errors_into_one_line_rows(tmp_path, behaviour, exit_code, message):
     (s,) = make_sessions(tmp_path, {"s": behaviour})
     (task,) = tasks_for([s], tmp_path / "out")
-    r = b.run_session_task(task, fake_process, fake_fingerprint)
+    r = b.run_session_task(task, fake_process, fake_is_current)
     assert (r.status, r.exit_code) == ("failed", exit_code)
     assert r.error.startswith(message) and "\n" not in r.error
     assert not (tmp_path / "out" / "s").exists()  # nothing half-written
@@ -134,12 +139,12 @@ def test_task_turns_errors_into_one_line_rows(tmp_path, behaviour, exit_code, me
 def test_task_ok_reads_summary_and_report_figures(tmp_path):
     (s,) = make_sessions(tmp_path, {"s": "ok"})
     (plain,) = tasks_for([s], tmp_path / "out")
-    r = b.run_session_task(plain, fake_process, fake_fingerprint)
+    r = b.run_session_task(plain, fake_process, fake_is_current)
     assert (r.status, r.exit_code, r.error, r.pipeline) == ("ok", 0, "", "p1")
     assert r.timings_s == {"load": 0.01, "filter": 0.02}
     assert r.accuracy == {}  # only with report
     (rep,) = tasks_for([s], tmp_path / "out", report=True, force=True)
-    r = b.run_session_task(rep, fake_process, fake_fingerprint)
+    r = b.run_session_task(rep, fake_process, fake_is_current)
     # numeric results flattened with dotted keys; booleans and strings are not figures
     assert r.accuracy == {"position.rms_h_m": 1.5, "position.max_h_m": 4.0, "n_fixes": 10.0}
 
@@ -147,22 +152,22 @@ def test_task_ok_reads_summary_and_report_figures(tmp_path):
 def test_resume_skips_current_runs_and_redoes_changed_or_half_written_ones(tmp_path):
     sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok", "c": "ok", "d": "ok"})
     out = tmp_path / "out"
-    first = b.run_batch(tasks_for(sessions, out), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    first = b.run_batch(tasks_for(sessions, out), jobs=1, process=fake_process, is_current=fake_is_current)
     assert [r.status for r in first.results] == ["ok"] * 4 and first.exit_code == 0
 
     (sessions[0] / "imu.csv").write_text("t,gyro_x\n0,99\n")  # a: input changed
     (sessions[1] / "gps.csv").write_text("t,lat\n0,1\n")  # b: a new input file appeared
     shutil.rmtree(out / "c")  # c: killed midway: only the temporary directory is left
     (out / ".c.tmp").mkdir()
-    second = b.run_batch(tasks_for(sessions, out), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    second = b.run_batch(tasks_for(sessions, out), jobs=1, process=fake_process, is_current=fake_is_current)
     assert [r.status for r in second.results] == ["ok", "ok", "ok", "skipped"]
     assert [runs(out, n) for n in "abcd"] == [2, 2, 2, 1]
     assert second.results[3].timings_s == {"load": 0.01, "filter": 0.02}  # a skipped row still reports
 
-    other_pipeline = b.run_batch(b.plan_batch(sessions, out, "p2"), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    other_pipeline = b.run_batch(b.plan_batch(sessions, out, "p2"), jobs=1, process=fake_process, is_current=fake_is_current)
     assert [r.status for r in other_pipeline.results] == ["ok"] * 4  # config hash changed
 
-    forced = b.run_batch(b.plan_batch(sessions, out, "p2", force=True), jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    forced = b.run_batch(b.plan_batch(sessions, out, "p2", force=True), jobs=1, process=fake_process, is_current=fake_is_current)
     assert [r.status for r in forced.results] == ["ok"] * 4
     assert [runs(out, n) for n in "abcd"] == [4, 4, 4, 3]
 
@@ -170,10 +175,10 @@ def test_resume_skips_current_runs_and_redoes_changed_or_half_written_ones(tmp_p
 def test_corrupt_summary_is_not_a_finished_run(tmp_path):
     (s,) = make_sessions(tmp_path, {"s": "ok"})
     (task,) = tasks_for([s], tmp_path / "out")
-    b.run_session_task(task, fake_process, fake_fingerprint)
+    b.run_session_task(task, fake_process, fake_is_current)
     (tmp_path / "out" / "s" / "summary.json").write_text('{"inputs": {"imu.csv"')  # truncated
-    assert b.finished_summary(task, fake_fingerprint) is None
-    assert b.run_session_task(task, fake_process, fake_fingerprint).status == "ok"
+    assert b.finished_summary(task, fake_is_current) is None
+    assert b.run_session_task(task, fake_process, fake_is_current).status == "ok"
 
 
 # --------------------------------------------------------------------------- executors
@@ -184,7 +189,7 @@ def test_process_pool_isolates_failures_and_crashes(tmp_path):
     sessions = make_sessions(tmp_path / "logs", behaviours)
     seen = []
     res = b.run_batch(tasks_for(sessions, tmp_path / "out"), jobs=2, process=fake_process,
-                      fingerprint=fake_fingerprint, on_result=lambda r: seen.append(r.name))
+                      is_current=fake_is_current, on_result=lambda r: seen.append(r.name))
     assert [r.name for r in res.results] == list(behaviours)  # rows in task order
     assert sorted(seen) == sorted(behaviours)  # every row reported once as it completed
     assert [r.status for r in res.results] == ["ok", "failed", "failed", "ok", "failed", "ok"]
@@ -202,12 +207,12 @@ def test_dask_local_cluster_runs_the_same_task(tmp_path):
     out = tmp_path / "out"
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cluster:
         res = b.run_batch(tasks_for(sessions, out), scheduler=cluster.scheduler_address,
-                          process=fake_process, fingerprint=fake_fingerprint)
+                          process=fake_process, is_current=fake_is_current)
         assert [r.status for r in res.results] == ["ok", "failed", "ok"]
         assert res.results[1].exit_code == 2 and "row 7" in res.results[1].error
         assert res.scheduler == cluster.scheduler_address
         again = b.run_batch(tasks_for(sessions, out), scheduler=cluster.scheduler_address,
-                            process=fake_process, fingerprint=fake_fingerprint)
+                            process=fake_process, is_current=fake_is_current)
         assert [r.status for r in again.results] == ["skipped", "failed", "skipped"]
     assert runs(out, "a") == 1 and runs(out, "c") == 1
 
@@ -223,7 +228,7 @@ def test_bad_jobs_is_invalid_input(tmp_path):
 def test_batch_record_has_one_row_per_session(tmp_path):
     sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "error"})
     tasks = tasks_for(sessions, tmp_path / "out", report=True)
-    res = b.run_batch(tasks, jobs=1, process=fake_process, fingerprint=fake_fingerprint)
+    res = b.run_batch(tasks, jobs=1, process=fake_process, is_current=fake_is_current)
     lost = b._failed(tasks[1], "worker process died (NaN time)")  # a lost task: no time measured
     res = b.BatchResult(res.root, (res.results[0], lost), res.wall_time_s, 1, None)
     json_path, pq_path = b.write_batch_record(res, pipeline="p1")
@@ -235,7 +240,8 @@ def test_batch_record_has_one_row_per_session(tmp_path):
     assert list(df["name"]) == ["a", "b"] and list(df["status"]) == ["ok", "failed"]
     assert df.loc[0, "acc.position.rms_h_m"] == 1.5 and df.loc[0, "timing.filter"] == 0.02
     assert pd.isna(df.loc[1, "acc.position.rms_h_m"])
-    assert b.key_accuracy_figures(res.results) == ["position.max_h_m", "position.rms_h_m", "n_fixes"]
+    # error-like keys (rms, cep, err, sigma, ...) lead the console table, then the others by name
+    assert b.key_accuracy_figures(res.results) == ["position.rms_h_m", "n_fixes", "position.max_h_m"]
 
 
 # --------------------------------------------------------------------------- CLI
@@ -246,7 +252,7 @@ def cli(monkeypatch):
     from tpos_cli.cli.batch import batch
 
     monkeypatch.setattr(b, "_default_process", fake_process)
-    monkeypatch.setattr(b, "current_fingerprint", fake_fingerprint)
+    monkeypatch.setattr(b, "run_is_current", fake_is_current)
     app = typer.Typer()
     app.command()(batch)
     runner = CliRunner()
@@ -273,3 +279,53 @@ def test_cli_bad_arguments_exit_2(tmp_path, cli, args, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert cli(*args).exit_code == 2
     assert not (tmp_path / "o").exists()
+
+
+# --------------------------------------------------------------------------- end to end
+
+
+def _simulated_sessions(root: Path) -> list[Path]:
+    from tpos_cli.sim.drive import simulate_drive
+    from tpos_cli.sim.writer import write_session
+
+    paths = [write_session(simulate_drive(30.0, seed=s, static_s=5.0, outages=(), name=f"drive{s}"), root / f"drive{s}", fmt="csv")
+             for s in (1, 2)]
+    broken = root / "broken"
+    shutil.copytree(paths[0], broken)
+    imu = (broken / "imu.csv").read_text().splitlines()
+    cells = imu[5].split(",")
+    imu[5] = ",".join([cells[0], "abc", *cells[2:]])  # data row 5, column 2 of the header
+    (broken / "imu.csv").write_text("\n".join(imu) + "\n")
+    return [*paths, broken]
+
+
+def test_batch_e2e_real_pipeline_broken_session_and_resume(tmp_path):
+    from tpos_cli.cli import app
+
+    _simulated_sessions(tmp_path / "logs")
+    header = (tmp_path / "logs" / "broken" / "imu.csv").read_text().splitlines()[0].split(",")
+    out = tmp_path / "out"
+    runner = CliRunner()
+    args = ["batch", str(tmp_path / "logs" / "*"), "--out", str(out), "-p", "ingest", "--jobs", "2", "--report"]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 1, first.output
+    assert f"broken: broken/imu.csv: column '{header[1]}', row 5:" in first.output
+    assert "2 ok, 0 skipped, 1 failed" in first.output
+    doc = json.loads((out / "batch.json").read_text())
+    rows = {r["name"]: r for r in doc["sessions"]}
+    assert rows["drive1"]["status"] == "ok" and rows["drive1"]["accuracy"]["gps_valid_fixes"] > 0
+    assert rows["broken"]["exit_code"] == 2 and not (out / "broken").exists()
+    summary = json.loads((out / "drive1" / "summary.json").read_text())
+    assert summary["pipeline"] == "ingest" and summary["inputs"]
+
+    second = runner.invoke(app, args)
+    assert second.exit_code == 1 and "0 ok, 2 skipped, 1 failed" in second.output, second.output
+
+    # an edited input is processed again; the other stays skipped
+    toml = tmp_path / "logs" / "drive2" / "session.toml"
+    toml.write_text(toml.read_text() + "\n# edited\n")
+    shutil.rmtree(tmp_path / "logs" / "broken")
+    third = runner.invoke(app, [*args[:-3], "--jobs", "1"])
+    assert third.exit_code == 0 and "1 ok, 1 skipped, 0 failed" in third.output, third.output
+    rows = {r["name"]: r["status"] for r in json.loads((out / "batch.json").read_text())["sessions"]}
+    assert rows == {"drive1": "skipped", "drive2": "ok"}

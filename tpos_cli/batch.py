@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import glob
-import hashlib
 import json
 import math
 import multiprocessing
@@ -47,7 +46,7 @@ BATCH_PARQUET = "batch.parquet"
 _GLOB_CHARS = frozenset("*?[")
 
 ProcessFn = Callable[[Path, "str | None", Path], Any]
-FingerprintFn = Callable[[Path, "str | None"], "tuple[dict[str, str], str]"]
+CurrentFn = Callable[[Path, "str | None", "Mapping[str, Any]"], bool]
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,9 +164,12 @@ def plan_batch(
 ) -> tuple[SessionTask, ...]:
     """One task per session, run directory `out_root/<session directory name>`.
 
-    Raises `InvalidInputError` when two sessions share a directory name (their runs would collide).
+    A pipeline given as a file path is made absolute (workers may run elsewhere). Raises
+    `InvalidInputError` when two sessions share a directory name (their runs would collide).
     """
     root = Path(out_root).expanduser().resolve()
+    if pipeline is not None and (pipeline.endswith(".toml") or Path(pipeline).exists()):
+        pipeline = str(Path(pipeline).expanduser().resolve())  # workers may run in another directory
     by_name: dict[str, Path] = {}
     tasks = []
     for s in sessions:
@@ -185,14 +187,6 @@ def plan_batch(
 # --------------------------------------------------------------------------- the task
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(functools.partial(f.read, 1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _read_summary(run_dir: Path) -> dict | None:
     try:
         with open(run_dir / SUMMARY_FILE, encoding="utf-8") as f:
@@ -202,33 +196,69 @@ def _read_summary(run_dir: Path) -> dict | None:
     return summary if isinstance(summary, dict) else None
 
 
-def current_fingerprint(session_dir: Path, pipeline: str | None) -> tuple[dict[str, str], str]:
-    """(input hashes, config_sha256) that processing the session now would record in summary.json."""
-    from tpos_cli import pipeline as pl
+def run_is_current(session_dir: Path, pipeline: str | None, summary: Mapping[str, Any]) -> bool:
+    """True if `summary` (a finished run's summary.json) is what processing the session now would give.
 
-    return pl.session_input_hashes(session_dir), pl.resolve_config_sha256(session_dir, pipeline)
+    Inputs: the sha256 of every session file now (so an edited or added `gps.csv` counts) must
+    equal the recorded `inputs`. Config: same pipeline name, chain and tpos version; the recorded
+    `config_sha256` must be the hash of the recorded resolved `config`, and every parameter the
+    pipeline file sets now must have that value in it. (The chain resolves defaults inside its
+    run, so the resolved config cannot be rebuilt here without running the chain.)
+    """
+    import tomllib
+
+    from tpos_cli import __version__
+    from tpos_cli.config import config_hash, resolve_pipeline
+    from tpos_cli.session import _is_session_file, sha256_file
+
+    files = sorted(p for p in session_dir.iterdir() if p.is_file() and _is_session_file(p.name))
+    if {p.name: sha256_file(p) for p in files} != summary.get("inputs"):
+        return False
+    kind = tomllib.loads((session_dir / "session.toml").read_text(encoding="utf-8")).get("session", {}).get("kind")
+    pipe = resolve_pipeline(pipeline, str(kind))
+    resolved = summary.get("config")
+    return (
+        summary.get("tpos_version") == __version__
+        and summary.get("pipeline") == pipe.name
+        and summary.get("chain") == pipe.chain
+        and isinstance(resolved, dict)
+        and summary.get("config_sha256") == config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
+        and _sets_agree(pipe.params, resolved)
+    )
 
 
-def finished_summary(task: SessionTask, fingerprint: FingerprintFn | None = None) -> dict | None:
-    """The run's `summary.json` if it is a finished run of exactly these inputs and config, else None.
+def _sets_agree(raw: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
+    """Every key set in `raw` (a pipeline file's parameters) has the same value in `resolved`."""
+    for k, v in raw.items():
+        if k not in resolved:
+            return False
+        if isinstance(v, Mapping):
+            if not (isinstance(resolved[k], Mapping) and _sets_agree(v, resolved[k])):
+                return False
+        elif _plain(v) != _plain(resolved[k]):
+            return False
+    return True
 
-    Inputs are compared by sha256 of every session file the pipeline would read now (so an added
-    `gps.csv` counts as a change), the config by the `config_sha256` the pipeline resolves now.
-    Anything that cannot be checked counts as not finished: the session is processed again.
+
+def _plain(v: Any) -> Any:
+    # the recorded config went through JSON: tuples became lists
+    return [_plain(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+
+def finished_summary(task: SessionTask, is_current: CurrentFn | None = None) -> dict | None:
+    """The run's `summary.json` if it is a finished, current run of this session, else None.
+
+    Anything that cannot be checked (no or corrupt summary, unreadable session) counts as not
+    finished: the session is processed again and fails there with its real message if it is bad.
     """
     summary = _read_summary(Path(task.run_dir))
-    if summary is None:
-        return None
-    recorded = summary.get("inputs")
-    if not isinstance(recorded, dict) or not recorded:
+    if summary is None or not isinstance(summary.get("inputs"), dict):
         return None
     try:
-        now_inputs, now_config = (fingerprint or current_fingerprint)(Path(task.session_dir), task.pipeline)
-    except (TposError, OSError):
-        return None  # the session will fail again in processing, with its real message
-    if now_inputs != recorded or now_config != summary.get("config_sha256"):
+        current = (is_current or run_is_current)(Path(task.session_dir), task.pipeline, summary)
+    except (TposError, OSError, ValueError):  # tomllib.TOMLDecodeError is a ValueError
         return None
-    return summary
+    return summary if current else None
 
 
 def _flatten_numbers(d: Mapping[str, Any], prefix: str = "") -> dict[str, float]:
@@ -273,12 +303,12 @@ def _default_process(session_dir: Path, pipeline: str | None, run_dir: Path) -> 
 
 
 def run_session_task(
-    task: SessionTask, process: ProcessFn | None = None, fingerprint: FingerprintFn | None = None
+    task: SessionTask, process: ProcessFn | None = None, is_current: CurrentFn | None = None
 ) -> SessionResult:
     """Process one session unless its finished run is current; never raises for a bad session.
 
     `process(session_dir, pipeline, run_dir)` defaults to `tpos_cli.pipeline.process_session` and
-    `fingerprint` to `current_fingerprint` (tests pass stand-ins). Errors become the row's one-line `error`; exit code 1 for
+    `is_current` to `run_is_current` (tests pass stand-ins). Errors become the row's one-line `error`; exit code 1 for
     processing errors and unexpected exceptions, 2 for invalid input.
     """
     t_start = time.perf_counter()
@@ -286,7 +316,7 @@ def run_session_task(
     name = task.name
     common = dict(name=name, session_dir=task.session_dir, run_dir=task.run_dir, started_utc=started)
     try:
-        summary = None if task.force else finished_summary(task, fingerprint)
+        summary = None if task.force else finished_summary(task, is_current)
         status = STATUS_SKIPPED
         if summary is None:
             status = STATUS_OK
@@ -417,19 +447,19 @@ def run_batch(
     scheduler: Any = None,
     on_result: Callable[[SessionResult], None] | None = None,
     process: ProcessFn | None = None,
-    fingerprint: FingerprintFn | None = None,
+    is_current: CurrentFn | None = None,
 ) -> BatchResult:
     """Run every task and return all rows; `on_result` sees each row as it completes.
 
     `scheduler` (a Dask scheduler address) sends the tasks to that cluster; otherwise `jobs`
     worker processes (default: the cores available; 1 runs in this process). `process` replaces
-    `process_session` and `fingerprint` replaces `current_fingerprint` (for tests); both must be
+    `process_session` and `is_current` replaces `run_is_current` (for tests); both must be
     picklable (module-level functions) for pools and clusters.
     """
     if jobs is not None and jobs < 1:
         raise InvalidInputError(f"--jobs must be at least 1, got {jobs}")
     n_jobs = min(jobs or default_jobs(), max(len(tasks), 1))
-    fn = functools.partial(run_session_task, process=process, fingerprint=fingerprint)
+    fn = functools.partial(run_session_task, process=process, is_current=is_current)
     results: list[SessionResult | None] = [None] * len(tasks)
 
     def emit(i: int, r: SessionResult) -> None:

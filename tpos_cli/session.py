@@ -319,6 +319,11 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
     )
 
 
+def _v(x) -> str:
+    """A cell value for a message: plain Python repr, never numpy's."""
+    return repr(x.item() if isinstance(x, np.generic) else x)
+
+
 def _is_matrix(v, shape) -> bool:
     try:
         a = np.asarray(v, dtype=float)
@@ -335,7 +340,7 @@ def _check_time(c: _Collector, fname: str, t: np.ndarray, key: str) -> np.ndarra
         return None
     i = timebase.first_decrease(t)
     if i is not None:
-        c.problem(fname, f"time goes backwards ({t[i]!r} after {t[i - 1]!r}); t must be non-decreasing", "t", i + 1)
+        c.problem(fname, f"time goes backwards ({_v(t[i])} after {_v(t[i - 1])}); t must be non-decreasing", "t", i + 1)
         return None
     dup = timebase.duplicate_mask(t)
     if dup.any():
@@ -348,7 +353,7 @@ def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray):
     for col, v, lim in (("lat", lat, 90.0), ("lon", lon, 180.0)):
         bad = np.flatnonzero(np.abs(v) > lim)
         if bad.size:
-            c.problem(fname, f"{v[bad[0]]!r} is outside ±{lim:g} degrees", col, int(bad[0]) + 1)
+            c.problem(fname, f"{_v(v[bad[0]])} is outside ±{lim:g} degrees", col, int(bad[0]) + 1)
 
 
 def _load_imu(c: _Collector, meta: SessionMeta):
@@ -437,7 +442,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float):
     fix = df["fix"].to_numpy()
     bad = np.flatnonzero(~np.isin(fix, schema.GPS_FIX_VALUES))
     if bad.size:
-        c.problem(fname, f"fix must be 0, 1 or 2, got {fix[bad[0]]!r}", "fix", int(bad[0]) + 1)
+        c.problem(fname, f"fix must be 0, 1 or 2, got {_v(fix[bad[0]])}", "fix", int(bad[0]) + 1)
         return None
     fix = fix.astype(np.int64)
     lla = df[["lat", "lon", "h"]].to_numpy()
@@ -453,7 +458,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float):
             v = df[col].to_numpy()
             neg = np.flatnonzero(v < 0)
             if neg.size:
-                c.problem(fname, f"{v[neg[0]]!r} is negative", col, int(neg[0]) + 1)
+                c.problem(fname, f"{_v(v[neg[0]])} is negative", col, int(neg[0]) + 1)
     if any(p.file == fname for p in c.problems):
         return None
 
@@ -482,7 +487,7 @@ def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
     for j, col in enumerate(("d1", "d2", "d3")):
         neg = np.flatnonzero(d[:, j] < 0)
         if neg.size:
-            c.problem(fname, f"negative range {d[neg[0], j]!r} m", col, int(neg[0]) + 1)
+            c.problem(fname, f"negative range {_v(d[neg[0], j])} m", col, int(neg[0]) + 1)
     if any(p.file == fname for p in c.problems):
         return None
     c.count("ranges_no_return", int((~np.isfinite(d[keep])).sum()))
@@ -504,7 +509,7 @@ def _load_anchors(c: _Collector, meta: SessionMeta):
         c.problem(fname, "anchor id is empty", "id", empty[0] + 1)
     dup = pd.Series(ids).duplicated().to_numpy()
     if dup.any():
-        c.problem(fname, f"anchor id {ids[int(np.argmax(dup))]!r} appears twice", "id", int(np.argmax(dup)) + 1)
+        c.problem(fname, f"anchor id {_v(ids[int(np.argmax(dup))])} appears twice", "id", int(np.argmax(dup)) + 1)
     origin = meta.local_origin_lla
     if has_lla:
         lla = df[["lat", "lon", "h"]].to_numpy()
@@ -534,13 +539,14 @@ def _load_anchors(c: _Collector, meta: SessionMeta):
 
 def _anchor_index(c: _Collector, fname: str, ids: np.ndarray, anchors: Anchors | None) -> np.ndarray | None:
     if anchors is None:
-        c.problem(fname, "ranges to anchors need anchors.csv with the anchors' positions")
+        if not (c.dir / "anchors.csv").exists():  # else its own problem is already reported
+            c.problem(fname, "ranges to anchors need anchors.csv with the anchors' positions")
         return None
     lookup = {a: i for i, a in enumerate(anchors.ids)}
     idx = np.array([lookup.get(a, -1) for a in ids], dtype=np.int64)
     bad = np.flatnonzero(idx < 0)
     if bad.size:
-        c.problem(fname, f"anchor id {ids[bad[0]]!r} is not in anchors.csv", "id", int(bad[0]) + 1)
+        c.problem(fname, f"anchor id {_v(ids[bad[0]])} is not in anchors.csv", "id", int(bad[0]) + 1)
         return None
     return idx
 
@@ -556,12 +562,12 @@ def _load_anchor_ranges(c: _Collector, meta: SessionMeta, t0: float, anchors: An
         return None
     i = timebase.first_decrease(t)
     if i is not None:  # long format: several rows share one epoch, so only decreases are errors
-        c.problem(fname, f"time goes backwards ({t[i]!r} after {t[i - 1]!r})", "t", i + 1)
+        c.problem(fname, f"time goes backwards ({_v(t[i])} after {_v(t[i - 1])})", "t", i + 1)
         return None
     r = df["range"].to_numpy()
     neg = np.flatnonzero(r < 0)
     if neg.size:
-        c.problem(fname, f"negative range {r[neg[0]]!r} m", "range", int(neg[0]) + 1)
+        c.problem(fname, f"negative range {_v(r[neg[0]])} m", "range", int(neg[0]) + 1)
         return None
     idx = _anchor_index(c, fname, df["id"], anchors)
     if idx is None:
@@ -582,7 +588,7 @@ def _load_range_calibration(c: _Collector, anchors: Anchors | None):
     for col, v in (("true_m", tm), ("measured_m", mm)):
         bad = np.flatnonzero(~np.isfinite(v) | (v < 0))
         if bad.size:
-            c.problem(fname, f"{v[bad[0]]!r} is not a non-negative distance", col, int(bad[0]) + 1)
+            c.problem(fname, f"{_v(v[bad[0]])} is not a non-negative distance", col, int(bad[0]) + 1)
             return None
     idx = _anchor_index(c, fname, df["id"], anchors)
     if idx is None:
@@ -598,7 +604,7 @@ def _load_targets(c: _Collector):
     roles = tuple(df["role"]) if "role" in df.columns else ("",) * len(ids)
     bad = [i for i, r in enumerate(roles) if r not in schema.TARGET_ROLES]
     if bad:
-        c.problem(fname, f"role must be 'reference' or 'truth' (or empty), got {roles[bad[0]]!r}", "role", bad[0] + 1)
+        c.problem(fname, f"role must be 'reference' or 'truth' (or empty), got {_v(roles[bad[0]])}", "role", bad[0] + 1)
     lla = df[["lat", "lon", "h"]].to_numpy()
     _check_latlon(c, fname, lla[:, 0], lla[:, 1])
     nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
@@ -621,7 +627,7 @@ def _load_shots(c: _Collector, t0: float):
             return None
     bad = np.flatnonzero(b <= a)
     if bad.size:
-        c.problem(fname, f"t_end {b[bad[0]]!r} is not after t_start {a[bad[0]]!r}", "t_end", int(bad[0]) + 1)
+        c.problem(fname, f"t_end {_v(b[bad[0]])} is not after t_start {_v(a[bad[0]])}", "t_end", int(bad[0]) + 1)
         return None
     return Shots(ids=tuple(df["id"]), t_start_s=a - t0, t_end_s=b - t0)
 

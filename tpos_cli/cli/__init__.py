@@ -10,6 +10,7 @@ import sys
 
 import typer
 
+from tpos_cli.cli import batch as _batch
 from tpos_cli.cli import inspect as _inspect
 from tpos_cli.cli import pipelines as _pipelines
 from tpos_cli.cli import process as _process
@@ -28,6 +29,7 @@ app.command("validate")(_validate.validate)
 app.command("inspect")(_inspect.inspect)
 app.command("process")(_process.process)
 app.command("pipelines")(_pipelines.pipelines)
+app.command("batch")(_batch.batch)
 
 
 def main() -> None:

@@ -71,11 +71,17 @@ def _print_table(result) -> None:
 
     keys = key_accuracy_figures(result.results)
     table = Table(show_edge=False)
-    for col in ("session", "status", "time s", *keys, "error"):
+    for col in ("session", "status", "time s", *keys):
         table.add_column(col, overflow="fold")
     style = {"ok": "green", "skipped": "cyan", "failed": "red"}
     for r in result.results:
         acc = [f"{r.accuracy[k]:.4g}" if k in r.accuracy else "" for k in keys]
         time_s = "" if r.time_s != r.time_s else f"{r.time_s:.1f}"  # NaN: the worker was lost
-        table.add_row(r.name, f"[{style[r.status]}]{r.status}[/]", time_s, *acc, r.error)
-    Console(soft_wrap=False).print(table)
+        table.add_row(r.name, f"[{style[r.status]}]{r.status}[/]", time_s, *acc)
+    console = Console()
+    if not console.is_terminal:  # piped or logged: do not fold names at 80 columns
+        console = Console(width=200)
+    console.print(table)
+    for r in result.results:  # whole lines, not folded into a cell: easy to read and to grep
+        if r.error:
+            typer.echo(f"{r.name}: {r.error}")

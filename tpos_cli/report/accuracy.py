@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.timebase import in_intervals
 from tpos_cli.report import metrics
 from tpos_cli.report.rundir import RunData, ordered_solutions
 from tpos_cli.report.truth import ReportTruth, interpolate_attitude, interpolate_flag, interpolate_positions
@@ -85,8 +86,8 @@ def solution_errors(run: RunData, truth: ReportTruth, solution: str) -> Solution
         truth_rpy = interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s)
         att = metrics.attitude_errors_deg(rpy, truth_rpy)
     idx = np.full(t.size, -1)
-    for k, (a, b) in enumerate(run.outage_windows):
-        idx[(t >= a) & (t <= b)] = k
+    for k, w in enumerate(run.outage_windows):
+        idx[in_intervals(t, w[None, :])] = k  # [start, end), as timebase defines outages
     in_out = idx >= 0
     if "outage" in df.columns:  # the chain's own outage flag, when it wrote one
         in_out |= df["outage"].fillna(False).to_numpy(bool)

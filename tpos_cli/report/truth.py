@@ -233,10 +233,16 @@ def _truth_from_gps(session, withheld, mask_windows) -> TrajectoryTruth | None:
     t, lla, fix, sh = (np.concatenate(a) for a in (ts, llas, fixes, sig_h))
     t, lla, fix, sh = _clean(t, lla, fix, sh)
     mask = np.asarray(mask_windows, dtype=float).reshape(-1, 2)
-    # a withheld window [t0, t1] is closed on the command line; include its end fix
     indep = np.zeros(t.size, dtype=bool)
-    for a, b in mask:
-        indep |= (t >= a) & (t <= b)
+    if withheld is not None and len(withheld):
+        # exactly the fixes the run did not see: those in withheld_gps.parquet
+        tw = np.sort(withheld["t"].to_numpy(float))
+        j = np.clip(np.searchsorted(tw, t), 1, max(tw.size - 1, 1))
+        near = np.minimum(np.abs(tw[j - 1] - t), np.abs(tw[np.minimum(j, tw.size - 1)] - t))
+        indep = near <= 1e-6
+    else:
+        for a, b in mask:  # --mask-gps T0:T1 is a closed window
+            indep |= (t >= a) & (t <= b)
     gap = median_gap_limit(t)
     n_waas = int(np.sum(fix == 2))
     med_sh = float(np.nanmedian(sh)) if np.any(np.isfinite(sh)) else float("nan")

@@ -139,3 +139,11 @@ def imu_errors(grade: ImuGrade, n: int, rate_hz: float, rng) -> ImuErrors:
     g_noise = rng.standard_normal((n, 3)) * grade.gyro_noise_dps * DEG
     a_noise = rng.standard_normal((n, 3)) * grade.acc_noise_mg * 1e-3 * G0_MPS2
     return ImuErrors(np.broadcast_to(g_bias, (n, 3)).copy(), np.broadcast_to(a_bias, (n, 3)).copy(), g_noise, a_noise)
+
+
+def corrupt_imu(gyro_true_b_rps, acc_true_b_mps2, grade: ImuGrade, rate_hz: float, rng):
+    """(gyro, acc, ImuErrors): ideal samples plus the bias and noise series of `grade`."""
+    err = imu_errors(grade, gyro_true_b_rps.shape[0], rate_hz, rng)
+    gyro = gyro_true_b_rps + err.gyro_bias_rps + err.gyro_noise_rps
+    acc = acc_true_b_mps2 + err.acc_bias_mps2 + err.acc_noise_mps2
+    return gyro, acc, err

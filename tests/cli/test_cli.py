@@ -1,0 +1,78 @@
+"""The CLI shape, exit codes and the provenance of a run directory."""
+
+import json
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from tests.helpers.sessions import write_minimal_session
+from tpos_cli.cli import app
+
+runner = CliRunner()
+
+
+def test_console_script_help():
+    res = subprocess.run([sys.executable, "-m", "tpos_cli", "--help"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0
+    for cmd in ("validate", "inspect", "process", "pipelines"):
+        assert cmd in res.stdout
+
+
+@pytest.mark.parametrize("cmd", ["validate", "inspect", "process", "pipelines"])
+def test_every_command_has_help_with_an_example(cmd):
+    res = runner.invoke(app, [cmd, "--help"])
+    assert res.exit_code == 0 and "Example" in res.output
+
+
+def test_process_help_says_exit_zero_is_not_accuracy():
+    res = runner.invoke(app, ["process", "--help"])
+    assert "NOT a claim of accuracy" in res.output
+
+
+def test_pipelines_lists_the_bundled_files():
+    res = runner.invoke(app, ["pipelines"])
+    assert res.exit_code == 0 and "ingest" in res.output
+
+
+def test_inspect_json(tmp_path):
+    s = write_minimal_session(tmp_path / "s", with_ranges=True)
+    res = runner.invoke(app, ["inspect", str(s), "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.stdout)
+    assert info["tables"]["imu"]["rows"] == 1000
+    assert abs(info["tables"]["imu"]["rate_hz"] - 100.0) < 1e-6
+    assert info["tables"]["gps"]["fix_counts"] == {"2": 10}
+    assert info["tables"]["ranges"]["no_return"] == {"d1": 0, "d2": 0, "d3": 0}
+
+
+def test_process_writes_summary_with_provenance(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    run = tmp_path / "run"
+    res = runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(run), "--mask-gps", "1002.5:1005.5"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads((run / "summary.json").read_text())
+    for key in ("tpos_version", "pipeline", "config", "config_sha256", "inputs", "timings_s", "counts", "warnings"):
+        assert key in summary
+    assert summary["pipeline"] == "ingest"
+    assert set(summary["inputs"]) == {"session.toml", "imu.csv", "gps.csv"}
+    assert summary["counts"]["gps_withheld_fixes"] == 3
+    assert summary["gps_outages"] == [[1002.0, 1006.0]]
+    withheld = pd.read_parquet(run / "withheld_gps.parquet")
+    assert withheld["t"].tolist() == [1003.0, 1004.0, 1005.0]
+    # A second run replaces the first only when complete, and leaves no temporary directory.
+    res = runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(run)])
+    assert res.exit_code == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "s"]
+    assert not (run / "withheld_gps.parquet").exists()
+
+
+def test_usage_errors_exit_2(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    assert runner.invoke(app, ["process", str(s), "-p", "no-such-pipeline", "-o", str(tmp_path / "r")]).exit_code == 2
+    assert runner.invoke(app, ["process", str(s), "--mask-gps", "abc"]).exit_code == 2
+    assert runner.invoke(app, ["process", str(s), "-p", "ingest", "--set", "ingest.bogus=1", "-o", str(tmp_path / "r")]).exit_code == 2
+    assert runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(s)]).exit_code == 2  # never over an input
+    assert not (tmp_path / "r").exists()

@@ -1,0 +1,60 @@
+"""Rotations against scipy and closed forms."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+from scipy.spatial.transform import Rotation
+
+from tpos_cli.frames import _kernels as k
+from tpos_cli.frames import rotation as r
+
+
+def test_euler_matches_scipy_intrinsic_zyx(rng=np.random.default_rng(1)):
+    rpy = rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], size=(50, 3))
+    C = r.euler_to_dcm(rpy[:, 0], rpy[:, 1], rpy[:, 2])
+    ref = Rotation.from_euler("ZYX", rpy[:, ::-1]).as_matrix()
+    assert_allclose(C, ref, atol=1e-14)
+    back = np.column_stack(r.dcm_to_euler(C))
+    assert_allclose(back, rpy, atol=1e-12)
+    for i in range(5):
+        assert_allclose(k.euler_to_dcm(*rpy[i]), C[i], atol=1e-15)
+        assert_allclose(k.dcm_to_euler(C[i]), rpy[i], atol=1e-12)
+
+
+def test_rotvec_and_quaternion_round_trips(rng=np.random.default_rng(2)):
+    rv = rng.normal(size=(20, 3))
+    rv *= (rng.uniform(0, 3.0, 20) / np.linalg.norm(rv, axis=1))[:, None]
+    C = r.rotvec_to_dcm(rv)
+    assert_allclose(r.dcm_to_rotvec(C), rv, atol=1e-12)
+    assert_allclose(r.quat_to_dcm(r.dcm_to_quat(C)), C, atol=1e-14)
+    for i in range(5):
+        assert_allclose(k.rotvec_to_dcm(rv[i]), C[i], atol=1e-14)
+        assert_allclose(k.dcm_to_rotvec(C[i]), rv[i], atol=1e-10)
+    tiny = np.array([1e-9, -2e-9, 3e-9])
+    assert_allclose(k.rotvec_to_dcm(tiny), np.eye(3) + r.skew(tiny), atol=1e-17)
+
+
+def test_skew_is_cross_product():
+    a, b = np.array([1.0, -2.0, 0.5]), np.array([0.3, 4.0, -1.0])
+    assert_allclose(r.skew(a) @ b, np.cross(a, b), atol=1e-15)
+    assert_allclose(k.skew(a) @ b, np.cross(a, b), atol=1e-15)
+
+
+@pytest.mark.parametrize("axes,sensor,body", [
+    ("FRD", [1, 2, 3], [1, 2, 3]),
+    ("RFU", [1, 2, 3], [2, 1, -3]),     # x right, y forward, z up
+    ("FLU", [1, 2, 3], [1, -2, -3]),
+    ("BLD", [1, 2, 3], [-1, -2, 3]),
+])
+def test_axes_letters_map_sensor_to_frd(axes, sensor, body):
+    assert_allclose(r.axes_to_dcm(axes) @ np.array(sensor, float), body, atol=0)
+
+
+@pytest.mark.parametrize("axes", ["FRU", "FFD", "XYZ", "FR", "frdd"])
+def test_invalid_axes(axes):
+    with pytest.raises(ValueError):
+        r.axes_to_dcm(axes)
+
+
+def test_wrap():
+    assert_allclose(r.wrap_angle_deg([181.0, -181.0, 360.0, 180.0]), [-179.0, 179.0, 0.0, 180.0])

@@ -1,0 +1,170 @@
+"""Loosely coupled INS/GPS filter runs (paper 003): forward, and backward in reversed time.
+
+`run_insgps` wraps the compiled loop `_kernels.insgps_kernel` and returns a `FilterRun` in
+forward time order whatever the direction, with the backward run's velocity, gyro bias and
+covariances converted to forward-time signs (`nav_errors.backward_sign`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tpos_cli.errors import ProcessingError
+from tpos_cli.filters.gating import chi2_threshold
+from tpos_cli.fusion._kernels import insgps_kernel
+from tpos_cli.fusion.nav_errors import backward_sign
+from tpos_cli.ins.mechanization import reverse_imu
+
+
+@dataclass(frozen=True)
+class GpsFixes:
+    """Fixes used by the filter: t_s (M,), lla (M,3) deg/m, vel_ned_mps (M,3) NaN if absent,
+    sigma_pos_ned_m (M,3), sigma_vel_mps (M,3)."""
+
+    t_s: np.ndarray
+    lla: np.ndarray
+    vel_ned_mps: np.ndarray
+    sigma_pos_ned_m: np.ndarray
+    sigma_vel_mps: np.ndarray
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """SI filter settings. q: white-noise PSDs [acc (m/s^2)^2 s, gyro rad^2/s, acc-bias drive
+    (m/s^3)^2 s, gyro-bias drive (rad/s^2)^2 s]; tau <= 0: random-walk bias; cov_step: IMU
+    samples per covariance epoch; gate_probability: chi-square gate on each fix."""
+
+    q: np.ndarray
+    tau_acc_s: float
+    tau_gyro_s: float
+    lever_arm_b_m: np.ndarray
+    cov_step: int = 10
+    gate_probability: float = 0.9999
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """Nominal state at the run's first sample (forward time signs): nav (6,) [lat_rad, lon_rad,
+    h_m, vn, ve, vd], C_nb (3,3), bias (6,) [acc m/s^2, gyro rad/s], P0 (15,15)."""
+
+    nav: np.ndarray
+    C_nb: np.ndarray
+    bias: np.ndarray
+    P0: np.ndarray
+
+
+@dataclass(frozen=True)
+class FilterRun:
+    """One filter run in forward time order.
+
+    nav (N,6), C_nb (N,3,3), bias (N,6): nominal after feedback at every IMU sample.
+    ep_idx (E,): sample index of each covariance epoch, increasing; ep_P (E,15,15): covariance
+    after the update at that epoch. Forward runs also hold ep_Phi (E,15,15) (transition from
+    epoch e-1 to e), ep_Ppred (E,15,15) and ep_dx (E,15) (correction fed back at e) for RTS.
+    Per fix (in the order of `GpsFixes`): innovation (M,6) NaN-padded, nis (M,), accepted (M,).
+    """
+
+    backward: bool
+    nav: np.ndarray
+    C_nb: np.ndarray
+    bias: np.ndarray
+    ep_idx: np.ndarray
+    ep_P: np.ndarray
+    ep_Phi: np.ndarray | None
+    ep_Ppred: np.ndarray | None
+    ep_dx: np.ndarray | None
+    innovation: np.ndarray
+    nis: np.ndarray
+    accepted: np.ndarray
+
+
+def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig,
+               *, backward: bool = False, store_rts: bool | None = None) -> FilterRun:
+    """Run the closed-loop 15-state filter over the log, forward or backward in time.
+
+    For `backward`, `init` is the state at the LAST sample (forward-time signs).
+    """
+    t = np.ascontiguousarray(t_s, dtype=float)
+    gyro = np.ascontiguousarray(gyro_b_rps, dtype=float)
+    acc = np.ascontiguousarray(acc_b_mps2, dtype=float)
+    n = t.size
+    if store_rts is None:
+        store_rts = not backward
+    sign15 = backward_sign()
+    nav0 = np.array(init.nav, dtype=float)
+    bias0 = np.array(init.bias, dtype=float)
+    P0 = np.array(init.P0, dtype=float)
+    t_fix = np.asarray(fixes.t_s, dtype=float)
+    vel = np.array(fixes.vel_ned_mps, dtype=float)
+    if backward:
+        t, gyro, acc = reverse_imu(t, gyro, acc)
+        nav0[3:] *= -1.0
+        bias0[3:] *= -1.0
+        P0 = P0 * np.outer(sign15, sign15)
+        t_fix = -t_fix
+        vel = -vel
+        earth_sign = -1.0
+    else:
+        earth_sign = 1.0
+    idx = np.searchsorted(t, t_fix, side="left")
+    order = np.argsort(idx, kind="stable")
+    idx_s = idx[order]
+    keep = (idx_s >= 1) & (idx_s < n)
+    order, idx_s = order[keep], idx_s[keep]
+    lag = t[idx_s] - t_fix[order]
+    pos = np.column_stack([np.radians(fixes.lla[:, 0]), np.radians(fixes.lla[:, 1]), fixes.lla[:, 2]])[order]
+    var = np.column_stack([fixes.sigma_pos_ned_m, fixes.sigma_vel_mps])[order] ** 2
+    vel_o = vel[order]
+    m = order.size
+    n_ep = n // max(cfg.cov_step, 1) + m + 3
+    ep_idx = np.zeros(n_ep, dtype=np.int64)
+    ep_P = np.empty((n_ep, 15, 15))
+    ep_dx = np.empty((n_ep, 15))
+    nr = n_ep if store_rts else 1
+    ep_Phi = np.empty((nr, 15, 15))
+    ep_Ppred = np.empty((nr, 15, 15))
+    out_nav = np.empty((n, 6))
+    out_C = np.empty((n, 3, 3))
+    out_bias = np.empty((n, 6))
+    innov = np.full((m, 6), np.nan)
+    nis = np.full(m, np.nan)
+    acc_flag = np.zeros(m, dtype=np.bool_)
+    gate = chi2_threshold(cfg.gate_probability, 6)
+    n_used, status = insgps_kernel(
+        t, gyro, acc, nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0, P0,
+        np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), earth_sign,
+        int(max(cfg.cov_step, 1)), idx_s.astype(np.int64), lag, np.ascontiguousarray(pos),
+        np.ascontiguousarray(vel_o), np.ascontiguousarray(var), np.asarray(cfg.lever_arm_b_m, dtype=float),
+        gate, out_nav, out_C, out_bias, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, bool(store_rts),
+        innov, nis, acc_flag,
+    )
+    if status != 0:
+        k = status - 1
+        tk = -t[k] if backward else t[k]
+        raise ProcessingError(f"INS/GPS filter: innovation covariance not positive definite at t_s = {tk:.3f}")
+    # back to the caller's fix order
+    innovation = np.full((len(t_fix), 6), np.nan)
+    nis_all = np.full(len(t_fix), np.nan)
+    acc_all = np.zeros(len(t_fix), dtype=bool)
+    innovation[order] = innov
+    nis_all[order] = nis
+    acc_all[order] = acc_flag
+    ep_idx = ep_idx[:n_used]
+    ep_P = ep_P[:n_used]
+    ep_dx = ep_dx[:n_used]
+    if backward:
+        out_nav = out_nav[::-1]
+        out_nav[:, 3:] *= -1.0
+        out_C = out_C[::-1]
+        out_bias = out_bias[::-1]
+        out_bias[:, 3:] *= -1.0
+        ep_idx = (n - 1 - ep_idx)[::-1]
+        ep_P = ep_P[::-1] * np.outer(sign15, sign15)
+        innovation[:, 3:] *= -1.0
+        return FilterRun(True, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, None, innovation, nis_all, acc_all)
+    if store_rts:
+        return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, ep_Phi[:n_used], ep_Ppred[:n_used],
+                         ep_dx, innovation, nis_all, acc_all)
+    return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, ep_dx, innovation, nis_all, acc_all)

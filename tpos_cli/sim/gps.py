@@ -1,0 +1,73 @@
+"""GPS fixes from the truth: position and velocity with white noise, outages as missing rows."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames import earth
+from tpos_cli.sim.result import SimGps, SimTruth
+
+
+def outage_mask(t_s, outages_s) -> np.ndarray:
+    """True where t lies in one of the [start, start + length) windows of `outages_s` (K, 2)."""
+    t = np.asarray(t_s, dtype=float)
+    m = np.zeros(t.shape, dtype=bool)
+    for start, length in np.asarray(outages_s, dtype=float).reshape(-1, 2):
+        m |= (t >= start) & (t < start + length)
+    return m
+
+
+def simulate_gps(
+    truth: SimTruth,
+    imu_rate_hz: float,
+    *,
+    rate_hz: float = 1.0,
+    sigma_h_m: float = 1.5,
+    sigma_v_m: float = 2.5,
+    sigma_vel_mps: float = 0.05,
+    outages_s=((40.0, 30.0),),
+    rng: np.random.Generator,
+) -> SimGps:
+    """Sample the truth at `rate_hz` (a divisor of the IMU rate) and add white noise.
+
+    Position noise is drawn in north/east/up metres (SD `sigma_h_m`, `sigma_h_m`, `sigma_v_m`) and
+    mapped to lat/lon/h with the radii of curvature; velocity noise is `sigma_vel_mps` per NED axis.
+    Noise is drawn for every epoch before the outage rows are removed, so outages do not change the
+    noise of the other epochs. Every kept row has fix = 2 (SBAS/WAAS differential).
+    """
+    stride = imu_rate_hz / rate_hz
+    if rate_hz <= 0 or abs(stride - round(stride)) > 1e-9 or round(stride) < 1:
+        raise InvalidInputError(f"gps rate: {rate_hz} Hz must divide the IMU rate {imu_rate_hz} Hz")
+    if min(sigma_h_m, sigma_v_m, sigma_vel_mps) < 0:
+        raise InvalidInputError("gps sigmas must be >= 0")
+    idx = np.arange(0, truth.t_s.size, int(round(stride)))
+    n = idx.size
+    sig = np.array([sigma_h_m, sigma_h_m, sigma_v_m])
+    e_neu = rng.standard_normal((n, 3)) * sig
+    e_vel = rng.standard_normal((n, 3)) * sigma_vel_mps
+    nsat = rng.integers(7, 13, size=n)
+    keep = ~outage_mask(truth.t_s[idx], outages_s)
+    idx, e_neu, e_vel, nsat = idx[keep], e_neu[keep], e_vel[keep], nsat[keep]
+
+    lla_true = truth.lla[idx]
+    lat = np.radians(lla_true[:, 0])
+    h = lla_true[:, 2]
+    lla = lla_true.copy()
+    lla[:, 0] += np.degrees(e_neu[:, 0] / (earth.meridian_radius_m(lat) + h))
+    lla[:, 1] += np.degrees(e_neu[:, 1] / ((earth.transverse_radius_m(lat) + h) * np.cos(lat)))
+    lla[:, 2] += e_neu[:, 2]
+    vel_true = truth.vel_ned_mps[idx]
+    m = idx.size
+    return SimGps(
+        t_s=truth.t_s[idx].copy(),
+        lla=lla,
+        vel_ned_mps=vel_true + e_vel,
+        sigma_neu_m=np.tile(sig, (m, 1)),
+        fix=np.full(m, 2, dtype=np.int64),
+        nsat=nsat.astype(np.int64),
+        hdop=np.full(m, max(sigma_h_m, 0.5) / 1.5),  # HDOP x ~1.5 m UERE gives the horizontal SD
+        lla_true=lla_true.copy(),
+        vel_true_ned_mps=vel_true.copy(),
+        sigma_vel_mps=float(sigma_vel_mps),
+    )
