@@ -87,7 +87,11 @@ def detect_static_window(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut=None, *, min_dura
     # runs of consecutive still samples
     d = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
     starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.01
+    half = max(3, int(round(window_s / dt))) // 2
     for i0, i1 in zip(starts, ends):
+        if i1 < t.size:
+            i1 = max(i0 + 1, i1 - half)  # the centered test window sees motion half a window early
         if t[i1 - 1] - t[i0] < min_duration_s:
             continue
         reason = "motion" if i1 < t.size else "end_of_log"

@@ -17,12 +17,14 @@ results of the chain (its accuracy summary) when `report` is set.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import glob
 import json
 import math
 import multiprocessing
 import os
+import signal
 import socket
 import time
 import traceback
@@ -378,7 +380,27 @@ def default_jobs() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+# One worker per core: each worker computes on one thread, or BLAS, OpenMP, numba and Arrow
+# thread pools in every worker would compete for the same cores.
+_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "ARROW_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_children():
+    """Spawned workers inherit os.environ at start: set the thread limits (unless the user did) meanwhile."""
+    added = [k for k in _THREAD_ENV if k not in os.environ]
+    os.environ.update(dict.fromkeys(added, "1"))
+    try:
+        yield
+    finally:
+        for k in added:
+            os.environ.pop(k, None)
+
+
 def _init_worker() -> None:
+    # Ctrl-C reaches the whole process group: let the parent alone decide (it cancels and
+    # terminates the workers), instead of a traceback from every worker.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     # Pay the imports once per worker process, not once per session. numba kernels are compiled
     # with cache=True, so each worker loads them from the on-disk cache on first use.
     try:
@@ -395,20 +417,31 @@ def _run_pool(
     ctx = multiprocessing.get_context("spawn")
     lost: list[int] = []
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker) as ex:
-        futures = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
-        for fut in as_completed(futures):
-            i = futures[fut]
-            try:
-                emit(i, fut.result())
-            except BrokenProcessPool:
-                lost.append(i)
+        with _single_threaded_children():  # workers start during submit
+            futures = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
+        try:
+            for fut in as_completed(futures):
+                i = futures[fut]
+                try:
+                    emit(i, fut.result())
+                except BrokenProcessPool:
+                    lost.append(i)
+        except KeyboardInterrupt:
+            # stop now: drop the queued sessions and end the running ones (their outputs are still
+            # in temporary directories, never in place); the next call redoes them
+            ex.shutdown(wait=False, cancel_futures=True)
+            for proc in list(getattr(ex, "_processes", {}).values()):
+                proc.terminate()
+            raise
     # A worker died (segfault, out of memory, killed): the pool fails every task it still held,
     # without saying which one killed it. Rerun those one at a time in their own process, so the
     # culprit fails alone and the innocent ones complete.
     for i in sorted(lost):
         with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_init_worker) as ex:
             try:
-                emit(i, ex.submit(fn, tasks[i]).result())
+                with _single_threaded_children():
+                    fut = ex.submit(fn, tasks[i])
+                emit(i, fut.result())
             except BrokenProcessPool:
                 emit(i, _failed(tasks[i], "worker process died (crashed, killed or out of memory)"))
 

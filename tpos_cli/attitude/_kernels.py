@@ -56,14 +56,15 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 @njit(cache=True)
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
-             r_acc, acc_tol, gyro_tol, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
+             q_sf, r_acc, acc_tol, gyro_tol, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate,
              out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
     `use` bit flags; C0 (3,3), bias0 (3,), P0 (6,6); w_ie_n, g_n (3,) NED Earth rate and
-    gravity; q_att rad^2 per sample, q_bias (rad/s)^2 per second; r_acc (m/s^2)^2;
+    gravity; q_att rad^2 per sample, q_bias (rad/s)^2 per second; q_sf the relative variance of
+    the rotation angle of a sample (scale-factor and integration errors); r_acc (m/s^2)^2;
     acc_tol m/s^2 and gyro_tol rad/s define "quasi-static" for the gravity update;
     r_mag_ut uT^2; decl rad; mag_ref (norm uT, dip rad); tolerances uT and rad
     (mag_norm_tol <= 0 disables the check); n_wall (3,) NED unit wall normal; o2_b, o3_b (3,)
@@ -85,8 +86,9 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             Phi[:, :] = np.eye(6)
             Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + noise)
             Qd[:, :] = 0.0
+            wdt2 = (w @ w) * dt * dt
             for i in range(3):
-                Qd[i, i] = q_att
+                Qd[i, i] = q_att + q_sf * wdt2
                 Qd[3 + i, 3 + i] = q_bias * abs(dt)
             predict(x, P, Phi, Qd)
             C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
@@ -101,9 +103,13 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             wg = gyro[k] - b
             if abs(fn - gnorm) < acc_tol and np.sqrt(wg @ wg) < gyro_tol:
                 f_n = -g_n
-                h = C.T @ f_n
+                # an IMU row is the mean over (t_{k-1}, t_k]: compare with the mid-interval attitude
+                Cm = C
+                if k > 0:
+                    Cm = C @ rotvec_to_dcm(-0.5 * (t[k] - t[k - 1]) * wg)
+                h = Cm.T @ f_n
                 H = np.zeros((3, 6))
-                H[:, 0:3] = C.T @ skew(f_n)
+                H[:, 0:3] = Cm.T @ skew(f_n)
                 z = f - h
                 R = np.eye(3) * r_acc
                 x[:] = 0.0
@@ -241,9 +247,20 @@ def run_paper8(t, gyro_rfu, obs, obs_var, x0, P0, w_ie_enu, q_elem, r_floor, gat
             z = paper8_obs(obs[k, 0], obs[k, 1])
             J = paper8_obs_jac(obs[k, 0], obs[k, 1])
             R = J @ np.diag(obs_var[k]) @ J.T + np.eye(8) * r_floor
-            nu = z - x
-            S = P + R
-            nis = nu @ np.linalg.solve(S, nu)
+            # NIS in the (pitch, yaw) space of the observation (2 dof): the 8-element R is rank 2
+            st = min(1.0, max(-1.0, x[6]))
+            th = np.arcsin(st)
+            ps = np.arctan2(x[1], x[4])
+            Jp = np.zeros((2, 8))
+            Jp[0, 6] = 1.0 / max(np.sqrt(1.0 - st * st), 1e-6)
+            h2 = x[1] * x[1] + x[4] * x[4]
+            Jp[1, 1] = x[4] / h2
+            Jp[1, 4] = -x[1] / h2
+            nu2 = np.empty(2)
+            nu2[0] = obs[k, 0] - th
+            nu2[1] = _wrap(obs[k, 1] - ps)
+            S2 = Jp @ P @ Jp.T + np.diag(obs_var[k])
+            nis = nu2 @ np.linalg.solve(S2, nu2)
             out_nis[k] = nis
             if gate <= 0.0 or nis < gate:
                 update(x, P, z, H, R)

@@ -33,6 +33,7 @@ class FilterNoise:
     acc_noise_mps2: float
     mag_noise_ut: float
     range_sigma_m: float
+    gyro_scale_sd: float = 3e-4  # relative SD of a sample's rotation angle (scale factor, coning)
 
 
 @dataclass(frozen=True)
@@ -173,6 +174,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         np.ascontiguousarray(setup.C0, dtype=float), np.ascontiguousarray(bias0),
         np.ascontiguousarray(setup.P0, dtype=float) / beta, w_ie, g_n,
         (noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_bias_rw_rps_rts**2 / beta,
+        noise.gyro_scale_sd**2 / beta,
         noise.acc_noise_mps2**2, setup.acc_static_tol_mps2, setup.gyro_static_tol_rps,
         noise.mag_noise_ut**2, setup.declination_rad,
         np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),

@@ -14,6 +14,9 @@ from tpos_cli.cli import batch as _batch
 from tpos_cli.cli import inspect as _inspect
 from tpos_cli.cli import pipelines as _pipelines
 from tpos_cli.cli import process as _process
+from tpos_cli.cli import simulate as _simulate
+from tpos_cli.cli import import_ as _import
+from tpos_cli.cli import report as _report
 from tpos_cli.cli import validate as _validate
 
 app = typer.Typer(
@@ -28,8 +31,11 @@ app = typer.Typer(
 app.command("validate")(_validate.validate)
 app.command("inspect")(_inspect.inspect)
 app.command("process")(_process.process)
+app.command("report")(_report.report)
 app.command("pipelines")(_pipelines.pipelines)
+app.command("simulate")(_simulate.simulate)
 app.command("batch")(_batch.batch)
+app.command("import")(_import.import_)
 
 
 def main() -> None:

@@ -3,7 +3,8 @@
 Decoded directly with `struct` from the u-blox interface description (u-blox 8 / M8 and F9
 "UBX-NAV-PVT"); every frame's Fletcher checksum is verified and bad frames are skipped. Other
 messages (raw measurements, NMEA text interleaved in the stream) are ignored. Time: GPS time from
-the UTC date/time fields plus leap seconds when `valid` flags say the time is resolved; fix:
+iTOW (GPS time of week of the epoch), the week from the UTC date when `valid` says it is
+resolved; height: `height` above the ellipsoid (`hMSL` is not used); fix:
 fixType 2/3 with gnssFixOK -> 1, or 2 when a differential solution was applied (diffSoln, or
 carrSoln float/fixed); fixType 0/1/5 (no fix, dead reckoning only, time only) -> 0.
 """
@@ -17,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.importers.gpstime import CLOCKS, utc_calendar_to_clock
+from tpos_cli.importers.gpstime import CLOCKS, WEEK_S, gps_s_to_clock, utc_calendar_to_clock
 from tpos_cli.importers.result import ImportResult
 
 SYNC = b"\xb5\x62"
@@ -83,7 +84,11 @@ def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
     r = r[resolved].reset_index(drop=True)
     if r.empty:
         raise InvalidInputError(f"{path}: NAV-PVT present but no message has a resolved UTC date and time")
-    t = utc_calendar_to_clock(r["year"], r["month"], r["day"], r["hour"], r["minute"], r["second"], clock)
+    # iTOW is the epoch's GPS time of week (ms); the UTC fields only pick the week
+    tow_s = r["itow_ms"].to_numpy(float) * 1e-3
+    gps_from_utc = utc_calendar_to_clock(r["year"], r["month"], r["day"], r["hour"], r["minute"], r["second"], "gps")
+    week = np.round((gps_from_utc - tow_s) / WEEK_S)
+    t = tow_s if clock == "gps_tow" else gps_s_to_clock(week * WEEK_S + tow_s, clock)
     flags = r["flags"].to_numpy(np.int64)
     gnss_ok = (flags & 0x01) == 0x01
     diff = ((flags & 0x02) == 0x02) | (((flags >> 6) & 0x3) > 0)  # diffSoln, carrSoln
@@ -95,6 +100,8 @@ def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
         "sigma_n": r["hacc_m"] / np.sqrt(2.0), "sigma_e": r["hacc_m"] / np.sqrt(2.0), "sigma_u": r["vacc_m"],
     })
     g.loc[g["fix"] == 0, ["lat", "lon", "h"]] = np.nan
-    notes = [f"{path.name}: {len(recs)} NAV-PVT messages ({int((~resolved).sum())} without resolved time dropped), "
+    notes = [f"{path.name}: heights written above the ellipsoid (geoid separation in this log: "
+             f"{float((r['h'] - r['h_msl']).median()):.3f} m)"]
+    notes += [f"{path.name}: {len(recs)} NAV-PVT messages ({int((~resolved).sum())} without resolved time dropped), "
              f"{bad} bad-checksum frame(s) skipped; fix {dict(sorted((int(k), int(v)) for k, v in g['fix'].value_counts().items()))}"]
     return ImportResult({"gps": g}, {}, tuple(notes))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm
+from tpos_cli.frames._kernels import normal_gravity, radii_m
 from tpos_cli.frames.earth import OMEGA_IE_RPS
 
 
@@ -42,6 +42,28 @@ def nav_rates(nav, earth_sign, w_ie, w_en):
 
 
 @njit(cache=True)
+def _rotvec_dcm(x, y, z, R):
+    """Rodrigues DCM of rotation vector (x, y, z) into R (3, 3), series form near zero angle."""
+    a2 = x * x + y * y + z * z
+    if a2 < 1e-12:
+        s = 1.0 - a2 / 6.0
+        c = 0.5 - a2 / 24.0
+    else:
+        a = np.sqrt(a2)
+        s = np.sin(a) / a
+        c = (1.0 - np.cos(a)) / a2
+    R[0, 0] = 1.0 - c * (y * y + z * z)
+    R[1, 1] = 1.0 - c * (x * x + z * z)
+    R[2, 2] = 1.0 - c * (x * x + y * y)
+    R[0, 1] = -s * z + c * x * y
+    R[1, 0] = s * z + c * x * y
+    R[0, 2] = s * y + c * x * z
+    R[2, 0] = -s * y + c * x * z
+    R[1, 2] = -s * x + c * y * z
+    R[2, 1] = s * x + c * y * z
+
+
+@njit(cache=True)
 def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n):
     """One strapdown update over an IMU interval of length dt, in place on `nav` and `C`.
 
@@ -53,44 +75,75 @@ def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n):
     Position: trapezoidal in velocity. Attitude: C <- R(-zeta) C R(phi), with phi the
     coning-corrected body rotation vector and zeta the nav-frame rotation over dt.
     Writes the mean specific force in NED over the interval to `f_n` (for the error model).
+    Scalar code, no temporaries: this runs at every IMU sample.
     """
     lat, lon, h = nav[0], nav[1], nav[2]
-    v0 = nav[3:6].copy()
-    w_ie = np.empty(3)
-    w_en = np.empty(3)
-    nav_rates(nav, earth_sign, w_ie, w_en)
+    v0, v1_, v2 = nav[3], nav[4], nav[5]
     rn, re = radii_m(lat)
-
-    phi_b = dtheta + cross(dtheta_prev, dtheta) / 12.0  # coning
-    dv_b = dv + 0.5 * cross(dtheta, dv) + (cross(dtheta_prev, dv) + cross(dv_prev, dtheta)) / 12.0  # rotation + sculling
-    zeta = (w_ie + w_en) * dt
-    Cdv = C @ dv_b
-    dv_n = Cdv - 0.5 * cross(zeta, Cdv)  # resolve in the nav frame at mid-interval
-
-    cor = cross(2.0 * w_ie + w_en, v0)
+    sl, cl = np.sin(lat), np.cos(lat)
+    wie0 = earth_sign * OMEGA_IE_RPS * cl
+    wie2 = -earth_sign * OMEGA_IE_RPS * sl
+    wen0 = v1_ / (re + h)
+    wen1 = -v0 / (rn + h)
+    wen2 = -v1_ * sl / cl / (re + h)
+    a0, a1, a2 = dtheta[0], dtheta[1], dtheta[2]
+    p0, p1, p2 = dtheta_prev[0], dtheta_prev[1], dtheta_prev[2]
+    b0, b1, b2 = dv[0], dv[1], dv[2]
+    q0, q1, q2 = dv_prev[0], dv_prev[1], dv_prev[2]
+    # coning: phi = a + (p x a) / 12
+    f0 = a0 + (p1 * a2 - p2 * a1) / 12.0
+    f1 = a1 + (p2 * a0 - p0 * a2) / 12.0
+    f2 = a2 + (p0 * a1 - p1 * a0) / 12.0
+    # rotation + sculling: dv + (a x dv) / 2 + (p x dv + q x a) / 12
+    u0 = b0 + 0.5 * (a1 * b2 - a2 * b1) + ((p1 * b2 - p2 * b1) + (q1 * a2 - q2 * a1)) / 12.0
+    u1 = b1 + 0.5 * (a2 * b0 - a0 * b2) + ((p2 * b0 - p0 * b2) + (q2 * a0 - q0 * a2)) / 12.0
+    u2 = b2 + 0.5 * (a0 * b1 - a1 * b0) + ((p0 * b1 - p1 * b0) + (q0 * a1 - q1 * a0)) / 12.0
+    z0 = (wie0 + wen0) * dt
+    z1 = wen1 * dt
+    z2 = (wie2 + wen2) * dt
+    c0 = C[0, 0] * u0 + C[0, 1] * u1 + C[0, 2] * u2
+    c1 = C[1, 0] * u0 + C[1, 1] * u1 + C[1, 2] * u2
+    c2 = C[2, 0] * u0 + C[2, 1] * u1 + C[2, 2] * u2
+    # resolve in the nav frame at mid-interval: dv_n = c - (zeta x c) / 2
+    d0 = c0 - 0.5 * (z1 * c2 - z2 * c1)
+    d1 = c1 - 0.5 * (z2 * c0 - z0 * c2)
+    d2 = c2 - 0.5 * (z0 * c1 - z1 * c0)
+    # Coriolis + transport: (2 w_ie + w_en) x v
+    k0 = 2.0 * wie0 + wen0
+    k1 = wen1
+    k2 = 2.0 * wie2 + wen2
     g = normal_gravity(lat, h)
-    v1 = np.empty(3)
-    v1[0] = v0[0] + dv_n[0] - cor[0] * dt
-    v1[1] = v0[1] + dv_n[1] - cor[1] * dt
-    v1[2] = v0[2] + dv_n[2] + (g - cor[2]) * dt
-
+    n0 = v0 + d0 - (k1 * v2 - k2 * v1_) * dt
+    n1 = v1_ + d1 - (k2 * v0 - k0 * v2) * dt
+    n2 = v2 + d2 + (g - (k0 * v1_ - k1 * v0)) * dt
     # trapezoidal position, radii at the mid-interval latitude and height
-    vm0 = 0.5 * (v0[0] + v1[0])
-    vm1 = 0.5 * (v0[1] + v1[1])
-    vm2 = 0.5 * (v0[2] + v1[2])
+    vm0 = 0.5 * (v0 + n0)
+    vm1 = 0.5 * (v1_ + n1)
+    vm2 = 0.5 * (v2 + n2)
     h_mid = h - 0.5 * vm2 * dt
     lat_mid = lat + 0.5 * vm0 / (rn + h) * dt
     rn, re = radii_m(lat_mid)
     nav[0] = lat + vm0 / (rn + h_mid) * dt
     nav[1] = lon + vm1 / ((re + h_mid) * np.cos(lat_mid)) * dt
     nav[2] = h - vm2 * dt
-    nav[3] = v1[0]
-    nav[4] = v1[1]
-    nav[5] = v1[2]
-
-    C[:, :] = rotvec_to_dcm(-zeta) @ C @ rotvec_to_dcm(phi_b)
+    nav[3] = n0
+    nav[4] = n1
+    nav[5] = n2
+    # C <- R(-zeta) C R(phi)
+    Rb = np.empty((3, 3))
+    Rn = np.empty((3, 3))
+    T = np.empty((3, 3))
+    _rotvec_dcm(f0, f1, f2, Rb)
+    _rotvec_dcm(-z0, -z1, -z2, Rn)
     for i in range(3):
-        f_n[i] = dv_n[i] / dt
+        for j in range(3):
+            T[i, j] = C[i, 0] * Rb[0, j] + C[i, 1] * Rb[1, j] + C[i, 2] * Rb[2, j]
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = Rn[i, 0] * T[0, j] + Rn[i, 1] * T[1, j] + Rn[i, 2] * T[2, j]
+    f_n[0] = d0 / dt
+    f_n[1] = d1 / dt
+    f_n[2] = d2 / dt
 
 
 @njit(cache=True)

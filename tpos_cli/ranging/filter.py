@@ -113,7 +113,7 @@ def fuzzy_range_variance(fis: FuzzySystem, sd_fit_m, sd_ref_m: float, b: float):
 
 
 def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_anchors: int,
-               window_s: float) -> tuple[Events, int]:
+               window_s: float, gate_probability: float = 0.999) -> tuple[Events, int]:
     """Least-squares (north, east) fixes of the epochs with >= min_anchors ranges (Eq. 7-8).
 
     Returns the events and the number of epochs without a fix.
@@ -131,6 +131,14 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
             n_missing += 1
             continue
         fix = ls_fix(anchors_ned[anchor[idx]], range_m[idx], sd_m[idx], guess)
+        # Beyond the paper: with a redundant range, drop the worst one while the weighted
+        # residuals fail a chi-square test (an NLOS spike bends the whole fix).
+        while fix.ok and idx.size > min_anchors:
+            res = (range_m[idx] - np.linalg.norm(anchors_ned[anchor[idx]] - fix.pos_ned_m, axis=1)) / sd_m[idx]
+            if res @ res <= chi2_threshold(gate_probability, idx.size - 2)[idx.size - 2]:
+                break
+            idx = np.delete(idx, np.argmax(np.abs(res)))
+            fix = ls_fix(anchors_ned[anchor[idx]], range_m[idx], sd_m[idx], guess)
         if not fix.ok:
             n_missing += 1
             continue
@@ -216,11 +224,3 @@ def coasting_intervals(run: FilterRun, gap_s: float) -> list[tuple[float, float]
     gaps = np.diff(edges)
     idx = np.flatnonzero(gaps > gap_s)
     return [(float(edges[i]), float(edges[i + 1])) for i in idx]
-
-
-def level_rpy(acc_b_mps2) -> tuple[float, float]:
-    """Roll, pitch (rad) from the mean specific force of a static window (FRD: f = -C_bn g)."""
-    f = np.mean(np.asarray(acc_b_mps2, float), axis=0)
-    roll = np.arctan2(-f[1], -f[2])
-    pitch = np.arctan2(f[0], np.hypot(f[1], f[2]))
-    return float(roll), float(pitch)

@@ -65,6 +65,15 @@ def _plot_series(ax, t, y, t_ref, **kw):
     ax.plot(np.asarray(t)[i] - t_ref, np.asarray(y)[i], lw=0.9, **kw)
 
 
+def _break_wraps(yaw_deg):
+    """NaN at the sample after a 360 -> 0 wrap, so the line is broken instead of drawn across."""
+    y = np.array(yaw_deg, dtype=float)
+    jump = np.zeros(y.size, dtype=bool)
+    jump[1:] = np.abs(np.diff(y)) > 180.0
+    y[jump] = np.nan
+    return y
+
+
 def text_page(title: str, lines: list[tuple[str, str]], subtitle: str = "") -> Figure:
     """Key/value lines (a cover); long values wrap."""
     fig = new_page(title, subtitle)
@@ -166,10 +175,10 @@ def attitude_pages(solutions, t_ref: float, truth_traj) -> list[Figure]:
             ax = fig.add_axes([0.11, 0.68 - 0.3 * k, 0.83, 0.24])
             y = se.rpy_deg[:, k]
             if k == 2:
-                y = np.mod(y, 360.0)
+                y = _break_wraps(np.mod(y, 360.0))
             _plot_series(ax, se.t, y, t_ref, color=COLORS[0], label=se.solution, marker="." if se.t.size < 200 else None, ms=2)
             if se.truth_rpy_deg is not None:
-                yt = se.truth_rpy_deg[:, k] if k < 2 else np.mod(se.truth_rpy_deg[:, 2], 360.0)
+                yt = se.truth_rpy_deg[:, k] if k < 2 else _break_wraps(np.mod(se.truth_rpy_deg[:, 2], 360.0))
                 _plot_series(ax, se.t, yt, t_ref, color="k", ls="--", label="truth")
             if k == 2:
                 ax.set_ylim(-5, 365)
@@ -226,7 +235,7 @@ def nis_pages(innovations: pd.DataFrame, t_ref: float, windows, per_page: int = 
             ax.plot(t[order], stats.chi2.ppf(0.025, dof[order]), color="k", lw=0.8, ls=":", label="chi2 2.5 %")
             ax.set_yscale("log")
             ax.set_ylabel("NIS (dimensionless)")
-            ax.set_title(f"{sol}: {kind} (dof {np.median(dof):.0f}, {int((~acc).sum())} rejected of {len(acc)})", fontsize=9.5)
+            ax.set_title(f"{sol}: {kind} (dof {np.nanmedian(dof) if np.isfinite(dof).any() else float('nan'):.0f}, {int((~acc).sum())} rejected of {len(acc)})", fontsize=9.5)
             ax.grid(True, lw=0.3, which="both")
             ax.legend(fontsize=7, ncol=4, loc="upper right")
             ax.set_xlabel(time_label(t_ref))

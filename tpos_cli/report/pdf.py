@@ -89,7 +89,12 @@ def write_pdf(path: Path, run, session, truth, acc, health, summary) -> list[str
     pages.append(("cover", F.text_page("tpos accuracy report", cover_lines(run, session, truth, summary), "what was processed, how, and what it is judged against")))
     conv = summary["conventions"]
     hd = _headline_df(summary)
-    for fig in F.table_pages("Summary: errors per solution (all epochs / all targets)", hd.T.reset_index().rename(columns={"index": "statistic"}) if not hd.empty else hd, conv, fontsize=8):
+    if not hd.empty:
+        hd = hd.map(lambda v: "" if isinstance(v, float) and not np.isfinite(v) else (f"{v:.4g}" if isinstance(v, float) else str(v)))
+        if hd["solution"].duplicated(keep=False).any():  # a solution with both a trajectory and targets
+            hd["solution"] = hd["solution"] + " (" + hd["of"] + ")"
+        hd = hd.set_index("solution").T.reset_index().rename(columns={"index": "statistic"})
+    for fig in F.table_pages("Summary: errors per solution (all epochs / all targets)", hd, conv, fontsize=8):
         pages.append(("summary", fig))
     for key, df in acc.paper_tables.items():
         for fig in F.table_pages(PAPER_TITLES[key], df, PAPER_NOTES[key]):

@@ -13,7 +13,7 @@ from tpos_cli.errors import InvalidInputError
 
 TRAJECTORY_REQUIRED = ("t", "lat", "lon", "h", "roll", "pitch", "yaw", "solution")
 TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
-INNOVATIONS_REQUIRED = ("t", "solution", "kind", "nis", "dof", "accepted")
+INNOVATIONS_REQUIRED = ("t", "nis", "accepted")  # plus solution, kind, dof (filled in when absent, see _complete_innovations)
 GPS_REQUIRED = ("t", "lat", "lon", "h")
 
 # paper 000 Tables 4-5 list the attitude sources in this order; other solutions follow as found
@@ -45,6 +45,21 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
         raise InvalidInputError(f"{run_dir.name}/{name}: column '{missing[0]}': required column is missing")
     if "solution" in df.columns:
         df["solution"] = df["solution"].astype(str)
+    return df
+
+
+def _complete_innovations(df: pd.DataFrame | None) -> pd.DataFrame | None:
+    """Fill the optional innovation columns: `solution` and `kind` "unspecified", and `dof` as the
+    number of finite `nu_*` components of each row (NaN when there are none: no chi-square bounds)."""
+    if df is None:
+        return None
+    df = df.copy()
+    for c in ("solution", "kind"):
+        df[c] = df[c].astype(str) if c in df.columns else "unspecified"
+    if "dof" not in df.columns:
+        nu = [c for c in df.columns if c.startswith("nu_")]
+        dof = np.isfinite(df[nu].to_numpy(float)).sum(axis=1).astype(float) if nu else np.full(len(df), np.nan)
+        df["dof"] = np.where(dof > 0, dof, np.nan)
     return df
 
 
@@ -91,7 +106,7 @@ def load_run(run_dir: Path) -> RunData:
     if tgts is not None:
         tgts["id"] = tgts["id"].astype(str)
     withheld = _read(run_dir, "withheld_gps.parquet", GPS_REQUIRED)
-    innov = _read(run_dir, "innovations.parquet", INNOVATIONS_REQUIRED)
+    innov = _complete_innovations(_read(run_dir, "innovations.parquet", INNOVATIONS_REQUIRED))
     if traj is not None:
         traj = traj.sort_values(["solution", "t"], kind="stable").reset_index(drop=True)
     outages = windows(summary.get("gps_outages"), "gps_outages")

@@ -214,7 +214,7 @@ def simulate_target(
         shots=shots_out if shots else None,
         toml={
             "start_utc": start_utc,
-            "magnetic": {"declination_deg": float(np.degrees(dec))},
+            "magnetic": {"declination_deg": float(field_ut_inc_dec[2])},
             "observer": {"lat": float(lla0[0]), "lon": float(lla0[1]), "h": float(lla0[2])},
         },
         params=params,

@@ -159,6 +159,7 @@ def write_session(sim: SimResult, path: str | Path, *, fmt: str = "parquet", ove
             raise InvalidInputError(f"{out}: already exists and is not empty (use --force to replace it)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    tmp.chmod(0o755)  # mkdtemp makes it private; a session is an ordinary shared directory
     try:
         (tmp / "session.toml").write_text(session_toml(sim), encoding="utf-8")
         for name, df in session_tables(sim).items():

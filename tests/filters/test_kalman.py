@@ -1,0 +1,75 @@
+"""Kalman kernels against closed forms and scipy."""
+
+import numpy as np
+from scipy.linalg import expm
+from scipy.stats import chi2
+
+from tpos_cli.filters.gating import chi2_threshold
+from tpos_cli.filters.kalman import discretize, nis_of, predict, update
+
+
+def test_scalar_update_closed_form():
+    x = np.array([1.0])
+    P = np.array([[4.0]])
+    nis_pred = nis_of(x, P, np.array([3.0]), np.array([[1.0]]), np.array([[1.0]]))
+    nis = update(x, P, np.array([3.0]), np.array([[1.0]]), np.array([[1.0]]))
+    # K = 4/5: x = 1 + 0.8 * 2, P = 4 * 1 / 5, NIS = 2^2 / 5
+    np.testing.assert_allclose(x, [2.6], rtol=1e-14)
+    np.testing.assert_allclose(P, [[0.8]], rtol=1e-14)
+    np.testing.assert_allclose([nis, nis_pred], [0.8, 0.8], rtol=1e-14)
+
+
+def test_update_matches_information_form():
+    rng = np.random.default_rng(0)
+    n, m = 15, 6
+    A = rng.standard_normal((n, n))
+    P = A @ A.T + n * np.eye(n)
+    x = rng.standard_normal(n)
+    H = rng.standard_normal((m, n))
+    R = np.diag(rng.uniform(0.5, 2.0, m))
+    z = rng.standard_normal(m)
+    Pi = np.linalg.inv(np.linalg.inv(P) + H.T @ np.linalg.inv(R) @ H)
+    xi = Pi @ (np.linalg.solve(P, x) + H.T @ np.linalg.solve(R, z))
+    xk, Pk = x.copy(), P.copy()
+    update(xk, Pk, z, H, R)
+    np.testing.assert_allclose(xk, xi, rtol=1e-9, atol=1e-11)  # well-conditioned 15x15: ~1e-12 rounding
+    np.testing.assert_allclose(Pk, Pi, rtol=1e-9, atol=1e-11)
+
+
+def test_update_reports_non_pd():
+    x = np.zeros(2)
+    P = np.zeros((2, 2))
+    assert update(x, P, np.zeros(1), np.array([[1.0, 0.0]]), np.array([[0.0]])) == -1.0
+
+
+def test_predict():
+    x = np.array([1.0, 2.0])
+    P = np.eye(2)
+    Phi = np.array([[1.0, 0.5], [0.0, 1.0]])
+    Qd = np.diag([0.1, 0.2])
+    predict(x, P, Phi, Qd)
+    np.testing.assert_allclose(x, [2.0, 2.0])
+    np.testing.assert_allclose(P, Phi @ Phi.T + Qd, rtol=1e-15)
+
+
+def test_discretize_against_van_loan():
+    """Phi and Qd of a damped oscillator against the exact Van Loan matrix exponential."""
+    F = np.array([[0.0, 1.0], [-4.0, -0.3]])
+    Qc = np.diag([0.0, 0.5])
+    dt = 0.01
+    Phi, Qd = np.empty((2, 2)), np.empty((2, 2))
+    discretize(F, Qc, dt, Phi, Qd)
+    M = expm(np.block([[-F, Qc], [np.zeros((2, 2)), F.T]]) * dt)
+    Phi_x = M[2:, 2:].T
+    Qd_x = Phi_x @ M[:2, 2:]
+    # second-order series: truncation (|F| dt)^3 / 6 = 0.04^3 / 6 ~ 1.1e-5
+    np.testing.assert_allclose(Phi, Phi_x, rtol=0, atol=1.1e-5)
+    # trapezoidal Qd: error O(|F| dt) = 4e-2 relative to its largest element
+    np.testing.assert_allclose(Qd, Qd_x, rtol=0, atol=4e-2 * np.abs(Qd_x).max())
+
+
+def test_chi2_threshold():
+    g = chi2_threshold(0.95, 6)
+    assert g[0] == np.inf
+    np.testing.assert_allclose(g[1:], chi2.ppf(0.95, np.arange(1, 7)), rtol=1e-12)
+    np.testing.assert_allclose(g[1], 3.841458820694124, rtol=1e-12)  # textbook value

@@ -1,0 +1,35 @@
+"""Every bundled pipeline file is valid data naming a registered chain; each kind has one default."""
+
+import pytest
+
+from tpos_cli import schema
+from tpos_cli.config import list_pipelines, load_pipeline_file, pipelines_dir, resolve_pipeline
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.pipeline import CHAINS
+
+PIPELINE_FILES = sorted(pipelines_dir().glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", PIPELINE_FILES, ids=[p.stem for p in PIPELINE_FILES])
+def test_pipeline_file_is_valid(path):
+    p = load_pipeline_file(path)
+    assert p.name == path.stem
+    assert p.chain in CHAINS
+    assert p.description
+    assert set(p.kinds) <= set(schema.SESSION_KINDS)
+
+
+def test_at_most_one_default_per_kind():
+    for kind in schema.SESSION_KINDS:
+        assert sum(kind in p.kinds for p in list_pipelines()) <= 1
+
+
+def test_unknown_chain_is_refused(tmp_path):
+    f = tmp_path / "x.toml"
+    f.write_text('[pipeline]\nname = "x"\ndescription = "d"\nchain = "os.system"\n')
+    from tpos_cli.pipeline import _chain_run
+
+    with pytest.raises(InvalidInputError, match="not one of"):
+        _chain_run(load_pipeline_file(f).chain)
+    with pytest.raises(InvalidInputError):
+        resolve_pipeline("no-such-pipeline", "drive")

@@ -1,0 +1,267 @@
+"""The `drive_smooth` chain (issue 4, paper 003): INS/GPS forward and backward filters and smoothers.
+
+Stages: alignment (levelling + GPS heading), forward 15-state closed-loop filter, the same
+filter backward in reversed time (initialized from the forward end state with the initial
+SDs, so that the two runs stay nearly independent), smoothing (`rts`, `two_filter`,
+`simplified`), and the trajectory table with sigma, `outage` and `flag` columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli import smoothing
+from tpos_cli.config import parse_params
+from tpos_cli.errors import InvalidInputError, ProcessingError
+from tpos_cli.frames.earth import meridian_radius_m, transverse_radius_m
+from tpos_cli.frames.rotation import dcm_to_euler
+from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance
+from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.pipeline import ChainOutput, RunContext
+from tpos_cli.session import Session
+
+G0_MPS2 = 9.80665
+DEG = np.pi / 180.0
+SMOOTHERS = ("rts", "two_filter", "simplified")
+
+
+@dataclass(frozen=True)
+class DriveSmoothParams:
+    """`[drive_smooth]` keys; noise figures left unset come from the session's `[imu]`, else MEMS defaults."""
+
+    smoother: str = "rts"  # the `smoothed` solution: rts | two_filter | simplified
+    compare: bool = False  # also write every smoother under its own name
+    cov_step_s: float = 0.1  # covariance propagation / storage step
+    output_rate_hz: float = 10.0  # rows per second per solution; 0 = every IMU sample
+    gate_probability: float = 0.9999  # chi-square gate on GPS innovations
+    flag_probability: float = 0.999  # forward/backward disagreement flag
+    heading_min_speed_mps: float = 3.0
+    init_sigma_pos_m: float = 5.0
+    init_sigma_vel_mps: float = 1.0
+    init_sigma_level_deg: float = 1.0
+    init_sigma_yaw_deg: float = 3.0
+    gyro_noise_dps: float | None = None  # white noise SD per sample
+    acc_noise_mg: float | None = None
+    gyro_bias_dph: float | None = None  # initial bias SD
+    acc_bias_mg: float | None = None
+    gyro_bias_inrun_dph: float = 10.0  # Gauss-Markov in-run bias SD
+    acc_bias_inrun_mg: float = 2.0
+    bias_tau_s: float = 300.0
+    gps_sigma_h_m: float = 1.5  # used when gps has no sigma columns
+    gps_sigma_v_m: float = 2.5
+    gps_sigma_vel_mps: float = 0.1
+    use_gps_velocity: bool = True
+    outage_min_s: float = 2.0  # a gap between fixes longer than this is an outage
+
+
+_DEFAULT_NOISE = {"gyro_noise_dps": 0.01, "acc_noise_mg": 2.0, "gyro_bias_dph": 20.0, "acc_bias_mg": 10.0}
+
+
+def _noise(p: DriveSmoothParams, session: Session) -> dict:
+    out = {}
+    for key, default in _DEFAULT_NOISE.items():
+        v = getattr(p, key)
+        if v is None:
+            v = getattr(session.meta.imu_noise, key, None)
+        out[key] = float(default if v is None else v)
+    return out
+
+
+def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
+    gps = session.gps
+    if gps is None:
+        raise ProcessingError("gps: the drive pipeline needs a gps table")
+    ok = gps.valid
+    sig = np.array(gps.sigma_neu_m[ok], dtype=float)
+    default = np.array([p.gps_sigma_h_m, p.gps_sigma_h_m, p.gps_sigma_v_m])
+    sig = np.where(np.isfinite(sig) & (sig > 0), sig, default)
+    vel = np.array(gps.vel_ned_mps[ok], dtype=float)
+    if not p.use_gps_velocity:
+        vel[:] = np.nan
+    vel[~np.isfinite(vel).all(axis=1)] = np.nan
+    return GpsFixes(np.array(gps.t_s[ok], dtype=float), np.array(gps.lla[ok], dtype=float), vel, sig,
+                    np.full((int(ok.sum()), 3), p.gps_sigma_vel_mps))
+
+
+def fix_outages(t_fix, t_end_s, min_gap_s) -> np.ndarray:
+    """(K, 2) outage intervals [last fix, next fix) where fixes are more than `min_gap_s` apart
+    (and more than 2.5 nominal intervals), plus a stretch without fixes before the end."""
+    if t_fix.size < 2:
+        return np.zeros((0, 2))
+    dt = np.diff(t_fix)
+    thr = max(min_gap_s, 2.5 * float(np.median(dt)))
+    i = np.flatnonzero(dt > thr)
+    out = [[t_fix[k], t_fix[k + 1]] for k in i]
+    if t_end_s - t_fix[-1] > thr:
+        out.append([t_fix[-1], t_end_s])
+    return np.array(out, dtype=float).reshape(-1, 2)
+
+
+def euler_sigmas_deg(C_nb, P_phi) -> np.ndarray:
+    """SDs of roll, pitch, yaw (deg) from the covariance of the nav-frame attitude error phi.
+
+    A nav-frame rotation alpha relates to Euler-angle changes by alpha = E de with
+    E = [Rz Ry e_x, Rz e_y, e_z] (C_nb = Rz Ry Rx), and alpha = -phi.
+    """
+    r, p, y = dcm_to_euler(C_nb)
+    cy, sy, cp, sp = np.cos(y), np.sin(y), np.cos(p), np.sin(p)
+    E = np.zeros(C_nb.shape)
+    E[:, 0, 0], E[:, 1, 0], E[:, 2, 0] = cy * cp, sy * cp, -sp
+    E[:, 0, 1], E[:, 1, 1] = -sy, cy
+    E[:, 2, 2] = 1.0
+    Ei = np.linalg.inv(E)
+    Pe = Ei @ P_phi @ np.transpose(Ei, (0, 2, 1))
+    return np.degrees(np.sqrt(np.clip(np.diagonal(Pe, axis1=1, axis2=2), 0.0, None)))
+
+
+def solution_frame(sol: smoothing.Solution, t0_s, t_s, outage, flag) -> pd.DataFrame:
+    """Contract trajectory rows of one solution, with sigma, outage and flag columns."""
+    r, p, y = dcm_to_euler(sol.C_nb)
+    sd = np.sqrt(np.clip(np.diagonal(sol.P9, axis1=1, axis2=2), 0.0, None))
+    se = euler_sigmas_deg(sol.C_nb, sol.P9[:, 6:9, 6:9])
+    n = sol.idx.size
+    return pd.DataFrame({
+        "t": t_s[sol.idx] + t0_s,
+        "lat": np.degrees(sol.nav[:, 0]), "lon": np.degrees(sol.nav[:, 1]), "h": sol.nav[:, 2],
+        "vn": sol.nav[:, 3], "ve": sol.nav[:, 4], "vd": sol.nav[:, 5],
+        "roll": np.degrees(r), "pitch": np.degrees(p), "yaw": np.degrees(y),
+        "solution": np.full(n, sol.name, dtype=object),
+        "sigma_n": sd[:, 0], "sigma_e": sd[:, 1], "sigma_d": sd[:, 2],
+        "sigma_vn": sd[:, 3], "sigma_ve": sd[:, 4], "sigma_vd": sd[:, 5],
+        "sigma_roll": se[:, 0], "sigma_pitch": se[:, 1], "sigma_yaw": se[:, 2],
+        "outage": outage, "flag": flag,
+    })
+
+
+@dataclass(frozen=True)
+class DriveResult:
+    """Everything `process_drive` computed (arrays in package units), for the chain and benchmarks."""
+
+    t_s: np.ndarray
+    out_idx: np.ndarray
+    forward: object
+    backward: object
+    solutions: dict
+    flag: np.ndarray
+    nis_fb: np.ndarray
+    outages_s: np.ndarray
+    fixes: GpsFixes
+    info: dict
+
+
+def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None = None,
+                  names=("forward", "backward", "smoothed")) -> DriveResult:
+    """Align, filter forward and backward, smooth; `names` picks the solutions computed."""
+    stage = ctx.stage if ctx is not None else _nostage
+    imu = session.imu
+    t = np.ascontiguousarray(imu.t_s, dtype=float)
+    gyro = np.ascontiguousarray(imu.gyro_b_rps, dtype=float)
+    acc = np.ascontiguousarray(imu.acc_b_mps2, dtype=float)
+    rate = (t.size - 1) / (t[-1] - t[0])
+    nz = _noise(p, session)
+    lever = np.asarray(session.meta.lever_arm_b_m, dtype=float)
+    fixes = fixes_from_session(session, p)
+    sig = InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps, p.init_sigma_level_deg * DEG,
+                        p.init_sigma_yaw_deg * DEG, nz["acc_bias_mg"] * 1e-3 * G0_MPS2, nz["gyro_bias_dph"] * DEG / 3600)
+    with stage("alignment"):
+        init, info = align_vehicle(t, gyro, acc, imu.mag_b_ut, fixes, lever, sig, min_speed_mps=p.heading_min_speed_mps,
+                                   declination_rad=(session.meta.declination_deg or 0.0) * DEG)
+    sb_a = p.acc_bias_inrun_mg * 1e-3 * G0_MPS2
+    sb_g = p.gyro_bias_inrun_dph * DEG / 3600
+    q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate, (nz["gyro_noise_dps"] * DEG) ** 2 / rate,
+                  2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
+    cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability)
+    need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
+    with stage("forward"):
+        fwd = run_insgps(t, gyro, acc, fixes, init, cfg, store_rts=need_rts)
+    with stage("backward"):
+        # backward starts from the forward end state but with the initial SDs (not the forward
+        # covariance): the two runs then share no information beyond that rough start
+        init_b = InitialState(fwd.nav[-1].copy(), fwd.C_nb[-1].copy(), fwd.bias[-1].copy(),
+                              initial_covariance(InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps,
+                                                               sig.level_rad, sig.yaw_rad, sig.acc_bias_mps2,
+                                                               sig.gyro_bias_rps)))
+        bwd = run_insgps(t, gyro, acc, fixes, init_b, cfg, backward=True)
+    with stage("smoothing"):
+        step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
+        out_idx = np.arange(0, t.size, step)
+        if out_idx[-1] != t.size - 1:
+            out_idx = np.append(out_idx, t.size - 1)
+        outages = fix_outages(fixes.t_s, t[-1], p.outage_min_s)
+        sols = {}
+        tf, flag, nis = smoothing.two_filter(fwd, bwd, t, out_idx, flag_probability=p.flag_probability)
+        wanted = set(names)
+        if "smoothed" in wanted:
+            wanted.add(p.smoother)
+        for name in wanted:
+            if name == "forward":
+                sols[name] = smoothing.filter_solution(fwd, out_idx, "forward")
+            elif name == "backward":
+                sols[name] = smoothing.filter_solution(bwd, out_idx, "backward")
+            elif name == "two_filter":
+                sols[name] = tf
+            elif name == "rts":
+                sols[name] = smoothing.rts(fwd, t, out_idx)
+            elif name == "simplified":
+                sols[name] = smoothing.simplified(fwd, bwd, t, out_idx, outages)
+        if "smoothed" in wanted:
+            s = sols[p.smoother]
+            sols["smoothed"] = smoothing.Solution("smoothed", s.idx, s.nav, s.C_nb, s.P9)
+    return DriveResult(t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info)
+
+
+class _nostage:
+    def __init__(self, name):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+
+def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
+    p = parse_params(DriveSmoothParams, params.get("drive_smooth"), "drive_smooth")
+    if p.smoother not in SMOOTHERS:
+        raise InvalidInputError(f"pipeline [drive_smooth]: smoother {p.smoother!r} is not one of {', '.join(SMOOTHERS)}")
+    if p.cov_step_s <= 0 or p.output_rate_hz < 0 or p.bias_tau_s <= 0:
+        raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
+    names = ["forward", "backward", "smoothed"] + (list(SMOOTHERS) if p.compare else [])
+    res = process_drive(session, p, ctx, names)
+    t = res.t_s
+    with ctx.stage("outputs"):
+        tt = t[res.out_idx]
+        outage = np.zeros(tt.size, dtype=bool)
+        for a, b in res.outages_s:
+            outage |= (tt >= a) & (tt < b)
+        frames = [solution_frame(res.solutions[n], session.t0_s, t, outage, res.flag) for n in names]
+        traj = pd.concat(frames, ignore_index=True)
+        f = res.forward
+        innov = pd.DataFrame({
+            "t": res.fixes.t_s + session.t0_s, "nis": f.nis, "accepted": f.accepted,
+            **{f"nu_{c}": f.innovation[:, i] for i, c in enumerate(("n", "e", "d", "vn", "ve", "vd"))},
+        })
+    n_fix = int(res.fixes.t_s.size)
+    rej_f = int(np.sum(~res.forward.accepted & np.isfinite(res.forward.nis)))
+    rej_b = int(np.sum(~res.backward.accepted & np.isfinite(res.backward.nis)))
+    ctx.count("gps_fixes_used", n_fix)
+    ctx.count("gps_rejected_forward", rej_f)
+    ctx.count("gps_rejected_backward", rej_b)
+    ctx.count("flagged_rows", int(res.flag.sum()))
+    acc_nis = res.forward.nis[res.forward.accepted]
+    summary = {
+        "config": {"drive_smooth": asdict(p)},
+        "alignment": res.info,
+        "smoothed_method": p.smoother,
+        "solutions": names,
+        "gps_fixes": n_fix,
+        "gps_rejected": {"forward": rej_f, "backward": rej_b},
+        "forward_mean_nis": float(np.mean(acc_nis)) if acc_nis.size else None,
+        "outages_s": (res.outages_s + session.t0_s).tolist(),
+        "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
+    }
+    return ChainOutput(trajectory=traj, tables={"innovations": innov}, summary=summary)

@@ -1,0 +1,277 @@
+"""The `ranging_fatci` chain (paper 002): IMU + ranges to anchors -> `lc`, `tc`, `fatci` solutions.
+
+Stages: range error model (Eq. 13-16) from `range_calibration`; floor height and initial state
+from least-squares fixes; forward INS/range filters (`tpos_cli.ranging.filter`) with innovation
+gating and coasting report. No backward run or smoothing yet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli.alignment import level_rad
+from tpos_cli.config import params_to_dict, parse_params
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames import geodetic
+from tpos_cli.pipeline import ChainOutput, RunContext
+from tpos_cli.ranging.calibration import fit_range_model, identity_model
+from tpos_cli.ranging.filter import (
+    EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,
+    fix_events, fuzzy_range_variance, range_events, run_filter,
+)
+from tpos_cli.ranging.fuzzy import fuzzy_system_from_params
+from tpos_cli.ranging.multilateration import group_epochs, ls_fix
+from tpos_cli.session import Session
+
+G0 = 9.80665
+SOLUTIONS = ("lc", "tc", "fatci")
+
+
+@dataclass(frozen=True)
+class RangingParams:
+    """`[ranging_fatci]`; units in the key names. See pipelines/ranging-fatci.toml for meanings."""
+
+    solutions: tuple[str, ...] = SOLUTIONS
+    output_rate_hz: float = 10.0
+    calibration_scale: str = "shared"
+    calibration_reject_sigma: float = 4.0
+    sd_poly_degree: int = 1
+    range_sd_m: float = 0.15
+    epoch_window_s: float = 0.02
+    lc_min_anchors: int = 4
+    floor_down_m: float | None = None
+    floor_sd_m: float = 0.05
+    gate_probability: float = 0.999
+    gate_max_consecutive: int = 20
+    coast_gap_s: float = 0.5
+    align_distance_m: float = 3.0
+    level_window_s: float = 1.0
+    static_acc_sd_mps2: float = 0.1
+    initial_position_sd_m: float = 0.3
+    initial_velocity_sd_mps: float = 0.1
+    initial_level_sd_deg: float = 1.0
+    initial_yaw_sd_deg: float = 10.0
+    range_bias_sd_m: float = 0.05
+    range_bias_rw_m_per_sqrt_s: float = 0.002
+    gyro_noise_dps: float = 0.02
+    acc_noise_mg: float = 2.0
+    gyro_bias_dph: float = 10.0
+    acc_bias_mg: float = 2.0
+    bias_drift_time_s: float = 600.0
+    fuzzy_exponent_b: float = 2.0
+    fuzzy: dict = field(default_factory=dict)
+
+
+def _check(p: RangingParams) -> None:
+    bad = [s for s in p.solutions if s not in SOLUTIONS]
+    if bad or not p.solutions:
+        raise InvalidInputError(f"pipeline [ranging_fatci.solutions]: each must be one of {SOLUTIONS}, got {list(p.solutions)}")
+    if p.calibration_scale not in ("shared", "per_anchor"):
+        raise InvalidInputError("pipeline [ranging_fatci.calibration_scale]: must be 'shared' or 'per_anchor'")
+    for name in ("output_rate_hz", "range_sd_m", "floor_sd_m", "coast_gap_s", "initial_position_sd_m",
+                 "initial_velocity_sd_mps", "initial_level_sd_deg", "initial_yaw_sd_deg", "bias_drift_time_s"):
+        if not getattr(p, name) > 0:
+            raise InvalidInputError(f"pipeline [ranging_fatci.{name}]: must be > 0, got {getattr(p, name)}")
+    if not 0.0 < p.gate_probability < 1.0:
+        raise InvalidInputError("pipeline [ranging_fatci.gate_probability]: must be in (0, 1)")
+    if p.lc_min_anchors < 3:
+        raise InvalidInputError("pipeline [ranging_fatci.lc_min_anchors]: a horizontal fix needs at least 3")
+
+
+def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_every: int) -> FilterConfig:
+    n = session.meta.imu_noise
+    gyro_noise = n.gyro_noise_dps if n.gyro_noise_dps is not None else p.gyro_noise_dps
+    acc_noise = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
+    gyro_bias = n.gyro_bias_dph if n.gyro_bias_dph is not None else p.gyro_bias_dph
+    acc_bias = n.acc_bias_mg if n.acc_bias_mg is not None else p.acc_bias_mg
+    gb = np.radians(gyro_bias / 3600.0)
+    ab = acc_bias * 1e-3 * G0
+    q = np.array([
+        (acc_noise * 1e-3 * G0) ** 2 * imu_dt_s,  # per-sample SD -> PSD: sigma^2 dt
+        np.radians(gyro_noise) ** 2 * imu_dt_s,
+        ab**2 / p.bias_drift_time_s,  # bias may wander by its own size over bias_drift_time_s
+        gb**2 / p.bias_drift_time_s,
+    ])
+    sd0 = np.concatenate([
+        np.full(3, p.initial_position_sd_m), np.full(3, p.initial_velocity_sd_mps),
+        np.radians([p.initial_level_sd_deg, p.initial_level_sd_deg, p.initial_yaw_sd_deg]),
+        np.full(3, max(ab, 1e-6)), np.full(3, max(gb, 1e-9)), [p.range_bias_sd_m],
+    ])
+    return FilterConfig(q=q, tau_acc_s=0.0, tau_gyro_s=0.0, q_range_bias_m2ps=p.range_bias_rw_m_per_sqrt_s**2,
+                        sd0=sd0, gate_probability=p.gate_probability,
+                        max_consecutive_rejects=p.gate_max_consecutive, output_every=output_every)
+
+
+def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> float:
+    """Down coordinate of the node: given, or the median of 3-D fixes of epochs with >= 4 anchors."""
+    if p.floor_down_m is not None:
+        return float(p.floor_down_m)
+    ep = group_epochs(t, p.epoch_window_s)
+    downs, sds = [], []
+    guess = np.array([*anchors_ned[:, :2].mean(axis=0), anchors_ned[:, 2].mean() + 2.0])  # start below the anchors
+    for e in range(0, ep.max() + 1, max(1, (ep.max() + 1) // 200)):
+        m = ep == e
+        if np.unique(a[m]).size < 4:
+            continue
+        fix = ls_fix(anchors_ned[a[m]], r[m], sd[m], guess, solve_down=True)
+        if fix.ok and fix.cov_ned_m2 is not None:
+            downs.append(fix.pos_ned_m[2])
+            sds.append(np.sqrt(fix.cov_ned_m2[2, 2]))
+    if len(downs) < 5 or np.median(sds) > 1.0:
+        d = float(anchors_ned[:, 2].mean())
+        ctx.warn(f"ranging: the anchors do not observe the node height; floor taken at the anchors' mean "
+                 f"down {d:.2f} m (set ranging_fatci.floor_down_m)")
+        return d
+    return float(np.median(downs))
+
+
+def _initial_state(session: Session, fixes: Events, p: RangingParams) -> InitialState:
+    """Position from the first fix, velocity from a line through 1 s of fixes, level from the
+    accelerometers, yaw from the track of the fixes once the node has moved align_distance_m."""
+    if fixes.t_s.size < 2:
+        raise InvalidInputError("anchor_ranges: no epoch has enough anchors for a first position fix")
+    t_imu = session.imu.t_s
+    t_first = fixes.t_s[0]
+    k0 = int(np.searchsorted(t_imu, t_first))
+    if k0 >= t_imu.size - 1:
+        raise InvalidInputError("anchor_ranges: the first position fix is after the end of the IMU log")
+    # running median over ~1 s of fixes: the start and the track ignore single bad fixes
+    half = 5
+    z_med = np.array([np.median(fixes.z[max(0, i - half):i + half + 1], axis=0) for i in range(fixes.t_s.size)])
+    lvl = (t_imu >= t_imu[k0]) & (t_imu <= t_imu[k0] + p.level_window_s)
+    acc_w, gyro_w = session.imu.acc_b_mps2[lvl], session.imu.gyro_b_rps[lvl]
+    roll, pitch = (float(v) for v in level_rad(acc_w.mean(axis=0)))
+    # static start (specific force and rate steady to sensor-noise level): zero velocity, which
+    # beats a line through 1 s of noisy fixes (~0.2 m/s SD with 0.2 m cross-corridor fix noise)
+    static = np.linalg.norm(acc_w.std(axis=0)) < p.static_acc_sd_mps2 and np.linalg.norm(gyro_w.mean(axis=0)) < np.radians(1.0)
+    w = fixes.t_s <= t_first + 1.0
+    vel_ne = np.zeros(2)
+    if not static and w.sum() >= 3:
+        vel_ne = np.polyfit(fixes.t_s[w] - t_first, fixes.z[w], 1)[0]
+    # yaw: principal direction of the (median-filtered) fixes from the start until the node has
+    # moved align_distance_m, signed by the displacement (the vehicle moves along its forward axis)
+    moved = np.hypot(*(z_med - z_med[0]).T) > p.align_distance_m
+    yaw = 0.0
+    if moved.any():
+        j = int(np.argmax(moved))
+        seg = z_med[: j + 1] - z_med[: j + 1].mean(axis=0)
+        u = np.linalg.svd(seg, full_matrices=False)[2][0]
+        d = z_med[j] - z_med[0]
+        u = u if u @ d >= 0 else -u
+        yaw = float(np.arctan2(u[1], u[0]))
+    return InitialState(k0=k0, lla=np.zeros(3), vel_ned_mps=np.array([vel_ne[0], vel_ne[1], 0.0]),
+                        rpy_rad=np.array([roll, pitch, yaw]))
+
+
+def _trajectory(run: FilterRun, name: str, t0_s: float) -> pd.DataFrame:
+    return pd.DataFrame({
+        "t": run.t_s + t0_s, "lat": run.lla[:, 0], "lon": run.lla[:, 1], "h": run.lla[:, 2],
+        "vn": run.vel_ned_mps[:, 0], "ve": run.vel_ned_mps[:, 1], "vd": run.vel_ned_mps[:, 2],
+        "roll": run.rpy_deg[:, 0], "pitch": run.rpy_deg[:, 1], "yaw": run.rpy_deg[:, 2],
+        "solution": name,
+        "sigma_n": run.sd_ned_m[:, 0], "sigma_e": run.sd_ned_m[:, 1], "sigma_u": run.sd_ned_m[:, 2],
+        "sigma_vn": run.sd_vel_mps[:, 0], "sigma_ve": run.sd_vel_mps[:, 1], "sigma_vd": run.sd_vel_mps[:, 2],
+        "sigma_roll": run.sd_att_deg[:, 0], "sigma_pitch": run.sd_att_deg[:, 1], "sigma_yaw": run.sd_att_deg[:, 2],
+        "range_bias_m": run.range_bias_m,
+    })
+
+
+def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
+    p = parse_params(RangingParams, params.get("ranging_fatci"), "ranging_fatci")
+    _check(p)
+    fis = fuzzy_system_from_params(p.fuzzy, "ranging_fatci.fuzzy") if "fatci" in p.solutions else None
+    if session.anchors is None or session.anchor_ranges is None:
+        raise InvalidInputError(f"{session.path}: the ranging_fatci pipeline needs anchors.csv and anchor_ranges")
+    anchors = session.anchors
+    ar = session.anchor_ranges
+    A = len(anchors.ids)
+    anchors_ned = np.asarray(anchors.ned_m, dtype=float)
+    origin = np.asarray(anchors.origin_lla, dtype=float)
+    results: dict = {}
+
+    with ctx.stage("range_model"):
+        if session.range_calibration is not None:
+            rc = session.range_calibration
+            model = fit_range_model(rc.anchor, rc.true_m, rc.measured_m, A, scale=p.calibration_scale,
+                                    reject_sigma=p.calibration_reject_sigma, sd_poly_degree=p.sd_poly_degree)
+        else:
+            model = identity_model(A, p.range_sd_m)
+            ctx.warn(f"ranging: no range_calibration table; ranges used uncorrected (f = 1, c = 0) with "
+                     f"a constant SD of {p.range_sd_m} m")
+        results["range_model"] = model.summary(anchors.ids)
+        ok = np.isfinite(ar.range_m)
+        order = np.argsort(ar.t_s[ok], kind="stable")
+        t = ar.t_s[ok][order]
+        a = ar.anchor[ok][order].astype(np.int64)
+        r = model.correct(a, ar.range_m[ok][order])  # Eq. 14 inverted
+        sd_fit = model.range_sd_m(r)
+        ctx.count("anchor_ranges_used", int(t.size))
+
+    imu = session.imu
+    imu_dt = float(np.median(np.diff(imu.t_s)))
+    out_every = max(1, int(round(1.0 / (p.output_rate_hz * imu_dt))))
+    cfg = _filter_config(session, p, imu_dt, out_every)
+
+    with ctx.stage("initial_alignment"):
+        floor_d = _floor_down(anchors_ned, t, a, r, sd_fit, p, ctx)
+        fixes, n_nofix = fix_events(t, a, r, sd_fit, anchors_ned, floor_d, p.lc_min_anchors, p.epoch_window_s,
+                                    p.gate_probability)
+        init = _initial_state(session, fixes, p)
+        z0 = np.median(fixes.z[fixes.t_s <= fixes.t_s[0] + 1.0], axis=0)  # robust start: 1 s of fixes
+        p0 = np.array([z0[0], z0[1], floor_d])
+        init = InitialState(init.k0, geodetic.ned_to_lla(p0, origin), init.vel_ned_mps, init.rpy_rad)
+        results["floor_down_m"] = floor_d
+        results["initial_state"] = {"t": float(imu.t_s[init.k0] + session.t0_s),
+                                    "lla": [float(v) for v in init.lla],
+                                    "rpy_deg": [float(v) for v in np.degrees(init.rpy_rad)]}
+        results["lc_fixes"] = int(fixes.t_s.size)
+        results["lc_epochs_without_fix"] = int(n_nofix)
+
+    floor = down_events(np.unique(t), floor_d, p.floor_sd_m)
+    pooled = model.pooled_sd_m
+    trajs, innov, per_sol = [], [], {}
+    for name in p.solutions:
+        with ctx.stage(f"filter_{name}"):
+            extra: dict = {}
+            if name == "lc":
+                ev = fixes
+            elif name == "tc":
+                ev = range_events(t, a, r, np.full(t.size, pooled**2))  # constant R: pooled residual SD
+            else:
+                R, S = fuzzy_range_variance(fis, sd_fit, pooled, p.fuzzy_exponent_b)
+                ev = range_events(t, a, r, R)
+                extra["fuzzy_S"] = {"min": float(S.min()), "median": float(np.median(S)), "max": float(S.max())}
+            runf = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, init, Events.merge(ev, floor),
+                              anchors_ned, origin, cfg)
+        trajs.append(_trajectory(runf, name, session.t0_s))
+        evs = runf.events
+        aid = evs.kind != 2
+        rej = aid & ~runf.ev_accepted & (runf.ev_nis >= 0)
+        if name == "lc":
+            rejections = {"fix": int(rej.sum())}
+        else:
+            rejections = {anchors.ids[i]: int(np.sum(rej & (evs.anchor == i) & (evs.kind == EV_RANGE))) for i in range(A)}
+        coast = coasting_intervals(runf, p.coast_gap_s)
+        for k, v in rejections.items():
+            ctx.count(f"{name}_gated_{k}", v)
+        if coast:
+            ctx.warn(f"ranging {name}: coasted on the INS alone for {len(coast)} interval(s), "
+                     f"{sum(b - a_ for a_, b in coast):.1f} s in total")
+        per_sol[name] = {
+            "aiding_events": int(aid.sum()), "accepted": int((aid & runf.ev_accepted).sum()),
+            "gating_rejections": rejections,
+            "coasting_intervals": [[a_ + session.t0_s, b + session.t0_s] for a_, b in coast],
+            "final_range_bias_m": float(runf.range_bias_m[-1]), **extra,
+        }
+        innov.append(pd.DataFrame({
+            "t": evs.t_s[aid] + session.t0_s, "solution": name, "kind": np.where(evs.kind[aid] == EV_RANGE, "range", "fix"),
+            "anchor": [anchors.ids[i] if i >= 0 else "" for i in evs.anchor[aid]],
+            "nis": runf.ev_nis[aid], "accepted": runf.ev_accepted[aid],
+        }))
+    results["solutions"] = per_sol
+    results["config"] = {"ranging_fatci": params_to_dict(p)}
+    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
+                       summary=results)

@@ -1,0 +1,103 @@
+"""`tpos simulate`: write a synthetic session with exact truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from tpos_cli.cli._common import exit_on_error, show_progress
+
+_ONLY = {
+    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel"),
+    "target": ("motion", "wall_distance", "mag_disturbance_ut", "mag_disturbance_start", "mag_disturbance_end"),
+    "ranging": ("dropout", "nlos_prob"),
+}
+
+
+def _floats(text: str, n: int, option: str) -> list[float]:
+    parts = text.split(":")
+    try:
+        if len(parts) != n:
+            raise ValueError
+        return [float(p) for p in parts]
+    except ValueError:
+        raise typer.BadParameter(f"expected {n} numbers separated by ':', got {text!r}", param_hint=option) from None
+
+
+def simulate(
+    scenario: str = typer.Argument(..., help="drive | target | ranging"),
+    out: Path = typer.Argument(..., help="Session directory to write (must not exist, or use --force)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the sensor noise (and of the drive manoeuvres)."),
+    duration: float = typer.Option(None, "--duration", help="Seconds; default drive 120, target 90, ranging 60."),
+    grade: str = typer.Option(None, "--grade", help="Sensor errors: paper | mems | perfect; default mems (drive), paper (target, ranging)."),
+    rate: float = typer.Option(100.0, "--rate", help="IMU rate, Hz."),
+    fmt: str = typer.Option("parquet", "--format", help="Time-stamped tables as parquet or csv."),
+    name: str = typer.Option(None, "--name", help="[session] name; default the directory name."),
+    t0: float = typer.Option(0.0, "--t0", help="Logger-clock time of the first IMU sample, s."),
+    force: bool = typer.Option(False, "--force", help="Replace OUT if it exists."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress output, only the final line."),
+    outage: list[str] = typer.Option(None, "--outage", help="drive: GPS outage START:LEN (s from the start); repeatable; 'none' for no outage. Default 40:30."),
+    trajectory_seed: int = typer.Option(None, "--trajectory-seed", help="drive: seed of the manoeuvres (default --seed)."),
+    gps_sigma_h: float = typer.Option(None, "--gps-sigma-h", help="drive: GPS horizontal noise SD per axis, m (default 1.5)."),
+    gps_sigma_v: float = typer.Option(None, "--gps-sigma-v", help="drive: GPS vertical noise SD, m (default 2.5)."),
+    gps_sigma_vel: float = typer.Option(None, "--gps-sigma-vel", help="drive: GPS velocity noise SD per axis, m/s (default 0.05)."),
+    motion: str = typer.Option(None, "--motion", help="target: shots (aim at each target in turn) or sine (paper 000 sec. 6.1)."),
+    wall_distance: float = typer.Option(None, "--wall-distance", help="target: distance to the wall, m (default 12)."),
+    mag_disturbance_ut: float = typer.Option(None, "--mag-disturbance-ut", help="target: add a magnetic disturbance of this magnitude, uT (paper 000: 50)."),
+    mag_disturbance_start: float = typer.Option(None, "--mag-disturbance-start", help="target: disturbance start, s (default 4)."),
+    mag_disturbance_end: float = typer.Option(None, "--mag-disturbance-end", help="target: disturbance end, s (default: the end)."),
+    dropout: list[str] = typer.Option(None, "--dropout", help="ranging: anchor dropout ID:START:LEN; repeatable; 'none' for none. Default A2:18:5 and A2:40:5."),
+    nlos_prob: float = typer.Option(None, "--nlos-prob", help="ranging: fraction of ranges with an NLOS spike (default 0.03)."),
+) -> None:
+    """Simulate SCENARIO and write it to OUT as a session (docs/log-format.md) with exact truth.
+
+    Scenarios follow the papers: `target` (paper 000: static observer, three rangefinders on a
+    wall, shots, reference point), `drive` (paper 003: land vehicle, 100 Hz IMU, 1 Hz GPS with
+    outages), `ranging` (paper 002: corridor with four anchors, range error model, calibration).
+
+    Example: tpos simulate drive runs/drive_sim --seed 7 --duration 300 --outage 40:30 --outage 150:20
+    """
+    from tpos_cli.sim import SCENARIOS
+
+    if scenario not in SCENARIOS:
+        raise typer.BadParameter(f"{scenario!r} is not one of {', '.join(SCENARIOS)}", param_hint="SCENARIO")
+    given = {k: v for k, v in locals().items() if k in sum(_ONLY.values(), ()) and v not in (None, [])}
+    for k in given:
+        if k not in _ONLY[scenario]:
+            raise typer.BadParameter(f"does not apply to scenario {scenario!r}", param_hint="--" + k.replace("_", "-"))
+    kw: dict = {"seed": seed, "rate_hz": rate, "t0_s": t0, "name": name or out.name}
+    if duration is not None:
+        kw["duration_s"] = duration
+    if grade is not None:
+        kw["grade"] = grade
+    if outage:
+        kw["outages"] = [] if outage == ["none"] else [_floats(o, 2, "--outage") for o in outage]
+    if dropout:
+        kw["dropouts"] = [] if dropout == ["none"] else [(d.split(":")[0], *_floats(d.split(":", 1)[-1], 2, "--dropout")) for d in dropout]
+    for key, arg in (("trajectory_seed", trajectory_seed), ("gps_sigma_h_m", gps_sigma_h), ("gps_sigma_v_m", gps_sigma_v),
+                     ("gps_sigma_vel_mps", gps_sigma_vel), ("motion", motion), ("wall_distance_m", wall_distance),
+                     ("mag_disturbance_ut", mag_disturbance_ut), ("mag_disturbance_start_s", mag_disturbance_start),
+                     ("mag_disturbance_end_s", mag_disturbance_end), ("nlos_prob", nlos_prob)):
+        if arg is not None:
+            kw[key] = arg
+    with exit_on_error():
+        path = _run(scenario, kw, out, fmt, force, show_progress(quiet))
+    typer.echo(f"{scenario}: wrote {path} (seed {seed})")
+
+
+def _run(scenario: str, kw: dict, out: Path, fmt: str, force: bool, progress: bool) -> Path:
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    if not progress:
+        return write_session(SCENARIOS[scenario](**kw), out, fmt=fmt, overwrite=force)
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), transient=True) as bar:
+        task = bar.add_task(f"simulating {scenario}", total=2)
+        sim = SCENARIOS[scenario](**kw)
+        bar.update(task, advance=1, description=f"writing {out}")
+        path = write_session(sim, out, fmt=fmt, overwrite=force)
+        bar.update(task, advance=1)
+    return path

@@ -1,0 +1,71 @@
+"""Magnetometer hard/soft-iron calibration by ellipsoid fitting.
+
+Model (in the LOGGED sensor axes, as `session.py` applies it): m_raw = A h + b + noise with |h| = F
+(the local field magnitude), so the calibration is m_cal = S (m_raw - b), S = A⁻¹ chosen symmetric.
+Fit: the algebraic least-squares quadric m^T M m + 2 p^T m + c = 0 (Li & Griffiths 2004, Eq. 7-11,
+without their ellipsoid-specific constraint, which rotation sequences rarely need);
+b = -M⁻¹ p; S = (M / (b^T M b - c))^{1/2} F (symmetric square root), so |S (m - b)| = F.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tpos_cli.errors import ProcessingError
+
+
+def apply_mag_calibration(mag_ut, hard_iron_ut, soft_iron):
+    """m_cal = S (m_raw - b) per row: `mag_ut` (N, 3) µT, `hard_iron_ut` b (3,), `soft_iron` S (3, 3)."""
+    m = np.asarray(mag_ut, float)
+    return (m - np.asarray(hard_iron_ut, float)) @ np.asarray(soft_iron, float).T
+
+
+@dataclass(frozen=True)
+class MagCalibration:
+    hard_iron_ut: np.ndarray  # (3,)
+    soft_iron: np.ndarray  # (3, 3) symmetric
+    field_ut: float  # F the calibrated magnitude is scaled to
+    residual_sd_ut: float  # SD of |m_cal| - F over the fitted samples
+    raw_norm_sd_ut: float  # SD of |m_raw| (for comparison)
+    coverage: float  # smallest / largest eigenvalue of the spread of calibrated directions (0 = planar, 1 = sphere)
+
+    def toml_keys(self) -> dict:
+        return {"hard_iron_ut": [round(float(x), 4) for x in self.hard_iron_ut],
+                "soft_iron": [[round(float(x), 6) for x in row] for row in self.soft_iron]}
+
+
+def fit_ellipsoid(mag_ut, field_ut: float | None = None) -> MagCalibration:
+    """Hard/soft iron from samples (N, 3) µT spread over many orientations.
+
+    `field_ut`: the local field magnitude (IGRF); default the mean radius of the fitted ellipsoid.
+    Raises ProcessingError when the samples do not determine an ellipsoid (too few orientations).
+    """
+    m = np.asarray(mag_ut, float)
+    m = m[np.isfinite(m).all(axis=1)]
+    if m.shape[0] < 50:
+        raise ProcessingError(f"calibrate-mag: {m.shape[0]} magnetometer samples; at least 50 over many orientations are needed")
+    scale = np.abs(m).max()
+    x, y, z = (m / scale).T
+    # quadric a x² + b y² + c z² + 2f yz + 2g xz + 2h xy + 2p x + 2q y + 2r z = 1
+    D = np.column_stack([x * x, y * y, z * z, 2 * y * z, 2 * x * z, 2 * x * y, 2 * x, 2 * y, 2 * z])
+    coef, *_ = np.linalg.lstsq(D, np.ones_like(x), rcond=None)
+    a, b_, c, f, g, h, p, q, r = coef
+    M = np.array([[a, h, g], [h, b_, f], [g, f, c]])
+    w, V = np.linalg.eigh(M)
+    if not (w > 0).all():
+        raise ProcessingError("calibrate-mag: the samples do not outline an ellipsoid (rotate the device through many orientations)")
+    center = -np.linalg.solve(M, np.array([p, q, r]))
+    k = 1.0 + center @ M @ center  # (m-b)^T M (m-b) = k
+    S_unit = V @ np.diag(np.sqrt(w / k)) @ V.T  # |S_unit (m - b)| = 1 (scaled units)
+    b_ut = center * scale
+    S_unit = S_unit / scale
+    radius = float(np.mean(np.linalg.norm((m - b_ut) @ S_unit.T, axis=1)))
+    F = float(field_ut) if field_ut is not None else float(np.cbrt(1.0 / np.prod(np.linalg.eigvalsh(S_unit))))
+    S = S_unit * F / radius
+    cal = apply_mag_calibration(m, b_ut, S)
+    nrm = np.linalg.norm(cal, axis=1)
+    u = cal / nrm[:, None]
+    ev = np.linalg.eigvalsh(u.T @ u / u.shape[0])
+    return MagCalibration(b_ut, S, F, float(np.std(nrm - F)), float(np.std(np.linalg.norm(m, axis=1))), float(ev[0] / ev[-1]))

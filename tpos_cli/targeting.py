@@ -1,0 +1,173 @@
+"""Target geolocation from an observer, a laser range and the beam attitude, with covariance.
+
+Paper 000 Eq. 1-2: the beam is the body forward axis, so the target offset in the navigation
+frame is p_n = d C_nb e_x = d (cos(pitch) cos(yaw), cos(pitch) sin(yaw), -sin(pitch)) in NED
+(Eq. 2 in the package's frames). Eq. 3-4 and 29 (paper 001 Eq. 11-14) carry the offset into ECEF
+at the observer and add it to the observer's ECEF position; done here through pymap3d
+(`frames.geodetic.ned_to_lla`). Covariance: with C = exp(phi) C_hat, dp = -[p x] phi + e_beam dd,
+so Cov(p) = [p x] P_att [p x]^T + sigma_d^2 e e^T (+ the observer's position covariance).
+
+Paper 001 Eq. 31-38: with a shot on a reference point of known position, the pitch/heading
+offsets (d_theta, d_psi) follow by least squares from Delta p = A [d_theta, d_psi]; A is the
+Jacobian of Eq. 2 (paper 001's own Eq. 9 mixes conventions, so the Jacobian is derived from
+paper 000 Eq. 2 instead), solved in NED (equivalent to their ECEF form since C_t^e is a
+rotation) and iterated to convergence. Paper 001 Eq. 15-16: slant range and height difference
+between targets (heights are exact ellipsoidal heights from pymap3d, not Eq. 16's approximation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli.errors import ProcessingError
+from tpos_cli.frames import geodetic
+from tpos_cli.frames.rotation import euler_to_dcm, skew
+
+
+@dataclass(frozen=True)
+class TargetFix:
+    """lla (N,3) target position; ned_m (N,3) offset from the observer; cov_ned_m2 (N,3,3)."""
+
+    lla: np.ndarray
+    ned_m: np.ndarray
+    cov_ned_m2: np.ndarray
+
+    @property
+    def sigma_neu_m(self):
+        """(N,3) SD north, east, up, m."""
+        return np.sqrt(np.clip(np.diagonal(self.cov_ned_m2, axis1=1, axis2=2), 0.0, None))
+
+
+def _rows(a, n, shape):
+    a = np.asarray(a, dtype=float)
+    return np.broadcast_to(a, (n,) + shape).copy() if a.shape != (n,) + shape else a
+
+
+def geolocate(observer_lla, C_nb, range_m, *, P_att_rad2=None, sigma_range_m=0.0,
+              P_obs_ned_m2=None, lever_b_m=None) -> TargetFix:
+    """Target positions from observers (N,3), attitudes C_nb (N,3,3) FRD->NED, ranges (N,) m.
+
+    P_att_rad2 (N,3,3): NED attitude-error covariance (C_true = exp(phi) C_hat); sigma_range_m
+    scalar or (N,); P_obs_ned_m2 (N,3,3) observer position covariance; lever_b_m (3,) FRD offset
+    of LR1's origin from the point `observer_lla` refers to. Works for static or moving observers.
+    """
+    C = np.asarray(C_nb, dtype=float)
+    if C.ndim == 2:
+        C = C[None]
+    n = C.shape[0]
+    obs = _rows(observer_lla, n, (3,))
+    d = _rows(range_m, n, ())
+    e = C[:, :, 0]  # Eq. 1: p_b = (d, 0, 0) along the beam
+    p = d[:, None] * e
+    if lever_b_m is not None:
+        p = p + np.einsum("nij,j->ni", C, np.asarray(lever_b_m, dtype=float))
+    lla = geodetic.ned_to_lla(p, obs[0]) if np.all(obs == obs[0]) else np.stack(
+        [geodetic.ned_to_lla(p[i], obs[i]) for i in range(n)])
+    cov = np.zeros((n, 3, 3))
+    if P_att_rad2 is not None:
+        Px = skew(p)
+        cov += Px @ _rows(P_att_rad2, n, (3, 3)) @ np.swapaxes(Px, 1, 2)
+    s = _rows(sigma_range_m, n, ())
+    cov += (s**2)[:, None, None] * (e[:, :, None] * e[:, None, :])
+    if P_obs_ned_m2 is not None:
+        cov += _rows(P_obs_ned_m2, n, (3, 3))
+    return TargetFix(lla=np.asarray(lla).reshape(n, 3), ned_m=p, cov_ned_m2=cov)
+
+
+def geolocate_rpy(observer_lla, roll_deg, pitch_deg, yaw_deg, range_m, *, sigma_rpy_deg=None,
+                  sigma_range_m=0.0, P_obs_ned_m2=None) -> TargetFix:
+    """`geolocate` with Euler angles (deg) and optional independent Euler SDs (N,3) deg."""
+    r, p, y = (np.radians(np.atleast_1d(np.asarray(a, dtype=float))) for a in (roll_deg, pitch_deg, yaw_deg))
+    C = euler_to_dcm(r, p, y)
+    P = None
+    if sigma_rpy_deg is not None:
+        s = np.radians(np.broadcast_to(np.asarray(sigma_rpy_deg, dtype=float), (C.shape[0], 3)))
+        # phi = d_roll C e_x + d_pitch Rz(yaw) e_E + d_yaw e_D
+        M = np.zeros(C.shape)
+        M[:, :, 0] = C[:, :, 0]
+        M[:, 0, 1], M[:, 1, 1] = -np.sin(y), np.cos(y)
+        M[:, 2, 2] = 1.0
+        P = M @ (s[:, :, None] ** 2 * np.eye(3)) @ np.swapaxes(M, 1, 2)
+    return geolocate(observer_lla, C, range_m, P_att_rad2=P, sigma_range_m=sigma_range_m, P_obs_ned_m2=P_obs_ned_m2)
+
+
+def beam_ned_jacobian(pitch_rad, yaw_rad, range_m):
+    """(N,3,2) d p_ned / d(pitch, yaw) of Eq. 2 (the A of paper 001 Eq. 36-37, in NED)."""
+    th, ps, d = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (pitch_rad, yaw_rad, range_m))
+    A = np.zeros((th.size, 3, 2))
+    A[:, 0, 0] = -d * np.sin(th) * np.cos(ps)
+    A[:, 1, 0] = -d * np.sin(th) * np.sin(ps)
+    A[:, 2, 0] = -d * np.cos(th)
+    A[:, 0, 1] = -d * np.cos(th) * np.sin(ps)
+    A[:, 1, 1] = d * np.cos(th) * np.cos(ps)
+    return A
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Pitch and heading offsets (rad): true = measured - offset (paper 001 Eq. 35); residual RMS m."""
+
+    dpitch_rad: float
+    dyaw_rad: float
+    residual_rms_m: float
+    n_shots: int
+
+
+def calibrate_offsets(observer_lla, pitch_rad, yaw_rad, range_m, reference_lla, iterations=5) -> Calibration:
+    """Least-squares pitch/heading offsets from shots on reference points (paper 001 Eq. 31-38).
+
+    Arrays (R,) or (R,3) over R reference shots. Delta p = p_measured - p_reference (Eq. 34)
+    = A (d_theta, d_psi) (Eq. 36-37); solved by Eq. 38 and iterated (Gauss-Newton) because
+    Eq. 36 is the linearization of the transcendental Eq. 34.
+    """
+    obs = np.atleast_2d(np.asarray(observer_lla, dtype=float))
+    ref = np.atleast_2d(np.asarray(reference_lla, dtype=float))
+    th, ps, d = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (pitch_rad, yaw_rad, range_m))
+    R = th.size
+    if R < 1:
+        raise ProcessingError("calibration needs at least one shot on a reference point")
+    obs = np.broadcast_to(obs, (R, 3))
+    ref = np.broadcast_to(ref, (R, 3))
+    p_ref = np.stack([geodetic.lla_to_ned(ref[i], obs[i]) for i in range(R)])
+    x = np.zeros(2)
+    for _ in range(iterations):
+        tc, pc = th - x[0], ps - x[1]
+        p_c = d[:, None] * np.stack([np.cos(tc) * np.cos(pc), np.cos(tc) * np.sin(pc), -np.sin(tc)], axis=-1)
+        J = -beam_ned_jacobian(tc, pc, d).reshape(-1, 2)  # d p / d(offset) = -d p / d(angle)
+        r = (p_ref - p_c).reshape(-1)  # Eq. 34 residual at the current offsets
+        dx, *_ = np.linalg.lstsq(J, r, rcond=None)  # Eq. 38: (A^T A)^-1 A^T Delta p
+        x = x + dx
+        if np.max(np.abs(dx)) < 1e-12:
+            break
+    tc, pc = th - x[0], ps - x[1]
+    p_c = d[:, None] * np.stack([np.cos(tc) * np.cos(pc), np.cos(tc) * np.sin(pc), -np.sin(tc)], axis=-1)
+    res = float(np.sqrt(np.mean(np.sum((p_c - p_ref) ** 2, axis=1))))
+    return Calibration(dpitch_rad=float(x[0]), dyaw_rad=float(x[1]), residual_rms_m=res, n_shots=int(R))
+
+
+def target_pairs(ids, lla, solution: str, cov_ned_m2=None) -> pd.DataFrame:
+    """Slant range (paper 001 Eq. 15), height difference (Eq. 16) and horizontal distance per pair.
+
+    dh_m = h2 - h1 (signed; Eq. 16 is its absolute value). With covariances (T,3,3) the SDs of
+    slant range and height difference are propagated assuming independent targets.
+    """
+    lla = np.asarray(lla, dtype=float)
+    ecef = geodetic.lla_to_ecef(lla)
+    rows = []
+    for i in range(len(ids)):
+        for j in range(i + 1, len(ids)):
+            dv = ecef[j] - ecef[i]
+            slant = float(np.linalg.norm(dv))
+            ned = geodetic.lla_to_ned(lla[j], lla[i])
+            row = {"id_1": ids[i], "id_2": ids[j], "solution": solution, "slant_range_m": slant,
+                   "dh_m": float(lla[j, 2] - lla[i, 2]), "horizontal_m": float(np.hypot(ned[0], ned[1]))}
+            if cov_ned_m2 is not None:
+                S = np.asarray(cov_ned_m2[i]) + np.asarray(cov_ned_m2[j])
+                u = ned / max(slant, 1e-12)
+                row["sigma_slant_m"] = float(np.sqrt(u @ S @ u))
+                row["sigma_dh_m"] = float(np.sqrt(S[2, 2]))
+            rows.append(row)
+    return pd.DataFrame(rows)
