@@ -69,3 +69,60 @@ def fit_ellipsoid(mag_ut, field_ut: float | None = None) -> MagCalibration:
     u = cal / nrm[:, None]
     ev = np.linalg.eigvalsh(u.T @ u / u.shape[0])
     return MagCalibration(b_ut, S, F, float(np.std(nrm - F)), float(np.std(np.linalg.norm(m, axis=1))), float(ev[0] / ev[-1]))
+
+
+def calibrate_session(session_dir, window=None):
+    """(MagCalibration, note) from a session's magnetometer, in its logged axes, undoing any calibration it has."""
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.frames.rotation import axes_to_dcm
+    from tpos_cli.session import load_session
+
+    s = load_session(session_dir)
+    if s.imu.mag_b_ut is None:
+        raise InvalidInputError(f"{session_dir}: the session has no magnetometer columns")
+    t = s.imu.t_s + s.t0_s
+    sel = np.ones(t.size, bool) if window is None else (t >= window[0]) & (t <= window[1])
+    m_s = s.imu.mag_b_ut[sel] @ axes_to_dcm(s.meta.axes)  # FRD -> logged axes (C_bs^T per row)
+    if s.meta.hard_iron_ut is not None or s.meta.soft_iron is not None:  # back to raw: m = S⁻¹ m_cal + b
+        hi = s.meta.hard_iron_ut if s.meta.hard_iron_ut is not None else np.zeros(3)
+        si = s.meta.soft_iron if s.meta.soft_iron is not None else np.eye(3)
+        m_s = np.linalg.solve(si, m_s.T).T + hi
+    field, src = None, "the fitted mean radius"
+    pos = s.meta.observer_lla
+    if s.gps is not None and s.gps.valid.any():
+        pos = s.gps.lla[s.gps.valid][0]
+    if pos is not None:
+        from datetime import datetime
+
+        from tpos_cli.magnetic import field_ned_ut
+
+        field = float(np.linalg.norm(field_ned_ut(pos, s.meta.start_utc or datetime(2020, 1, 1))))
+        src = "the IGRF field at the session position"
+    cal = fit_ellipsoid(m_s, field)
+    note = (f"{int(sel.sum())} samples; |m| SD {cal.raw_norm_sd_ut:.2f} µT raw -> {cal.residual_sd_ut:.2f} µT calibrated; "
+            f"scaled to {cal.field_ut:.1f} µT ({src}); orientation coverage {cal.coverage:.2f} (1 = all directions)")
+    if cal.coverage < 0.1:
+        note += "; WARNING: the rotations cover too few directions for a trustworthy soft-iron matrix"
+    return cal, note
+
+
+def write_calibrated_copy(session_dir, out_dir, cal: MagCalibration, *, force: bool = False) -> None:
+    """Copy the session to `out_dir` with `[magnetic] hard_iron_ut`, `soft_iron` set (input untouched)."""
+    import shutil
+    import tomllib
+    from pathlib import Path
+
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.importers.session_out import dumps_toml, merge_toml
+
+    src, dst = Path(session_dir).resolve(), Path(out_dir).resolve()
+    if src == dst:
+        raise InvalidInputError(f"{out_dir}: -o must name a new directory, not the input session")
+    if dst.exists():
+        if not force:
+            raise InvalidInputError(f"{out_dir}: exists; use --force to replace it")
+        shutil.rmtree(dst)
+    shutil.copytree(src, dst)
+    doc = tomllib.loads((dst / "session.toml").read_text(encoding="utf-8"))
+    doc = merge_toml(doc, {"magnetic": cal.toml_keys()})
+    (dst / "session.toml").write_text(dumps_toml(doc), encoding="utf-8")

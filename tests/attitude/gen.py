@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tpos_cli.frames import earth
-from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm
+from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
 
 LAT_DEG, H_M = 45.5, 40.0
 MAG_NED_UT = np.array([17.0, -4.5, 50.0])  # a mid-latitude field, dip ~71 deg
@@ -49,7 +49,10 @@ def make(rpy_fn, duration_s=60.0, rate_hz=100.0, seed=1, gyro_sd=1e-4, bias_rps=
     gyro[0] = C[0].T @ w_ie
     bias = np.asarray(bias_rps, dtype=float)
     gyro = gyro + bias + rng.normal(0, gyro_sd, (n, 3))
-    acc = np.einsum("nji,j->ni", C, -g_n) + rng.normal(0, acc_sd, (n, 3))
+    # an IMU row is the mean over (t_{k-1}, t_k]: project gravity with the mid-interval attitude
+    C_mid = C.copy()
+    C_mid[1:] = C[:-1] @ rotvec_to_dcm(0.5 * rv)
+    acc = np.einsum("nji,j->ni", C_mid, -g_n) + rng.normal(0, acc_sd, (n, 3))
     m_n = np.broadcast_to(MAG_NED_UT, (n, 3)).copy()
     if mag_dist_ut is not None:
         m_n = m_n + mag_dist_ut(t)

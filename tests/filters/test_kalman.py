@@ -64,8 +64,8 @@ def test_discretize_against_van_loan():
     Qd_x = Phi_x @ M[:2, 2:]
     # second-order series: truncation (|F| dt)^3 / 6 = 0.04^3 / 6 ~ 1.1e-5
     np.testing.assert_allclose(Phi, Phi_x, rtol=0, atol=1.1e-5)
-    # trapezoidal Qd: error O(|F| dt) = 4e-2 relative to its largest element
-    np.testing.assert_allclose(Qd, Qd_x, rtol=0, atol=4e-2 * np.abs(Qd_x).max())
+    # trapezoidal Qd: error O((|F| dt)^2) = 1.6e-3 relative to its largest element
+    np.testing.assert_allclose(Qd, Qd_x, rtol=0, atol=1.6e-3 * np.abs(Qd_x).max())
 
 
 def test_chi2_threshold():

@@ -2,7 +2,9 @@
 
 A local filter is declared faulty at a sample when
 - its own aiding sensor fails a physical check: LF1's field magnitude or dip angle is off the
-  undisturbed reference (`AttitudeSolution.mag_ok`), LF2's range differences fail their
+  undisturbed reference (`AttitudeSolution.mag_ok`; only when LF1 did not already drop those
+  samples itself, `mag_gated`: a gated LF1 just coasts on the gyro, and its growing yaw variance
+  down-weights it in Eq. 27 by itself), LF2's range differences fail their
   innovation gate (non-planar surface, glass, a beam off the wall); or
 - the NIS of its updates, summed over a trailing window, exceeds the chi-square bound of that
   window (a step in the aiding measurement, e.g. the paper's 60 deg yaw fault).
@@ -77,8 +79,8 @@ def detect(sols: list[AttitudeSolution], cfg: FaultConfig = FaultConfig(), range
     bad = np.zeros((S, n), dtype=bool)
     for i, s in enumerate(sols):
         alarm[i] = _nis_alarm(t, s.nis, cfg)
-        if s.mag_ok is not None:
-            bad[i] |= ~s.mag_ok
+        if s.mag_ok is not None and not s.mag_gated:
+            bad[i] |= ~s.mag_ok  # the filter ingested a disturbed field: exclude it meanwhile
         r = s.nis.get("range")
         if r is not None and range_gate_chi2 > 0:
             bad[i] |= np.isfinite(r) & (r > range_gate_chi2)

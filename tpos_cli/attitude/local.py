@@ -80,6 +80,7 @@ class AttitudeSolution:
     bias_rps: np.ndarray | None = None
     nis: dict = field(default_factory=dict)
     mag_ok: np.ndarray | None = None
+    mag_gated: bool = False  # True: LF1 already dropped the samples with mag_ok False
     x8: np.ndarray | None = None  # paper8 model only: the 8 DCM states (N,8) and covariance
     P8: np.ndarray | None = None
 
@@ -162,6 +163,12 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     o2 = np.array([0.0, -setup.baseline_12_m, 0.0])  # LR2 left of LR1 (FRD y is right)
     o3 = np.array([0.0, 0.0, setup.baseline_13_m])  # LR3 below LR1 (FRD z is down)
     r_rng = noise.range_sigma_m**2 * np.array([[2.0, 1.0], [1.0, 2.0]])  # d1 shared by both
+    r_acc = noise.acc_noise_mps2**2
+    if (use & K.USE_RANGE) and (use & K.USE_ACC):
+        # LF2 levels with the accelerometer too (roll is unobservable from the beams alone), with
+        # its information share only (R / beta), so that the accelerometer LF1 also uses is not
+        # counted twice in full by the master fusion
+        r_acc = r_acc / beta
     out_C = np.empty((n, 3, 3))
     out_P = np.empty((n, 6, 6))
     out_b = np.empty((n, 3))
@@ -175,7 +182,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         np.ascontiguousarray(setup.P0, dtype=float) / beta, w_ie, g_n,
         (noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_bias_rw_rps_rts**2 / beta,
         noise.gyro_scale_sd**2 / beta,
-        noise.acc_noise_mps2**2, setup.acc_static_tol_mps2, setup.gyro_static_tol_rps,
+        r_acc, setup.acc_static_tol_mps2, setup.gyro_static_tol_rps,
         noise.mag_noise_ut**2, setup.declination_rad,
         np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),
         setup.mag_norm_tol_ut, setup.mag_dip_tol_rad,
@@ -190,6 +197,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         P_att=np.ascontiguousarray(out_P[:, 0:3, 0:3]), bias_rps=out_b,
         nis={"acc": nis_a, "mag": nis_m, "range": nis_r},
         mag_ok=mag_ok if (use & K.USE_MAG) else None,
+        mag_gated=bool((use & K.USE_MAG) and setup.mag_norm_tol_ut > 0.0),
     )
 
 

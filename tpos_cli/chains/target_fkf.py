@@ -234,7 +234,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             use1 = K.USE_ACC | (K.USE_MAG if imu.mag_b_ut is not None else 0)
             sols["lf1"] = run_full("lf1", t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, None, setup, use1)
             if rdiff is not None:
-                sols["lf2"] = run_full("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup, K.USE_RANGE)
+                sols["lf2"] = run_full("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup, K.USE_RANGE | K.USE_ACC)
         else:
             wall_yaw = float(np.arctan2(wall_n[1], wall_n[0]))
             o1, v1, o2, v2 = _paper8_obs(session, p, t, A, decl, rdiff, noise, wall_yaw)

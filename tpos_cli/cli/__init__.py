@@ -16,6 +16,8 @@ from tpos_cli.cli import pipelines as _pipelines
 from tpos_cli.cli import process as _process
 from tpos_cli.cli import simulate as _simulate
 from tpos_cli.cli import import_ as _import
+from tpos_cli.cli import noise as _noise
+from tpos_cli.cli import calibrate_mag as _calibrate_mag
 from tpos_cli.cli import report as _report
 from tpos_cli.cli import validate as _validate
 
@@ -36,6 +38,8 @@ app.command("pipelines")(_pipelines.pipelines)
 app.command("simulate")(_simulate.simulate)
 app.command("batch")(_batch.batch)
 app.command("import")(_import.import_)
+app.command("noise")(_noise.noise)
+app.command("calibrate-mag")(_calibrate_mag.calibrate_mag)
 
 
 def main() -> None:

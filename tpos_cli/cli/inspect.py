@@ -23,7 +23,11 @@ def inspect(
     from tpos_cli.session import load_session
 
     with exit_on_error():
-        info = describe_session(load_session(session))
+        loaded = load_session(session)
+        info = describe_session(loaded)
+        from tpos_cli.conventions import check_conventions
+
+        info["warnings"] = list(info["warnings"]) + check_conventions(loaded)
     if as_json:
         typer.echo(json.dumps(info, indent=2))
         return

@@ -18,7 +18,7 @@ def validate(
     Prints one line per problem (session/file: column, row: what is wrong), and the warnings of
     valid sessions. Exit code 0 when every session is valid, 2 otherwise.
 
-    Example: tpos validate sample_logs/*
+    Example: tpos validate sample_logs/*/
     """
     from tpos_cli.session import load_session
 

@@ -62,6 +62,7 @@ def parse_nmea(data: bytes) -> tuple[pd.DataFrame, dict]:
     epochs: list[dict] = []
     cur: dict | None = None
     date: tuple[int, int, int] | None = None
+    last_rmc: tuple[float, float, float] | None = None  # (sod, speed, course): RMC may precede its GGA
     for m in _SENTENCE.finditer(data):
         talker, kind, fields_b, ck = m.groups()
         if not checksum_ok(talker + kind + b"," + fields_b, ck):
@@ -80,11 +81,14 @@ def parse_nmea(data: bytes) -> tuple[pd.DataFrame, dict]:
                     "quality": int(f[5] or 0), "nsat": _f(f[6]), "hdop": _f(f[7]), "alt_msl": alt,
                     "geoid_sep": sep, "speed": math.nan, "course": math.nan,
                 }
+                if last_rmc is not None and abs(last_rmc[0] - cur["sod"]) < 1e-6:
+                    cur["speed"], cur["course"] = last_rmc[1], last_rmc[2]
                 epochs.append(cur)
             elif k == "RMC" and len(f) >= 9 and f[0]:
                 if len(f[8]) == 6:
                     dd, mm, yy = int(f[8][0:2]), int(f[8][2:4]), int(f[8][4:6])
                     date = (2000 + yy if yy < 80 else 1900 + yy, mm, dd)
+                last_rmc = (_sod(f[0]), _f(f[6]) * KNOT_MPS, _f(f[7]))
                 if cur is not None and abs(cur["sod"] - _sod(f[0])) < 1e-6:
                     cur["date"] = cur["date"] or date
                     cur["speed"], cur["course"] = _f(f[6]) * KNOT_MPS, _f(f[7])

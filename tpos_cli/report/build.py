@@ -69,7 +69,7 @@ def headline(acc: Accuracy) -> list[dict]:
             if target_kind == "targets":
                 row["cep_m"] = float(q.loc["pos_h_m", "cep"])
                 row["ce90_m"] = float(q.loc["pos_h_m", "ce90"])
-            for a in ("roll_deg", "pitch_deg", "yaw_deg"):
+            for a in ("roll_deg", "pitch_deg", "yaw_deg", "att_deg"):
                 if a in q.index:
                     row[f"rms_{a}"] = float(q.loc[a, "rms"])
             out.append(row)

@@ -28,7 +28,7 @@ def new_page(title: str, subtitle: str = "") -> Figure:
     fig = Figure(figsize=A4_IN)
     fig.text(0.5, 0.975, title, ha="center", va="top", fontsize=13, weight="bold")
     if subtitle:
-        fig.text(0.5, 0.952, subtitle, ha="center", va="top", fontsize=8.5, color="0.3")
+        fig.text(0.5, 0.952, "\n".join(textwrap.wrap(subtitle, 110)), ha="center", va="top", fontsize=8.5, color="0.3")
     return fig
 
 
@@ -61,7 +61,7 @@ def time_label(t_ref: float) -> str:
 
 
 def _plot_series(ax, t, y, t_ref, **kw):
-    i = decimate(t, y)
+    i = np.union1d(decimate(t, y), np.flatnonzero(np.isnan(np.asarray(y, dtype=float))))  # keep line breaks
     ax.plot(np.asarray(t)[i] - t_ref, np.asarray(y)[i], lw=0.9, **kw)
 
 
@@ -174,11 +174,10 @@ def attitude_pages(solutions, t_ref: float, truth_traj) -> list[Figure]:
         for k in range(3):
             ax = fig.add_axes([0.11, 0.68 - 0.3 * k, 0.83, 0.24])
             y = se.rpy_deg[:, k]
-            if k == 2:
-                y = _break_wraps(np.mod(y, 360.0))
+            y = _break_wraps(np.mod(y, 360.0) if k == 2 else y)
             _plot_series(ax, se.t, y, t_ref, color=COLORS[0], label=se.solution, marker="." if se.t.size < 200 else None, ms=2)
             if se.truth_rpy_deg is not None:
-                yt = se.truth_rpy_deg[:, k] if k < 2 else _break_wraps(np.mod(se.truth_rpy_deg[:, 2], 360.0))
+                yt = _break_wraps(se.truth_rpy_deg[:, k] if k < 2 else np.mod(se.truth_rpy_deg[:, 2], 360.0))
                 _plot_series(ax, se.t, yt, t_ref, color="k", ls="--", label="truth")
             if k == 2:
                 ax.set_ylim(-5, 365)
@@ -193,10 +192,10 @@ def attitude_pages(solutions, t_ref: float, truth_traj) -> list[Figure]:
 
 
 def attitude_error_page(solutions, t_ref: float, movement_note: str = "") -> Figure:
-    fig = new_page("Attitude error vs time", "solution minus truth, wrap-aware" + movement_note)
-    names = (("roll_deg", "roll error, deg"), ("pitch_deg", "pitch error, deg"), ("yaw_deg", "yaw error, deg"))
+    fig = new_page("Attitude error vs time", "solution minus truth, wrap-aware; near pitch ±90 deg the Euler errors are ill-defined, the total angle is not" + movement_note)
+    names = (("roll_deg", "roll error, deg"), ("pitch_deg", "pitch error, deg"), ("yaw_deg", "yaw error, deg"), ("att_deg", "total angle error, deg"))
     for k, (key, label) in enumerate(names):
-        ax = fig.add_axes([0.11, 0.68 - 0.3 * k, 0.83, 0.24])
+        ax = fig.add_axes([0.11, 0.74 - 0.225 * k, 0.83, 0.18])
         for c, se in enumerate(solutions):
             if se.att_err_deg is None:
                 continue

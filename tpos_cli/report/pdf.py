@@ -63,7 +63,7 @@ def _headline_df(summary) -> pd.DataFrame:
     names = {
         "rms_pos_3d_m": "RMS 3-D m", "rms_pos_h_m": "RMS hor. m", "rms_pos_v_m": "RMS vert. m",
         "p95_pos_h_m": "p95 hor. m", "max_pos_3d_m": "max 3-D m", "mean_pos_3d_m": "mean 3-D m", "sd_pos_3d_m": "SD 3-D m",
-        "cep_m": "CEP m", "ce90_m": "CE90 m", "rms_roll_deg": "RMS roll deg", "rms_pitch_deg": "RMS pitch deg", "rms_yaw_deg": "RMS yaw deg",
+        "cep_m": "CEP m", "ce90_m": "CE90 m", "rms_roll_deg": "RMS roll deg", "rms_pitch_deg": "RMS pitch deg", "rms_yaw_deg": "RMS yaw deg", "rms_att_deg": "RMS total angle deg",
     }
     df = df.rename(columns=names)
     return df.astype({c: float for c in df.columns if c in names.values()})
@@ -91,11 +91,16 @@ def write_pdf(path: Path, run, session, truth, acc, health, summary) -> list[str
     hd = _headline_df(summary)
     if not hd.empty:
         hd = hd.map(lambda v: "" if isinstance(v, float) and not np.isfinite(v) else (f"{v:.4g}" if isinstance(v, float) else str(v)))
-        if hd["solution"].duplicated(keep=False).any():  # a solution with both a trajectory and targets
-            hd["solution"] = hd["solution"] + " (" + hd["of"] + ")"
+        # one column per (solution, trajectory|targets); the "of" row tells the two apart
         hd = hd.set_index("solution").T.reset_index().rename(columns={"index": "statistic"})
-    for fig in F.table_pages("Summary: errors per solution (all epochs / all targets)", hd, conv, fontsize=8):
-        pages.append(("summary", fig))
+    per_page = 5  # more columns do not fit A4 portrait at a readable size
+    n_cols = max(hd.shape[1] - 1, 1) if not hd.empty else 1
+    for start in range(0, n_cols, per_page):
+        part = hd.iloc[:, [0] + list(range(1 + start, min(1 + start + per_page, hd.shape[1])))] if not hd.empty else hd
+        k = max(part.shape[1] - 1, 1)
+        for fig in F.table_pages("Summary: errors per solution (all epochs / all targets)", part, conv, fontsize=8.5,
+                                 col_width=[0.26] + [0.74 / k] * k if not part.empty else None):
+            pages.append(("summary", fig))
     for key, df in acc.paper_tables.items():
         for fig in F.table_pages(PAPER_TITLES[key], df, PAPER_NOTES[key]):
             pages.append((key, fig))

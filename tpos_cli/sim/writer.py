@@ -164,7 +164,7 @@ def write_session(sim: SimResult, path: str | Path, *, fmt: str = "parquet", ove
         (tmp / "session.toml").write_text(session_toml(sim), encoding="utf-8")
         for name, df in session_tables(sim).items():
             if name in CSV_ONLY or fmt == "csv":
-                df.to_csv(tmp / f"{name}.csv", index=False, float_format="%.17g" if name != "range_calibration" else None)
+                df.to_csv(tmp / f"{name}.csv", index=False)  # pandas writes the shortest exact repr
             else:
                 df.to_parquet(tmp / f"{name}.parquet", index=False, engine="pyarrow", compression="zstd")
         if out.exists():

@@ -1,0 +1,56 @@
+import numpy as np
+import pytest
+
+from tests.attitude.gen import MAG_NED_UT, make
+from tpos_cli import alignment as al
+from tpos_cli.errors import ProcessingError
+from tpos_cli.frames.rotation import euler_to_dcm
+
+ATOL_RAD = 1e-12  # closed form on exact vectors: rounding only
+
+
+def test_level_and_magnetic_yaw_invert_exact_projections():
+    rng = np.random.default_rng(0)
+    r = rng.uniform(-1.2, 1.2, 50)
+    p = rng.uniform(-1.2, 1.2, 50)
+    y = rng.uniform(-np.pi, np.pi, 50)
+    C = euler_to_dcm(r, p, y)
+    f = np.einsum("nji,j->ni", C, [0.0, 0.0, -9.8])  # Eq. 5
+    m = np.einsum("nji,j->ni", C, MAG_NED_UT)
+    rr, pp = al.level_rad(f)
+    decl = np.arctan2(MAG_NED_UT[1], MAG_NED_UT[0])
+    yy = al.magnetic_yaw_rad(m, rr, pp, decl)
+    np.testing.assert_allclose(rr, r, rtol=0, atol=ATOL_RAD)
+    np.testing.assert_allclose(pp, p, rtol=0, atol=ATOL_RAD)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (yy - y))), 0.0, rtol=0, atol=1e-9)
+
+
+def _rpy(t):
+    s = max(0.0, t - 5.0)
+    return np.radians([3 * np.sin(0.5 * s), 10 * np.sin(0.4 * s), 40 + 20 * np.sin(0.3 * s)])
+
+
+def test_static_window_found_and_alignment_within_its_sigma():
+    g = make(_rpy, duration_s=15.0)
+    w = al.detect_static_window(g.t, g.gyro, g.acc, g.mag)
+    assert w.i0 == 0 and w.end_reason == "motion"
+    assert 4.0 <= g.t[w.i1 - 1] <= 5.0 + 1e-9  # motion starts at 5 s; never include it
+    decl = np.arctan2(MAG_NED_UT[1], MAG_NED_UT[0])
+    A = al.coarse_alignment(g.t, g.gyro, g.acc, g.mag, w, declination_rad=decl, lat_rad=np.radians(45.5),
+                            acc_noise_mps2=0.0098, mag_noise_ut=0.3)
+    err = np.array([A.roll_rad, A.pitch_rad, A.yaw_rad]) - _rpy(0.0)
+    assert np.all(np.abs(err) < 4 * A.sigma_rpy_rad)  # 4 sigma: one seeded draw
+    np.testing.assert_allclose(A.gyro_bias_rps, g.bias, rtol=0, atol=4 * 1e-4 / np.sqrt(w.i1))
+
+
+def test_window_stops_at_a_magnetic_disturbance():
+    g = make(_rpy, duration_s=15.0, mag_dist_ut=lambda t: np.where(t[:, None] >= 3.0, [20.0, 0, 0], 0.0))
+    w = al.detect_static_window(g.t, g.gyro, g.acc, g.mag)
+    assert w.end_reason == "magnetic"
+    assert 2.7 <= g.t[w.i1 - 1] < 3.0  # the 0.2 s smoothing may stop it slightly early
+
+
+def test_no_static_window_is_a_clear_error():
+    g = make(lambda t: np.radians([0, 0, 30 * t]), duration_s=5.0)
+    with pytest.raises(ProcessingError, match="stationary"):
+        al.detect_static_window(g.t, g.gyro, g.acc, g.mag)

@@ -1,0 +1,96 @@
+"""Convention checks: injected errors are caught with the right hint.
+
+Analytic oracle: a device tilting about x and y with gravity along its up axis. Real sessions from
+/work/shared are used when present (skipped otherwise).
+"""
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tpos_cli.conventions import check_gravity, check_tilt_consistency
+from tpos_cli.frames.rotation import euler_to_dcm
+
+G = 9.80665
+
+
+def _tilting(axes_ok=True):
+    f = 100.0
+    t = np.arange(int(60 * f)) / f
+    moving = t > 10
+    roll = np.where(moving, 0.4 * np.sin(0.7 * (t - 10)), 0.0)
+    pitch = np.where(moving, 0.3 * np.sin(0.45 * (t - 10)), 0.0)
+    C = euler_to_dcm(roll, pitch, np.zeros_like(t))
+    acc = np.einsum("nji,j->ni", C, [0.0, 0.0, -G])  # f_b = C_nb^T (0, 0, -g)
+    droll = np.gradient(roll, t)
+    dpitch = np.gradient(pitch, t)
+    # body rates from Euler rates (yaw rate 0): p = droll - sin(pitch) dyaw, q = cos(roll) dpitch, r = -sin(roll) dpitch
+    gyro = np.column_stack([droll, np.cos(roll) * dpitch, -np.sin(roll) * dpitch])
+    return t, gyro, acc
+
+
+def test_consistent_log_is_quiet():
+    t, gyro, acc = _tilting()
+    assert check_gravity(t, gyro, acc, "FRD") == []
+    assert check_tilt_consistency(t, gyro, acc, "FRD") == []
+
+
+def test_flipped_gyro_axis():
+    t, gyro, acc = _tilting()
+    gyro[:, 1] *= -1
+    w = check_tilt_consistency(t, gyro, acc, "FRD")
+    assert len(w) == 1 and "gyro_y" in w[0] and "sign is flipped" in w[0]
+
+
+def test_deg_per_s():
+    t, gyro, acc = _tilting()
+    w = check_tilt_consistency(t, np.degrees(gyro), acc, "FRD")
+    assert any("deg/s" in x for x in w)
+
+
+def test_swapped_axes_and_flipped_accelerometer():
+    t, gyro, acc = _tilting()
+    sw = acc[:, [2, 1, 0]]  # x and z swapped
+    w = check_gravity(t, gyro[:, [2, 1, 0]], sw, "FRD")
+    assert len(w) == 1 and "swapped axes" in w[0] and "logged axis x" in w[0]
+    acc2 = acc.copy()
+    acc2[:, 2] *= -1
+    w = check_gravity(t, gyro, acc2, "FRD")
+    assert "flipped sign" in w[0] and '"FRU"' not in w[0]
+
+
+SHARED = Path("/work/shared/data/real")
+
+
+@pytest.mark.skipif(not SHARED.exists(), reason="needs /work/shared real sessions")
+@pytest.mark.parametrize("inject, expect", [
+    ("swap_xy", "mirrored"), ("swap_xz", "swapped axes"), ("flip_gyro_x", "gyro_x turns against"),
+    ("deg", "deg/s"), ("g", "g units"),
+])
+def test_real_session_injections(tmp_path, inject, expect):
+    from tpos_cli.conventions import check_conventions
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.session import load_session
+
+    d = tmp_path / "s"
+    shutil.copytree(SHARED / "broad_02_undisturbed_slow_rotation_B", d)
+    imu = pd.read_parquet(d / "imu.parquet")
+    if inject.startswith("swap"):
+        a, b = inject[-2], inject[-1]
+        for p in ("gyro_", "acc_", "mag_"):
+            imu[p + a], imu[p + b] = imu[p + b].to_numpy().copy(), imu[p + a].to_numpy().copy()
+    elif inject == "flip_gyro_x":
+        imu["gyro_x"] = -imu["gyro_x"]
+    elif inject == "deg":
+        imu[["gyro_x", "gyro_y", "gyro_z"]] = np.degrees(imu[["gyro_x", "gyro_y", "gyro_z"]])
+    else:
+        imu[["acc_x", "acc_y", "acc_z"]] = imu[["acc_x", "acc_y", "acc_z"]] / G
+    imu.to_parquet(d / "imu.parquet")
+    try:
+        msgs = check_conventions(load_session(d))
+    except InvalidInputError as exc:  # units errors are rejected by the loader, with the hint
+        msgs = [str(exc)]
+    assert any(expect in m for m in msgs), msgs

@@ -1,0 +1,89 @@
+"""Smoothers: closed-loop RTS against the batch (joint Gaussian) solution; the combination rules."""
+
+import numpy as np
+
+from tpos_cli.smoothing import outage_weight, rts_closed_loop
+
+
+def _linear_problem(seed=0, n=4, m=2, K=30):
+    rng = np.random.default_rng(seed)
+    Phi = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    Q = np.diag(rng.uniform(0.01, 0.1, n))
+    H = rng.standard_normal((m, n))
+    R = np.diag(rng.uniform(0.1, 1.0, m))
+    P0 = np.eye(n)
+    x = rng.standard_normal(n)
+    zs = []
+    for _ in range(K):
+        zs.append(H @ x + rng.multivariate_normal(np.zeros(m), R))
+        x = Phi @ x + rng.multivariate_normal(np.zeros(n), Q)
+    return Phi, Q, H, R, P0, np.array(zs)
+
+
+def _batch_smoother(Phi, Q, H, R, P0, zs):
+    """Posterior mean and marginal covariances of x_0..x_{K-1} by the information form."""
+    K, n = zs.shape[0], Phi.shape[0]
+    N = K * n
+    Lam = np.zeros((N, N))
+    eta = np.zeros(N)
+    Qi, Ri = np.linalg.inv(Q), np.linalg.inv(R)
+    Lam[:n, :n] += np.linalg.inv(P0)
+    for k in range(K):
+        s = slice(k * n, (k + 1) * n)
+        Lam[s, s] += H.T @ Ri @ H
+        eta[s] += H.T @ Ri @ zs[k]
+        if k + 1 < K:
+            s1 = slice((k + 1) * n, (k + 2) * n)
+            Lam[s, s] += Phi.T @ Qi @ Phi
+            Lam[s1, s1] += Qi
+            Lam[s, s1] -= Phi.T @ Qi
+            Lam[s1, s] -= Qi @ Phi
+    cov = np.linalg.inv(Lam)
+    mean = cov @ eta
+    return mean.reshape(K, n), np.array([cov[k * n:(k + 1) * n, k * n:(k + 1) * n] for k in range(K)])
+
+
+def test_closed_loop_rts_equals_batch_solution():
+    Phi, Q, H, R, P0, zs = _linear_problem()
+    K, n = zs.shape[0], Phi.shape[0]
+    # Kalman filter written as a closed-loop (feedback) filter: the nominal is the estimate,
+    # the correction dx fed back at each epoch is x_pred - x_filt (errors are nominal - truth)
+    ePhi, ePpred, ePfilt, edx, xf = (np.empty((K, n, n)), np.empty((K, n, n)), np.empty((K, n, n)),
+                                      np.empty((K, n)), np.empty((K, n)))
+    x, P = np.zeros(n), P0.copy()
+    for k in range(K):
+        if k > 0:
+            x, P = Phi @ x, Phi @ P @ Phi.T + Q
+        ePhi[k], ePpred[k] = Phi, P
+        S = H @ P @ H.T + R
+        G = P @ H.T @ np.linalg.inv(S)
+        x_new = x + G @ (zs[k] - H @ x)
+        edx[k] = x - x_new
+        x, P = x_new, (np.eye(n) - G @ H) @ P
+        ePfilt[k], xf[k] = P, x
+    xs_post, xs_pre, Ps = rts_closed_loop(ePhi, ePpred, ePfilt, edx)
+    mean, cov = _batch_smoother(Phi, Q, H, R, P0, zs)
+    # both exact; differences are rounding of a 120x120 inverse (~1e-12)
+    np.testing.assert_allclose(xf - xs_post, mean, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(Ps, cov, rtol=0, atol=1e-9)
+    # the smoother at the last epoch is the filter; smoothed covariance never exceeds filtered
+    np.testing.assert_allclose(xs_post[-1], 0.0, atol=0)
+    assert all(np.linalg.eigvalsh(ePfilt[k] - Ps[k]).min() > -1e-12 for k in range(K))
+
+
+def test_rts_without_feedback_bookkeeping_is_wrong():
+    """Dropping dx (the issue's pitfall) returns the forward solution: the test above has power."""
+    Phi, Q, H, R, P0, zs = _linear_problem(seed=1)
+    K, n = zs.shape[0], Phi.shape[0]
+    ePhi = np.repeat(Phi[None], K, 0)
+    ePpred = np.repeat(P0[None], K, 0)
+    ePfilt = np.repeat(0.5 * P0[None], K, 0)
+    xs_post, _, _ = rts_closed_loop(ePhi, ePpred, ePfilt, np.zeros((K, n)))
+    np.testing.assert_array_equal(xs_post, 0.0)
+
+
+def test_outage_weight_grades_linearly():
+    t = np.array([0.0, 10.0, 12.5, 15.0, 17.5, 20.0, 25.0])
+    w = outage_weight(t, np.array([[10.0, 20.0]]))
+    np.testing.assert_allclose(w[1:5], [0.0, 0.25, 0.5, 0.75])
+    assert np.isnan(w[[0, 5, 6]]).all()
