@@ -1,0 +1,250 @@
+"""Benchmark of the drive-smooth pipeline (issue 4): speed, memory, accuracy, real logs.
+
+    python benchmarks/drive.py                 # everything (about 2-3 minutes on 2 cores)
+    python benchmarks/drive.py --only speed    # or: accuracy, real
+
+Speed: a simulated one-hour drive (100 Hz IMU, 1 Hz GPS) processed by `tpos process` in a
+subprocess (stage timings from summary.json, peak RSS of that process), against a bare numba
+reference loop of the same algebra (15-state predict at every IMU sample, 6-dim update at
+1 Hz, forward storing the states, backward, per-sample blend).
+Accuracy: simulated MEMS drives with one 30 s outage and with two 60 s outages; horizontal
+RMS / max error inside and outside the outages per solution, and the forward filter's NEES.
+Real logs: GPS withheld (`--mask-gps`) in three 30 s windows while moving; forward and
+smoothed errors inside the windows against the session's truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numba import njit
+from scipy.stats import chi2
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive  # noqa: E402
+from tpos_cli.frames.geodetic import lla_to_ned  # noqa: E402
+from tpos_cli.frames.rotation import dcm_to_rotvec  # noqa: E402
+from tpos_cli.session import load_session  # noqa: E402
+from tpos_cli.sim.drive import simulate_drive  # noqa: E402
+
+REAL = Path("/work/shared/data/real") if Path("/work/shared/data/real").exists() else REPO.parent / "shared/data/real"
+SOLUTIONS = ("forward", "backward", "smoothed", "two_filter", "rts", "simplified")
+
+
+# --------------------------------------------------------------------------- reference loop
+@njit(cache=True)
+def _ref_pass(n, F, Qd, H, R, z_every, xs, Ps_diag):
+    x = np.zeros(15)
+    P = np.eye(15)
+    Phi = np.eye(15) + F
+    for k in range(n):
+        x = Phi @ x
+        P = Phi @ P @ Phi.T + Qd
+        if k % z_every == 0:
+            S = H @ P @ H.T + R
+            K = np.linalg.solve(S, H @ P).T
+            x = x + K @ (np.ones(6) * 0.1 - H @ x)
+            P = (np.eye(15) - K @ H) @ P
+        xs[k] = x
+        for i in range(15):
+            Ps_diag[k, i] = P[i, i]
+
+
+@njit(cache=True)
+def _ref_blend(xf, pf, xb, pb, out):
+    for k in range(xf.shape[0]):
+        for i in range(15):
+            w = pf[k, i] / (pf[k, i] + pb[k, i])
+            out[k, i] = xf[k, i] + w * (xb[k, i] - xf[k, i])
+
+
+def reference_loop(n_imu: int, imu_per_fix: int) -> float:
+    """Seconds for the bare algebra over n_imu samples (forward, backward, blend)."""
+    rng = np.random.default_rng(0)
+    F = 0.01 * rng.standard_normal((15, 15)) * 0.01
+    Qd = np.eye(15) * 1e-6
+    H = np.zeros((6, 15))
+    H[:, :6] = np.eye(6)
+    R = np.eye(6)
+    xf, xb, out = np.empty((n_imu, 15)), np.empty((n_imu, 15)), np.empty((n_imu, 15))
+    pf, pb = np.empty((n_imu, 15)), np.empty((n_imu, 15))
+    _ref_pass(100, F, Qd, H, R, imu_per_fix, xf[:100], pf[:100])  # compile
+    _ref_blend(xf[:10], pf[:10], xf[:10], pf[:10], out[:10])
+    t0 = time.perf_counter()
+    _ref_pass(n_imu, F, Qd, H, R, imu_per_fix, xf, pf)
+    _ref_pass(n_imu, F, Qd, H, R, imu_per_fix, xb, pb)
+    _ref_blend(xf, pf, xb, pb, out)
+    return time.perf_counter() - t0
+
+
+# --------------------------------------------------------------------------- speed
+def speed(duration_s: float = 3600.0) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        sim = simulate_drive(duration_s, seed=11, outages=((600.0, 30.0), (1800.0, 60.0), (3000.0, 60.0)))
+        path = sim.write(Path(tmp) / "drive_1h")
+        n = sim.imu.t_s.size
+        print(f"simulated {duration_s:.0f} s drive ({n} IMU samples) in {time.perf_counter() - t0:.1f} s")
+        del sim
+        cmd = [sys.executable, "-m", "tpos_cli", "process", str(path), "-o", str(Path(tmp) / "run"), "-q"]
+        env = dict(os.environ, PYTHONPATH=str(REPO))
+        subprocess.run(cmd, check=True, env=env, cwd=tmp)  # warm the numba cache
+        best = None
+        for _ in range(2):
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t1 = time.perf_counter()
+            subprocess.run(cmd, check=True, env=env, cwd=tmp)
+            wall = time.perf_counter() - t1
+            rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+            summ = json.loads((Path(tmp) / "run" / "summary.json").read_text())
+            if best is None or wall < best[0]:
+                best = (wall, summ, rss_mb)
+        wall, summ, rss_mb = best
+        ref = min(reference_loop(n, 100) for _ in range(2))
+    ts = summ["timings_s"]
+    print("\nstage              wall s   samples/s")
+    for k in ("ingest", "alignment", "forward", "backward", "smoothing", "outputs", "write_outputs", "total"):
+        if k in ts:
+            v = ts[k]
+            print(f"{k:16s} {v:8.3f}   {n / v if v > 0 else float('inf'):12.3g}")
+    print(f"{'process (wall)':16s} {wall:8.3f}   (incl. interpreter start and imports)")
+    print(f"reference loop   {ref:8.3f}")
+    print(f"ratio total/reference: {ts['total'] / ref:.2f} (goal <= 2.5); process wall/reference {wall / ref:.2f}")
+    print(f"peak memory (max RSS of the process): {rss_mb:.0f} MB (goal < 1024)")
+
+
+# --------------------------------------------------------------------------- accuracy
+def _errors(sim, sol):
+    tr = sim.truth
+    idx = sol.idx
+    lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
+    e_p = lla_to_ned(lla, tr.lla[0]) - lla_to_ned(tr.lla[idx], tr.lla[0])
+    e_v = sol.nav[:, 3:] - tr.vel_ned_mps[idx]
+    phi = -dcm_to_rotvec(sol.C_nb @ np.transpose(tr.C_nb[idx], (0, 2, 1)))
+    return np.column_stack([e_p, e_v, phi])
+
+
+def accuracy_case(label, outages, seeds, duration_s=600.0):
+    rows = {n: {"in": [], "out": [], "max": []} for n in SOLUTIONS}
+    nees_frac, nees_mean = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            sim = simulate_drive(duration_s, seed=seed, outages=outages)
+            session = load_session(sim.write(Path(tmp) / f"s{seed}"))
+            # filter SDs: the simulated receiver's (1.5 m per axis, 0.05 m/s), the IMU's [imu] figures
+            p = DriveSmoothParams(gps_sigma_vel_mps=0.05, smoother="rts")
+            res = process_drive(session, p, None, names=SOLUTIONS)
+            for name in SOLUTIONS:
+                sol = res.solutions[name]
+                e = _errors(sim, sol)
+                eh = np.hypot(e[:, 0], e[:, 1])
+                t = sim.truth.t_s[sol.idx]
+                m = np.zeros(t.size, bool)
+                for a, b in sim.gps_outages_s:
+                    m |= (t >= a) & (t < b)
+                rows[name]["in"].append(eh[m] ** 2)
+                rows[name]["out"].append(eh[~m & (t > 30.0)] ** 2)
+                rows[name]["max"].append(eh[m].max())
+                if name == "forward":
+                    k = t > 30.0
+                    nees = np.einsum("ki,ki->k", e[k], np.linalg.solve(sol.P9[k], e[k][..., None])[..., 0])
+                    nees_frac.append(np.mean(nees < chi2.ppf(0.95, 9)))
+                    nees_mean.append(np.mean(nees))
+    print(f"\n{label}: {len(seeds)} drives of {duration_s:.0f} s, MEMS IMU, GPS 1.5 m / 2.5 m / 0.05 m/s at 1 Hz")
+    print(f"{'solution':12s} {'in RMS m':>9s} {'in max m':>9s} {'/forward':>9s} {'out RMS m':>10s}")
+    f_in = np.sqrt(np.mean(np.concatenate(rows["forward"]["in"])))
+    for name in SOLUTIONS:
+        r = rows[name]
+        rin = np.sqrt(np.mean(np.concatenate(r["in"])))
+        rout = np.sqrt(np.mean(np.concatenate(r["out"])))
+        print(f"{name:12s} {rin:9.3f} {max(r['max']):9.3f} {rin / f_in:9.3f} {rout:10.3f}")
+    print(f"forward NEES (9 states, after 30 s): mean {np.mean(nees_mean):.2f} (dof 9), "
+          f"fraction under the 95% chi-square bound {np.mean(nees_frac):.3f}")
+
+
+def accuracy() -> None:
+    accuracy_case("one 30 s outage (paper 003's case)", ((300.0, 30.0),), seeds=(1, 2, 3, 4))
+    accuracy_case("two 60 s outages", ((200.0, 60.0), (420.0, 60.0)), seeds=(1, 2, 3, 4))
+
+
+# --------------------------------------------------------------------------- real logs
+def moving_windows(truth_t, speed, n=3, length=30.0, min_speed=0.3, t_start=40.0):
+    """n windows of `length` s where the truth speed stays above min_speed, spread over the log."""
+    ok = speed > min_speed
+    cands = []
+    t = t_start + truth_t[0]
+    while t + length < truth_t[-1] - 10.0:
+        m = (truth_t >= t) & (truth_t <= t + length)
+        if m.sum() > 3 and ok[m].mean() > 0.9:
+            cands.append(t)
+            t += length + 20.0
+        else:
+            t += 2.0
+    if len(cands) > n:
+        cands = [cands[i] for i in np.linspace(0, len(cands) - 1, n).round().astype(int)]
+    return [(c, c + length) for c in cands]
+
+
+def real_logs() -> None:
+    from tpos_cli.pipeline import process_session
+
+    for name, over in (("navego_canada_enav", {"drive_smooth.heading_min_speed_mps": 0.5}),
+                       ("rtklibexplorer_walk_0827", {"drive_smooth.heading_min_speed_mps": 0.5})):
+        sdir = REAL / name
+        truth = pd.read_csv(sdir / "truth.csv")
+        if {"vn", "ve"} <= set(truth.columns):
+            sp = np.hypot(truth["vn"], truth["ve"]).to_numpy()
+        else:
+            sp = np.full(len(truth), 1.0)
+        wins = moving_windows(truth["t"].to_numpy(), sp)
+        with tempfile.TemporaryDirectory() as tmp:
+            out = process_session(sdir, "drive-smooth", Path(tmp) / "run", mask_gps_windows=wins,
+                                  overrides={**over, "drive_smooth.output_rate_hz": 0.0})
+            traj = pd.read_parquet(out.run_dir / "trajectory.parquet")
+        print(f"\n{name}: GPS withheld in {[(round(a - truth['t'][0], 1), round(b - truth['t'][0], 1)) for a, b in wins]} "
+              f"(s from the first truth row); horizontal error vs truth inside the windows")
+        for sol in ("forward", "backward", "smoothed"):
+            d = traj[traj["solution"] == sol]
+            tt = truth["t"].to_numpy()
+            lla = np.column_stack([np.interp(tt, d["t"], d[c]) for c in ("lat", "lon", "h")])
+            e = lla_to_ned(lla, truth[["lat", "lon", "h"]].to_numpy()[0]) - lla_to_ned(
+                truth[["lat", "lon", "h"]].to_numpy(), truth[["lat", "lon", "h"]].to_numpy()[0])
+            eh = np.hypot(e[:, 0], e[:, 1])
+            per = []
+            for a, b in wins:
+                m = (tt >= a) & (tt < b)
+                per.append(f"{np.sqrt(np.mean(eh[m] ** 2)):.2f}/{eh[m].max():.2f}")
+            inside = np.zeros(tt.size, bool)
+            for a, b in wins:
+                inside |= (tt >= a) & (tt < b)
+            print(f"  {sol:9s} RMS/max per window (m): {'  '.join(per)}   all windows RMS {np.sqrt(np.mean(eh[inside] ** 2)):.2f}"
+                  f"   outside RMS {np.sqrt(np.mean(eh[~inside & (tt > tt[0] + 20)] ** 2)):.2f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=("speed", "accuracy", "real"))
+    ap.add_argument("--duration-s", type=float, default=3600.0)
+    a = ap.parse_args()
+    if a.only in (None, "speed"):
+        speed(a.duration_s)
+    if a.only in (None, "accuracy"):
+        accuracy()
+    if a.only in (None, "real"):
+        real_logs()
+
+
+if __name__ == "__main__":
+    main()
