@@ -189,10 +189,12 @@ class GpsHeading:
     sigma_yaw_rad: float
 
 
-def gps_velocity_heading(t_s, lla, vel_ned_mps=None, *, min_speed_mps=3.0, sigma_vel_mps=0.1) -> GpsHeading:
+def gps_velocity_heading(t_s, lla, vel_ned_mps=None, *, min_speed_mps=3.0, sigma_vel_mps=0.1,
+                         baseline_s=2.0) -> GpsHeading:
     """Course over ground at the first fix with horizontal speed >= `min_speed_mps`.
 
-    Uses the logged NED velocity where present, else central differences of the positions.
+    Uses the logged NED velocity where present, else central differences of the positions
+    over `baseline_s`.
     A land vehicle moves along its body forward axis (no side slip), so course = yaw; its SD
     is sigma_vel / speed. Raises ProcessingError when the vehicle never reaches the speed.
     """
@@ -201,18 +203,25 @@ def gps_velocity_heading(t_s, lla, vel_ned_mps=None, *, min_speed_mps=3.0, sigma
     v = np.full((t.size, 3), np.nan) if vel_ned_mps is None else np.array(vel_ned_mps, dtype=float)
     missing = ~np.isfinite(v[:, :2]).all(axis=1)
     if missing.any() and t.size >= 3:
+        # positions differenced over a baseline of about 2 s (not adjacent fixes: at 10-20 Hz the
+        # position noise over 0.1 s swamps a slow vehicle's displacement)
         lat = np.radians(lla[:, 0])
         rn = earth.meridian_radius_m(lat) + lla[:, 2]
         re = (earth.transverse_radius_m(lat) + lla[:, 2]) * np.cos(lat)
-        n_m = np.radians(lla[:, 0]) * rn
+        n_m = lat * rn
         e_m = np.radians(lla[:, 1]) * re
+        lo = np.clip(np.searchsorted(t, t - baseline_s / 2.0), 0, t.size - 1)
+        hi = np.clip(np.searchsorted(t, t + baseline_s / 2.0), 0, t.size - 1)
+        dt = t[hi] - t[lo]
         vd = np.full((t.size, 2), np.nan)
-        dt = t[2:] - t[:-2]
-        vd[1:-1, 0] = (n_m[2:] - n_m[:-2]) / dt
-        vd[1:-1, 1] = (e_m[2:] - e_m[:-2]) / dt
-        # differences across an outage are not velocities
-        gap = (dt > 3.0 * np.nanmedian(dt))
-        vd[1:-1][gap] = np.nan
+        with np.errstate(invalid="ignore", divide="ignore"):
+            vd[:, 0] = (n_m[hi] - n_m[lo]) / dt
+            vd[:, 1] = (e_m[hi] - e_m[lo]) / dt
+        # no velocity across an outage, nor from a too short baseline
+        med = float(np.median(np.diff(t)))
+        span_gap = np.array([np.diff(t[a:b + 1]).max(initial=0.0) if b > a else np.inf for a, b in zip(lo, hi)])
+        bad = (dt < 0.5 * baseline_s) | (span_gap > max(3.0 * med, 1.5))
+        vd[bad] = np.nan
         v[missing, :2] = vd[missing]
     speed = np.hypot(v[:, 0], v[:, 1])
     ok = np.flatnonzero(np.nan_to_num(speed, nan=0.0) >= min_speed_mps)

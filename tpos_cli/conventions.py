@@ -26,11 +26,25 @@ G0 = 9.80665
 STILL_GYRO_MAX_RPS = 0.05  # ~3 deg/s: above any MEMS turn-on bias, far below deg/s read as rad/s
 UP_ANGLE_MAX_DEG = 45.0  # the body up axis within 45 deg of vertical at rest (vehicles, hand-held starts)
 _LETTERS = "FBRLUD"
+# Specific-force SD over 0.5 s truly at rest: above MEMS noise (1-2 mg), below hand tremor or driving.
+ACC_STILL_SD_MPS2 = 0.05
 
 
-def _still(t, gyro, acc):
-    """Samples at rest, judged on the accelerometer alone (gyro units may be the thing that is wrong)."""
-    return static_mask(t, gyro, acc, window_s=0.5, gyro_tol_rps=np.inf, acc_sd_tol_mps2=0.05 * np.median(np.linalg.norm(acc, axis=1)))
+def _still(t, gyro, acc, acc_sd_tol_mps2=None):
+    """Samples at rest, judged on the accelerometer alone (gyro units may be the thing that is wrong).
+
+    The default tolerance (5 % of g) accepts a hand holding the device, enough for the direction of
+    gravity; the rate check asks for a truly still period (ACC_STILL_SD_MPS2).
+    """
+    tol = 0.05 * np.median(np.linalg.norm(acc, axis=1)) if acc_sd_tol_mps2 is None else acc_sd_tol_mps2
+    return static_mask(t, gyro, acc, window_s=0.5, gyro_tol_rps=np.inf, acc_sd_tol_mps2=tol)
+
+
+def _quietest_rest_rate(t, gyro, still, min_len_s: float = 1.0) -> float:
+    """Smallest mean-gyro norm over the contiguous rest periods of at least `min_len_s`."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
+    rates = [np.linalg.norm(gyro[a:b].mean(axis=0)) for a, b in zip(edges[::2], edges[1::2]) if t[b - 1] - t[a] >= min_len_s]
+    return float(min(rates)) if rates else float(np.linalg.norm(gyro[still].mean(axis=0)))
 
 
 def _suggest_axes(axes: str, sensor_up: int, up_positive: bool) -> str:
@@ -73,7 +87,9 @@ def check_gravity(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[str]:
             f"axes = \"{axes}\" names; logged axis {'xyz'[i]} reads {f_s[i]:+.2f} m/s^2 (it points "
             f"{'up' if f_s[i] > 0 else 'down'}): likely {kind}; check [imu] axes (e.g. \"{sugg}\") or the column signs"
         )
-    w = np.linalg.norm(gyro_b[still].mean(axis=0))
+    # The quietest rest period decides: a constant-rate turn can look still to the accelerometer,
+    # but a log in deg/s reads high in every rest period.
+    w = _quietest_rest_rate(t, gyro_b, _still(t, gyro_b, acc_b, ACC_STILL_SD_MPS2))
     if w > STILL_GYRO_MAX_RPS:
         hint = " (it is deg/s logged as rad/s: multiply by pi/180)" if w * np.pi / 180 < STILL_GYRO_MAX_RPS else ""
         out.append(

@@ -51,6 +51,9 @@ class DriveSmoothParams:
     acc_bias_inrun_mg: float = 2.0
     bias_tau_s: float = 300.0
     gps_sigma_h_m: float = 1.5  # used when gps has no sigma columns
+    gps_sigma_floor_m: float = 0.3  # reported SDs below this (e.g. RTK) are raised to it: lever arm,
+    # timing and antenna motion errors of a low-cost setup are not below a few decimetres
+    max_consecutive_rejections: int = 5  # then the next fix is applied ungated
     gps_sigma_v_m: float = 2.5
     gps_sigma_vel_mps: float = 0.1
     use_gps_velocity: bool = True
@@ -77,7 +80,7 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     ok = gps.valid
     sig = np.array(gps.sigma_neu_m[ok], dtype=float)
     default = np.array([p.gps_sigma_h_m, p.gps_sigma_h_m, p.gps_sigma_v_m])
-    sig = np.where(np.isfinite(sig) & (sig > 0), sig, default)
+    sig = np.where(np.isfinite(sig) & (sig > 0), np.maximum(sig, p.gps_sigma_floor_m), default)
     vel = np.array(gps.vel_ned_mps[ok], dtype=float)
     if not p.use_gps_velocity:
         vel[:] = np.nan
@@ -173,7 +176,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     sb_g = p.gyro_bias_inrun_dph * DEG / 3600
     q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate, (nz["gyro_noise_dps"] * DEG) ** 2 / rate,
                   2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
-    cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability)
+    cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability,
+                       p.max_consecutive_rejections)
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     with stage("forward"):
         fwd = run_insgps(t, gyro, acc, fixes, init, cfg, store_rts=need_rts)

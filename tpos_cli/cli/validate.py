@@ -16,10 +16,11 @@ def validate(
     """Check each SESSION against the session contract (docs/log-format.md).
 
     Prints one line per problem (session/file: column, row: what is wrong), and the warnings of
-    valid sessions. Exit code 0 when every session is valid, 2 otherwise.
+    valid sessions, including convention checks (axes, signs, units, clocks) with the likely fix. Exit code 0 when every session is valid, 2 otherwise.
 
     Example: tpos validate sample_logs/*/
     """
+    from tpos_cli.conventions import check_conventions
     from tpos_cli.session import load_session
 
     bad = 0
@@ -34,7 +35,7 @@ def validate(
             continue
         if not quiet:
             typer.echo(f"ok {s}: {session.meta.kind}, {len(session.imu.t_s)} IMU samples, {session.t_end_s:.1f} s")
-        for w in session.warnings:
+        for w in [*session.warnings, *check_conventions(session)]:
             typer.echo(f"warning {s}: {w}")
     if bad:
         raise typer.Exit(2)

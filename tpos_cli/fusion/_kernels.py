@@ -25,7 +25,7 @@ from tpos_cli.ins._kernels import mech_step
 @njit(cache=True)
 def insgps_kernel(
     t, gyro, acc, nav0, C0, bias0, P0, q, tau_acc_s, tau_gyro_s, earth_sign, cov_step,
-    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate,
+    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject,
     out_nav, out_C, out_bias,
     ep_idx, ep_Phi, ep_Ppred, ep_Pfilt, ep_dx, store_rts,
     innov, nis, accepted,
@@ -34,7 +34,8 @@ def insgps_kernel(
 
     gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
     position and velocity variances; NaN velocity -> position-only update. Gate: NIS above
-    gate[m] (m = measurement dimension) rejects the fix. Epochs (covariance steps) every
+    gate[m] (m = measurement dimension) rejects the fix, except after `max_reject` consecutive
+    rejections (the nominal has left the fixes for good: locking it out would diverge). Epochs (covariance steps) every
     `cov_step` samples and at every fix; per epoch e: ep_idx[e], P_filt, dx (correction fed
     back), and when store_rts also Phi (from epoch e-1) and P_pred. Returns (n_epochs, status):
     status 0 ok, else 1 + sample index where an innovation covariance lost positive definiteness.
@@ -79,6 +80,7 @@ def insgps_kernel(
     last = 0
     dt_sum = 0.0
     status = 0
+    n_rej = 0
     for k in range(1, n):
         dt = t[k] - t[k - 1]
         corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
@@ -120,12 +122,15 @@ def insgps_kernel(
                     innov[g, i] = zm[i]
                 s = nis_of(x, P, zm, Hm, Rm)
                 nis[g] = s
-                if s <= gate[m]:
+                if s <= gate[m] or n_rej >= max_reject:
+                    n_rej = 0
                     r = update(x, P, zm, Hm, Rm)
                     if r < 0.0:
                         status = 1 + k
                         return ep + 1, status
                     accepted[g] = True
+                else:
+                    n_rej += 1
                 g += 1
             apply_feedback(nav, C, bias, x)
             ep_dx[ep] = x

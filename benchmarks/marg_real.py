@@ -1,0 +1,69 @@
+"""Real hand-held MARG logs (BROAD): our lf1/fkf beside offline VQF, total attitude RMS during motion.
+
+Error = angle of C_est C_truth^T after removing one constant heading offset per method and trial
+(the optical reference's heading is not tied to magnetic north; BROAD's own evaluation does this),
+over samples with movement == 1 and valid truth.
+
+    pip install vqf ; python benchmarks/marg_real.py
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, quat_to_dcm
+from tpos_cli.pipeline import process_session
+from tpos_cli.session import load_session
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
+
+def total_rms_deg(C_est, C_true):
+    """RMS total angle (deg) after the best constant heading offset (about NED down)."""
+    E = C_est @ np.swapaxes(C_true, 1, 2)
+    yaw = np.arctan2(E[:, 1, 0] - E[:, 0, 1], E[:, 0, 0] + E[:, 1, 1])
+    off = np.angle(np.mean(np.exp(1j * yaw)))
+    Rz = euler_to_dcm(0.0, 0.0, -off)
+    ang = np.linalg.norm(dcm_to_rotvec(Rz @ E), axis=1)
+    return float(np.degrees(np.sqrt(np.mean(ang**2))))
+
+
+def main():
+    from vqf import offlineVQF
+
+    for d in sorted(REAL.glob("broad_*")):
+        s = load_session(d)
+        tr = s.truth
+        t = s.imu.t_s
+        rpy = np.interp(t, tr.t_s, np.arange(tr.t_s.size))
+        k = np.clip(np.round(rpy).astype(int), 0, tr.t_s.size - 1)
+        C_true = euler_to_dcm(*np.radians(tr.rpy_deg[k]).T)
+        mov = (tr.extra["movement"][k] == 1) & np.all(np.isfinite(tr.rpy_deg[k]), axis=1)
+        with tempfile.TemporaryDirectory() as tmp:
+            rs = process_session(d, "target-fkf", Path(tmp) / "run")
+            traj = pd.read_parquet(rs.run_dir / "trajectory.parquet")
+        out = {}
+        for name in ("lf1", "fkf"):
+            q = traj[traj.solution == name]
+            C = euler_to_dcm(*np.radians(q[["roll", "pitch", "yaw"]].to_numpy()).T)
+            out[name] = total_rms_deg(C[mov], C_true[mov])
+        dt = float(np.median(np.diff(t)))
+        # VQF's quaternion maps the (right-handed) body axes it is fed, here FRD, to an ENU-type frame:
+        # NED = T ENU; any remaining constant heading offset is removed as for ours
+        r = offlineVQF(np.ascontiguousarray(s.imu.gyro_b_rps), np.ascontiguousarray(s.imu.acc_b_mps2),
+                       np.ascontiguousarray(s.imu.mag_b_ut), dt)
+        C_enu = quat_to_dcm(r["quat9D"])
+        T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+        out["vqf"] = total_rms_deg((T @ C_enu)[mov], C_true[mov])
+        print(f"{d.name}: total attitude RMS during motion (deg): "
+              + ", ".join(f"{k} {v:.2f}" for k, v in out.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
