@@ -1,7 +1,7 @@
 """Convention checks: injected errors are caught with the right hint.
 
 Analytic oracle: a device tilting about x and y with gravity along its up axis. Real sessions from
-/work/shared are used when present (skipped otherwise).
+../shared are used when present (skipped otherwise).
 """
 
 import shutil
@@ -62,10 +62,12 @@ def test_swapped_axes_and_flipped_accelerometer():
     assert "flipped sign" in w[0] and '"FRU"' not in w[0]
 
 
-SHARED = Path("/work/shared/data/real")
+from tests.helpers.paths import SHARED_DATA
+
+SHARED = SHARED_DATA / "real"
 
 
-@pytest.mark.skipif(not SHARED.exists(), reason="needs /work/shared real sessions")
+@pytest.mark.skipif(not SHARED.exists(), reason="needs ../shared real sessions")
 @pytest.mark.parametrize("inject, expect", [
     ("swap_xy", "mirrored"), ("swap_xz", "swapped axes"), ("flip_gyro_x", "gyro_x turns against"),
     ("deg", "deg/s"), ("g", "g units"),

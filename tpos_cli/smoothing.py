@@ -121,8 +121,8 @@ def state_difference(nav_f, C_f, bias_f, nav_b, C_b, bias_b, d):
 @njit(cache=True)
 def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep, b_P,
              out_w, flag_thr, o_nav, o_C, o_P9, o_flag, o_nis, mode):
-    """mode 0: two-filter (full covariances); 1: simplified (paper 003). out_w (K,): weight of
-    the backward solution inside outages, NaN outside."""
+    """mode 0: two-filter (full covariances); 1: simplified (paper 003); 2: flag and NIS only.
+    out_w (K,): weight of the backward solution inside outages, NaN outside."""
     ef = 0
     eb = 0
     Ef = f_ep.shape[0]
@@ -143,10 +143,11 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
         Pb = b_P[eb]
         if ef != last_f or eb != last_b:
             S = Pf + Pb
-            K = np.ascontiguousarray(np.linalg.solve(S, Pf).T)  # P_f S^-1 (both symmetric)
-            Pc = Pf - K @ Pf
-            Pc = 0.5 * (Pc + Pc.T)
-            S9i = np.linalg.inv(S[:9, :9])
+            if mode == 0:
+                K = np.ascontiguousarray(np.linalg.solve(S, Pf).T)  # P_f S^-1 (both symmetric)
+                Pc = Pf - K @ Pf
+                Pc = 0.5 * (Pc + Pc.T)
+            S9i = np.linalg.inv(np.ascontiguousarray(S[:9, :9]))
             last_f = ef
             last_b = eb
         state_difference(f_nav[j], f_C[j], f_bias[j], b_nav[j], b_C[j], b_bias[j], d)
@@ -154,6 +155,8 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
         nis = d9 @ S9i @ d9
         o_nis[k] = nis
         o_flag[k] = nis > flag_thr
+        if mode == 2:  # flag only
+            continue
         if mode == 0:
             xs = K @ d
             o_P9[k] = Pc[:9, :9]
@@ -205,6 +208,12 @@ def two_filter(fwd, bwd, t_s, out_idx, *, flag_probability=0.999):
     """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,))."""
     nav, C, P9, flag, nis = _run_combine(fwd, bwd, t_s, out_idx, np.zeros((0, 2)), flag_probability, 0)
     return Solution("two_filter", out_idx, nav, C, P9), flag, nis
+
+
+def disagreement(fwd, bwd, t_s, out_idx, *, flag_probability=0.999):
+    """(flag (K,), nis (K,)): forward/backward NIS of the 9 navigation states against chi-square."""
+    _, _, _, flag, nis = _run_combine(fwd, bwd, t_s, out_idx, np.zeros((0, 2)), flag_probability, 2)
+    return flag, nis
 
 
 def simplified(fwd, bwd, t_s, out_idx, outages_s) -> Solution:

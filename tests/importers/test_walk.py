@@ -1,7 +1,7 @@
 """Import of the raw rtklibexplorer walk: IMU CSV (g, deg/s, mounting, time tags) and RTKLIB .pos.
 
 The excerpts in tests/data/ make the tests stand alone; the full-size comparison with
-../shared/data/real/rtklibexplorer_walk_0827 runs only when /work/shared is present (skips otherwise).
+../shared/data/real/rtklibexplorer_walk_0827 runs only when ../shared is present (skips otherwise).
 """
 
 from pathlib import Path
@@ -21,7 +21,7 @@ from tpos_cli.importers.rtklib_pos import import_rtklib_pos
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "rtklibexplorer_walk_0827"
 MAP = ROOT / "docs" / "mappings" / "rtklibexplorer_walk_0827_imu.toml"
-SHARED = Path("/work/shared/data")
+from tests.helpers.paths import SHARED_DATA as SHARED
 G0 = 9.80665
 
 
@@ -87,7 +87,7 @@ def test_cli_builds_one_session_from_two_imports(tmp_path):
     assert res.exit_code == 0
 
 
-@pytest.mark.skipif(not SHARED.exists(), reason="needs /work/shared (the full raw and converted walk)")
+@pytest.mark.skipif(not SHARED.exists(), reason="needs ../shared (the full raw and converted walk)")
 def test_full_walk_matches_converted_session(tmp_path):
     raw, real = SHARED / "raw" / "rtklibexplorer_walk_0827", SHARED / "real" / "rtklibexplorer_walk_0827"
     out = tmp_path / "walk"

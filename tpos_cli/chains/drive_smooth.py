@@ -8,6 +8,7 @@ SDs, so that the two runs stay nearly independent), smoothing (`rts`, `two_filte
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -179,8 +180,18 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability,
                        p.max_consecutive_rejections)
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
+    step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
+    out_idx = np.arange(0, t.size, step)
+    if out_idx[-1] != t.size - 1:
+        out_idx = np.append(out_idx, t.size - 1)
+    sols = {}
     with stage("forward"):
         fwd = run_insgps(t, gyro, acc, fixes, init, cfg, store_rts=need_rts)
+    if need_rts:
+        with stage("smoothing_rts"):
+            sols["rts"] = smoothing.rts(fwd, t, out_idx)
+            # drop the RTS history before the backward run: it is the largest array of the run
+            fwd = dataclasses.replace(fwd, ep_Phi=None, ep_Ppred=None)
     with stage("backward"):
         # backward starts from the forward end state but with the initial SDs (not the forward
         # covariance): the two runs then share no information beyond that rough start
@@ -190,30 +201,25 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                                                                sig.gyro_bias_rps)))
         bwd = run_insgps(t, gyro, acc, fixes, init_b, cfg, backward=True)
     with stage("smoothing"):
-        step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
-        out_idx = np.arange(0, t.size, step)
-        if out_idx[-1] != t.size - 1:
-            out_idx = np.append(out_idx, t.size - 1)
         outages = fix_outages(fixes.t_s, t[-1], p.outage_min_s)
-        sols = {}
-        tf, flag, nis = smoothing.two_filter(fwd, bwd, t, out_idx, flag_probability=p.flag_probability)
         wanted = set(names)
         if "smoothed" in wanted:
             wanted.add(p.smoother)
+        if "two_filter" in wanted:
+            sols["two_filter"], flag, nis = smoothing.two_filter(fwd, bwd, t, out_idx, flag_probability=p.flag_probability)
+        else:
+            flag, nis = smoothing.disagreement(fwd, bwd, t, out_idx, flag_probability=p.flag_probability)
         for name in wanted:
             if name == "forward":
                 sols[name] = smoothing.filter_solution(fwd, out_idx, "forward")
             elif name == "backward":
                 sols[name] = smoothing.filter_solution(bwd, out_idx, "backward")
-            elif name == "two_filter":
-                sols[name] = tf
-            elif name == "rts":
-                sols[name] = smoothing.rts(fwd, t, out_idx)
             elif name == "simplified":
                 sols[name] = smoothing.simplified(fwd, bwd, t, out_idx, outages)
         if "smoothed" in wanted:
             s = sols[p.smoother]
             sols["smoothed"] = smoothing.Solution("smoothed", s.idx, s.nav, s.C_nb, s.P9)
+        sols = {k: v for k, v in sols.items() if k in names}
     return DriveResult(t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info)
 
 

@@ -162,7 +162,8 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         out_bias = out_bias[::-1]
         out_bias[:, 3:] *= -1.0
         ep_idx = (n - 1 - ep_idx)[::-1]
-        ep_P = ep_P[::-1] * np.outer(sign15, sign15)
+        ep_P = ep_P[::-1]
+        ep_P *= np.outer(sign15, sign15)  # in place: this array is the run's largest
         innovation[:, 3:] *= -1.0
         return FilterRun(True, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, None, innovation, nis_all, acc_all)
     if store_rts:

@@ -7,31 +7,38 @@ the fuzzy adaptive tightly coupled one (FATCI, Eq. 31 / Algorithm 1) differ only
 
 All three also take the floor constraint (`down_events`): the node's down coordinate in the local
 frame is known to `floor_sd_m` (a vehicle in a corridor), since ranges from anchors near one plane
-do not observe the vertical. The compiled loop is `_kernels.ranging_filter_kernel`.
+do not observe the vertical; and zero-velocity updates while the IMU says the node stands still
+(`zupt_events`, beyond the paper). The compiled loop is `_kernels.ranging_filter_kernel`;
+`run_filter` runs it forward or backward in time and returns a `FilterRun` that the smoothers of
+`tpos_cli.smoothing` accept (same fields as `fusion.insgps.FilterRun`, 16 states).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from tpos_cli.alignment import static_mask
 from tpos_cli.errors import ProcessingError
 from tpos_cli.filters.gating import chi2_threshold
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
 from tpos_cli.fusion.layout import ATT, POS, VEL
+from tpos_cli.fusion.nav_errors import backward_sign
+from tpos_cli.ins.mechanization import reverse_imu
 from tpos_cli.ranging import _kernels as K
 from tpos_cli.ranging.fuzzy import FuzzySystem, infer
 from tpos_cli.ranging.multilateration import group_epochs, ls_fix
 
-EV_RANGE, EV_FIX_NE, EV_DOWN = K.EV_RANGE, K.EV_FIX_NE, K.EV_DOWN
+EV_RANGE, EV_FIX_NE, EV_DOWN, EV_ZUPT = K.EV_RANGE, K.EV_FIX_NE, K.EV_DOWN, K.EV_ZUPT
+N_STATE, BIAS = K.N_STATE, K.BIAS
 
 
 @dataclass(frozen=True)
 class Events:
-    """Aiding events, time sorted: t_s (E,), kind (E,), anchor (E,) (-1 if none), z (E, 2),
-    R (E, 3) = [var_0, cov_01, var_1], gated (E,) bool."""
+    """Aiding events, time sorted: t_s (E,), kind (E,), anchor (E,) (-1 if none), z (E, 3),
+    R (E, 3) = [var_0, cov_01, var_1] (ZUPT: var_0 per axis), gated (E,) bool."""
 
     t_s: np.ndarray
     kind: np.ndarray
@@ -51,7 +58,8 @@ class Events:
 @dataclass(frozen=True)
 class FilterConfig:
     """Filter tuning in SI units. q = [acc white PSD (m/s^2)^2 s, gyro white PSD rad^2/s,
-    acc bias drive PSD, gyro bias drive PSD]; sd0 = initial SDs of the 16 states."""
+    acc bias drive PSD, gyro bias drive PSD]; sd0 = initial SDs of the 16 states; output_every:
+    IMU samples per output row; cov_step: IMU samples per covariance epoch between events."""
 
     q: np.ndarray
     tau_acc_s: float
@@ -61,21 +69,34 @@ class FilterConfig:
     gate_probability: float
     max_consecutive_rejects: int
     output_every: int
+    cov_step: int = 10
 
 
 @dataclass(frozen=True)
 class InitialState:
-    """Start of the filter: IMU sample index k0 and the state there."""
+    """Start of the filter: IMU sample index k0 and the state there (lla deg/deg/m, NED velocity,
+    roll/pitch/yaw rad, IMU biases [acc m/s^2 (3), gyro rad/s (3)], range bias m). For a backward
+    run, the state at the last sample in forward-time signs."""
 
     k0: int
     lla: np.ndarray
     vel_ned_mps: np.ndarray
     rpy_rad: np.ndarray
+    bias: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    range_bias_m: float = 0.0
 
 
 @dataclass(frozen=True)
 class FilterRun:
-    """Filter output at the output samples and per event."""
+    """One run in forward time order over the IMU samples k0..N-1 (run-local index j = k - k0).
+
+    Output rows (every `output_every` samples and the last): out_idx (K,) run-local indices, t_s,
+    lla, vel_ned_mps, rpy_deg, sd_ned_m, sd_vel_mps, sd_att_deg (SD of the attitude error phi),
+    range_bias_m. Per event (in the order of `events`): ev_nis (-1 if not reached), ev_accepted.
+    For `tpos_cli.smoothing` (field names of `fusion.insgps.FilterRun`): t_run_s (N-k0,), nav
+    (N-k0, 6), C_nb, bias (N-k0, 6) nominal after feedback; ep_idx (E,) run-local; ep_P (E,16,16)
+    in forward-time signs; forward runs also ep_Phi, ep_Ppred, ep_dx (RTS history).
+    """
 
     t_s: np.ndarray
     lla: np.ndarray
@@ -88,12 +109,25 @@ class FilterRun:
     events: Events
     ev_nis: np.ndarray
     ev_accepted: np.ndarray
+    backward: bool = False
+    k0: int = 0
+    out_idx: np.ndarray | None = None
+    t_run_s: np.ndarray | None = None
+    nav: np.ndarray | None = None
+    C_nb: np.ndarray | None = None
+    bias: np.ndarray | None = None
+    range_bias_all_m: np.ndarray | None = None
+    ep_idx: np.ndarray | None = None
+    ep_P: np.ndarray | None = None
+    ep_Phi: np.ndarray | None = None
+    ep_Ppred: np.ndarray | None = None
+    ep_dx: np.ndarray | None = None
 
 
 def range_events(t_s, anchor, range_m, var_m2) -> Events:
     """One scalar range event per measured (corrected) range (Eq. 21-24)."""
     n = t_s.size
-    z = np.zeros((n, 2))
+    z = np.zeros((n, 3))
     z[:, 0] = range_m
     R = np.zeros((n, 3))
     R[:, 0] = var_m2
@@ -148,13 +182,31 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
         Rs.append([fix.cov_ne_m2[0, 0], fix.cov_ne_m2[0, 1], fix.cov_ne_m2[1, 1]])
     n = len(ts)
     return Events(np.array(ts, float), np.full(n, EV_FIX_NE, np.int64), np.full(n, -1, np.int64),
-                  np.array(zs, float).reshape(n, 2), np.array(Rs, float).reshape(n, 3), np.ones(n, bool)), n_missing
+                  np.column_stack([np.array(zs, float).reshape(n, 2), np.zeros(n)]), np.array(Rs, float).reshape(n, 3), np.ones(n, bool)), n_missing
+
+
+def zupt_events(t_s, sd_mps: float) -> Events:
+    """Zero-velocity updates at the times t_s (the node stands still), v = 0 +- sd_mps per axis."""
+    n = np.size(t_s)
+    R = np.zeros((n, 3))
+    R[:, 0] = sd_mps**2
+    return Events(np.asarray(t_s, float), np.full(n, EV_ZUPT, np.int64), np.full(n, -1, np.int64),
+                  np.zeros((n, 3)), R, np.zeros(n, bool))
+
+
+def static_times(t_s, gyro_b_rps, acc_b_mps2, rate_hz: float, **static_kw) -> np.ndarray:
+    """Times (at most rate_hz) inside stretches where `alignment.static_mask` says the IMU is still."""
+    still = static_mask(t_s, gyro_b_rps, acc_b_mps2, **static_kw)
+    dt = float(np.median(np.diff(t_s))) if np.size(t_s) > 1 else 0.01
+    step = max(1, int(round(1.0 / (rate_hz * dt))))
+    idx = np.flatnonzero(still)
+    return np.asarray(t_s, float)[idx[idx % step == 0]]
 
 
 def down_events(t_s, down_m: float, sd_m: float) -> Events:
     """Floor constraint: down coordinate of the node = down_m +- sd_m, never gated."""
     n = t_s.size
-    z = np.zeros((n, 2))
+    z = np.zeros((n, 3))
     z[:, 0] = down_m
     R = np.zeros((n, 3))
     R[:, 0] = sd_m**2
@@ -163,60 +215,125 @@ def down_events(t_s, down_m: float, sd_m: float) -> Events:
 
 
 def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, anchors_ned_m,
-               origin_lla, cfg: FilterConfig) -> FilterRun:
-    """Run the forward INS/range filter from `init.k0` with the given events."""
-    t = np.ascontiguousarray(t_s, dtype=float)
-    gyro = np.ascontiguousarray(gyro_b_rps, dtype=float)
-    acc = np.ascontiguousarray(acc_b_mps2, dtype=float)
-    ev_k = np.searchsorted(t, events.t_s, side="left").astype(np.int64)
-    inside = (ev_k < t.size) & (ev_k >= init.k0)
-    ev_k_c = np.minimum(ev_k, t.size - 1)
-    ev_lag = np.where(inside, t[ev_k_c] - events.t_s, 0.0)
-    ev_k = np.where(inside, ev_k, -1)  # never processed
-    order = np.argsort(ev_k, kind="stable")  # kernel walks events by sample index
+               origin_lla, cfg: FilterConfig, *, backward: bool = False, store_rts: bool = False) -> FilterRun:
+    """Run the INS/range filter over the IMU samples init.k0..N-1 with the given events.
+
+    Forward: `init` is the state at sample k0. Backward (`backward=True`, paper 003's reversed
+    time): `init` is the state at the LAST sample in forward-time signs; the run goes from the
+    end back to k0 and is returned in forward order, its covariances in forward-time signs.
+    `store_rts` keeps the RTS history of a forward run.
+    """
+    k0 = int(init.k0)
+    t = np.ascontiguousarray(t_s[k0:], dtype=float)
+    gyro = np.ascontiguousarray(gyro_b_rps[k0:], dtype=float)
+    acc = np.ascontiguousarray(acc_b_mps2[k0:], dtype=float)
+    n = t.size
+    if n < 2:
+        raise ProcessingError("ranging filter: fewer than two IMU samples after the first position fix")
+    sign = np.ones(N_STATE)
+    sign[:15] = backward_sign()
     nav0 = np.array([np.radians(init.lla[0]), np.radians(init.lla[1]), init.lla[2], *init.vel_ned_mps])
     C0 = euler_to_dcm(*init.rpy_rad)
+    bias0 = np.array(init.bias, dtype=float)
     P0 = np.diag(np.asarray(cfg.sd0, float) ** 2)
+    t_ev = np.asarray(events.t_s, dtype=float)
+    if backward:
+        t, gyro, acc = reverse_imu(t, gyro, acc)
+        nav0[3:] *= -1.0
+        bias0[3:] *= -1.0
+        t_ev = -t_ev
+        earth_sign = -1.0
+    else:
+        earth_sign = 1.0
+    ev_k = np.searchsorted(t, t_ev, side="left").astype(np.int64)
+    inside = (ev_k < n) & (ev_k >= 1)
+    ev_k = np.where(inside, ev_k, -1)  # never processed
+    ev_lag = np.where(inside, t[np.clip(ev_k, 0, n - 1)] - t_ev, 0.0)
+    order = np.argsort(ev_k, kind="stable")  # kernel walks events by sample index
+    n_ev = t_ev.size
+    n_ep = n // max(cfg.cov_step, 1) + np.unique(ev_k[inside]).size + 3
+    nr = n_ep if store_rts else 1
+    out_nav = np.empty((n, 6))
+    out_C = np.empty((n, 3, 3))
+    out_bias = np.empty((n, 6))
+    out_rb = np.empty(n)
+    ep_idx = np.zeros(n_ep, np.int64)
+    ep_P = np.empty((n_ep, N_STATE, N_STATE))
+    ep_dx = np.empty((n_ep, N_STATE))
+    ep_Phi = np.empty((nr, N_STATE, N_STATE))
+    ep_Ppred = np.empty((nr, N_STATE, N_STATE))
+    nis_o = np.full(n_ev, -1.0)
+    acc_o = np.zeros(n_ev, np.bool_)
     r0_e = geodetic.lla_to_ecef(origin_lla)
     C_ne0 = geodetic.ecef_to_ned_dcm(origin_lla[0], origin_lla[1])
     gate = chi2_threshold(cfg.gate_probability, 2)
-    n_out = (t.size - init.k0 - 1) // cfg.output_every + 1
-    out_k = np.zeros(n_out, np.int64)
-    out_nav = np.zeros((n_out, 6))
-    out_C = np.zeros((n_out, 3, 3))
-    out_P = np.zeros((n_out, K.N_STATE))
-    out_bias = np.zeros(n_out)
-    n_ev = events.t_s.size
-    ev_nis = np.full(n_ev, -1.0)
-    ev_acc = np.zeros(n_ev, np.bool_)
-    nis_o = np.full(n_ev, -1.0)
-    acc_o = np.zeros(n_ev, np.bool_)
-    rows = K.ranging_filter_kernel(
-        t, gyro, acc, init.k0, nav0, C0, P0, np.asarray(cfg.q, float), cfg.tau_acc_s, cfg.tau_gyro_s,
-        cfg.q_range_bias_m2ps, ev_k[order], ev_lag[order], events.kind[order], events.anchor[order],
-        np.ascontiguousarray(events.z[order]), np.ascontiguousarray(events.R[order]), events.gated[order],
-        np.ascontiguousarray(anchors_ned_m, dtype=float), r0_e, C_ne0, gate, cfg.max_consecutive_rejects,
-        cfg.output_every, out_k, out_nav, out_C, out_P, out_bias, nis_o, acc_o,
+    z = np.zeros((n_ev, 3))
+    z[:, : events.z.shape[1]] = events.z
+    n_used, status = K.ranging_filter_kernel(
+        t, gyro, acc, nav0, C0, bias0, float(init.range_bias_m), P0, np.asarray(cfg.q, float), cfg.tau_acc_s,
+        cfg.tau_gyro_s, cfg.q_range_bias_m2ps, earth_sign, int(max(cfg.cov_step, 1)),
+        ev_k[order], ev_lag[order], events.kind[order], events.anchor[order], np.ascontiguousarray(z[order]),
+        np.ascontiguousarray(events.R[order]), events.gated[order], np.ascontiguousarray(anchors_ned_m, dtype=float),
+        r0_e, C_ne0, gate, cfg.max_consecutive_rejects, bool(store_rts),
+        out_nav, out_C, out_bias, out_rb, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, nis_o, acc_o,
     )
+    if status != 0:
+        tk = t[status - 1] * (-1.0 if backward else 1.0)
+        raise ProcessingError(f"ranging filter: innovation covariance not positive definite at t_s = {tk:.3f}")
+    ev_nis = np.full(n_ev, -1.0)
+    ev_acc = np.zeros(n_ev, bool)
     ev_nis[order] = nis_o
     ev_acc[order] = acc_o
-    if not np.all(np.isfinite(out_nav[:rows])) or np.any(out_P[:rows] < 0):
-        bad = int(np.argmax(~np.all(np.isfinite(out_nav[:rows]), axis=1) | np.any(out_P[:rows] < 0, axis=1)))
-        raise ProcessingError(f"ranging filter diverged at t = {t[out_k[bad]]:.3f} s (session clock offset removed)")
-    rpy = np.degrees(np.column_stack(dcm_to_euler(out_C[:rows])))
-    sd = np.sqrt(out_P[:rows])
-    lla = np.column_stack([np.degrees(out_nav[:rows, 0]), np.degrees(out_nav[:rows, 1]), out_nav[:rows, 2]])
+    ep_idx, ep_P, ep_dx = ep_idx[:n_used], ep_P[:n_used], ep_dx[:n_used]
+    if backward:
+        out_nav = out_nav[::-1].copy()
+        out_nav[:, 3:] *= -1.0
+        out_C = out_C[::-1].copy()
+        out_bias = out_bias[::-1].copy()
+        out_bias[:, 3:] *= -1.0
+        out_rb = out_rb[::-1].copy()
+        ep_idx = (n - 1 - ep_idx)[::-1].copy()
+        ep_P = ep_P[::-1] * np.outer(sign, sign)
+        ep_dx = None
+        t = -t[::-1]
+    if not np.all(np.isfinite(out_nav)):
+        bad = int(np.argmax(~np.all(np.isfinite(out_nav), axis=1)))
+        raise ProcessingError(f"ranging filter diverged at t_s = {t[bad]:.3f} (session epoch removed)")
+    out_idx = np.arange(0, n, max(1, cfg.output_every))
+    if out_idx[-1] != n - 1:
+        out_idx = np.append(out_idx, n - 1)
+    # covariance of the nearest epoch on the data side (as smoothing.filter_solution)
+    if backward:
+        e = np.minimum(np.searchsorted(ep_idx, out_idx, side="left"), ep_idx.size - 1)
+    else:
+        e = np.maximum(np.searchsorted(ep_idx, out_idx, side="right") - 1, 0)
+    sd = np.sqrt(np.clip(np.diagonal(ep_P[e], axis1=1, axis2=2), 0.0, None))
+    nav_o = out_nav[out_idx]
+    rpy = np.degrees(np.column_stack(dcm_to_euler(out_C[out_idx])))
+    lla = np.column_stack([np.degrees(nav_o[:, 0]), np.degrees(nav_o[:, 1]), nav_o[:, 2]])
+    rts = store_rts and not backward
     return FilterRun(
-        t_s=t[out_k[:rows]], lla=lla, vel_ned_mps=out_nav[:rows, 3:6].copy(), rpy_deg=rpy,
+        t_s=t[out_idx], lla=lla, vel_ned_mps=nav_o[:, 3:6].copy(), rpy_deg=rpy,
         sd_ned_m=sd[:, POS:POS + 3], sd_vel_mps=sd[:, VEL:VEL + 3], sd_att_deg=np.degrees(sd[:, ATT:ATT + 3]),
-        range_bias_m=out_bias[:rows], events=events, ev_nis=ev_nis, ev_accepted=ev_acc,
+        range_bias_m=out_rb[out_idx], events=events, ev_nis=ev_nis, ev_accepted=ev_acc,
+        backward=backward, k0=k0, out_idx=out_idx, t_run_s=t, nav=out_nav, C_nb=out_C, bias=out_bias,
+        range_bias_all_m=out_rb, ep_idx=ep_idx, ep_P=ep_P, ep_Phi=ep_Phi[:n_used] if rts else None,
+        ep_Ppred=ep_Ppred[:n_used] if rts else None, ep_dx=None if backward else ep_dx,
     )
+
+
+def end_state(run: FilterRun) -> InitialState:
+    """The run's state at its last sample (for starting a backward run), forward-time signs."""
+    nav = run.nav[-1]
+    return InitialState(run.k0, np.array([np.degrees(nav[0]), np.degrees(nav[1]), nav[2]]), nav[3:6].copy(),
+                        np.array(dcm_to_euler(run.C_nb[-1]), dtype=float), run.bias[-1].copy(),
+                        float(run.range_bias_all_m[-1]))
 
 
 def coasting_intervals(run: FilterRun, gap_s: float) -> list[tuple[float, float]]:
     """Intervals (s) longer than gap_s without an accepted range or fix: the filter coasted on the INS."""
     ev = run.events
-    m = run.ev_accepted & (ev.kind != EV_DOWN)
+    m = run.ev_accepted & ((ev.kind == EV_RANGE) | (ev.kind == EV_FIX_NE))
     ta = np.sort(ev.t_s[m])
     if run.t_s.size == 0:
         return []
