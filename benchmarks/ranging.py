@@ -53,7 +53,8 @@ def evaluate(case: str, seed: int, work: Path) -> dict:
             drop |= (t >= a) & (t < b)
         out[sol] = dict(xmin=ex.min(), xmax=ex.max(), ymin=ey.min(), ymax=ey.max(), vx=ex.var(), vy=ey.var(),
                         max=eh.max(), mean=eh.mean(), rms=np.sqrt(np.mean(eh**2)),
-                        drop_max=eh[drop].max(), gated=sum(rs.summary["results"]["solutions"][sol]["gating_rejections"].values()))
+                        drop_max=eh[drop].max(),
+                        gated=sum(rs.summary["results"]["solutions"][sol].get("gating_rejections", {}).values()))
     out["_wall_s"] = wall
     return out
 
@@ -68,9 +69,9 @@ def main() -> None:
             print(f"\n== {case} (seeds {args.seeds}; mean over seeds; process wall {np.mean([r['_wall_s'] for r in runs]):.2f} s) ==")
             print(f"{'sol':6} {'x range (m)':>17} {'y range (m)':>17} {'var x':>7} {'var y':>7} {'max':>6} {'mean':>6} "
                   f"{'rms':>6} {'dropmax':>7} {'gated':>5} | paper max / mean")
-            for sol in ("lc", "tc", "fatci"):
+            for sol in ("lc", "tc", "fatci", "smoothed"):
                 m = {k: np.mean([r[sol][k] for r in runs]) for k in runs[0][sol]}
-                pp = PAPER[case][sol]
+                pp = PAPER[case].get(sol, {})
                 print(f"{sol:6} {m['xmin']:8.3f}~{m['xmax']:<8.3f} {m['ymin']:8.3f}~{m['ymax']:<8.3f} {m['vx']:7.4f} "
                       f"{m['vy']:7.4f} {m['max']:6.3f} {m['mean']:6.3f} {m['rms']:6.3f} {m['drop_max']:7.3f} {m['gated']:5.0f} | "
                       f"{pp.get('max')} / {pp.get('mean', '-')}")

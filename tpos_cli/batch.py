@@ -429,8 +429,9 @@ def _run_pool(
         except KeyboardInterrupt:
             # stop now: drop the queued sessions and end the running ones (their outputs are still
             # in temporary directories, never in place); the next call redoes them
+            procs = list((getattr(ex, "_processes", None) or {}).values())  # before shutdown drops them
             ex.shutdown(wait=False, cancel_futures=True)
-            for proc in list(getattr(ex, "_processes", {}).values()):
+            for proc in procs:
                 proc.terminate()
             raise
     # A worker died (segfault, out of memory, killed): the pool fails every task it still held,

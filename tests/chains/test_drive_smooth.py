@@ -64,3 +64,46 @@ def test_unknown_smoother_is_invalid_input(session_dir, tmp_path):
     _, path = session_dir
     with pytest.raises(InvalidInputError, match="smoother"):
         process_session(path, "drive-smooth", tmp_path / "run", overrides={"drive_smooth.smoother": "magic"})
+
+
+def test_targets_from_the_moving_platform(session_dir):
+    """Shots on roadside targets while the vehicle stands (static start) and while it drives."""
+    import dataclasses
+
+    from tpos_cli.chains.drive_smooth import DriveSmoothParams, geolocate_shots, process_drive, range_epochs
+    from tpos_cli.session import RangeData, Shots, load_session
+    from tpos_cli.targeting import geolocate
+
+    sim, path = session_dir
+    session = load_session(path)
+    tr = sim.truth
+    rng = np.random.default_rng(5)
+    d_m, sigma_r = 40.0, 0.05
+    t_r, r_m, starts, targets = [], [], [], []
+    for t_a in (5.0, 60.0, 140.0):  # standing, driving, driving
+        i = int(np.searchsorted(tr.t_s, t_a))
+        tgt = geolocate(tr.lla[i], tr.C_nb[i], d_m).lla[0]  # exact target on the beam
+        targets.append(tgt)
+        starts.append(t_a)
+        t_r.append(tr.t_s[i])
+        r_m.append(d_m + sigma_r * rng.standard_normal())
+    ranges = RangeData(np.array(t_r), np.column_stack([r_m, np.full(3, np.nan), np.full(3, np.nan)]))
+    shots = Shots(("a", "b", "c"), np.array(starts) - 0.001, np.array(starts) + 0.001)
+    s2 = dataclasses.replace(session, ranges=ranges, shots=shots)
+    ep = range_epochs(s2)
+    res = process_drive(s2, DriveSmoothParams(), None, ("smoothed",), extra_idx=ep[0])
+    out = geolocate_shots(s2, res.solutions["smoothed"], ep, sigma_r)
+    for k, tgt in enumerate(targets):
+        row = out.iloc[k]
+        e = np.array([row.lat - tgt[0], row.lon - tgt[1]]) * np.radians(1.0) * 6.37e6
+        e[1] *= np.cos(np.radians(tgt[0]))
+        sd = np.array([row.sigma_n, row.sigma_e])
+        assert np.all(np.abs(e) < 4.0 * sd)  # 4 sigma: 1 in 16 000 per component
+        # paper 001 Eq. 17-30 first order: horizontal variance = observer position variance
+        # + (d sigma_yaw)^2 across the beam + sigma_d^2 along it (level beam)
+        sol = res.solutions["smoothed"]
+        j = np.searchsorted(sol.idx, ep[0][k])
+        P = sol.P9[j]
+        var_att = d_m**2 * P[8, 8]  # yaw error phi_d rotates the beam about the vertical
+        budget = np.trace(P[:2, :2]) + var_att + sigma_r**2
+        np.testing.assert_allclose(row.sigma_n**2 + row.sigma_e**2, budget, rtol=0.05)  # pitch/roll terms < 5 %

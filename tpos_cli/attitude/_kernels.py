@@ -24,6 +24,8 @@ from tpos_cli.frames._kernels import orthonormalize, rotvec_to_dcm, skew
 USE_ACC = 1
 USE_MAG = 2
 USE_RANGE = 4
+USE_MOTION = 8  # bounded-motion velocity/position states (hand-held device, standing observer)
+USE_SCALE = 16  # gyro scale-factor error states (3)
 
 
 @njit(cache=True)
@@ -38,7 +40,7 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
     d_i = (D - n.C o_i) / (n.C e_x) for a plane n.p = D, so d1 - d_i = n.C o_i / n.C e_x.
     With C = exp(phi) C_hat, d(n.C o)/dphi = (C o x n)^T.
     """
-    u = C[:, 0]
+    u = np.ascontiguousarray(C[:, 0])
     c = n_wall @ u
     p2 = C @ o2_b
     p3 = C @ o3_b
@@ -55,10 +57,24 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 
 @njit(cache=True)
+def _feedback(x, C, b, v, p, s, i_v, i_s):
+    """Apply an error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
+    Cn = rotvec_to_dcm(x[0:3]) @ C
+    b += x[3:6]
+    if i_v > 0:
+        v += x[i_v:i_v + 3]
+        p += x[i_v + 3:i_v + 6]
+    if i_s > 0:
+        s += x[i_s:i_s + 3]
+    x[:] = 0.0
+    return Cn
+
+
+@njit(cache=True)
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
              q_sf, r_acc, acc_tol, gyro_tol, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
-             n_wall, o2_b, o3_b, r_rng, rng_gate,
-             out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
+             n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
+             scale0, scale_var0, q_scale, still, zupt_sd, out_scale, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
@@ -69,103 +85,175 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     r_mag_ut uT^2; decl rad; mag_ref (norm uT, dip rad); tolerances uT and rad
     (mag_norm_tol <= 0 disables the check); n_wall (3,) NED unit wall normal; o2_b, o3_b (3,)
     LR2/LR3 offsets FRD m; r_rng (2,2) m^2; rng_gate chi2(2) gate (<= 0: none).
-    Outputs are filled for each sample (the posterior after that sample).
+    USE_MOTION: the error state grows by velocity and position (12 states); the specific force
+    is integrated in NED and a hand-held device of a standing observer is held to v = 0, p = 0
+    with SDs motion_sd (2,) (m/s, m) every `motion_every` samples: linear accelerations average
+    out, a tilt error does not (g phi t^2 / 2 of position). q_vel (m/s)^2 per sample.
+    rec_nis > 0: when the mean magnetic NIS over ~rec_tau_s exceeds it, the heading variance is
+    re-opened by the innovation squared (the filter was over-confident about a wrong heading).
+    USE_SCALE: three gyro scale-factor errors s join the state (omega = (gyro - b)(1 - s)), from
+    scale0 (3,) with variance scale_var0 and random-walk variance q_scale per second: at hand-held
+    rates of several hundred deg/s a 0.1 % scale error tilts the attitude by ~0.5 deg/s.
+    still (N,) bool: samples in a detected still period; only there is gravity measured directly
+    (and, with USE_MOTION, the velocity held to zero with SD zupt_sd m/s at each motion epoch).
+    Outputs are filled for each sample (the posterior after that sample; out_P is 6x6).
     """
     N = t.shape[0]
+    motion = (use & USE_MOTION) != 0
+    scale = (use & USE_SCALE) != 0
+    n = 6
+    i_v = 0
+    i_s = 0
+    if motion:
+        i_v = n
+        n += 6
+    if scale:
+        i_s = n
+        n += 3
     C = C0.copy()
     b = bias0.copy()
-    P = P0.copy()
-    x = np.zeros(6)
-    Phi = np.eye(6)
-    Qd = np.zeros((6, 6))
+    sf = scale0.copy()
+    v = np.zeros(3)
+    p = np.zeros(3)
+    P = np.zeros((n, n))
+    P[0:6, 0:6] = P0
+    for i in range(3):
+        if motion:
+            P[i_v + i, i_v + i] = motion_sd[0] ** 2
+            P[i_v + 3 + i, i_v + 3 + i] = motion_sd[1] ** 2
+        if scale:
+            P[i_s + i, i_s + i] = scale_var0
+    x = np.zeros(n)
+    Phi = np.eye(n)
+    Qd = np.zeros((n, n))
     gnorm = np.sqrt(g_n @ g_n)
+    f_n_down = -g_n
+    nis_avg = 0.0
+    Hm = np.zeros((6, n))
+    if motion:
+        for i in range(6):
+            Hm[i, i_v + i] = 1.0
+    Rm = np.zeros((6, 6))
+    for i in range(3):
+        Rm[i, i] = motion_sd[0] ** 2
+        Rm[3 + i, 3 + i] = motion_sd[1] ** 2
     for k in range(N):
+        wg = (gyro[k] - b) * (1.0 - sf)
         if k > 0:
             dt = t[k] - t[k - 1]
-            w = gyro[k] - b - C.T @ w_ie_n  # Eq. 19: omega_nb = omega_ib - C_bn omega_ie
-            Phi[:, :] = np.eye(6)
-            Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + noise)
+            Ct = np.ascontiguousarray(C.T)
+            w = wg - Ct @ w_ie_n  # Eq. 19: omega_nb = omega_ib - C_bn omega_ie
+            Phi[:, :] = 0.0
+            for i in range(n):
+                Phi[i, i] = 1.0
+            Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + diag(omega) ds + noise)
+            if scale:
+                for j in range(3):
+                    Phi[0:3, i_s + j] = -C[:, j] * (gyro[k, j] - b[j]) * dt
             Qd[:, :] = 0.0
             wdt2 = (w @ w) * dt * dt
             for i in range(3):
                 Qd[i, i] = q_att + q_sf * wdt2
                 Qd[3 + i, 3 + i] = q_bias * abs(dt)
+                if scale:
+                    Qd[i_s + i, i_s + i] = q_scale * abs(dt)
+            Cm = C @ rotvec_to_dcm(0.5 * dt * w)  # mid-interval attitude of the mean sample
+            if motion:
+                f_n = Cm @ acc[k]
+                Phi[i_v:i_v + 3, 0:3] = -skew(f_n) * dt  # dv_dot = -[f_n x] phi
+                for i in range(3):
+                    Phi[i_v + 3 + i, i_v + i] = dt
+                    Qd[i_v + i, i_v + i] = q_vel
+                p += v * dt + 0.5 * (f_n + g_n) * dt * dt
+                v += (f_n + g_n) * dt
             predict(x, P, Phi, Qd)
             C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
         out_nis_acc[k] = np.nan
         out_nis_mag[k] = np.nan
         out_nis_rng[k] = np.nan
         out_mag_ok[k] = True
-        # gravity: f_b = C^T f_n with f_n = -g_n (Eq. 5)
+        # gravity: f_b = C^T f_n with f_n = -g_n (Eq. 5), only while quasi-static
         if use & USE_ACC:
             f = acc[k]
             fn = np.sqrt(f @ f)
-            wg = gyro[k] - b
-            if abs(fn - gnorm) < acc_tol and np.sqrt(wg @ wg) < gyro_tol:
-                f_n = -g_n
+            if still[k] and abs(fn - gnorm) < acc_tol and np.sqrt(wg @ wg) < gyro_tol:
                 # an IMU row is the mean over (t_{k-1}, t_k]: compare with the mid-interval attitude
                 Cm = C
                 if k > 0:
                     Cm = C @ rotvec_to_dcm(-0.5 * (t[k] - t[k - 1]) * wg)
-                h = Cm.T @ f_n
-                H = np.zeros((3, 6))
-                H[:, 0:3] = Cm.T @ skew(f_n)
+                CmT = np.ascontiguousarray(Cm.T)
+                h = CmT @ f_n_down
+                H = np.zeros((3, n))
+                H[:, 0:3] = CmT @ skew(f_n_down)
                 z = f - h
                 R = np.eye(3) * r_acc
-                x[:] = 0.0
                 out_nis_acc[k] = update(x, P, z, H, R)
-                C = rotvec_to_dcm(x[0:3]) @ C
-                b += x[3:6]
-                x[:] = 0.0
+                C = _feedback(x, C, b, v, p, sf, i_v, i_s)
+        if motion and motion_every > 0 and k % motion_every == 0:
+            z = np.empty(6)
+            z[0:3] = -v
+            z[3:6] = -p
+            if still[k]:
+                for i in range(3):
+                    Rm[i, i] = zupt_sd**2
+            else:
+                for i in range(3):
+                    Rm[i, i] = motion_sd[0] ** 2
+            update(x, P, z, Hm, Rm)
+            C = _feedback(x, C, b, v, p, sf, i_v, i_s)
         # magnetic heading (Eq. 8): azimuth of the levelled field is the declination
         if use & USE_MAG:
             m = mag[k]
             if not np.isnan(m[0]):
-                v = C @ m
-                hn2 = v[0] * v[0] + v[1] * v[1]
+                vm = C @ m
+                hn2 = vm[0] * vm[0] + vm[1] * vm[1]
                 mn = np.sqrt(m @ m)
-                dip = np.arctan2(v[2], np.sqrt(hn2))
+                dip = np.arctan2(vm[2], np.sqrt(hn2))
                 ok = True
                 if mag_norm_tol > 0.0:
                     if abs(mn - mag_ref[0]) > mag_norm_tol or abs(dip - mag_ref[1]) > mag_dip_tol:
                         ok = False
                 out_mag_ok[k] = ok
                 if ok and hn2 > 1e-6:
-                    az = np.arctan2(v[1], v[0])
-                    H = np.zeros((1, 6))
-                    H[0, 0] = -v[0] * v[2] / hn2
-                    H[0, 1] = -v[1] * v[2] / hn2
+                    az = np.arctan2(vm[1], vm[0])
+                    H = np.zeros((1, n))
+                    H[0, 0] = -vm[0] * vm[2] / hn2
+                    H[0, 1] = -vm[1] * vm[2] / hn2
                     H[0, 2] = 1.0
                     z = np.empty(1)
                     z[0] = _wrap(decl - az)
                     R = np.empty((1, 1))
                     R[0, 0] = r_mag_ut / hn2
-                    x[:] = 0.0
-                    out_nis_mag[k] = update(x, P, z, H, R)
-                    C = rotvec_to_dcm(x[0:3]) @ C
-                    b += x[3:6]
-                    x[:] = 0.0
+                    nis = update(x, P, z, H, R)
+                    out_nis_mag[k] = nis
+                    C = _feedback(x, C, b, v, p, sf, i_v, i_s)
+                    if rec_nis > 0.0 and k > 0:
+                        a = min(1.0, (t[k] - t[k - 1]) / rec_tau_s)
+                        nis_avg += a * (nis - nis_avg)
+                        if nis_avg > rec_nis:
+                            # persistent heading inconsistency: re-open the heading variance
+                            P[2, 2] += z[0] * z[0]
+                            nis_avg = 0.0
         # three-beam range differences (exact plane geometry)
         if use & USE_RANGE:
             if not (np.isnan(rdiff[k, 0]) or np.isnan(rdiff[k, 1])):
                 hr, Hr, c = range_diff_model(C, n_wall, o2_b, o3_b)
                 if c > 0.2:
-                    H = np.zeros((2, 6))
+                    H = np.zeros((2, n))
                     H[:, 0:3] = Hr
                     z = rdiff[k] - hr
-                    S = Hr @ P[0:3, 0:3] @ Hr.T + r_rng
+                    Patt = np.ascontiguousarray(P[0:3, 0:3])
+                    S = Hr @ Patt @ np.ascontiguousarray(Hr.T) + r_rng
                     nis = z @ np.linalg.solve(S, z)
                     out_nis_rng[k] = nis
                     if rng_gate <= 0.0 or nis < rng_gate:
-                        x[:] = 0.0
                         update(x, P, z, H, r_rng)
-                        C = rotvec_to_dcm(x[0:3]) @ C
-                        b += x[3:6]
-                        x[:] = 0.0
+                        C = _feedback(x, C, b, v, p, sf, i_v, i_s)
         C = orthonormalize(C)
         out_C[k] = C
-        out_P[k] = P
+        out_P[k] = P[0:6, 0:6]
         out_bias[k] = b
+        out_scale[k] = sf
 
 
 @njit(cache=True)
@@ -237,7 +325,7 @@ def run_paper8(t, gyro_rfu, obs, obs_var, x0, P0, w_ie_enu, q_elem, r_floor, gat
             C[1, :] = x[3:6]
             C[2, 1] = x[6]
             C[2, 2] = x[7]
-            w = gyro_rfu[k] - C.T @ w_ie_enu  # Eq. 19
+            w = gyro_rfu[k] - np.ascontiguousarray(C.T) @ w_ie_enu  # Eq. 19
             F = _paper8_F(w)
             Fdt = F * dt
             Phi = np.eye(8) + Fdt + 0.5 * (Fdt @ Fdt)

@@ -63,6 +63,18 @@ class FilterSetup:
     baseline_13_m: float = 0.2
     range_gate_chi2: float = 0.0
     beta: float = 1.0
+    # bounded motion of a hand-held device (kernel USE_MOTION): SDs of its velocity and of its
+    # displacement from the mean position, and how often they are applied (~ their correlation time)
+    motion_sd_mps: float = 0.5
+    motion_sd_m: float = 0.3
+    motion_interval_s: float = 1.0
+    zupt_sd_mps: float = 0.02  # velocity SD of a device in a detected still period
+    heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
+    heading_recover_tau_s: float = 1.0
+    scale0: np.ndarray = field(default_factory=lambda: np.zeros(3))  # gyro scale-factor errors (USE_SCALE)
+    scale_sd: float = 0.005
+    scale_rw_per_rts: float = 1e-5
+    gravity_mps2: float | None = None  # measured |f| at rest (absorbs the accelerometer scale); None: normal gravity
 
 
 @dataclass(frozen=True)
@@ -81,6 +93,7 @@ class AttitudeSolution:
     nis: dict = field(default_factory=dict)
     mag_ok: np.ndarray | None = None
     mag_gated: bool = False  # True: LF1 already dropped the samples with mag_ok False
+    scale: np.ndarray | None = None  # (N,3) gyro scale-factor error estimates (USE_SCALE)
     x8: np.ndarray | None = None  # paper8 model only: the 8 DCM states (N,8) and covariance
     P8: np.ndarray | None = None
 
@@ -135,28 +148,35 @@ def _nav_vectors(setup: FilterSetup):
 
 
 def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: FilterSetup, use: int,
-             backward: bool = False) -> AttitudeSolution:
+             backward: bool = False, still=None) -> AttitudeSolution:
     """Run the full-attitude error-state local filter (forward, or backward in time).
 
     `use` is a combination of `_kernels.USE_ACC | USE_MAG | USE_RANGE` (0: gyro only).
     Backward: the same kernel on time-reversed samples with negated rates (the rate of row k
     covers (t_{k-1}, t_k], so it moves one row when reversed); `setup.C0`, `bias0_rps` are then
-    the state at the LAST sample.
+    the state at the LAST sample. `still` (N,) bool marks detected still periods (default: all),
+    the only samples where gravity is measured directly.
     """
     n = t_s.size
     noise = setup.noise
     w_ie, g_n = _nav_vectors(setup)
+    if setup.gravity_mps2 is not None:
+        g_n = np.array([0.0, 0.0, float(setup.gravity_mps2)])
     mag = np.full((n, 3), np.nan) if mag_b_ut is None else np.asarray(mag_b_ut, dtype=float)
     rd = np.full((n, 2), np.nan) if rdiff_m is None else np.asarray(rdiff_m, dtype=float)
     gyro = np.asarray(gyro_b_rps, dtype=float)
     acc = np.asarray(acc_b_mps2, dtype=float)
     t = np.asarray(t_s, dtype=float)
+    st = np.ones(n, dtype=np.bool_) if still is None else np.asarray(still, dtype=np.bool_)
     bias0 = np.asarray(setup.bias0_rps, dtype=float)
     if backward:
         t = -t[::-1]
         g = np.zeros_like(gyro)
         g[1:] = -gyro[::-1][:-1]  # reversed interval j covers original (t_{N-1-j}, t_{N-j}]
-        gyro, acc, mag, rd = g, acc[::-1], mag[::-1], rd[::-1]
+        a = np.empty_like(acc)
+        a[1:] = acc[::-1][:-1]  # the specific force is an interval mean too (not negated)
+        a[0] = acc[-1]
+        gyro, acc, mag, rd, st = g, a, mag[::-1], rd[::-1], st[::-1]
         w_ie = -w_ie
         bias0 = -bias0
     beta = setup.beta
@@ -164,14 +184,19 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     o3 = np.array([0.0, 0.0, setup.baseline_13_m])  # LR3 below LR1 (FRD z is down)
     r_rng = noise.range_sigma_m**2 * np.array([[2.0, 1.0], [1.0, 2.0]])  # d1 shared by both
     r_acc = noise.acc_noise_mps2**2
+    motion_share = 1.0
     if (use & K.USE_RANGE) and (use & K.USE_ACC):
         # LF2 levels with the accelerometer too (roll is unobservable from the beams alone), with
         # its information share only (R / beta), so that the accelerometer LF1 also uses is not
         # counted twice in full by the master fusion
         r_acc = r_acc / beta
+        motion_share = beta
+    else:
+        motion_share = 1.0
     out_C = np.empty((n, 3, 3))
     out_P = np.empty((n, 6, 6))
     out_b = np.empty((n, 3))
+    out_s = np.empty((n, 3))
     nis_a, nis_m, nis_r = np.empty(n), np.empty(n), np.empty(n)
     mag_ok = np.empty(n, dtype=np.bool_)
     dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
@@ -187,10 +212,14 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),
         setup.mag_norm_tol_ut, setup.mag_dip_tol_rad,
         np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3, r_rng, setup.range_gate_chi2,
+        (noise.acc_noise_mps2 * dt_mean) ** 2, np.array([setup.motion_sd_mps, setup.motion_sd_m]) / np.sqrt(motion_share),
+        max(1, int(round(setup.motion_interval_s / dt_mean))), setup.heading_recover_nis, setup.heading_recover_tau_s,
+        np.ascontiguousarray(setup.scale0, dtype=float), setup.scale_sd**2 / beta, setup.scale_rw_per_rts**2 / beta,
+        np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share), out_s,
         out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok,
     )
     if backward:
-        out_C, out_P, out_b = out_C[::-1], out_P[::-1], -out_b[::-1]
+        out_C, out_P, out_b, out_s = out_C[::-1], out_P[::-1], -out_b[::-1], out_s[::-1]
         nis_a, nis_m, nis_r, mag_ok = nis_a[::-1], nis_m[::-1], nis_r[::-1], mag_ok[::-1]
     return AttitudeSolution(
         name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(out_C),
@@ -198,6 +227,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         nis={"acc": nis_a, "mag": nis_m, "range": nis_r},
         mag_ok=mag_ok if (use & K.USE_MAG) else None,
         mag_gated=bool((use & K.USE_MAG) and setup.mag_norm_tol_ut > 0.0),
+        scale=out_s if (use & K.USE_SCALE) else None,
     )
 
 

@@ -17,12 +17,13 @@ import pandas as pd
 from tpos_cli import smoothing
 from tpos_cli.config import parse_params
 from tpos_cli.errors import InvalidInputError, ProcessingError
-from tpos_cli.frames.earth import meridian_radius_m, transverse_radius_m
+from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.frames.rotation import dcm_to_euler
-from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance
+from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, measured_white_noise
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.pipeline import ChainOutput, RunContext
 from tpos_cli.session import Session
+from tpos_cli.targeting import geolocate
 
 G0_MPS2 = 9.80665
 DEG = np.pi / 180.0
@@ -64,14 +65,24 @@ class DriveSmoothParams:
 _DEFAULT_NOISE = {"gyro_noise_dps": 0.01, "acc_noise_mg": 2.0, "gyro_bias_dph": 20.0, "acc_bias_mg": 10.0}
 
 
-def _noise(p: DriveSmoothParams, session: Session) -> dict:
-    out = {}
+def _noise(p: DriveSmoothParams, session: Session) -> tuple[dict, dict]:
+    """Noise figures (contract units) and where each came from: pipeline, session, or, for the
+    white noise when neither gives it, the larger of the MEMS default and the log's own
+    sample-to-sample scatter (real platforms vibrate far above data-sheet noise)."""
+    out, src = {}, {}
+    measured = {"gyro_noise_dps": np.degrees(measured_white_noise(session.imu.gyro_b_rps)),
+                "acc_noise_mg": measured_white_noise(session.imu.acc_b_mps2) / (1e-3 * G0_MPS2)}
     for key, default in _DEFAULT_NOISE.items():
-        v = getattr(p, key)
+        v, where = getattr(p, key), "pipeline"
         if v is None:
-            v = getattr(session.meta.imu_noise, key, None)
-        out[key] = float(default if v is None else v)
-    return out
+            v, where = getattr(session.meta.imu_noise, key, None), "session"
+        if v is None and key in measured:
+            v, where = max(default, float(measured[key])), "measured from the log (or default, the larger)"
+        if v is None:
+            v, where = default, "default"
+        out[key] = float(v)
+        src[key] = where
+    return out, src
 
 
 def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
@@ -157,15 +168,19 @@ class DriveResult:
 
 
 def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None = None,
-                  names=("forward", "backward", "smoothed")) -> DriveResult:
-    """Align, filter forward and backward, smooth; `names` picks the solutions computed."""
+                  names=("forward", "backward", "smoothed"), extra_idx=None) -> DriveResult:
+    """Align, filter forward and backward, smooth; `names` picks the solutions computed.
+
+    Solutions are evaluated at the output rate plus the IMU sample indices `extra_idx` (e.g.
+    range epochs for targeting); `DriveResult.out_idx` lists them all, sorted.
+    """
     stage = ctx.stage if ctx is not None else _nostage
     imu = session.imu
     t = np.ascontiguousarray(imu.t_s, dtype=float)
     gyro = np.ascontiguousarray(imu.gyro_b_rps, dtype=float)
     acc = np.ascontiguousarray(imu.acc_b_mps2, dtype=float)
     rate = (t.size - 1) / (t[-1] - t[0])
-    nz = _noise(p, session)
+    nz, nz_src = _noise(p, session)
     lever = np.asarray(session.meta.lever_arm_b_m, dtype=float)
     fixes = fixes_from_session(session, p)
     sig = InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps, p.init_sigma_level_deg * DEG,
@@ -173,6 +188,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("alignment"):
         init, info = align_vehicle(t, gyro, acc, imu.mag_b_ut, fixes, lever, sig, min_speed_mps=p.heading_min_speed_mps,
                                    declination_rad=(session.meta.declination_deg or 0.0) * DEG)
+        info["imu_noise"] = {k: {"value": round(v, 6), "source": nz_src[k]} for k, v in nz.items()}
     sb_a = p.acc_bias_inrun_mg * 1e-3 * G0_MPS2
     sb_g = p.gyro_bias_inrun_dph * DEG / 3600
     q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate, (nz["gyro_noise_dps"] * DEG) ** 2 / rate,
@@ -184,6 +200,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     out_idx = np.arange(0, t.size, step)
     if out_idx[-1] != t.size - 1:
         out_idx = np.append(out_idx, t.size - 1)
+    if extra_idx is not None and len(extra_idx):
+        out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
     sols = {}
     with stage("forward"):
         fwd = run_insgps(t, gyro, acc, fixes, init, cfg, store_rts=need_rts)
@@ -223,6 +241,54 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     return DriveResult(t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info)
 
 
+def range_epochs(session: Session):
+    """(idx (K,), range_m (K,), shot (K,)): IMU sample nearest each LR1 return inside a shot window."""
+    if session.ranges is None or session.shots is None:
+        return None
+    t = session.imu.t_s
+    tr, d1 = session.ranges.t_s, session.ranges.range_m[:, 0]
+    idx, rng, shot = [], [], []
+    for k in range(len(session.shots.ids)):
+        m = (tr >= session.shots.t_start_s[k]) & (tr <= session.shots.t_end_s[k]) & np.isfinite(d1)
+        i = np.clip(np.searchsorted(t, tr[m]), 0, t.size - 1)
+        i0 = np.clip(i - 1, 0, t.size - 1)
+        i = np.where(np.abs(t[i0] - tr[m]) < np.abs(t[i] - tr[m]), i0, i)
+        idx.append(i)
+        rng.append(d1[m])
+        shot.append(np.full(i.size, k))
+    if not idx:
+        return None
+    return np.concatenate(idx), np.concatenate(rng), np.concatenate(shot)
+
+
+def geolocate_shots(session: Session, sol: smoothing.Solution, epochs, sigma_range_m: float) -> pd.DataFrame:
+    """Targets of the shots from a solution at the range epochs (paper 001 with `targeting.geolocate`).
+
+    Each range epoch is geolocated with the solution's position and attitude covariances; a
+    shot's target is the mean over its epochs. Its covariance is the mean of the epochs'
+    covariances, not divided by their number: within a shot of a few seconds the trajectory
+    errors that dominate are the same at every epoch (only the range noise would average out).
+    """
+    idx, rng, shot = epochs
+    k = np.searchsorted(sol.idx, idx)
+    lla = np.column_stack([np.degrees(sol.nav[k, 0]), np.degrees(sol.nav[k, 1]), sol.nav[k, 2]])
+    fix = geolocate(lla, sol.C_nb[k], rng, P_att_rad2=sol.P9[k, 6:9, 6:9], sigma_range_m=sigma_range_m,
+                    P_obs_ned_m2=sol.P9[k, 0:3, 0:3])
+    rows = []
+    t0 = session.t0_s
+    for s_i in np.unique(shot):
+        m = shot == s_i
+        ref = fix.lla[m][0]
+        mean_ned = lla_to_ned(fix.lla[m], ref).mean(axis=0)
+        pos = ned_to_lla(mean_ned, ref)
+        sd = np.sqrt(np.clip(np.diagonal(fix.cov_ned_m2[m].mean(axis=0)), 0.0, None))
+        rows.append({"id": session.shots.ids[s_i], "t_start": session.shots.t_start_s[s_i] + t0,
+                     "t_end": session.shots.t_end_s[s_i] + t0, "range_m": float(np.mean(rng[m])),
+                     "lat": float(pos[0]), "lon": float(pos[1]), "h": float(pos[2]), "solution": sol.name,
+                     "sigma_n": sd[0], "sigma_e": sd[1], "sigma_u": sd[2], "n_ranges": int(m.sum())})
+    return pd.DataFrame(rows)
+
+
 class _nostage:
     def __init__(self, name):
         pass
@@ -241,9 +307,23 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
     if p.cov_step_s <= 0 or p.output_rate_hz < 0 or p.bias_tau_s <= 0:
         raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
     names = ["forward", "backward", "smoothed"] + (list(SMOOTHERS) if p.compare else [])
-    res = process_drive(session, p, ctx, names)
+    epochs = range_epochs(session)
+    res = process_drive(session, p, ctx, names, extra_idx=None if epochs is None else epochs[0])
     t = res.t_s
+    targets = None
+    if epochs is not None:
+        with ctx.stage("targeting"):
+            rf = session.meta.rangefinders
+            sig_r = float(rf.sigma_m) if rf is not None and rf.sigma_m is not None else 0.0
+            targets = geolocate_shots(session, res.solutions["smoothed"], epochs, sig_r)
+        ctx.count("targets", len(targets))
     with ctx.stage("outputs"):
+        step = 1 if p.output_rate_hz <= 0 else max(1, int(round((t.size - 1) / (t[-1] - t[0]) / p.output_rate_hz)))
+        keep = (res.out_idx % step == 0) | (res.out_idx == t.size - 1)
+        if epochs is not None:
+            res = dataclasses.replace(res, out_idx=res.out_idx[keep], flag=res.flag[keep], solutions={
+                k: smoothing.Solution(v.name, v.idx[keep], v.nav[keep], v.C_nb[keep], v.P9[keep])
+                for k, v in res.solutions.items()})
         tt = t[res.out_idx]
         outage = np.zeros(tt.size, dtype=bool)
         for a, b in res.outages_s:
@@ -274,4 +354,4 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         "outages_s": (res.outages_s + session.t0_s).tolist(),
         "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
     }
-    return ChainOutput(trajectory=traj, tables={"innovations": innov}, summary=summary)
+    return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov}, summary=summary)

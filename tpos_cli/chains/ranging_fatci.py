@@ -1,33 +1,40 @@
 """The `ranging_fatci` chain (paper 002): IMU + ranges to anchors -> `lc`, `tc`, `fatci` solutions.
 
-Stages: range error model (Eq. 13-16) from `range_calibration`; floor height and initial state
-from least-squares fixes; forward INS/range filters (`tpos_cli.ranging.filter`) with innovation
-gating and coasting report. No backward run or smoothing yet.
+Stages: range error model (Eq. 13-16) from `range_calibration`; floor height, stationary intervals
+(IMU confirmed by the fixes) and initial state from least-squares fixes; forward INS/range filters
+(`tpos_cli.ranging.filter`) with innovation gating, zero-velocity updates and coasting report;
+then the `smoothed` solution: the `smooth_source` filter (default `fatci`) smoothed with
+`tpos_cli.smoothing` (RTS on its forward run, or the two-filter combination with a backward run,
+as the INS/GPS pipeline). The ranging node is assumed at the IMU (zero lever arm).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
 
+from tpos_cli import smoothing
 from tpos_cli.alignment import level_rad
 from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import geodetic
+from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
 from tpos_cli.pipeline import ChainOutput, RunContext
 from tpos_cli.ranging.calibration import fit_range_model, identity_model
 from tpos_cli.ranging.filter import (
-    EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,
-    fix_events, fuzzy_range_variance, range_events, run_filter,
+    EV_FIX_NE, EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,
+    end_state, fix_events, fuzzy_range_variance, range_events, run_filter, zupt_events,
 )
 from tpos_cli.ranging.fuzzy import fuzzy_system_from_params
 from tpos_cli.ranging.multilateration import group_epochs, ls_fix
+from tpos_cli.ranging.stillness import stationary_intervals
 from tpos_cli.session import Session
 
 G0 = 9.80665
 SOLUTIONS = ("lc", "tc", "fatci")
+SMOOTHERS = ("rts", "two_filter")
 
 
 @dataclass(frozen=True)
@@ -35,7 +42,11 @@ class RangingParams:
     """`[ranging_fatci]`; units in the key names. See pipelines/ranging-fatci.toml for meanings."""
 
     solutions: tuple[str, ...] = SOLUTIONS
+    smoothed: bool = True
+    smooth_source: str = "fatci"
+    smoother: str = "rts"
     output_rate_hz: float = 10.0
+    cov_step_s: float = 0.1
     calibration_scale: str = "shared"
     calibration_reject_sigma: float = 4.0
     sd_poly_degree: int = 1
@@ -47,9 +58,15 @@ class RangingParams:
     gate_probability: float = 0.999
     gate_max_consecutive: int = 20
     coast_gap_s: float = 0.5
-    align_distance_m: float = 3.0
+    align_distance_m: float = 8.0
+    align_max_turn_deg: float = 5.0
     level_window_s: float = 1.0
-    static_acc_sd_mps2: float = 0.1
+    zupt: bool = True
+    zupt_sd_mps: float = 0.02
+    zupt_rate_hz: float = 10.0
+    zupt_max_speed_mps: float = 0.05
+    zupt_acc_step_mps2: float = 0.05
+    zupt_min_duration_s: float = 1.0
     initial_position_sd_m: float = 0.3
     initial_velocity_sd_mps: float = 0.1
     initial_level_sd_deg: float = 1.0
@@ -77,11 +94,18 @@ def _check(p: RangingParams) -> None:
             raise InvalidInputError(f"pipeline [ranging_fatci.{name}]: must be > 0, got {getattr(p, name)}")
     if not 0.0 < p.gate_probability < 1.0:
         raise InvalidInputError("pipeline [ranging_fatci.gate_probability]: must be in (0, 1)")
+    if p.smoothed and p.smooth_source not in p.solutions:
+        raise InvalidInputError(f"pipeline [ranging_fatci.smooth_source]: {p.smooth_source!r} is not among solutions {list(p.solutions)}")
+    if p.smoother not in SMOOTHERS:
+        raise InvalidInputError(f"pipeline [ranging_fatci.smoother]: must be one of {SMOOTHERS}, got {p.smoother!r}")
+    for name in ("cov_step_s", "zupt_sd_mps", "zupt_rate_hz", "zupt_max_speed_mps", "zupt_acc_step_mps2"):
+        if not getattr(p, name) > 0:
+            raise InvalidInputError(f"pipeline [ranging_fatci.{name}]: must be > 0, got {getattr(p, name)}")
     if p.lc_min_anchors < 3:
         raise InvalidInputError("pipeline [ranging_fatci.lc_min_anchors]: a horizontal fix needs at least 3")
 
 
-def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_every: int) -> FilterConfig:
+def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_every: int, cov_step: int) -> FilterConfig:
     n = session.meta.imu_noise
     gyro_noise = n.gyro_noise_dps if n.gyro_noise_dps is not None else p.gyro_noise_dps
     acc_noise = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
@@ -102,7 +126,7 @@ def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_e
     ])
     return FilterConfig(q=q, tau_acc_s=0.0, tau_gyro_s=0.0, q_range_bias_m2ps=p.range_bias_rw_m_per_sqrt_s**2,
                         sd0=sd0, gate_probability=p.gate_probability,
-                        max_consecutive_rejects=p.gate_max_consecutive, output_every=output_every)
+                        max_consecutive_rejects=p.gate_max_consecutive, output_every=output_every, cov_step=cov_step)
 
 
 def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> float:
@@ -128,9 +152,10 @@ def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> 
     return float(np.median(downs))
 
 
-def _initial_state(session: Session, fixes: Events, p: RangingParams) -> InitialState:
-    """Position from the first fix, velocity from a line through 1 s of fixes, level from the
-    accelerometers, yaw from the track of the fixes once the node has moved align_distance_m."""
+def _initial_state(session: Session, fixes: Events, still, p: RangingParams) -> InitialState:
+    """Position from the first fix; at rest (inside a stationary interval: v = 0, level over that
+    interval) or moving (velocity from a line through 1 s of fixes, level over level_window_s);
+    yaw from the track of the fixes once the node has moved align_distance_m."""
     if fixes.t_s.size < 2:
         raise InvalidInputError("anchor_ranges: no epoch has enough anchors for a first position fix")
     t_imu = session.imu.t_s
@@ -140,30 +165,55 @@ def _initial_state(session: Session, fixes: Events, p: RangingParams) -> Initial
         raise InvalidInputError("anchor_ranges: the first position fix is after the end of the IMU log")
     # running median over ~1 s of fixes: the start and the track ignore single bad fixes
     half = 5
-    z_med = np.array([np.median(fixes.z[max(0, i - half):i + half + 1], axis=0) for i in range(fixes.t_s.size)])
-    lvl = (t_imu >= t_imu[k0]) & (t_imu <= t_imu[k0] + p.level_window_s)
-    acc_w, gyro_w = session.imu.acc_b_mps2[lvl], session.imu.gyro_b_rps[lvl]
-    roll, pitch = (float(v) for v in level_rad(acc_w.mean(axis=0)))
-    # static start (specific force and rate steady to sensor-noise level): zero velocity, which
-    # beats a line through 1 s of noisy fixes (~0.2 m/s SD with 0.2 m cross-corridor fix noise)
-    static = np.linalg.norm(acc_w.std(axis=0)) < p.static_acc_sd_mps2 and np.linalg.norm(gyro_w.mean(axis=0)) < np.radians(1.0)
+    z_med = np.array([np.median(fixes.z[max(0, i - half):i + half + 1, :2], axis=0) for i in range(fixes.t_s.size)])
+    rest = [(a, b) for a, b in still if a <= t_imu[k0] + 0.5 and b > t_imu[k0]]
+    t_lvl = rest[0][1] if rest else t_imu[k0] + p.level_window_s
+    lvl = (t_imu >= t_imu[k0]) & (t_imu <= t_lvl)
+    roll, pitch = (float(v) for v in level_rad(session.imu.acc_b_mps2[lvl].mean(axis=0)))
     w = fixes.t_s <= t_first + 1.0
     vel_ne = np.zeros(2)
-    if not static and w.sum() >= 3:
-        vel_ne = np.polyfit(fixes.t_s[w] - t_first, fixes.z[w], 1)[0]
-    # yaw: principal direction of the (median-filtered) fixes from the start until the node has
-    # moved align_distance_m, signed by the displacement (the vehicle moves along its forward axis)
-    moved = np.hypot(*(z_med - z_med[0]).T) > p.align_distance_m
+    if not rest and w.sum() >= 3:
+        vel_ne = np.polyfit(fixes.t_s[w] - t_first, fixes.z[w, :2], 1)[0]
+    # yaw: principal direction of the (median-filtered) fixes over a straight stretch, signed by
+    # the displacement (the vehicle moves along its forward axis), carried back to k0 through the
+    # gyros. The stretch runs from the start until the node has moved align_distance_m or has
+    # turned by align_max_turn_deg (gyro heading), whichever comes first: the longer the
+    # straight track, the smaller the yaw error from the cross-track fix noise.
+    C_lvl = euler_to_dcm(roll, pitch, 0.0)
+    w_down = (session.imu.gyro_b_rps[k0:] @ C_lvl.T)[:, 2]  # heading rate of a nearly level node
+    psi = np.concatenate([[0.0], np.cumsum(w_down[1:] * np.diff(t_imu[k0:]))])  # gyro heading change since k0
+    psi_fix = np.interp(fixes.t_s, t_imu[k0:], psi)
+    dist = np.hypot(*(z_med - z_med[0]).T)
+    turned = np.abs(psi_fix - psi_fix[0]) > np.radians(p.align_max_turn_deg)
+    far = dist > p.align_distance_m
     yaw = 0.0
-    if moved.any():
-        j = int(np.argmax(moved))
+    stop = far | turned
+    j = int(np.argmax(stop)) if stop.any() else fixes.t_s.size - 1
+    if dist[: j + 1].max() > 0.5 * p.align_distance_m:  # enough track for a heading
         seg = z_med[: j + 1] - z_med[: j + 1].mean(axis=0)
         u = np.linalg.svd(seg, full_matrices=False)[2][0]
         d = z_med[j] - z_med[0]
         u = u if u @ d >= 0 else -u
-        yaw = float(np.arctan2(u[1], u[0]))
+        moving = dist[: j + 1] > 0.2 * p.align_distance_m  # where the track direction is the heading
+        yaw = float(np.arctan2(u[1], u[0]) - np.mean(psi_fix[: j + 1][moving]))
     return InitialState(k0=k0, lla=np.zeros(3), vel_ned_mps=np.array([vel_ne[0], vel_ne[1], 0.0]),
                         rpy_rad=np.array([roll, pitch, yaw]))
+
+
+def _solution_frame(sol: smoothing.Solution, name: str, t_run_s, t0_s: float) -> pd.DataFrame:
+    """Trajectory rows of a smoothed `Solution` (attitude SDs: of the nav-frame error phi, as the filters)."""
+    r, pt, y = dcm_to_euler(sol.C_nb)
+    sd = np.sqrt(np.clip(np.diagonal(sol.P9, axis1=1, axis2=2), 0.0, None))
+    n = sol.idx.size
+    return pd.DataFrame({
+        "t": t_run_s[sol.idx] + t0_s, "lat": np.degrees(sol.nav[:, 0]), "lon": np.degrees(sol.nav[:, 1]),
+        "h": sol.nav[:, 2], "vn": sol.nav[:, 3], "ve": sol.nav[:, 4], "vd": sol.nav[:, 5],
+        "roll": np.degrees(r), "pitch": np.degrees(pt), "yaw": np.degrees(y), "solution": name,
+        "sigma_n": sd[:, 0], "sigma_e": sd[:, 1], "sigma_u": sd[:, 2],
+        "sigma_vn": sd[:, 3], "sigma_ve": sd[:, 4], "sigma_vd": sd[:, 5],
+        "sigma_roll": np.degrees(sd[:, 6]), "sigma_pitch": np.degrees(sd[:, 7]), "sigma_yaw": np.degrees(sd[:, 8]),
+        "range_bias_m": np.full(n, np.nan),  # the smoothers carry the 15 navigation states only
+    })
 
 
 def _trajectory(run: FilterRun, name: str, t0_s: float) -> pd.DataFrame:
@@ -213,14 +263,28 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
     imu = session.imu
     imu_dt = float(np.median(np.diff(imu.t_s)))
     out_every = max(1, int(round(1.0 / (p.output_rate_hz * imu_dt))))
-    cfg = _filter_config(session, p, imu_dt, out_every)
+    cfg = _filter_config(session, p, imu_dt, out_every, max(1, int(round(p.cov_step_s / imu_dt))))
 
     with ctx.stage("initial_alignment"):
         floor_d = _floor_down(anchors_ned, t, a, r, sd_fit, p, ctx)
         fixes, n_nofix = fix_events(t, a, r, sd_fit, anchors_ned, floor_d, p.lc_min_anchors, p.epoch_window_s,
                                     p.gate_probability)
-        init = _initial_state(session, fixes, p)
-        z0 = np.median(fixes.z[fixes.t_s <= fixes.t_s[0] + 1.0], axis=0)  # robust start: 1 s of fixes
+        still = stationary_intervals(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, t, a, r,
+                                      min_duration_s=p.zupt_min_duration_s, acc_step_mps2=p.zupt_acc_step_mps2,
+                                      max_speed_mps=p.zupt_max_speed_mps)
+        init = _initial_state(session, fixes, still, p)
+        # robust start: median of the fixes over the first second, or over the whole stationary
+        # interval when the node starts at rest (the cross-corridor SD of one fix is ~0.4 m)
+        rest = [b for a_, b in still if a_ <= fixes.t_s[0] + 0.5 and b > fixes.t_s[0]]
+        zw = fixes.z[fixes.t_s <= (rest[0] if rest else fixes.t_s[0] + 1.0), :2]
+        z0 = np.median(zw, axis=0)
+        # SD of that median (1.25 x SD / sqrt(n) for Gaussian scatter, MAD-based against NLOS
+        # fixes), so that the first ranges do not pull a well-averaged start around
+        mad_sd = 1.4826 * np.median(np.abs(zw - z0), axis=0)
+        sd_start = np.maximum(1.2533 * mad_sd / np.sqrt(zw.shape[0]), 0.02)
+        sd0 = cfg.sd0.copy()
+        sd0[:2] = np.minimum(sd_start, p.initial_position_sd_m)
+        cfg = replace(cfg, sd0=sd0)
         p0 = np.array([z0[0], z0[1], floor_d])
         init = InitialState(init.k0, geodetic.ned_to_lla(p0, origin), init.vel_ned_mps, init.rpy_rad)
         results["floor_down_m"] = floor_d
@@ -229,10 +293,16 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
                                     "rpy_deg": [float(v) for v in np.degrees(init.rpy_rad)]}
         results["lc_fixes"] = int(fixes.t_s.size)
         results["lc_epochs_without_fix"] = int(n_nofix)
+        results["stationary_intervals"] = [[a_ + session.t0_s, b + session.t0_s] for a_, b in still]
 
-    floor = down_events(np.unique(t), floor_d, p.floor_sd_m)
+    common = [down_events(np.unique(t), floor_d, p.floor_sd_m)]
+    if p.zupt and still:
+        step = 1.0 / p.zupt_rate_hz
+        tz = np.concatenate([np.arange(a_, b + 1e-9, step) for a_, b in still])
+        common.append(zupt_events(tz, p.zupt_sd_mps))
+        ctx.count("zero_velocity_updates", int(tz.size))
     pooled = model.pooled_sd_m
-    trajs, innov, per_sol = [], [], {}
+    trajs, innov, per_sol, runs = [], [], {}, {}
     for name in p.solutions:
         with ctx.stage(f"filter_{name}"):
             extra: dict = {}
@@ -244,34 +314,70 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
                 R, S = fuzzy_range_variance(fis, sd_fit, pooled, p.fuzzy_exponent_b)
                 ev = range_events(t, a, r, R)
                 extra["fuzzy_S"] = {"min": float(S.min()), "median": float(np.median(S)), "max": float(S.max())}
-            runf = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, init, Events.merge(ev, floor),
-                              anchors_ned, origin, cfg)
+            store = p.smoothed and name == p.smooth_source and p.smoother == "rts"
+            runf = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, init, Events.merge(ev, *common),
+                              anchors_ned, origin, cfg, store_rts=store)
+        runs[name] = runf
         trajs.append(_trajectory(runf, name, session.t0_s))
-        evs = runf.events
-        aid = evs.kind != 2
-        rej = aid & ~runf.ev_accepted & (runf.ev_nis >= 0)
-        if name == "lc":
-            rejections = {"fix": int(rej.sum())}
-        else:
-            rejections = {anchors.ids[i]: int(np.sum(rej & (evs.anchor == i) & (evs.kind == EV_RANGE))) for i in range(A)}
-        coast = coasting_intervals(runf, p.coast_gap_s)
+        per_sol[name] = _report(runf, name, anchors.ids, session.t0_s, p, ctx) | extra
+        innov.append(_innovations(runf, name, anchors.ids, session.t0_s))
+    if p.smoothed:
+        src = runs[p.smooth_source]
+        with ctx.stage("smoothing"):
+            if p.smoother == "rts":
+                sol = smoothing.rts(src, src.t_run_s, src.out_idx)
+                per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "rts"}
+            else:
+                # backward from the forward end state with the initial SDs (as the INS/GPS chain),
+                # so that the two runs share nothing but that rough start
+                bwd = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, end_state(src), src.events, anchors_ned,
+                                 origin, cfg, backward=True)
+                fwd15 = _nav15(src)
+                sol, flag, _ = smoothing.two_filter(fwd15, _nav15(bwd), src.t_run_s, src.out_idx)
+                per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "two_filter",
+                                       "forward_backward_disagreements": int(flag.sum())}
+                per_sol["smoothed"]["backward"] = _report(bwd, "backward", anchors.ids, session.t0_s, p, None)
+        trajs.append(_solution_frame(sol, "smoothed", src.t_run_s, session.t0_s))
+    results["solutions"] = per_sol
+    results["config"] = {"ranging_fatci": params_to_dict(p)}
+    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
+                       summary=results)
+
+
+def _nav15(run: FilterRun) -> FilterRun:
+    """The run with its covariances reduced to the 15 navigation states (the smoothers' layout)."""
+    return replace(run, ep_P=np.ascontiguousarray(run.ep_P[:, :15, :15]))
+
+
+def _report(runf: FilterRun, name: str, ids, t0_s: float, p: RangingParams, ctx: RunContext | None) -> dict:
+    """Summary of one filter run: aiding events, gating rejections, coasting; counts and warnings to ctx."""
+    evs = runf.events
+    aid = (evs.kind == EV_RANGE) | (evs.kind == EV_FIX_NE)
+    rej = aid & ~runf.ev_accepted & (runf.ev_nis >= 0)
+    if name == "lc":
+        rejections = {"fix": int(rej.sum())}
+    else:
+        rejections = {ids[i]: int(np.sum(rej & (evs.anchor == i) & (evs.kind == EV_RANGE))) for i in range(len(ids))}
+    coast = coasting_intervals(runf, p.coast_gap_s)
+    if ctx is not None:
         for k, v in rejections.items():
             ctx.count(f"{name}_gated_{k}", v)
         if coast:
             ctx.warn(f"ranging {name}: coasted on the INS alone for {len(coast)} interval(s), "
                      f"{sum(b - a_ for a_, b in coast):.1f} s in total")
-        per_sol[name] = {
-            "aiding_events": int(aid.sum()), "accepted": int((aid & runf.ev_accepted).sum()),
-            "gating_rejections": rejections,
-            "coasting_intervals": [[a_ + session.t0_s, b + session.t0_s] for a_, b in coast],
-            "final_range_bias_m": float(runf.range_bias_m[-1]), **extra,
-        }
-        innov.append(pd.DataFrame({
-            "t": evs.t_s[aid] + session.t0_s, "solution": name, "kind": np.where(evs.kind[aid] == EV_RANGE, "range", "fix"),
-            "anchor": [anchors.ids[i] if i >= 0 else "" for i in evs.anchor[aid]],
-            "nis": runf.ev_nis[aid], "accepted": runf.ev_accepted[aid],
-        }))
-    results["solutions"] = per_sol
-    results["config"] = {"ranging_fatci": params_to_dict(p)}
-    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
-                       summary=results)
+    return {
+        "aiding_events": int(aid.sum()), "accepted": int((aid & runf.ev_accepted).sum()),
+        "gating_rejections": rejections,
+        "coasting_intervals": [[a_ + t0_s, b + t0_s] for a_, b in coast],
+        "final_range_bias_m": float(runf.range_bias_m[-1]),
+    }
+
+
+def _innovations(runf: FilterRun, name: str, ids, t0_s: float) -> pd.DataFrame:
+    evs = runf.events
+    aid = (evs.kind == EV_RANGE) | (evs.kind == EV_FIX_NE)
+    return pd.DataFrame({
+        "t": evs.t_s[aid] + t0_s, "solution": name, "kind": np.where(evs.kind[aid] == EV_RANGE, "range", "fix"),
+        "anchor": [ids[i] if i >= 0 else "" for i in evs.anchor[aid]],
+        "nis": runf.ev_nis[aid], "accepted": runf.ev_accepted[aid],
+    })

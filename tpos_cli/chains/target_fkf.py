@@ -21,6 +21,7 @@ from tpos_cli import alignment as al
 from tpos_cli import magnetic, targeting
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude import faults, master
+from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.attitude.local import (
     AttitudeSolution, FilterNoise, FilterSetup, euler_sigma_deg, range_differences, run_full, run_paper8,
 )
@@ -61,8 +62,20 @@ class TargetFkfParams:
     static_gyro_tol_dps: float = 1.5
     static_acc_sd_tol_mps2: float = 0.15
     align_mag_step_tol_ut: float = 3.0
-    # LF1 gating
+    noise_from_static: bool = True  # figures session.toml lacks: measured in the alignment window
+    gravity_from_static: bool = True  # gravity magnitude = mean |f| in the alignment window
+    # LF1/LF2 accelerometer aiding: gravity update while quasi-static, bounded motion otherwise
     acc_static_tol_mps2: float = 0.5
+    gyro_static_tol_dps: float = 30.0
+    motion_model: bool = True
+    gyro_scale_states: bool = False  # estimate the three gyro scale-factor errors
+    gyro_scale_sd_pct: float = 0.5
+    motion_sd_mps: float = 0.5
+    motion_sd_m: float = 0.3
+    motion_interval_s: float = 1.0
+    smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
+    heading_recover_nis: float = 0.0  # > 0: LF1 re-opens its heading variance when the mean mag NIS exceeds it
+    # LF1 gating
     mag_norm_tol_ut: float = 4.0  # <= 0 disables the field-magnitude/dip check
     mag_dip_tol_deg: float = 3.0
     # LF2 gating
@@ -73,13 +86,42 @@ class TargetFkfParams:
     fault: FaultParams = field(default_factory=FaultParams)
 
 
-def _noise(session: Session, p: TargetFkfParams) -> FilterNoise:
+def static_noise(imu, win) -> dict:
+    """Per-sample white-noise SDs (gyro dps, acc mg, mag uT; RMS over axes) measured in a still window.
+
+    A hand-held device trembles a little, so these are upper bounds of the sensor noise: safe
+    figures for the filters. None where the window is too short (< 50 samples) or no magnetometer.
+    """
+    sl = slice(win.i0, win.i1)
+    if win.i1 - win.i0 < 50:
+        return {"gyro_dps": None, "acc_mg": None, "mag_ut": None}
+
+    def sd(a):
+        a = np.asarray(a[sl], dtype=float)
+        a = a[np.all(np.isfinite(a), axis=1)]
+        return float(np.sqrt(np.mean(np.var(a, axis=0)))) if a.shape[0] >= 50 else None
+
+    g = sd(imu.gyro_b_rps)
+    a = sd(imu.acc_b_mps2)
+    m = sd(imu.mag_b_ut) if imu.mag_b_ut is not None else None
+    return {"gyro_dps": None if g is None else float(np.degrees(g)), "acc_mg": None if a is None else a / G0 * 1e3,
+            "mag_ut": m}
+
+
+def _noise(session: Session, p: TargetFkfParams, measured: dict | None = None) -> FilterNoise:
     n = session.meta.imu_noise
     rf = session.meta.rangefinders
-    gyro_dps = n.gyro_noise_dps if n.gyro_noise_dps is not None else p.gyro_noise_dps
+    measured = measured or {}
+
+    def pick(given, key, default):
+        if given is not None:
+            return given
+        return measured.get(key) if measured.get(key) is not None else default
+
+    gyro_dps = pick(n.gyro_noise_dps, "gyro_dps", p.gyro_noise_dps)
     bias_dph = n.gyro_bias_dph if n.gyro_bias_dph is not None else p.gyro_bias_dph
-    acc_mg = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
-    mag_ut = n.mag_noise_ut if n.mag_noise_ut is not None else p.mag_noise_ut
+    acc_mg = pick(n.acc_noise_mg, "acc_mg", p.acc_noise_mg)
+    mag_ut = pick(n.mag_noise_ut, "mag_ut", p.mag_noise_ut)
     rng_m = rf.sigma_m if (rf is not None and rf.sigma_m is not None) else p.range_sigma_m
     return FilterNoise(
         gyro_noise_rps=np.radians(gyro_dps), gyro_bias_rps=np.radians(max(bias_dph, 1e-3) / 3600.0),
@@ -188,6 +230,10 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         if win.end_reason == "magnetic":
             ctx.warn(f"alignment: the field magnitude changed {t[win.i1] - t[0]:.2f} s into the still window; "
                      "the alignment stops there (magnetic disturbance)")
+        if p.noise_from_static:
+            measured = static_noise(imu, win)
+            noise = _noise(session, p, measured)
+            summary["noise_from_static_window"] = measured
         A = al.coarse_alignment(t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, win, declination_rad=decl,
                                 lat_rad=lat, acc_noise_mps2=noise.acc_noise_mps2, mag_noise_ut=noise.mag_noise_ut)
         summary["alignment"] = {
@@ -223,6 +269,10 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         wall_n_ned=wall_n, baseline_12_m=rf.baseline_12_m if rf else 0.2,
         baseline_13_m=rf.baseline_13_m if rf else 0.2,
         range_gate_chi2=float(chi2.ppf(p.range_gate_probability, 2)), beta=p.beta,
+        gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps,
+        motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s,
+        heading_recover_nis=p.heading_recover_nis, scale_sd=p.gyro_scale_sd_pct / 100.0,
+        gravity_mps2=float(np.linalg.norm(np.mean(imu.acc_b_mps2[win.i0:win.i1], axis=0))) if p.gravity_from_static else None,
     )
     # the bias estimated in the window already removes the window's mean rate
     setup_gyro = FilterSetup(**{**setup.__dict__, "beta": 1.0})
@@ -231,10 +281,16 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         sols: dict[str, AttitudeSolution] = {}
         sols["gyro"] = run_full("gyro", t, imu.gyro_b_rps, imu.acc_b_mps2, None, None, setup_gyro, 0)
         if p.model == "full":
-            use1 = K.USE_ACC | (K.USE_MAG if imu.mag_b_ut is not None else 0)
-            sols["lf1"] = run_full("lf1", t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, None, setup, use1)
+            run = smooth_full if p.smooth else run_full
+            mot = (K.USE_MOTION if p.motion_model else 0) | (K.USE_SCALE if p.gyro_scale_states else 0)
+            still = al.static_mask(t, imu.gyro_b_rps, imu.acc_b_mps2, gyro_tol_rps=np.radians(p.static_gyro_tol_dps),
+                                   acc_sd_tol_mps2=p.static_acc_sd_tol_mps2)
+            ctx.count("still_samples", int(still.sum()))
+            use1 = K.USE_ACC | mot | (K.USE_MAG if imu.mag_b_ut is not None else 0)
+            sols["lf1"] = run("lf1", t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, None, setup, use1, still=still)
             if rdiff is not None:
-                sols["lf2"] = run_full("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup, K.USE_RANGE | K.USE_ACC)
+                sols["lf2"] = run("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup,
+                                  K.USE_RANGE | K.USE_ACC | mot, still=still)
         else:
             wall_yaw = float(np.arctan2(wall_n[1], wall_n[0]))
             o1, v1, o2, v2 = _paper8_obs(session, p, t, A, decl, rdiff, noise, wall_yaw)

@@ -14,18 +14,20 @@ reuses the pieces, all `@njit(cache=True)` functions callable from its own numba
 - `tpos_cli.ins._kernels.mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n)`
   advances the nominal state in place (`nav` = [lat_rad, lon_rad, h_m, vn, ve, vd], `C` = C_nb).
   Correct the IMU increments with the nominal biases first: `nav_errors.corrected_increments`.
-- `tpos_cli.fusion.nav_errors.error_dynamics(nav, C, f_n, w_ib_b, earth_sign, tau_acc_s, tau_gyro_s, F)`
+- `tpos_cli.fusion.nav_errors.error_dynamics(nav, C, f_n, earth_sign, tau_acc_s, tau_gyro_s, F)`
   writes the 15x15 block of F into `F[:15, :15]` of an (n, n) array (leave the rest zero, or set the
-  extra states' own dynamics, e.g. 0 for a constant range bias); `nav_errors.process_noise(C,
-  q, Qc)` writes the continuous noise PSD block of Qc, `q` = `ImuNoiseQ` array of 4 PSDs.
+  extra states' own dynamics, e.g. 0 for a constant range bias); `f_n` is the mean specific force
+  in NED over the covariance step (sum `mech_step`'s `f_n` * dt and divide). `nav_errors.process_noise(
+  q, Qc)` writes the continuous noise PSDs on the diagonal of Qc[:15, :15], `q` (4,) = [acc white,
+  gyro white, acc-bias drive, gyro-bias drive] (see `fusion.insgps.FilterConfig`).
 - `tpos_cli.filters.kalman.discretize(F, Qc, dt, Phi, Qd)`, `predict(x, P, Phi, Qd)`,
   `update(x, P, z, H, R) -> nis` work for any n and m, in place. Gate with `nis_of(...)` first
   against `tpos_cli.filters.gating.chi2_threshold(prob, m_max)[m]`.
 - `nav_errors.apply_feedback(nav, C, bias, x)` applies `x[:15]` to the nominal state and the
   bias estimates `bias` (6,) = [acc (3), gyro (3)]; then set `x[:] = 0` (extra states such as
   anchor biases are the caller's to feed back).
-- `nav_errors.position_jacobian(nav, C, lever_b, H, row)` fills H rows for a NED antenna or
-  node position; a range to a known point p_a is
+- `nav_errors.position_jacobian(nav, C, lever_b, lag_s, H, row)` fills H rows for a NED antenna
+  or node position (`position_residual` gives z); a range to a known point p_a is
   `r = |p_a - p|` with `H[0, 0:3] = -(p_a - p) / r` in NED metres at the node (chain rule through
   `position_jacobian` for a lever arm), plus 1 in the anchor-bias column.
 - Backward (paper 003's reversed time): feed `tpos_cli.ins.reverse_imu(t, gyro, acc)`, negate the
@@ -34,5 +36,8 @@ reuses the pieces, all `@njit(cache=True)` functions callable from its own numba
   flip sign).
 
 `tpos_cli.fusion.insgps.run_insgps(...)` is the INS/GPS loop built from these pieces; its
-compiled loop `_insgps_kernel` is the worked example to follow.
+compiled loop `tpos_cli.fusion._kernels.insgps_kernel` is the worked example to follow (epochs
+every `cov_step` samples and at each measurement; RTS history stored per epoch), and
+`tpos_cli.smoothing` (rts_closed_loop, two_filter, simplified) works on any run that stores
+the same per-epoch arrays (`FilterRun`).
 """

@@ -46,7 +46,10 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
     if fixes.t_s.size == 0:
         raise ProcessingError("gps: no valid fix; the drive pipeline needs GPS for its position and heading")
     try:
-        win = alignment.detect_static_window(t, gyro_b_rps, acc_b_mps2, min_duration_s=1.0, max_duration_s=60.0)
+        # only the start of the log can hold the static start: do not scan an hour of IMU
+        n_head = int(np.searchsorted(t, t[0] + 120.0)) + 1
+        win = alignment.detect_static_window(t[:n_head], gyro_b_rps[:n_head], acc_b_mps2[:n_head],
+                                             min_duration_s=1.0, max_duration_s=60.0)
         static = win.i0 == 0 or t[win.i0] - t[0] < 0.5
     except ProcessingError:
         static = False
@@ -107,3 +110,15 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
                       sig.acc_bias_mps2, sig.gyro_bias_rps)
     info["static_start"] = bool(static)
     return InitialState(nav, C, bias, initial_covariance(s)), info
+
+
+def measured_white_noise(x) -> float:
+    """Per-sample white-noise SD of a sensor series (N, 3), from its first differences.
+
+    For white noise of SD s, x[k+1] - x[k] has SD s sqrt(2); the motion of a vehicle at IMU rates
+    adds little to a difference. Robust scale (1.4826 MAD) so that bumps do not dominate;
+    averaged over the three axes.
+    """
+    d = np.diff(np.asarray(x, dtype=float), axis=0)
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return float(np.mean(1.4826 * mad / np.sqrt(2.0)))

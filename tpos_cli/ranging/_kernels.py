@@ -104,6 +104,7 @@ def ranging_filter_kernel(
     out_rb[0] = range_bias
     last = 0
     dt_sum = 0.0
+    dx_sum = np.zeros(n)
     for k in range(1, n_t):
         dt = t[k] - t[k - 1]
         corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
@@ -189,11 +190,14 @@ def ranging_filter_kernel(
                 ev_accepted[e] = accept
                 if kind == EV_RANGE or kind == EV_FIX_NE:
                     consecutive[slot] = 0 if accept else consecutive[slot] + 1
+                if accept:  # closed loop: feed back and reset (paper Fig. 1, Algorithm 1 step 10)
+                    apply_feedback(nav, C, bias, x)
+                    range_bias -= x[BIAS]
+                    dx_sum += x
+                    x[:] = 0.0
                 e += 1
-            # closed loop: feed back and reset (paper Fig. 1, Algorithm 1 step 10)
-            apply_feedback(nav, C, bias, x)
-            range_bias -= x[BIAS]
-            ep_dx[ep] = x
+            ep_dx[ep] = dx_sum  # x stays 0 between epochs (closed loop: Phi 0 = 0)
+            dx_sum[:] = 0.0
             x[:] = 0.0
             ep_P[ep] = P
             last = k

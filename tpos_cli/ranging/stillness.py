@@ -1,0 +1,80 @@
+"""Stationary intervals for zero-velocity updates (beyond paper 002): the IMU, confirmed by the fixes.
+
+An IMU cannot tell rest from uniform straight motion (a simulated cart on a leg is as still, to
+its sensors, as a parked one), so IMU stillness alone must not trigger a ZUPT. The intervals are
+built in three steps:
+
+1. `alignment.static_mask`: no rotation and no shaking (mean rate, specific-force SD);
+2. each still run is cut where the moving-mean specific force leaves the value at the start of
+   the current piece by more than `acc_step_mps2`: at constant attitude a change of specific force
+   is an acceleration, so inside a piece the velocity is nearly constant;
+3. a piece of at least `min_duration_s` is stationary when, for every anchor heard in it, the
+   range rate (robust Theil-Sen line through that anchor's ranges: NLOS spikes are one-sided
+   outliers) is below `max_speed_mps`, and at least two anchors resolve it (3-SD half-width of
+   the rate below the limit; far anchors have noisier ranges); a moving node changes the range
+   to an anchor ahead or behind at nearly its speed. Ranges beat position fixes here: with the
+   anchors on the corridor walls a fix's cross-corridor SD is several times the range SD.
+   Pieces with fewer than `_MIN_RANGES` ranges from every anchor are not used.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+from scipy.stats import theilslopes
+
+from tpos_cli.alignment import static_mask
+
+_MIN_RANGES = 5  # a line through fewer ranges gives no usable rate
+_MAX_POINTS = 200  # Theil-Sen is O(n^2): thin longer pieces (the rate SD still shrinks with span)
+
+
+def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m, *, min_duration_s=1.0,
+                         acc_step_mps2=0.05, max_speed_mps=0.05, window_s=0.5, **static_kw) -> list[tuple[float, float]]:
+    """Intervals [t0, t1] (s) where the node stands still.
+
+    t_s, gyro_b_rps, acc_b_mps2 : IMU; range_t_s, anchor, range_m (R,) : anchor ranges (any order).
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.size < 3:
+        return []
+    still = static_mask(t, gyro_b_rps, acc_b_mps2, window_s=window_s, **static_kw)
+    dt = float(np.median(np.diff(t)))
+    nw = max(3, int(round(window_s / dt)))
+    a_mean = uniform_filter1d(np.asarray(acc_b_mps2, dtype=float), nw, axis=0, mode="nearest")
+    half = nw // 2  # the centred window sees a change half a window early: trim both ends
+    d = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
+    pieces = []
+    for i0, i1 in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        start = i0
+        while start < i1:
+            dev = np.linalg.norm(a_mean[start:i1] - a_mean[start], axis=1)
+            out = np.flatnonzero(dev > acc_step_mps2)
+            end = start + int(out[0]) if out.size else i1
+            pieces.append((start, end))  # while accelerating, pieces are short and dropped below
+            start = end
+    rt = np.asarray(range_t_s, dtype=float)
+    ra = np.asarray(anchor, dtype=np.int64)
+    rr = np.asarray(range_m, dtype=float)
+    out_iv = []
+    for s, e in pieces:
+        a = s + (half if s > 0 else 0)
+        b = e - (half if e < t.size else 0)
+        if b - a < 2 or t[b - 1] - t[a] < min_duration_s:
+            continue
+        t0, t1 = t[a], t[b - 1]
+        inside = (rt >= t0) & (rt <= t1)
+        ok, n_resolved = True, 0
+        for i in np.unique(ra[inside]):
+            m = np.flatnonzero(inside & (ra == i))
+            if m.size < _MIN_RANGES:
+                continue
+            m = m[:: max(1, m.size // _MAX_POINTS)]
+            slope, icpt, lo, hi = theilslopes(rr[m], rt[m], alpha=0.997)  # (lo, hi): 3-sigma interval
+            if abs(slope) >= max_speed_mps:
+                ok = False
+                break
+            n_resolved += 0.5 * (hi - lo) < max_speed_mps
+        if ok and n_resolved >= 2:
+            out_iv.append((float(t0), float(t1)))
+    return out_iv
