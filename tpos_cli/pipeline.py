@@ -70,14 +70,34 @@ class RunContext:
         self.counts: dict[str, int] = {}
         self.warnings: list[str] = []
         self._progress = progress
+        self._status = None
+        self._t0 = time.perf_counter()
 
     @contextlib.contextmanager
     def stage(self, name: str):
+        """Time a stage into summary.json; with progress on, show it on a status line."""
         t = time.perf_counter()
+        if self._status is not None:
+            self._status.update(f"[bold]{name.replace('_', ' ')}[/bold] ({time.perf_counter() - self._t0:.1f} s)")
         try:
             yield
         finally:
             self.timings_s[name] = self.timings_s.get(name, 0.0) + time.perf_counter() - t
+
+    @contextlib.contextmanager
+    def live(self, label: str):
+        """A status line (rich) for the whole run when progress is on; nothing otherwise."""
+        if not self._progress:
+            yield
+            return
+        from rich.console import Console
+
+        with Console(stderr=True).status(label) as status:
+            self._status = status
+            try:
+                yield
+            finally:
+                self._status = None
 
     def count(self, key: str, n: int = 1) -> None:
         self.counts[key] = self.counts.get(key, 0) + int(n)
@@ -186,6 +206,11 @@ def process_session(
 ) -> RunSummary:
     """Process one session with one pipeline into a run directory (see docs/architecture.md)."""
     ctx = RunContext(progress=progress)
+    with ctx.live(f"tpos process {Path(session_dir).name}"):
+        return _process(ctx, session_dir, pipeline, run_dir, mask_gps_windows, overrides)
+
+
+def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, overrides) -> RunSummary:
     t_start = time.perf_counter()
     with ctx.stage("ingest"):
         session = load_session(session_dir)

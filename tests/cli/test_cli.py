@@ -53,6 +53,7 @@ def test_process_writes_summary_with_provenance(tmp_path):
     run = tmp_path / "run"
     res = runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(run), "--mask-gps", "1002.5:1005.5"])
     assert res.exit_code == 0, res.output
+    assert len(res.stdout.splitlines()) == 1  # not a terminal: no progress output, just the final line
     summary = json.loads((run / "summary.json").read_text())
     for key in ("tpos_version", "pipeline", "config", "config_sha256", "inputs", "timings_s", "counts", "warnings"):
         assert key in summary

@@ -51,6 +51,7 @@ class RangingParams:
     calibration_reject_sigma: float = 4.0
     sd_poly_degree: int = 1
     range_sd_m: float = 0.15
+    tc_range_sd_m: float | None = None
     epoch_window_s: float = 0.02
     lc_min_anchors: int = 4
     floor_down_m: float | None = None
@@ -309,7 +310,9 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             if name == "lc":
                 ev = fixes
             elif name == "tc":
-                ev = range_events(t, a, r, np.full(t.size, pooled**2))  # constant R: pooled residual SD
+                sd_tc = pooled if p.tc_range_sd_m is None else p.tc_range_sd_m  # constant R: pooled residual SD
+                ev = range_events(t, a, r, np.full(t.size, sd_tc**2))
+                extra["range_sd_m"] = float(sd_tc)
             else:
                 R, S = fuzzy_range_variance(fis, sd_fit, pooled, p.fuzzy_exponent_b)
                 ev = range_events(t, a, r, R)
