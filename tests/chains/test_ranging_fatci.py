@@ -100,3 +100,31 @@ def test_missing_anchor_files_is_invalid_input(tmp_path):
     (sess / "anchor_ranges.parquet").unlink(missing_ok=True)
     with pytest.raises(InvalidInputError):
         process_session(sess, "ranging-fatci", tmp_path / "run")
+
+
+def test_nees_of_tc_and_fatci_over_monte_carlo_runs(tmp_path):
+    """Horizontal NEES (diagonal SDs, 2 dof) averaged over 10 seeded runs, at every output epoch."""
+    from scipy.stats import chi2
+
+    n_runs = 10
+    nees: dict[str, list] = {"tc": [], "fatci": []}
+    for seed in range(n_runs):
+        sim = simulate_ranging(60.0, seed=100 + seed)
+        sess = sim.write(tmp_path / f"s{seed}")
+        rs = process_session(sess, "ranging-fatci", tmp_path / f"r{seed}",
+                             overrides={"ranging_fatci.solutions": ["tc", "fatci"], "ranging_fatci.smoothed": False})
+        tr = pd.read_parquet(rs.run_dir / "trajectory.parquet")
+        origin = sim.anchors.origin_lla
+        for sol in nees:
+            g = tr[tr.solution == sol]
+            tl = np.column_stack([np.interp(g.t, sim.truth.t_s + sim.t0_s, sim.truth.lla[:, i]) for i in range(3)])
+            e = geodetic.lla_to_ned(g[["lat", "lon", "h"]].to_numpy(), origin) - geodetic.lla_to_ned(tl, origin)
+            nees[sol].append((e[:, 0] / g.sigma_n.to_numpy()) ** 2 + (e[:, 1] / g.sigma_e.to_numpy()) ** 2)
+    lo, hi = chi2.ppf(0.025, 2 * n_runs) / n_runs, chi2.ppf(0.975, 2 * n_runs) / n_runs
+    for sol, v in nees.items():
+        m = np.mean(np.array(v), axis=0)
+        assert 1.5 < m.mean() < 3.0  # a consistent 2-dof NEES averages 2; measured 2.2 (tc), 2.5 (fatci)
+        # share of epochs inside the 95 % chi-square band of a 10-run average: a consistent filter
+        # gives 0.95; measured 0.77 / 0.76, the excess above the band comes from the unmodelled,
+        # constant per-anchor calibration error (SE ~0.01 m) seen through the weak cross-corridor geometry
+        assert np.mean((m >= lo) & (m <= hi)) > 0.7

@@ -57,6 +57,31 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 
 @njit(cache=True)
+def _update_heading_only(x, P, z, H, R):
+    """Scalar Joseph-form update whose gain leaves the tilt (phi north, east) untouched.
+
+    A magnetometer's systematic errors (residual soft iron, slowly varying fields) would otherwise
+    leak into roll/pitch through the dip; the suboptimal gain keeps P consistent (Joseph form).
+    Returns the NIS.
+    """
+    n = x.shape[0]
+    PHt = P @ np.ascontiguousarray(H.T)
+    S = (H @ PHt)[0, 0] + R[0, 0]
+    nu = z[0] - (H @ x)[0]
+    Kg = PHt[:, 0] / S
+    Kg[0] = 0.0
+    Kg[1] = 0.0
+    x += Kg * nu
+    I_KH = np.eye(n)
+    for i in range(n):
+        for j in range(n):
+            I_KH[i, j] -= Kg[i] * H[0, j]
+    Pn = I_KH @ P @ I_KH.T + np.outer(Kg, Kg) * R[0, 0]
+    P[:, :] = 0.5 * (Pn + Pn.T)
+    return nu * nu / S
+
+
+@njit(cache=True)
 def _feedback(x, C, b, v, p, s, i_v, i_s):
     """Apply an error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
     Cn = rotvec_to_dcm(x[0:3]) @ C
@@ -74,7 +99,7 @@ def _feedback(x, C, b, v, p, s, i_v, i_s):
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
              q_sf, r_acc, acc_tol, gyro_tol, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
-             scale0, scale_var0, q_scale, still, zupt_sd, out_scale, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
+             scale0, scale_var0, q_scale, still, zupt_sd, mag_heading_only, out_scale, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
@@ -224,7 +249,10 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     z[0] = _wrap(decl - az)
                     R = np.empty((1, 1))
                     R[0, 0] = r_mag_ut / hn2
-                    nis = update(x, P, z, H, R)
+                    if mag_heading_only:
+                        nis = _update_heading_only(x, P, z, H, R)
+                    else:
+                        nis = update(x, P, z, H, R)
                     out_nis_mag[k] = nis
                     C = _feedback(x, C, b, v, p, sf, i_v, i_s)
                     if rec_nis > 0.0 and k > 0:

@@ -68,6 +68,7 @@ class FilterSetup:
     motion_sd_mps: float = 0.5
     motion_sd_m: float = 0.3
     motion_interval_s: float = 1.0
+    mag_heading_only: bool = False  # magnetometer corrects heading only (decoupled from roll/pitch)
     zupt_sd_mps: float = 0.02  # velocity SD of a device in a detected still period
     heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
     heading_recover_tau_s: float = 1.0
@@ -215,7 +216,8 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         (noise.acc_noise_mps2 * dt_mean) ** 2, np.array([setup.motion_sd_mps, setup.motion_sd_m]) / np.sqrt(motion_share),
         max(1, int(round(setup.motion_interval_s / dt_mean))), setup.heading_recover_nis, setup.heading_recover_tau_s,
         np.ascontiguousarray(setup.scale0, dtype=float), setup.scale_sd**2 / beta, setup.scale_rw_per_rts**2 / beta,
-        np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share), out_s,
+        np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share),
+        bool(setup.mag_heading_only), out_s,
         out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok,
     )
     if backward:

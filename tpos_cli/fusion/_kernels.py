@@ -33,9 +33,11 @@ def insgps_kernel(
     """Closed-loop 15-state INS/GPS filter over a whole log (forward or reversed).
 
     gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
-    position and velocity variances; NaN velocity -> position-only update. Gate: NIS above
-    gate[m] (m = measurement dimension) rejects the fix, except after `max_reject` consecutive
-    rejections (the nominal has left the fixes for good: locking it out would diverge). Epochs (covariance steps) every
+    position and velocity variances; NaN velocity -> position-only update. Per fix, innov (M, 6)
+    gets the residuals, nis (M, 2) and accepted (M, 2) the position and velocity NIS (3 d.o.f.
+    each, NaN when absent) and whether each was applied. Gate: NIS above gate[3] rejects that
+    part of the fix, except after `max_reject` consecutive rejections of that kind (the nominal
+    has left the fixes for good: locking it out would diverge; 0 = no gating). Epochs (covariance steps) every
     `cov_step` samples and at every fix; per epoch e: ep_idx[e], P_filt, dx (correction fed
     back), and when store_rts also Phi (from epoch e-1) and P_pred. Returns (n_epochs, status):
     status 0 ok, else 1 + sample index where an innovation covariance lost positive definiteness.
@@ -52,9 +54,9 @@ def insgps_kernel(
     process_noise(q, Qc)
     Phi = np.empty((15, 15))
     Qd = np.empty((15, 15))
-    z = np.empty(6)
-    H = np.zeros((6, 15))
-    R = np.zeros((6, 6))
+    H3 = np.zeros((3, 15))
+    Hv = np.zeros((3, 15))
+    R3 = np.zeros((3, 3))
     zp = np.empty(3)
     zv = np.empty(3)
     f_n = np.empty(3)
@@ -81,6 +83,7 @@ def insgps_kernel(
     dt_sum = 0.0
     status = 0
     n_rej = 0
+    n_rej_v = 0
     for k in range(1, n):
         dt = t[k] - t[k - 1]
         corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
@@ -102,35 +105,38 @@ def insgps_kernel(
                 ep_Phi[ep] = Phi
                 ep_Ppred[ep] = P
             while g < m_gps and gps_idx[g] == k:
+                # position and velocity are processed as two sequential 3-dim updates (exact for
+                # their diagonal R): each kind has its own NIS (3 d.o.f.) and its own gate, so a
+                # bad velocity does not throw away a good position
                 position_residual(nav, C, lever_b, gps_pos[g], gps_lag[g], zp)
-                has_vel = not np.isnan(gps_vel[g, 0])
-                m = 6 if has_vel else 3
-                Hm = H[:m]
-                position_jacobian(nav, C, lever_b, gps_lag[g], H, 0)
-                Rm = np.zeros((m, m))
-                zm = np.empty(m)
+                position_jacobian(nav, C, lever_b, gps_lag[g], H3, 0)
                 for i in range(3):
-                    zm[i] = zp[i]
-                    Rm[i, i] = gps_var[g, i]
-                if has_vel:
-                    velocity_residual(nav, C, lever_b, w_ib, gps_vel[g], zv)
-                    velocity_jacobian(C, lever_b, w_ib, H, 3)
-                    for i in range(3):
-                        zm[3 + i] = zv[i]
-                        Rm[3 + i, 3 + i] = gps_var[g, 3 + i]
-                for i in range(m):
-                    innov[g, i] = zm[i]
-                s = nis_of(x, P, zm, Hm, Rm)
-                nis[g] = s
-                if s <= gate[m] or n_rej >= max_reject:
+                    innov[g, i] = zp[i]
+                    R3[i, i] = gps_var[g, i]
+                s = nis_of(x, P, zp, H3, R3)
+                nis[g, 0] = s
+                if s <= gate[3] or n_rej >= max_reject:
                     n_rej = 0
-                    r = update(x, P, zm, Hm, Rm)
-                    if r < 0.0:
-                        status = 1 + k
-                        return ep + 1, status
-                    accepted[g] = True
+                    if update(x, P, zp, H3, R3) < 0.0:
+                        return ep + 1, 1 + k
+                    accepted[g, 0] = True
                 else:
                     n_rej += 1
+                if not np.isnan(gps_vel[g, 0]):
+                    velocity_residual(nav, C, lever_b, w_ib, gps_vel[g], zv)
+                    velocity_jacobian(C, lever_b, w_ib, Hv, 0)
+                    for i in range(3):
+                        innov[g, 3 + i] = zv[i]
+                        R3[i, i] = gps_var[g, 3 + i]
+                    s = nis_of(x, P, zv, Hv, R3)
+                    nis[g, 1] = s
+                    if s <= gate[3] or n_rej_v >= max_reject:
+                        n_rej_v = 0
+                        if update(x, P, zv, Hv, R3) < 0.0:
+                            return ep + 1, 1 + k
+                        accepted[g, 1] = True
+                    else:
+                        n_rej_v += 1
                 g += 1
             apply_feedback(nav, C, bias, x)
             ep_dx[ep] = x

@@ -7,6 +7,7 @@ first sample through the gyros, or the magnetometer when GPS never shows motion.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,7 +16,7 @@ from tpos_cli import alignment
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm, wrap_angle_rad
-from tpos_cli.fusion.insgps import GpsFixes, InitialState
+from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.ins.mechanization import integrate
 
 
@@ -72,8 +73,8 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
     roll, pitch = float(roll), float(pitch)
     lat0 = np.radians(fixes.lla[0, 0])
     yaw_sigma = sig.yaw_rad
-    try:
-        hd = alignment.gps_velocity_heading(fixes.t_s, fixes.lla, fixes.vel_ned_mps, min_speed_mps=min_speed_mps)
+    hd = _gps_heading(fixes, min_speed_mps)
+    if hd is not None:
         i_h = int(np.clip(np.searchsorted(t, hd.t_s), 1, t.size - 1))
         # attitude from t0 to the heading epoch with yaw 0: C(t_h) = Rz(yaw0) C_mech(t_h) exactly
         # when the nav-frame rotation over that span is negligible (15 deg/h Earth rate)
@@ -82,14 +83,16 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
         _, _, yaw_mech = dcm_to_euler(tr.C_nb[-1])
         yaw = float(wrap_angle_rad(hd.yaw_rad - yaw_mech))
         yaw_sigma = max(yaw_sigma, hd.sigma_yaw_rad)
-        info["heading"] = f"gps velocity at t_s = {hd.t_s:.1f} s"
-    except ProcessingError:
-        if mag_b_ut is None:
-            raise
+        info["heading"] = f"gps velocity at t_s = {hd.t_s:.1f} s ({hd.how})"
+    elif mag_b_ut is not None:
         m = np.nanmean(mag_b_ut[sl], axis=0)
         yaw = float(alignment.magnetic_yaw_rad(m, roll, pitch, declination_rad))
         yaw_sigma = max(yaw_sigma, np.radians(5.0))
         info["heading"] = "magnetometer (GPS never shows motion)"
+    else:
+        # no course and no magnetometer: yaw unknown; `search_yaw` (the chain runs it) decides
+        yaw, yaw_sigma = 0.0, np.pi
+        info["heading"] = "unknown (GPS never shows motion, no magnetometer)"
     C = euler_to_dcm(roll, pitch, yaw)
     bias = np.zeros(6)
     if static:
@@ -110,6 +113,123 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
                       sig.acc_bias_mps2, sig.gyro_bias_rps)
     info["static_start"] = bool(static)
     return InitialState(nav, C, bias, initial_covariance(s)), info
+
+
+@dataclass(frozen=True)
+class _Heading:
+    t_s: float
+    yaw_rad: float
+    sigma_yaw_rad: float
+    how: str
+
+
+def _gps_heading(fixes: GpsFixes, min_speed_mps: float) -> _Heading | None:
+    """Course over ground once moving, or None when GPS never shows motion.
+
+    First the logged (or 2 s differenced) velocity at `min_speed_mps`; a slow platform (a rover,
+    a pedestrian) never reaches a car's threshold, so then positions differenced over 10 s at
+    half the speed the log actually reaches (but at least 0.3 m/s: 3 m over the baseline, above
+    the metre-level GPS noise). Differenced positions carry correlated GPS errors: SD from a
+    1 m position error over the baseline (yaw search refines it).
+    """
+    try:
+        hd = alignment.gps_velocity_heading(fixes.t_s, fixes.lla, fixes.vel_ned_mps, min_speed_mps=min_speed_mps)
+        return _Heading(hd.t_s, hd.yaw_rad, hd.sigma_yaw_rad, f"{min_speed_mps:g} m/s reached")
+    except ProcessingError:
+        pass
+    baseline_s = 10.0
+    lat = np.radians(fixes.lla[:, 0])
+    n_m = lat * (earth.meridian_radius_m(lat) + fixes.lla[:, 2])
+    e_m = np.radians(fixes.lla[:, 1]) * (earth.transverse_radius_m(lat) + fixes.lla[:, 2]) * np.cos(lat)
+    t = fixes.t_s
+    if t.size < 3 or t[-1] - t[0] < 2 * baseline_s:
+        return None
+    j = np.searchsorted(t, t + baseline_s)
+    ok = j < t.size
+    i = np.flatnonzero(ok)
+    j = j[ok]
+    speed = np.hypot(n_m[j] - n_m[i], e_m[j] - e_m[i]) / (t[j] - t[i])
+    thr = max(0.3, 0.5 * float(np.percentile(speed, 95)))
+    if thr >= min_speed_mps:
+        return None
+    try:
+        hd = alignment.gps_velocity_heading(t, fixes.lla, None, min_speed_mps=thr, baseline_s=baseline_s)
+    except ProcessingError:
+        return None
+    sigma = float(np.clip(1.0 / (thr * baseline_s), np.radians(2.0), np.radians(30.0)))
+    return _Heading(hd.t_s, hd.yaw_rad, sigma, f"positions over {baseline_s:g} s at {thr:.2f} m/s")
+
+
+@dataclass(frozen=True)
+class YawSearch:
+    """Outcome of `search_yaw`: chosen initial yaw and SD (rad), every hypothesis and its score."""
+
+    yaw_rad: float
+    sigma_yaw_rad: float
+    hypotheses_rad: np.ndarray
+    scores: np.ndarray
+    window_s: tuple[float, float]
+    chose_prior: bool
+
+
+def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
+               n_hypotheses: int = 12, motion_s: float = 30.0, moved_m: float = 5.0) -> YawSearch:
+    """Coarse-to-fine initial yaw: the filter run from `n_hypotheses` yaws over the start of the log.
+
+    A linearized error-state filter converges only from a yaw error of some 15-20 deg; a course
+    from GPS at walking speed or a magnetometer near a car can be off by far more. So the forward
+    filter is run, ungated, over the log until `motion_s` after the platform has first moved
+    `moved_m` from its first fix, from yaws spaced 360/n deg apart (SD half the spacing) plus
+    the prior yaw of `init` (its own SD); the hypothesis whose GPS innovations have the smallest
+    summed NIS wins (a wrong yaw makes the INS velocity point the wrong way as soon as the
+    platform accelerates, so its innovations grow). Returns the winner's yaw and SD.
+    """
+    t = np.asarray(t_s, dtype=float)
+    lat = np.radians(fixes.lla[:, 0])
+    dn = (lat - lat[0]) * earth.meridian_radius_m(lat[0])
+    de = np.radians(fixes.lla[:, 1] - fixes.lla[0, 1]) * earth.transverse_radius_m(lat[0]) * np.cos(lat[0])
+    far = np.flatnonzero(np.hypot(dn, de) > moved_m)
+    t_move = fixes.t_s[far[0]] if far.size else fixes.t_s[-1]
+    i_end = int(min(t.size, np.searchsorted(t, t_move + motion_s) + 1))
+    _, _, yaw0 = dcm_to_euler(init.C_nb)
+    yaw0 = float(yaw0)
+    sig0 = float(np.sqrt(init.P0[8, 8]))
+    spacing = 2.0 * np.pi / n_hypotheses
+    # the prior (k = 0, its own SD, at most half the spacing) and the grid around it
+    hyps = np.asarray(wrap_angle_rad(yaw0 + spacing * np.arange(n_hypotheses)))
+    sigmas = np.full(hyps.size, spacing / 2.0)
+    sigmas[0] = min(sig0, spacing / 2.0)
+    scfg = dataclasses.replace(cfg, max_consecutive_rejections=0)  # ungated: every innovation counts
+    sub = fixes_before(fixes, t[i_end - 1])
+    scores = np.full(hyps.size, np.inf)
+    for h, (yaw, sy) in enumerate(zip(hyps, sigmas)):
+        try:
+            run = run_insgps(t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end], sub, with_yaw(init, yaw, sy), scfg,
+                             store_rts=False)
+        except ProcessingError:
+            continue  # diverged: not this one
+        scores[h] = float(np.nansum(run.nis))
+    best = int(np.argmin(scores))
+    return YawSearch(float(hyps[best]), float(sigmas[best]), hyps, scores, (float(t[0]), float(t[i_end - 1])), best == 0)
+
+
+def fixes_before(fixes: GpsFixes, t_end_s: float) -> GpsFixes:
+    """The fixes at or before `t_end_s`."""
+    m = fixes.t_s <= t_end_s
+    return GpsFixes(fixes.t_s[m], fixes.lla[m], fixes.vel_ned_mps[m], fixes.sigma_pos_ned_m[m], fixes.sigma_vel_mps[m])
+
+
+def with_yaw(init: InitialState, yaw_rad: float, sigma_yaw_rad: float) -> InitialState:
+    """`init` turned about the vertical to `yaw_rad`, yaw SD `sigma_yaw_rad`."""
+    _, _, yaw0 = dcm_to_euler(init.C_nb)
+    C = euler_to_dcm(0.0, 0.0, yaw_rad - float(yaw0)) @ init.C_nb
+    bias = init.bias.copy()
+    if np.any(bias[3:] != 0.0):  # a gyro bias from the static start had Earth rate removed at yaw0
+        w_ie = earth.earth_rate_ned_rps(float(init.nav[0]))
+        bias[3:] += init.C_nb.T @ w_ie - C.T @ w_ie
+    P0 = init.P0.copy()
+    P0[8, 8] = sigma_yaw_rad**2
+    return InitialState(init.nav.copy(), C, bias, P0)
 
 
 def measured_white_noise(x) -> float:

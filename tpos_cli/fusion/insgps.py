@@ -64,7 +64,9 @@ class FilterRun:
     ep_idx (E,): sample index of each covariance epoch, increasing; ep_P (E,15,15): covariance
     after the update at that epoch. Forward runs also hold ep_Phi (E,15,15) (transition from
     epoch e-1 to e), ep_Ppred (E,15,15) and ep_dx (E,15) (correction fed back at e) for RTS.
-    Per fix (in the order of `GpsFixes`): innovation (M,6) NaN-padded, nis (M,), accepted (M,).
+    Per fix (in the order of `GpsFixes`): innovation (M,6) [pos NED m, vel NED m/s] NaN where
+    absent; nis (M,2) and accepted (M,2): [position, velocity] NIS (3 d.o.f. each, NaN where
+    not processed, e.g. fixes before the first sample) and whether each part was applied.
     """
 
     backward: bool
@@ -130,8 +132,8 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     out_C = np.empty((n, 3, 3))
     out_bias = np.empty((n, 6))
     innov = np.full((m, 6), np.nan)
-    nis = np.full(m, np.nan)
-    acc_flag = np.zeros(m, dtype=np.bool_)
+    nis = np.full((m, 2), np.nan)
+    acc_flag = np.zeros((m, 2), dtype=np.bool_)
     gate = chi2_threshold(cfg.gate_probability, 6)
     n_used, status = insgps_kernel(
         t, gyro, acc, nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0, P0,
@@ -147,8 +149,8 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         raise ProcessingError(f"INS/GPS filter: innovation covariance not positive definite at t_s = {tk:.3f}")
     # back to the caller's fix order
     innovation = np.full((len(t_fix), 6), np.nan)
-    nis_all = np.full(len(t_fix), np.nan)
-    acc_all = np.zeros(len(t_fix), dtype=bool)
+    nis_all = np.full((len(t_fix), 2), np.nan)
+    acc_all = np.zeros((len(t_fix), 2), dtype=bool)
     innovation[order] = innov
     nis_all[order] = nis
     acc_all[order] = acc_flag
