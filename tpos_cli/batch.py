@@ -211,10 +211,9 @@ def run_is_current(session_dir: Path, pipeline: str | None, summary: Mapping[str
 
     from tpos_cli import __version__
     from tpos_cli.config import config_hash, resolve_pipeline
-    from tpos_cli.session import _is_session_file, sha256_file
+    from tpos_cli.session import session_file_hashes
 
-    files = sorted(p for p in session_dir.iterdir() if p.is_file() and _is_session_file(p.name))
-    if {p.name: sha256_file(p) for p in files} != summary.get("inputs"):
+    if session_file_hashes(session_dir) != summary.get("inputs"):
         return False
     kind = tomllib.loads((session_dir / "session.toml").read_text(encoding="utf-8")).get("session", {}).get("kind")
     pipe = resolve_pipeline(pipeline, str(kind))

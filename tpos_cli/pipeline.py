@@ -231,6 +231,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     chash = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_partials(out_dir)
     tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
@@ -280,6 +281,24 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return RunSummary(run_dir=out_dir, summary=summary)
+
+
+def _remove_stale_partials(out_dir: Path) -> None:
+    """Delete the temporary directories of runs into `out_dir` whose process is gone (killed runs)."""
+    for p in out_dir.parent.glob(f".{out_dir.name}.tmp-*"):
+        pid = p.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and not _pid_alive(int(pid)):
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _replace_dir(tmp: Path, out_dir: Path) -> None:

@@ -702,7 +702,7 @@ def load_session(path: str | Path) -> Session:
         outages = timebase.gps_outages(gps.t_s[gps.valid], 0.0, float(t_rel[-1]))
         if len(outages):
             c.count("gps_outages", len(outages))
-    hashes = {p.name: sha256_file(p) for p in sorted(session_dir.iterdir()) if p.is_file() and _is_session_file(p.name)}
+    hashes = session_file_hashes(session_dir)
     return Session(
         path=session_dir.resolve(), meta=meta, t0_s=t0,
         imu=ImuData(t_s=t_rel, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
@@ -711,6 +711,11 @@ def load_session(path: str | Path) -> Session:
         targets=targets, shots=shots, truth=truth, gps_outages_s=outages, imu_gaps_s=gaps - t0,
         counts=dict(c.counts), warnings=tuple(c.warnings), file_hashes=hashes,
     )
+
+
+def session_file_hashes(session_dir: Path) -> dict[str, str]:
+    """sha256 of every contract file of a session (what `summary.json` records as its inputs)."""
+    return {p.name: sha256_file(p) for p in sorted(Path(session_dir).iterdir()) if p.is_file() and _is_session_file(p.name)}
 
 
 def _is_session_file(name: str) -> bool:

@@ -77,3 +77,13 @@ def test_usage_errors_exit_2(tmp_path):
     assert runner.invoke(app, ["process", str(s), "-p", "ingest", "--set", "ingest.bogus=1", "-o", str(tmp_path / "r")]).exit_code == 2
     assert runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(s)]).exit_code == 2  # never over an input
     assert not (tmp_path / "r").exists()
+
+
+def test_partial_output_of_a_killed_run_is_cleaned(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    stale = tmp_path / ".run.tmp-999999999"  # no such process: a run killed midway
+    stale.mkdir()
+    (stale / "trajectory.parquet").write_bytes(b"half")
+    res = runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    assert not stale.exists() and (tmp_path / "run" / "summary.json").exists()

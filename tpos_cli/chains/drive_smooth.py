@@ -19,7 +19,14 @@ from tpos_cli.config import parse_params
 from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.frames.rotation import dcm_to_euler
-from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, measured_white_noise
+from tpos_cli.fusion.initial import (
+    InitialSigmas,
+    align_vehicle,
+    initial_covariance,
+    measured_white_noise,
+    search_yaw,
+    with_yaw,
+)
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.pipeline import ChainOutput, RunContext
 from tpos_cli.session import Session
@@ -40,7 +47,11 @@ class DriveSmoothParams:
     output_rate_hz: float = 10.0  # rows per second per solution; 0 = every IMU sample
     gate_probability: float = 0.9999  # chi-square gate on GPS innovations
     flag_probability: float = 0.999  # forward/backward disagreement flag
-    heading_min_speed_mps: float = 3.0
+    heading_min_speed_mps: float = 3.0  # course from GPS velocity once this fast (slower logs: see `_gps_heading`)
+    heading_hypotheses: int = 12  # initial yaws tried by the filter (0 = trust the course / magnetometer)
+    heading_search_s: float = 30.0  # filter time after the platform first moved 5 m, per hypothesis
+    gps_max_rate_hz: float = 1.0  # fixes used per second at most (0 = all): receiver fixes at 5-20 Hz
+    # are correlated in time, and a filter treating them as white trusts them far too much
     init_sigma_pos_m: float = 5.0
     init_sigma_vel_mps: float = 1.0
     init_sigma_level_deg: float = 1.0
@@ -97,8 +108,26 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     if not p.use_gps_velocity:
         vel[:] = np.nan
     vel[~np.isfinite(vel).all(axis=1)] = np.nan
-    return GpsFixes(np.array(gps.t_s[ok], dtype=float), np.array(gps.lla[ok], dtype=float), vel, sig,
-                    np.full((int(ok.sum()), 3), p.gps_sigma_vel_mps))
+    t = np.array(gps.t_s[ok], dtype=float)
+    keep = decimate_times(t, p.gps_max_rate_hz)
+    return GpsFixes(t[keep], np.array(gps.lla[ok], dtype=float)[keep], vel[keep], sig[keep],
+                    np.full((int(keep.size), 3), p.gps_sigma_vel_mps))
+
+
+def decimate_times(t_s, max_rate_hz) -> np.ndarray:
+    """Indices of the times kept so that consecutive kept times are >= 1 / max_rate_hz apart
+    (less a quarter of the median interval, so that a 1 Hz log with jitter stays whole)."""
+    t = np.asarray(t_s, dtype=float)
+    if max_rate_hz <= 0 or t.size < 2:
+        return np.arange(t.size)
+    step = 1.0 / max_rate_hz - 0.25 * float(np.median(np.diff(t)))
+    keep = []
+    last = -np.inf
+    for i, ti in enumerate(t):
+        if ti - last >= step:
+            keep.append(i)
+            last = ti
+    return np.asarray(keep, dtype=np.int64)
 
 
 def fix_outages(t_fix, t_end_s, min_gap_s) -> np.ndarray:
@@ -188,13 +217,24 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("alignment"):
         init, info = align_vehicle(t, gyro, acc, imu.mag_b_ut, fixes, lever, sig, min_speed_mps=p.heading_min_speed_mps,
                                    declination_rad=(session.meta.declination_deg or 0.0) * DEG)
-        info["imu_noise"] = {k: {"value": round(v, 6), "source": nz_src[k]} for k, v in nz.items()}
     sb_a = p.acc_bias_inrun_mg * 1e-3 * G0_MPS2
     sb_g = p.gyro_bias_inrun_dph * DEG / 3600
     q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate, (nz["gyro_noise_dps"] * DEG) ** 2 / rate,
                   2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
     cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability,
                        p.max_consecutive_rejections)
+    with stage("alignment"):
+        info["imu_noise"] = {k: {"value": round(v, 6), "source": nz_src[k]} for k, v in nz.items()}
+        if p.heading_hypotheses > 0:
+            ys = search_yaw(t, gyro, acc, fixes, init, cfg, n_hypotheses=p.heading_hypotheses, motion_s=p.heading_search_s)
+            init = with_yaw(init, ys.yaw_rad, ys.sigma_yaw_rad)
+            if not ys.chose_prior:
+                info["heading"] = (f"yaw search: {np.degrees(ys.yaw_rad):.0f} deg +- {np.degrees(ys.sigma_yaw_rad):.0f}, "
+                                   f"best of {ys.scores.size} hypotheses (the prior, {info['heading']}, lost)")
+            else:
+                info["heading"] += f"; confirmed against {ys.scores.size - 1} other yaws"
+            info["yaw_search"] = {"t_s": list(ys.window_s), "yaw_deg": np.degrees(ys.hypotheses_rad).round(1).tolist(),
+                                  "score": [round(float(v), 1) for v in ys.scores]}
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
     out_idx = np.arange(0, t.size, step)
@@ -289,6 +329,21 @@ def geolocate_shots(session: Session, sol: smoothing.Solution, epochs, sigma_ran
     return pd.DataFrame(rows)
 
 
+def innovations_table(res: DriveResult, t0_s: float) -> pd.DataFrame:
+    """`innovations.parquet`: one row per fix, run and kind: t, solution (forward | backward), kind
+    (gps_pos | gps_vel), nis, dof, accepted, and the residual components nu_0..nu_2 (NED m or m/s)."""
+    frames = []
+    for run_name, r in (("forward", res.forward), ("backward", res.backward)):
+        for j, kind in enumerate(("gps_pos", "gps_vel")):
+            m = np.isfinite(r.nis[:, j])
+            nu = r.innovation[m, 3 * j: 3 * j + 3]
+            frames.append(pd.DataFrame({
+                "t": res.fixes.t_s[m] + t0_s, "solution": run_name, "kind": kind, "nis": r.nis[m, j],
+                "dof": np.full(int(m.sum()), 3, dtype=np.int64), "accepted": r.accepted[m, j],
+                "nu_0": nu[:, 0], "nu_1": nu[:, 1], "nu_2": nu[:, 2]}))
+    return pd.concat(frames, ignore_index=True).sort_values(["solution", "kind", "t"], kind="stable", ignore_index=True)
+
+
 class _nostage:
     def __init__(self, name):
         pass
@@ -306,6 +361,9 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         raise InvalidInputError(f"pipeline [drive_smooth]: smoother {p.smoother!r} is not one of {', '.join(SMOOTHERS)}")
     if p.cov_step_s <= 0 or p.output_rate_hz < 0 or p.bias_tau_s <= 0:
         raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
+    if p.heading_hypotheses < 0 or p.heading_search_s <= 0 or p.gps_max_rate_hz < 0:
+        raise InvalidInputError("pipeline [drive_smooth]: heading_hypotheses and gps_max_rate_hz must be >= 0, "
+                                "heading_search_s > 0")
     names = ["forward", "backward", "smoothed"] + (list(SMOOTHERS) if p.compare else [])
     epochs = range_epochs(session)
     res = process_drive(session, p, ctx, names, extra_idx=None if epochs is None else epochs[0])
@@ -330,27 +388,28 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             outage |= (tt >= a) & (tt < b)
         frames = [solution_frame(res.solutions[n], session.t0_s, t, outage, res.flag) for n in names]
         traj = pd.concat(frames, ignore_index=True)
-        f = res.forward
-        innov = pd.DataFrame({
-            "t": res.fixes.t_s + session.t0_s, "nis": f.nis, "accepted": f.accepted,
-            **{f"nu_{c}": f.innovation[:, i] for i, c in enumerate(("n", "e", "d", "vn", "ve", "vd"))},
-        })
+        innov = innovations_table(res, session.t0_s)
     n_fix = int(res.fixes.t_s.size)
-    rej_f = int(np.sum(~res.forward.accepted & np.isfinite(res.forward.nis)))
-    rej_b = int(np.sum(~res.backward.accepted & np.isfinite(res.backward.nis)))
     ctx.count("gps_fixes_used", n_fix)
-    ctx.count("gps_rejected_forward", rej_f)
-    ctx.count("gps_rejected_backward", rej_b)
+    rejected = {}
+    for run_name, r in (("forward", res.forward), ("backward", res.backward)):
+        for j, kind in enumerate(("gps_pos", "gps_vel")):
+            n_rej = int(np.sum(~r.accepted[:, j] & np.isfinite(r.nis[:, j])))
+            rejected[f"{run_name}_{kind}"] = n_rej
+            ctx.count(f"{kind}_rejected_{run_name}", n_rej)
     ctx.count("flagged_rows", int(res.flag.sum()))
-    acc_nis = res.forward.nis[res.forward.accepted]
+    mean_nis = {}
+    for j, kind in enumerate(("gps_pos", "gps_vel")):
+        a = res.forward.nis[res.forward.accepted[:, j], j]
+        mean_nis[kind] = float(np.mean(a)) if a.size else None
     summary = {
         "config": {"drive_smooth": asdict(p)},
         "alignment": res.info,
         "smoothed_method": p.smoother,
         "solutions": names,
         "gps_fixes": n_fix,
-        "gps_rejected": {"forward": rej_f, "backward": rej_b},
-        "forward_mean_nis": float(np.mean(acc_nis)) if acc_nis.size else None,
+        "gps_rejected": rejected,
+        "forward_mean_nis": mean_nis,  # 3 d.o.f. each: about 3 when the noise model fits
         "outages_s": (res.outages_s + session.t0_s).tolist(),
         "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
     }
