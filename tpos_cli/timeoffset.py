@@ -1,13 +1,17 @@
-"""IMU-GPS time offset from the log itself: GPS course rate against the gyro's vertical rate.
+"""IMU-GPS time offset from the log itself: GPS velocity changes against the integrated IMU.
 
-The heading rate seen by GPS (course of the velocity, unwrapped, central difference over
-consecutive fixes) must equal the mean of the body rotation rate about the vertical over the same
-interval. With the IMU vertical rate r(t) = ω_b · d_b (d_b: down direction from the low-passed
-specific force), the central difference of course at fix k compares to
-(R(t_{k+1} + δ) - R(t_{k-1} + δ)) / (t_{k+1} - t_{k-1}), R = ∫ r dt. The offset δ is found by a
-grid search plus parabolic refinement of the least-squares misfit (with a fitted gain, which also
-exposes a flipped or mis-scaled gyro), and its SD from the Gauss-Newton curvature
-σ_δ² = s² / Σ (∂m/∂δ)², s² the residual variance (Bard 1974, Nonlinear Parameter Estimation).
+Two observables compare a change of the GPS velocity over a window [t_a, t_b] (fix times on the
+GPS clock) with the IMU integral over the same window shifted by δ onto the IMU clock:
+- course:  s̄ Δψ  = k_ψ s̄ ∫ r dt          (r: rotation rate about the local down axis, s̄ the mean
+  speed; weighting by s̄ makes the course noise σ_v/s homogeneous, and s̄ ψ̇ is the lateral acceleration);
+- along-track: Δs = k_x ∫ f_x dt + k_y ∫ f_y dt  (forward/right specific force; the gains absorb a
+  yaw misalignment of the mounting).
+Both sides are high-passed alike (a centred moving mean over `highpass_s` removed), which removes
+gyro and accelerometer biases and the slowly varying g·sin(pitch) of road grades (f_x = a_x + g sin θ,
+Groves Eq. 2.138-like kinematics). The offset minimises Σ_c SSE_c(δ)/σ_c² (each channel's gains
+solved by least squares at each δ, σ_c² its residual variance at the best δ), with Huber weights
+(IRLS) against outliers such as GPS jumps. Its SD is a delete-one-block jackknife over time blocks
+(Efron & Stein 1981; blocks of many seconds, so the overlap of windows and slow misfits are honest).
 δ is what to ADD to `[time] gps_offset_s`: GPS times plus δ land on the IMU clock.
 """
 
@@ -19,14 +23,19 @@ import numpy as np
 
 from tpos_cli.errors import ProcessingError
 
+HUBER_K = 1.345  # 95 % efficiency on Gaussian residuals (Huber 1981)
+MIN_R2 = 0.2  # a channel explaining less of its own variance carries no timing information
+
 
 @dataclass(frozen=True)
 class TimeOffset:
     offset_s: float  # add to the GPS times (i.e. to `[time] gps_offset_s`)
-    sigma_s: float
-    gain: float  # fitted IMU-to-GPS rate ratio; 1 for a consistent log
-    n_used: int  # GPS course-rate samples used
-    rms_resid_rps: float
+    sigma_s: float  # jackknife SD (inf when it could not be formed)
+    gain: float  # course channel: IMU-to-GPS rate ratio, 1 for a consistent log (NaN if unused)
+    n_used: int  # GPS windows used over all channels
+    rms_resid_rps: float  # course channel RMS residual as a rate (NaN if unused)
+    gain_along: float = float("nan")  # along-track channel: forward specific-force gain (NaN if unused)
+    channels: tuple[str, ...] = ()  # "course", "along" that carried the estimate
 
 
 def _lowpass(x: np.ndarray, n: int) -> np.ndarray:
@@ -46,74 +55,162 @@ def vertical_rate_rps(t_s, gyro_b_rps, acc_b_mps2, smooth_s: float = 1.0) -> np.
     return np.einsum("ij,ij->i", np.asarray(gyro_b_rps, float), d_b)
 
 
-def gps_course_rate(t_gps_s, vel_ned_mps, min_speed_mps: float):
-    """(time, course rate rad/s, half-interval start, end) by central differences over fixes fast enough."""
-    v = np.asarray(vel_ned_mps, float)
-    t = np.asarray(t_gps_s, float)
-    speed = np.hypot(v[:, 0], v[:, 1])
-    course = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
-    ok = (speed[:-2] > min_speed_mps) & (speed[1:-1] > min_speed_mps) & (speed[2:] > min_speed_mps)
-    ok &= np.isfinite(course[:-2]) & np.isfinite(course[2:]) & (t[2:] - t[:-2] < 5.0)
-    rate = (course[2:] - course[:-2]) / (t[2:] - t[:-2])
-    return t[1:-1][ok], rate[ok], t[:-2][ok], t[2:][ok]
-
-
-def gps_velocity(t_gps_s, lla, vel_ned_mps=None) -> np.ndarray:
-    """GPS velocity NED: the logged one where present, else central differences of positions."""
+def gps_velocity(t_gps_s, lla, vel_ned_mps=None, half_window_s: float = 0.5) -> np.ndarray:
+    """GPS velocity NED: the logged one where present, else central differences of positions
+    over ±`half_window_s` (a 20 Hz position log differenced sample to sample is mostly noise)."""
     from tpos_cli.frames.geodetic import lla_to_ned
 
     if vel_ned_mps is not None and np.isfinite(vel_ned_mps[:, :2]).all():
         return np.asarray(vel_ned_mps, float)
+    t = np.asarray(t_gps_s, float)
     ned = lla_to_ned(lla, lla[0])
-    return np.gradient(ned, np.asarray(t_gps_s, float), axis=0)
+    h = max(half_window_s, float(np.median(np.diff(t)))) if t.size > 1 else half_window_s
+    return np.stack([(np.interp(t + h, t, ned[:, j]) - np.interp(t - h, t, ned[:, j])) / (2 * h) for j in range(3)], axis=1)
+
+
+def _masked_mean(x: np.ndarray, w: np.ndarray, n: int) -> np.ndarray:
+    """Centred moving mean of x over n samples counting only where w > 0 (x (N,) or (N, p))."""
+    ww = w.reshape((-1,) + (1,) * (x.ndim - 1))
+    num = _lowpass(x * ww, n)
+    den = _lowpass(np.broadcast_to(ww, x.shape).astype(float), n)
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """GPS windows [t_a, t_b] on a uniform grid and the GPS-side changes over them."""
+
+    ta: np.ndarray
+    tb: np.ndarray
+    s_mean: np.ndarray
+    d_course: np.ndarray
+    d_speed: np.ndarray
+    ok: np.ndarray
+
+
+def _gps_windows(t_gps, vel, window_s, min_speed_mps) -> _Windows:
+    t_gps = np.asarray(t_gps, float)
+    dtg = max(float(np.median(np.diff(t_gps))), 0.02)
+    grid = np.arange(t_gps[0], t_gps[-1] + dtg / 2, dtg)
+    # a grid point is usable only between fixes less than 2.5 intervals apart (no interpolation over gaps)
+    j = np.clip(np.searchsorted(t_gps, grid), 1, t_gps.size - 1)
+    near = (t_gps[j] - t_gps[j - 1]) < 2.5 * dtg
+    vn, ve = (np.interp(grid, t_gps, vel[:, k]) for k in (0, 1))
+    speed = np.hypot(vn, ve)
+    course = np.unwrap(np.arctan2(ve, vn))
+    m = max(1, int(round(window_s / dtg)))
+    fast = near & (speed > min_speed_mps)
+    # all grid points inside the window must be usable
+    run = _lowpass(fast.astype(float), m + 1)
+    ok = np.zeros(grid.size - m, bool)
+    ok[:] = [fast[i : i + m + 1].all() for i in range(grid.size - m)] if grid.size - m < 50 else False
+    if grid.size - m >= 50:
+        c = np.concatenate([[0], np.cumsum(~fast)])
+        ok = (c[m + 1 :] - c[: -m - 1]) == 0
+    del run
+    return _Windows(grid[:-m], grid[m:], 0.5 * (speed[:-m] + speed[m:]), course[m:] - course[:-m], speed[m:] - speed[:-m], ok)
 
 
 def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, *,
-                             max_offset_s: float = 1.0, min_speed_mps: float = 2.0,
-                             min_samples: int = 20) -> TimeOffset:
-    """Offset δ (s) to add to GPS times so the GPS course rate lines up with the gyro.
+                             max_offset_s: float = 1.0, min_speed_mps: float = 0.5,
+                             window_s: float = 0.5, highpass_s: float = 10.0,
+                             min_samples: int = 20, n_blocks: int = 10,
+                             channels: tuple[str, ...] = ("course", "along")) -> TimeOffset:
+    """Offset δ (s) to add to GPS times so GPS velocity changes line up with the IMU.
 
-    Needs turns while moving faster than `min_speed_mps`; raises ProcessingError otherwise.
+    Needs turns or speed changes while moving faster than `min_speed_mps`; raises ProcessingError otherwise.
     """
     t = np.asarray(t_imu_s, float)
-    r = vertical_rate_rps(t, gyro_b_rps, acc_b_mps2)
-    # a sample holds the mean rate over (t_{k-1}, t_k] (architecture.md), so the rectangle sum is
-    # the exact integral at the sample times; a trapezoid would shift it by half a sample
-    R = np.concatenate([[0.0], np.cumsum(r[1:] * np.diff(t))])
-    tk, rate, ta, tb = gps_course_rate(t_gps_s, vel_ned_mps, min_speed_mps)
-    inside = (ta - max_offset_s > t[0]) & (tb + max_offset_s < t[-1])
-    tk, rate, ta, tb = tk[inside], rate[inside], ta[inside], tb[inside]
-    if rate.size < min_samples or np.std(rate) < 0.01:
-        raise ProcessingError(
-            f"time offset: only {rate.size} GPS course-rate samples above {min_speed_mps:g} m/s "
-            f"(turn-rate SD {np.std(rate) if rate.size else 0:.3f} rad/s); the log needs turns while moving"
-        )
+    acc = np.asarray(acc_b_mps2, float)
+    r = vertical_rate_rps(t, gyro_b_rps, acc)
+    dt = np.diff(t)
+    # a sample holds the mean over (t_{k-1}, t_k] (architecture.md): rectangle sums are the exact
+    # integrals at the sample times; a trapezoid would shift them by half a sample
+    integ = np.concatenate([np.zeros((1, 3)), np.cumsum(np.column_stack([r[1:], acc[1:, 0], acc[1:, 1]]) * dt[:, None], axis=0)])
+    vel = np.asarray(vel_ned_mps, float)
+    w = _gps_windows(t_gps_s, vel, window_s, min_speed_mps)
+    inside = (w.ta - max_offset_s > t[0]) & (w.tb + max_offset_s < t[-1]) & w.ok
+    inside &= np.isfinite(w.d_course) & np.isfinite(w.d_speed)
+    dtg = float(w.tb[0] - w.ta[0]) / max(1, int(round(window_s / max(float(np.median(np.diff(t_gps_s))), 0.02))))
+    nhp = max(3, int(round(highpass_s / dtg)))
+    if inside.sum() < min_samples:
+        raise ProcessingError(f"time offset: only {int(inside.sum())} GPS windows above {min_speed_mps:g} m/s "
+                              "inside the IMU span; the log needs turns or speed changes while moving")
 
-    def model(delta):
-        return (np.interp(tb + delta, t, R) - np.interp(ta + delta, t, R)) / (tb - ta)
+    def hp(x, wt):
+        return (x - _masked_mean(x, wt, nhp)) * (wt > 0).reshape((-1,) + (1,) * (x.ndim - 1))
 
-    def misfit(delta):
-        m = model(delta)
-        gain = float(m @ rate / (m @ m)) if m @ m > 0 else 0.0
-        res = rate - gain * m
-        return float(res @ res), gain
+    mask = inside.astype(float)
+    y = {"course": hp(w.s_mean * w.d_course, mask), "along": hp(w.d_speed, mask)}
+    wrap = np.abs(w.d_course) > np.pi / 2  # a course jump (reversing, noise at low speed)
+    base_w = {"course": mask * ~wrap, "along": mask}
 
-    dt_imu = float(np.median(np.diff(t)))
-    step = max(dt_imu, 0.002)
+    def regressors(delta):
+        d = np.stack([np.interp(w.tb + delta, t, integ[:, k]) - np.interp(w.ta + delta, t, integ[:, k]) for k in range(3)], axis=1)
+        return {"course": hp((w.s_mean * d[:, 0])[:, None], mask), "along": hp(d[:, 1:], mask)}
+
+    def fit(delta, wts):
+        X = regressors(delta)
+        out = {}
+        for c in channels:
+            sw = np.sqrt(wts[c])
+            A, b = X[c] * sw[:, None], y[c] * sw
+            k, *_ = np.linalg.lstsq(A, b, rcond=None)
+            res = y[c] - X[c] @ k
+            out[c] = (float((wts[c] * res) @ res), k, res)
+        return out
+
+    def scan(grid, wts, scale):
+        sse = np.array([[fit(d, wts)[c][0] for c in channels] for d in grid])
+        J = (sse / scale).sum(axis=1)
+        i = int(np.argmin(J))
+        if 0 < i < grid.size - 1:  # parabola through the three best grid points
+            den = J[i - 1] - 2 * J[i] + J[i + 1]
+            return grid[i] + (0.5 * (grid[1] - grid[0]) * (J[i - 1] - J[i + 1]) / den if den > 0 else 0.0), sse
+        return grid[i], sse
+
+    step = 0.01
     grid = np.arange(-max_offset_s, max_offset_s + step / 2, step)
-    sse = np.array([misfit(d)[0] for d in grid])
-    i = int(np.argmin(sse))
-    if 0 < i < grid.size - 1:  # parabola through the three best grid points
-        denom = sse[i - 1] - 2 * sse[i] + sse[i + 1]
-        best = grid[i] + (0.5 * step * (sse[i - 1] - sse[i + 1]) / denom if denom > 0 else 0.0)
-    else:
-        best = grid[i]
-    sse_b, gain = misfit(best)
-    h = 1e-3
-    J = gain * (model(best + h) - model(best - h)) / (2 * h)
-    s2 = sse_b / max(rate.size - 2, 1)
-    sigma = float(np.sqrt(s2 / (J @ J))) if J @ J > 0 else float("inf")
-    return TimeOffset(float(best), sigma, gain, int(rate.size), float(np.sqrt(sse_b / rate.size)))
+    wts = dict(base_w)
+    scale = np.ones(len(channels))
+    best, sse = scan(grid, wts, scale)
+    # channel noise levels at their own best; channels that explain too little are dropped
+    n_c = np.array([wts[c].sum() for c in channels])
+    ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
+    r2 = 1 - sse.min(axis=0) / np.maximum(ss_y, 1e-300)
+    use = tuple(c for c, q in zip(channels, r2) if q >= MIN_R2)
+    if not use:
+        raise ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}); "
+                              "too little motion, or the GPS velocity is too noisy")
+    channels = use
+    for _ in range(2):  # IRLS with Huber weights on each channel's residuals at the current best
+        f = fit(best, wts)
+        for c in channels:
+            res = f[c][2][base_w[c] > 0]
+            s = 1.4826 * np.median(np.abs(res)) or 1.0
+            u = np.abs(f[c][2]) / (HUBER_K * s)
+            wts[c] = base_w[c] * np.minimum(1.0, 1.0 / np.maximum(u, 1e-12))
+        f = fit(best, wts)
+        scale = np.array([f[c][0] / max(wts[c].sum() - f[c][1].size, 1.0) for c in channels])
+        best, _ = scan(grid, wts, scale)
+
+    f = fit(best, wts)
+    # delete-one-block jackknife over contiguous blocks of the usable windows
+    idx = np.flatnonzero(inside)
+    blocks = [b for b in np.array_split(idx, n_blocks) if b.size]
+    local = best + np.arange(-0.3, 0.3 + step / 2, step)
+    reps = []
+    for b in blocks:
+        wb = {c: wts[c].copy() for c in channels}
+        for c in channels:
+            wb[c][b] = 0.0
+        reps.append(scan(local, wb, scale)[0])
+    reps = np.array(reps)
+    sigma = float(np.sqrt((len(reps) - 1) / len(reps) * np.sum((reps - reps.mean()) ** 2))) if len(reps) > 2 else float("inf")
+    gain = float(f["course"][1][0]) if "course" in channels else float("nan")
+    gain_x = float(f["along"][1][0]) if "along" in channels else float("nan")
+    rms = float(np.sqrt(f["course"][0] / wts["course"].sum()) / window_s / max(np.median(w.s_mean[inside]), 1e-9)) if "course" in channels else float("nan")
+    return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels)
 
 
 def estimate_session_offset(session, **kw) -> TimeOffset:
@@ -122,5 +219,7 @@ def estimate_session_offset(session, **kw) -> TimeOffset:
     if g is None:
         raise ProcessingError("time offset: the session has no GPS")
     ok = g.valid
+    if ok.sum() < 3:
+        raise ProcessingError("time offset: fewer than 3 GPS fixes")
     vel = gps_velocity(g.t_s[ok], g.lla[ok], g.vel_ned_mps[ok])
     return estimate_gps_time_offset(session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2, g.t_s[ok], vel, **kw)
