@@ -2,7 +2,10 @@
 
 Error = angle of C_est C_truth^T after removing one constant heading offset per method and trial
 (the optical reference's heading is not tied to magnetic north; BROAD's own evaluation does this),
-over samples with movement == 1 and valid truth.
+over samples with movement == 1 and valid truth. Fairness: the same mask, the same offset removal
+and the same error metric for every method; VQF runs offline (`offlineVQF`, default parameters)
+with Ts = the median IMU sample interval, on the same FRD samples our chain uses.
+Ours: the `target-fkf` pipeline with its defaults (one configuration for every trial).
 
     pip install vqf ; python benchmarks/marg_real.py
 """

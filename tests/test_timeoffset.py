@@ -25,3 +25,49 @@ def test_noise_free_is_exact(drive):
     g, imu = drive.gps, drive.imu
     r = estimate_gps_time_offset(imu.t_s, imu.gyro_true_b_rps, imu.acc_true_b_mps2, g.t_s - 0.2, g.vel_true_ned_mps)
     assert r.offset_s == pytest.approx(0.2, abs=2e-3)  # exact data: limited by the grid/parabola only
+
+
+def test_too_little_motion_raises(drive):
+    from tpos_cli.errors import ProcessingError
+
+    g, imu = drive.gps, drive.imu
+    still = g.t_s < 14.0  # the drive's static start: no velocity change to time
+    with pytest.raises(ProcessingError):
+        estimate_gps_time_offset(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, g.t_s[still], g.vel_ned_mps[still])
+
+
+# A 0.2 s clock offset injected into REAL sessions is caught by the `inspect` check with the right hint.
+import re
+import shutil
+
+import pandas as pd
+
+from tests.helpers.paths import SHARED_DATA
+
+REAL = SHARED_DATA / "real"
+
+
+def _suggested(msgs):
+    hits = [m for m in msgs if "gps_offset_s =" in m]
+    assert len(hits) == 1, msgs
+    return float(re.search(r"gps_offset_s = (-?[0-9.]+)", hits[0]).group(1)), hits[0]
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="needs ../shared real sessions")
+@pytest.mark.parametrize("name, injected_s", [("comma2k19_seg40", 0.2), ("rtklibexplorer_walk_0827", -0.2)])
+def test_real_session_clock_offset_caught(tmp_path, name, injected_s):
+    from tpos_cli.conventions import check_gps_clock
+    from tpos_cli.session import load_session
+    from tpos_cli.timeoffset import estimate_session_offset
+
+    base = estimate_session_offset(load_session(REAL / name))
+    d = tmp_path / name
+    shutil.copytree(REAL / name, d)
+    gps = pd.read_csv(d / "gps.csv", dtype={"t": float})
+    gps["t"] += injected_s  # GPS stamped `injected_s` late on the IMU clock
+    gps.to_csv(d / "gps.csv", index=False, float_format="%.9f")
+    value, msg = _suggested(check_gps_clock(load_session(d)))
+    # the hint undoes the injection on top of the log's own latency (comma2k19: its u-blox velocity is
+    # stamped ~0.19 s late; the walk's PC-stamped IMU ~0.27 s late); 3 ms covers the rounding in the message
+    assert value == pytest.approx(base.offset_s - injected_s, abs=3e-3)
+    assert ("late" if value < 0 else "early") in msg

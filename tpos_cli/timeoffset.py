@@ -24,7 +24,8 @@ import numpy as np
 from tpos_cli.errors import ProcessingError
 
 HUBER_K = 1.345  # 95 % efficiency on Gaussian residuals (Huber 1981)
-MIN_R2 = 0.2  # a channel explaining less of its own variance carries no timing information
+MIN_R2 = 0.3  # a channel explaining less of its own variance carries no timing information
+GAIN_RANGE = (0.5, 2.0)  # |gain| of a channel that measures what it should (1 for a consistent log)
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,7 @@ class TimeOffset:
     rms_resid_rps: float  # course channel RMS residual as a rate (NaN if unused)
     gain_along: float = float("nan")  # along-track channel: forward specific-force gain (NaN if unused)
     channels: tuple[str, ...] = ()  # "course", "along" that carried the estimate
+    r2: tuple[float, ...] = ()  # share of each tried channel's variance explained at its best offset
 
 
 def _lowpass(x: np.ndarray, n: int) -> np.ndarray:
@@ -86,6 +88,7 @@ class _Windows:
     d_course: np.ndarray
     d_speed: np.ndarray
     ok: np.ndarray
+    dt_s: float  # grid step
 
 
 def _gps_windows(t_gps, vel, window_s, min_speed_mps) -> _Windows:
@@ -100,20 +103,15 @@ def _gps_windows(t_gps, vel, window_s, min_speed_mps) -> _Windows:
     course = np.unwrap(np.arctan2(ve, vn))
     m = max(1, int(round(window_s / dtg)))
     fast = near & (speed > min_speed_mps)
-    # all grid points inside the window must be usable
-    run = _lowpass(fast.astype(float), m + 1)
-    ok = np.zeros(grid.size - m, bool)
-    ok[:] = [fast[i : i + m + 1].all() for i in range(grid.size - m)] if grid.size - m < 50 else False
-    if grid.size - m >= 50:
-        c = np.concatenate([[0], np.cumsum(~fast)])
-        ok = (c[m + 1 :] - c[: -m - 1]) == 0
-    del run
-    return _Windows(grid[:-m], grid[m:], 0.5 * (speed[:-m] + speed[m:]), course[m:] - course[:-m], speed[m:] - speed[:-m], ok)
+    # every grid point inside the window must be usable: count the unusable ones by cumulative sum
+    c = np.concatenate([[0], np.cumsum(~fast)])
+    ok = (c[m + 1 :] - c[: -m - 1]) == 0
+    return _Windows(grid[:-m], grid[m:], 0.5 * (speed[:-m] + speed[m:]), course[m:] - course[:-m], speed[m:] - speed[:-m], ok, dtg)
 
 
 def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, *,
                              max_offset_s: float = 1.0, min_speed_mps: float = 0.5,
-                             window_s: float = 0.5, highpass_s: float = 10.0,
+                             window_s: float = 0.5, highpass_s: float = 30.0,
                              min_samples: int = 20, n_blocks: int = 10,
                              channels: tuple[str, ...] = ("course", "along")) -> TimeOffset:
     """Offset δ (s) to add to GPS times so GPS velocity changes line up with the IMU.
@@ -131,8 +129,7 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     w = _gps_windows(t_gps_s, vel, window_s, min_speed_mps)
     inside = (w.ta - max_offset_s > t[0]) & (w.tb + max_offset_s < t[-1]) & w.ok
     inside &= np.isfinite(w.d_course) & np.isfinite(w.d_speed)
-    dtg = float(w.tb[0] - w.ta[0]) / max(1, int(round(window_s / max(float(np.median(np.diff(t_gps_s))), 0.02))))
-    nhp = max(3, int(round(highpass_s / dtg)))
+    nhp = max(3, int(round(highpass_s / w.dt_s)))
     if inside.sum() < min_samples:
         raise ProcessingError(f"time offset: only {int(inside.sum())} GPS windows above {min_speed_mps:g} m/s "
                               "inside the IMU span; the log needs turns or speed changes while moving")
@@ -178,10 +175,13 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     n_c = np.array([wts[c].sum() for c in channels])
     ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
     r2 = 1 - sse.min(axis=0) / np.maximum(ss_y, 1e-300)
-    use = tuple(c for c, q in zip(channels, r2) if q >= MIN_R2)
+    i_best = np.argmin(sse, axis=0)
+    gains = [float(np.linalg.norm(fit(grid[i], wts)[c][1])) for c, i in zip(channels, i_best)]
+    use = tuple(c for c, q, k in zip(channels, r2, gains) if q >= MIN_R2 and GAIN_RANGE[0] < k < GAIN_RANGE[1])
     if not use:
-        raise ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}); "
+        raise ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, gains {np.array2string(np.array(gains), precision=2)}); "
                               "too little motion, or the GPS velocity is too noisy")
+    r2_all = tuple(float(q) for q in r2)
     channels = use
     for _ in range(2):  # IRLS with Huber weights on each channel's residuals at the current best
         f = fit(best, wts)
@@ -210,7 +210,7 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     gain = float(f["course"][1][0]) if "course" in channels else float("nan")
     gain_x = float(f["along"][1][0]) if "along" in channels else float("nan")
     rms = float(np.sqrt(f["course"][0] / wts["course"].sum()) / window_s / max(np.median(w.s_mean[inside]), 1e-9)) if "course" in channels else float("nan")
-    return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels)
+    return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels, r2_all)
 
 
 def estimate_session_offset(session, **kw) -> TimeOffset:

@@ -10,6 +10,7 @@ from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.pipeline import process_session
 from tpos_cli.sim.drive import simulate_drive
+from tests.helpers.paths import SHARED_DATA
 
 SIGMA_COLS = ["sigma_n", "sigma_e", "sigma_d", "sigma_vn", "sigma_ve", "sigma_vd", "sigma_roll", "sigma_pitch", "sigma_yaw"]
 
@@ -107,3 +108,52 @@ def test_targets_from_the_moving_platform(session_dir):
         var_att = d_m**2 * P[8, 8]  # yaw error phi_d rotates the beam about the vertical
         budget = np.trace(P[:2, :2]) + var_att + sigma_r**2
         np.testing.assert_allclose(row.sigma_n**2 + row.sigma_e**2, budget, rtol=0.05)  # pitch/roll terms < 5 %
+
+
+def test_targets_parquet_from_simulated_roadside_shots(tmp_path):
+    """`tpos simulate drive --shots` then `tpos process`: targets.parquet against the exact targets."""
+    sim = simulate_drive(120.0, seed=3, outages=(), shots=4, shot_range_m=40.0)
+    path = sim.write(tmp_path / "s")
+    out = process_session(path, "drive-smooth", tmp_path / "run")
+    tg = pd.read_parquet(out.run_dir / "targets.parquet")
+    assert list(tg["id"]) == ["T1", "T2", "T3", "T4"] and (tg["solution"] == "smoothed").all()
+    truth = sim.targets.lla
+    e = lla_to_ned(tg[["lat", "lon", "h"]].to_numpy(), truth[0]) - lla_to_ned(truth, truth[0])
+    sd = tg[["sigma_n", "sigma_e", "sigma_u"]].to_numpy()
+    # 4 sigma per component (1 in 16 000) against the exact beam points
+    assert np.all(np.abs(e) < 4.0 * sd), (e, sd)
+    # the budget is the smoothed trajectory's, decimetres with 1.5 m GPS: not a vacuous bound
+    assert np.all(sd[:, :2] < 0.6)
+    summary = json.loads((out.run_dir / "summary.json").read_text())
+    assert summary["counts"]["targets"] == 4
+
+
+def test_innovations_table_columns(session_dir, tmp_path):
+    _, path = session_dir
+    out = process_session(path, "drive-smooth", tmp_path / "run")
+    inn = pd.read_parquet(out.run_dir / "innovations.parquet")
+    for c in ("t", "solution", "kind", "nis", "dof", "accepted"):
+        assert c in inn.columns
+    assert set(inn["solution"]) == {"forward", "backward"} and set(inn["kind"]) == {"gps_pos", "gps_vel"}
+    assert (inn["dof"] == 3).all()
+    # about one row per fix, run and kind (fixes before the first IMU sample are not processed)
+    n_fix = json.loads((out.run_dir / "summary.json").read_text())["results"]["gps_fixes"]
+    assert n_fix - 2 <= (inn["solution"].eq("forward") & inn["kind"].eq("gps_pos")).sum() <= n_fix
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "real" / "rtklibexplorer_walk_0827").exists(), reason="../shared not present")
+def test_default_pipeline_on_a_real_walk(tmp_path):
+    """A pedestrian never reaches a car's 3 m/s: the default pipeline must still align and track."""
+    sdir = SHARED_DATA / "real" / "rtklibexplorer_walk_0827"
+    out = process_session(sdir, None, tmp_path / "run")
+    res = json.loads((out.run_dir / "summary.json").read_text())["results"]
+    assert "yaw" in res["alignment"]["heading"] or "gps velocity" in res["alignment"]["heading"]
+    traj = pd.read_parquet(out.run_dir / "trajectory.parquet")
+    truth = pd.read_csv(sdir / "truth.csv")
+    sm = traj[traj["solution"] == "smoothed"]
+    lla = np.column_stack([np.interp(truth["t"], sm["t"], sm[c]) for c in ("lat", "lon", "h")])
+    ref = truth[["lat", "lon", "h"]].to_numpy()
+    e = lla_to_ned(lla, ref[0]) - lla_to_ned(ref, ref[0])
+    # truth is the RTK solution the filter uses (floored to 0.3 m SD): smoothed within 0.3 m RMS
+    assert np.sqrt(np.mean(np.hypot(e[:, 0], e[:, 1]) ** 2)) < 0.3
+    assert res["flagged_fraction"] < 0.05

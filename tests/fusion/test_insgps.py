@@ -93,4 +93,16 @@ def test_backward_run_on_reversed_log(drive):
 def test_flags_and_rejections_quiet_on_clean_data(drive):
     _, res = drive
     assert res.flag.mean() < 0.01  # forward and backward agree on a clean simulated drive
-    assert (~res.forward.accepted).sum() <= 2  # 0.9999 gate on ~210 fixes
+    acc, nis = res.forward.accepted, res.forward.nis
+    assert (~acc & np.isfinite(nis)).sum() <= 2  # 0.9999 gate on ~210 fixes x (position, velocity)
+
+
+def test_nis_per_kind_is_chi2_with_3_dof(drive):
+    """Position and velocity NIS, each 3 d.o.f., average about 3 on white simulated GPS."""
+    _, res = drive
+    nis = res.forward.nis
+    for j in range(2):
+        a = nis[np.isfinite(nis[:, j]) & (np.arange(nis.shape[0]) > 30), j]
+        # mean of ~180 chi2(3) draws: SD sqrt(6/180) = 0.18; 4 SD, plus the slightly cautious
+        # constant-bias model (the simulator's bias is constant + Gauss-Markov)
+        assert 3.0 - 0.8 < np.mean(a) < 3.0 + 0.8, (j, np.mean(a))

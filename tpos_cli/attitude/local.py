@@ -9,7 +9,7 @@ The upper-bounding of Eq. 23 (P0/beta, Q/beta) is applied by the caller through 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -124,6 +124,15 @@ def euler_sigma_deg(C_nb, P_att):
     Mi = np.linalg.inv(M)
     cov = Mi @ P_att @ np.swapaxes(Mi, 1, 2)
     return np.degrees(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None)))
+
+
+def add_heading_variance(sol: AttitudeSolution, var_rad2: float) -> AttitudeSolution:
+    """`sol` with a constant heading-error variance added about NED down (e.g. LF2's wall azimuth)."""
+    if var_rad2 <= 0.0:
+        return sol
+    P = sol.P_att.copy()
+    P[:, 2, 2] += var_rad2
+    return replace(sol, P_att=P)
 
 
 def range_differences(t_imu_s, t_rng_s, range_m):

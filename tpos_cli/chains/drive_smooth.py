@@ -107,7 +107,7 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     vel = np.array(gps.vel_ned_mps[ok], dtype=float)
     if not p.use_gps_velocity:
         vel[:] = np.nan
-    vel[~np.isfinite(vel).all(axis=1)] = np.nan
+    vel[~np.isfinite(vel[:, :2]).all(axis=1)] = np.nan  # vd may be absent alone (speed/course receivers)
     t = np.array(gps.t_s[ok], dtype=float)
     keep = decimate_times(t, p.gps_max_rate_hz)
     return GpsFixes(t[keep], np.array(gps.lla[ok], dtype=float)[keep], vel[keep], sig[keep],
@@ -339,7 +339,7 @@ def innovations_table(res: DriveResult, t0_s: float) -> pd.DataFrame:
             nu = r.innovation[m, 3 * j: 3 * j + 3]
             frames.append(pd.DataFrame({
                 "t": res.fixes.t_s[m] + t0_s, "solution": run_name, "kind": kind, "nis": r.nis[m, j],
-                "dof": np.full(int(m.sum()), 3, dtype=np.int64), "accepted": r.accepted[m, j],
+                "dof": np.isfinite(nu).sum(axis=1).astype(np.int64), "accepted": r.accepted[m, j],
                 "nu_0": nu[:, 0], "nu_1": nu[:, 1], "nu_2": nu[:, 2]}))
     return pd.concat(frames, ignore_index=True).sort_values(["solution", "kind", "t"], kind="stable", ignore_index=True)
 

@@ -23,7 +23,7 @@ from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude import faults, master
 from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.attitude.local import (
-    AttitudeSolution, FilterNoise, FilterSetup, euler_sigma_deg, range_differences, run_full, run_paper8,
+    AttitudeSolution, add_heading_variance, FilterNoise, FilterSetup, euler_sigma_deg, range_differences, run_full, run_paper8,
 )
 from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.errors import InvalidInputError
@@ -245,6 +245,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         }
 
     rdiff = None
+    wall_var = 0.0
     wall_n = np.array([np.cos(A.yaw_rad), np.sin(A.yaw_rad), 0.0])
     rf = session.meta.rangefinders
     if session.ranges is not None and rf is not None:
@@ -256,7 +257,11 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             rdiff = None
         else:
             wall_n = wall_normal_ned(A.C_nb, in_win[good].mean(axis=0), rf.baseline_12_m, rf.baseline_13_m)
+            # the wall azimuth inherits the alignment's yaw error plus the mean beam-difference noise
+            # (d1 - d2 over b12, K samples); LF2's heading carries it as a constant bias
+            wall_var = float(A.sigma_rpy_rad[2] ** 2 + 2.0 * noise.range_sigma_m**2 / rf.baseline_12_m**2 / good.sum())
             summary["wall_azimuth_deg"] = float(np.degrees(np.arctan2(wall_n[1], wall_n[0])) % 360.0)
+            summary["wall_azimuth_sigma_deg"] = float(np.degrees(np.sqrt(wall_var)))
     elif session.ranges is None:
         ctx.warn("ranges: none in this session; LF2 needs the three rangefinders, so only gyro/lf1/fkf are produced")
 
@@ -290,8 +295,9 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             use1 = K.USE_ACC | mot | (K.USE_MAG if imu.mag_b_ut is not None else 0)
             sols["lf1"] = run("lf1", t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, None, setup, use1, still=still)
             if rdiff is not None:
-                sols["lf2"] = run("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup,
-                                  K.USE_RANGE | K.USE_ACC | mot, still=still)
+                sols["lf2"] = add_heading_variance(
+                    run("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup, K.USE_RANGE | K.USE_ACC | mot,
+                        still=still), wall_var)
         else:
             wall_yaw = float(np.arctan2(wall_n[1], wall_n[0]))
             o1, v1, o2, v2 = _paper8_obs(session, p, t, A, decl, rdiff, noise, wall_yaw)

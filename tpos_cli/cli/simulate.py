@@ -9,7 +9,7 @@ import typer
 from tpos_cli.cli._common import exit_on_error, show_progress
 
 _ONLY = {
-    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel"),
+    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range"),
     "target": ("motion", "wall_distance", "mag_disturbance_ut", "mag_disturbance_start", "mag_disturbance_end"),
     "ranging": ("dropout", "nlos_prob"),
 }
@@ -42,6 +42,8 @@ def simulate(
     gps_sigma_h: float = typer.Option(None, "--gps-sigma-h", help="drive: GPS horizontal noise SD per axis, m (default 1.5)."),
     gps_sigma_v: float = typer.Option(None, "--gps-sigma-v", help="drive: GPS vertical noise SD, m (default 2.5)."),
     gps_sigma_vel: float = typer.Option(None, "--gps-sigma-vel", help="drive: GPS velocity noise SD per axis, m/s (default 0.05)."),
+    shots: int = typer.Option(None, "--shots", help="drive: laser shots (LR1 along the body x axis) on targets ahead, spread over the drive (default 0)."),
+    shot_range: float = typer.Option(None, "--shot-range", help="drive: distance to the shot targets, m (default 40)."),
     motion: str = typer.Option(None, "--motion", help="target: shots (aim at each target in turn) or sine (paper 000 sec. 6.1)."),
     wall_distance: float = typer.Option(None, "--wall-distance", help="target: distance to the wall, m (default 12)."),
     mag_disturbance_ut: float = typer.Option(None, "--mag-disturbance-ut", help="target: add a magnetic disturbance of this magnitude, uT (paper 000: 50)."),
@@ -78,7 +80,8 @@ def simulate(
     for key, arg in (("trajectory_seed", trajectory_seed), ("gps_sigma_h_m", gps_sigma_h), ("gps_sigma_v_m", gps_sigma_v),
                      ("gps_sigma_vel_mps", gps_sigma_vel), ("motion", motion), ("wall_distance_m", wall_distance),
                      ("mag_disturbance_ut", mag_disturbance_ut), ("mag_disturbance_start_s", mag_disturbance_start),
-                     ("mag_disturbance_end_s", mag_disturbance_end), ("nlos_prob", nlos_prob)):
+                     ("mag_disturbance_end_s", mag_disturbance_end), ("nlos_prob", nlos_prob),
+                     ("shots", shots), ("shot_range_m", shot_range)):
         if arg is not None:
             kw[key] = arg
     with exit_on_error():

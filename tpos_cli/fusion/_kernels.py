@@ -33,7 +33,7 @@ def insgps_kernel(
     """Closed-loop 15-state INS/GPS filter over a whole log (forward or reversed).
 
     gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
-    position and velocity variances; NaN velocity -> position-only update. Per fix, innov (M, 6)
+    position and velocity variances; NaN velocity -> position-only update; NaN vd -> horizontal velocity update. Per fix, innov (M, 6)
     gets the residuals, nis (M, 2) and accepted (M, 2) the position and velocity NIS (3 d.o.f.
     each, NaN when absent) and whether each was applied. Gate: NIS above gate[3] rejects that
     part of the fix, except after `max_reject` consecutive rejections of that kind (the nominal
@@ -123,16 +123,20 @@ def insgps_kernel(
                 else:
                     n_rej += 1
                 if not np.isnan(gps_vel[g, 0]):
+                    # receivers that log speed and course give no vertical velocity: 2-dim update
+                    mv = 2 if np.isnan(gps_vel[g, 2]) else 3
                     velocity_residual(nav, C, lever_b, w_ib, gps_vel[g], zv)
                     velocity_jacobian(C, lever_b, w_ib, Hv, 0)
-                    for i in range(3):
+                    R3[:, :] = 0.0
+                    for i in range(mv):
                         innov[g, 3 + i] = zv[i]
                         R3[i, i] = gps_var[g, 3 + i]
-                    s = nis_of(x, P, zv, Hv, R3)
+                    Rv = np.ascontiguousarray(R3[:mv, :mv])
+                    s = nis_of(x, P, zv[:mv], Hv[:mv], Rv)
                     nis[g, 1] = s
-                    if s <= gate[3] or n_rej_v >= max_reject:
+                    if s <= gate[mv] or n_rej_v >= max_reject:
                         n_rej_v = 0
-                        if update(x, P, zv, Hv, R3) < 0.0:
+                        if update(x, P, zv[:mv], Hv[:mv], Rv) < 0.0:
                             return ep + 1, 1 + k
                         accepted[g, 1] = True
                     else:

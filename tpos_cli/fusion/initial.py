@@ -67,9 +67,19 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
         vel_sigma = 0.05
     else:
         sl = slice(0, max(2, int(np.searchsorted(t, t[0] + 1.0))))
-        info["levelling"] = "moving start: mean specific force of the first second (vehicle acceleration biases it)"
         vel_sigma = sig.vel_mps
-    roll, pitch = alignment.level_rad(np.mean(acc_b_mps2[sl], axis=0))
+    f_b = np.mean(acc_b_mps2[sl], axis=0)
+    level_sigma = sig.level_rad
+    if not static:
+        # a moving vehicle's specific force holds its acceleration (2 m/s^2 is 11 deg of false
+        # tilt): remove the longitudinal acceleration (GPS speed slope) and the centripetal one
+        # (speed x yaw rate) along the body axes of a car (no side slip), and widen the SD
+        a_b = _start_acceleration_b(t[sl], gyro_b_rps[sl], fixes)
+        f_b = f_b - a_b
+        level_sigma = max(level_sigma, np.radians(3.0))
+        info["levelling"] = (f"moving start: specific force of the first second less the GPS acceleration "
+                             f"({a_b[0]:.2f}, {a_b[1]:.2f}) m/s^2 along body x, y")
+    roll, pitch = alignment.level_rad(f_b)
     roll, pitch = float(roll), float(pitch)
     lat0 = np.radians(fixes.lla[0, 0])
     yaw_sigma = sig.yaw_rad
@@ -109,10 +119,33 @@ def align_vehicle(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, fixes: GpsFixes, lever_
     dt0 = fixes.t_s[i0] - t[0]  # move the fix back to t0 along its velocity
     nav = np.array([lat - (Cl[0] + vel[0] * dt0) / rn, np.radians(lla[1]) - (Cl[1] + vel[1] * dt0) / (re * np.cos(lat)),
                     lla[2] + Cl[2] + vel[2] * dt0, *vel])
-    s = InitialSigmas(max(sig.pos_m, 1.0 + abs(dt0) * (0.0 if static else 2.0)), vel_sigma, sig.level_rad, yaw_sigma,
+    s = InitialSigmas(max(sig.pos_m, 1.0 + abs(dt0) * (0.0 if static else 2.0)), vel_sigma, level_sigma, yaw_sigma,
                       sig.acc_bias_mps2, sig.gyro_bias_rps)
     info["static_start"] = bool(static)
     return InitialState(nav, C, bias, initial_covariance(s)), info
+
+
+def _start_acceleration_b(t_s, gyro_b_rps, fixes: GpsFixes) -> np.ndarray:
+    """Mean acceleration (3,) along FRD body x, y over the samples `t_s` of a moving car: speed
+    slope from the fixes within 1 s of that span (logged velocity, else positions), speed x
+    mean yaw rate sideways. Zero when fewer than two fixes are near."""
+    m = (fixes.t_s >= t_s[0] - 1.0) & (fixes.t_s <= t_s[-1] + 1.0)
+    tf = fixes.t_s[m]
+    if tf.size < 2:
+        return np.zeros(3)
+    v = fixes.vel_ned_mps[m]
+    if np.isfinite(v[:, :2]).all():
+        speed = np.hypot(v[:, 0], v[:, 1])
+    else:
+        lat = np.radians(fixes.lla[m, 0])
+        n_m = lat * earth.meridian_radius_m(lat)
+        e_m = np.radians(fixes.lla[m, 1]) * earth.transverse_radius_m(lat) * np.cos(lat)
+        if tf.size < 3:
+            return np.zeros(3)
+        speed = np.hypot(np.gradient(n_m, tf), np.gradient(e_m, tf))
+    a_long = float(np.polyfit(tf - tf[0], speed, 1)[0])
+    a_lat = float(np.mean(speed) * np.mean(gyro_b_rps[:, 2]))  # right turn (w_z > 0): centripetal to the right
+    return np.array([a_long, a_lat, 0.0])
 
 
 @dataclass(frozen=True)
@@ -126,38 +159,43 @@ class _Heading:
 def _gps_heading(fixes: GpsFixes, min_speed_mps: float) -> _Heading | None:
     """Course over ground once moving, or None when GPS never shows motion.
 
-    First the logged (or 2 s differenced) velocity at `min_speed_mps`; a slow platform (a rover,
-    a pedestrian) never reaches a car's threshold, so then positions differenced over 10 s at
-    half the speed the log actually reaches (but at least 0.3 m/s: 3 m over the baseline, above
-    the metre-level GPS noise). Differenced positions carry correlated GPS errors: SD from a
-    1 m position error over the baseline (yaw search refines it).
+    With logged velocity: the first fix at `min_speed_mps`, or, for a slow platform (a rover, a
+    pedestrian) that never reaches a car's threshold, at half the speed the log reaches (95th
+    percentile, at least 0.3 m/s); SD from the velocity SD over the speed. Without logged
+    velocity: positions differenced over 10 s (single 1-2 s differences of correlated metre-level
+    fixes invent speeds a slow platform never had), same thresholds, SD from a 1 m position
+    error over the baseline. `search_yaw` then checks the course against other yaws.
     """
-    try:
-        hd = alignment.gps_velocity_heading(fixes.t_s, fixes.lla, fixes.vel_ned_mps, min_speed_mps=min_speed_mps)
-        return _Heading(hd.t_s, hd.yaw_rad, hd.sigma_yaw_rad, f"{min_speed_mps:g} m/s reached")
-    except ProcessingError:
-        pass
-    baseline_s = 10.0
-    lat = np.radians(fixes.lla[:, 0])
-    n_m = lat * (earth.meridian_radius_m(lat) + fixes.lla[:, 2])
-    e_m = np.radians(fixes.lla[:, 1]) * (earth.transverse_radius_m(lat) + fixes.lla[:, 2]) * np.cos(lat)
     t = fixes.t_s
-    if t.size < 3 or t[-1] - t[0] < 2 * baseline_s:
+    v = fixes.vel_ned_mps
+    baseline_s = 10.0
+    if np.isfinite(v[:, :2]).any():
+        speed = np.hypot(v[:, 0], v[:, 1])
+        vel, how = v, "logged velocity"
+    else:
+        if t.size < 3 or t[-1] - t[0] < 2 * baseline_s:
+            return None
+        lat = np.radians(fixes.lla[:, 0])
+        n_m = lat * (earth.meridian_radius_m(lat) + fixes.lla[:, 2])
+        e_m = np.radians(fixes.lla[:, 1]) * (earth.transverse_radius_m(lat) + fixes.lla[:, 2]) * np.cos(lat)
+        j = np.searchsorted(t, t + baseline_s)
+        i = np.flatnonzero(j < t.size)
+        j = j[i]
+        speed = np.hypot(n_m[j] - n_m[i], e_m[j] - e_m[i]) / (t[j] - t[i])
+        vel, how = None, f"positions over {baseline_s:g} s"
+    if not np.isfinite(speed).any():
         return None
-    j = np.searchsorted(t, t + baseline_s)
-    ok = j < t.size
-    i = np.flatnonzero(ok)
-    j = j[ok]
-    speed = np.hypot(n_m[j] - n_m[i], e_m[j] - e_m[i]) / (t[j] - t[i])
-    thr = max(0.3, 0.5 * float(np.percentile(speed, 95)))
-    if thr >= min_speed_mps:
-        return None
+    thr = min(min_speed_mps, max(0.3, 0.5 * float(np.nanpercentile(speed, 95))))
     try:
-        hd = alignment.gps_velocity_heading(t, fixes.lla, None, min_speed_mps=thr, baseline_s=baseline_s)
+        if vel is not None:
+            hd = alignment.gps_velocity_heading(t, fixes.lla, vel, min_speed_mps=thr)
+            sigma = hd.sigma_yaw_rad
+        else:
+            hd = alignment.gps_velocity_heading(t, fixes.lla, None, min_speed_mps=thr, baseline_s=baseline_s)
+            sigma = float(np.clip(1.0 / (thr * baseline_s), np.radians(2.0), np.radians(30.0)))
     except ProcessingError:
         return None
-    sigma = float(np.clip(1.0 / (thr * baseline_s), np.radians(2.0), np.radians(30.0)))
-    return _Heading(hd.t_s, hd.yaw_rad, sigma, f"positions over {baseline_s:g} s at {thr:.2f} m/s")
+    return _Heading(hd.t_s, hd.yaw_rad, sigma, f"{how} at {thr:.2f} m/s")
 
 
 @dataclass(frozen=True)
@@ -173,7 +211,8 @@ class YawSearch:
 
 
 def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
-               n_hypotheses: int = 12, motion_s: float = 30.0, moved_m: float = 5.0) -> YawSearch:
+               n_hypotheses: int = 12, motion_s: float = 30.0, moved_m: float = 5.0,
+               min_likelihood_ratio: float = 100.0) -> YawSearch:
     """Coarse-to-fine initial yaw: the filter run from `n_hypotheses` yaws over the start of the log.
 
     A linearized error-state filter converges only from a yaw error of some 15-20 deg; a course
@@ -210,6 +249,11 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
             continue  # diverged: not this one
         scores[h] = float(np.nansum(run.nis))
     best = int(np.argmin(scores))
+    # the summed NIS is -2 log-likelihood up to terms alike for every hypothesis: the prior yields
+    # only to a yaw at least `min_likelihood_ratio` times more likely (weak yaw observability,
+    # e.g. a slow rover, gives near-equal scores: then the course is the better information)
+    if np.isfinite(scores[0]) and scores[0] - scores[best] < 2.0 * np.log(min_likelihood_ratio):
+        best = 0
     return YawSearch(float(hyps[best]), float(sigmas[best]), hyps, scores, (float(t[0]), float(t[i_end - 1])), best == 0)
 
 

@@ -18,7 +18,7 @@ from tpos_cli.sim.gps import simulate_gps
 from tpos_cli.sim.kinematics import MotionSample, simulate_truth_imu
 from tpos_cli.sim.profiles import SMOOTHSTEP_PEAK_RATE as PEAK
 from tpos_cli.sim.profiles import RampProfile
-from tpos_cli.sim.result import SimImu, SimResult, SimTruth
+from tpos_cli.sim.result import SimImu, SimRanges, SimResult, SimShots, SimTargets, SimTruth
 from tpos_cli.sim.sensor_errors import corrupt_imu, imu_grade
 
 DEFAULT_START_LLA = (48.0496, 8.2076, 870.0)  # Furtwangen (paper 003's university), ellipsoidal h
@@ -113,12 +113,19 @@ def simulate_drive(
     start_lla=DEFAULT_START_LLA,
     t0_s: float = 0.0,
     name: str = "drive",
+    shots: int = 0,
+    shot_range_m: float = 40.0,
+    range_sigma_m: float = 0.05,
 ) -> SimResult:
     """Simulate the `drive` scenario; see the module docstring.
 
     `seed` draws the sensor noise; `trajectory_seed` (default: `seed`) the manoeuvres. `outages` are
     (start_s, length_s) pairs relative to the first IMU sample. `noise_free` gives an error-free IMU
     (grade `perfect`); GPS noise is set by the `gps_sigma_*` arguments alone.
+    `shots` > 0 adds that many laser shots (paper 001: the LR1 beam along the body forward axis)
+    on targets ahead of the vehicle, spread over the drive after the static start: one LR1 return
+    per shot (`range_sigma_m` noise, LR2/LR3 no return), the target exactly `shot_range_m` along the
+    beam at the return's time, written as targets with role "truth".
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise InvalidInputError("duration and rate must be > 0")
@@ -156,6 +163,11 @@ def simulate_drive(
         "gps_sigma_vel_mps": gps_sigma_vel_mps,
     }
     win = np.column_stack([outages_arr[:, 0], outages_arr.sum(axis=1)])
+    extra = {}
+    if shots > 0:
+        extra = _roadside_shots(truth, shots, static_s, duration_s, shot_range_m, range_sigma_m,
+                                np.random.default_rng([seed, 5]))
+        params.update({"shots": shots, "shot_range_m": shot_range_m, "range_sigma_m": range_sigma_m})
     return SimResult(
         kind="drive",
         name=name,
@@ -166,4 +178,27 @@ def simulate_drive(
         gps_outages_s=win,
         toml={"gps": {"lever_arm_m": [0.0, 0.0, 0.0]}},
         params=params,
+        **extra,
     )
+
+
+def _roadside_shots(truth: SimTruth, n: int, static_s: float, duration_s: float, range_m: float, sigma_m: float,
+                    rng: np.random.Generator) -> dict:
+    """Ranges, shots and truth targets for `n` single-return shots along the body x axis."""
+    from tpos_cli.frames.geodetic import ned_to_lla
+
+    t_shot = np.linspace(static_s + 10.0, duration_s - 5.0, n) if n > 1 else np.array([0.5 * (static_s + duration_s)])
+    i = np.clip(np.searchsorted(truth.t_s, t_shot), 0, truth.t_s.size - 1)
+    t_r = truth.t_s[i]
+    C = truth.C_nb[i]
+    lla = np.array([ned_to_lla(C[k] @ np.array([range_m, 0.0, 0.0]), truth.lla[i[k]]) for k in range(i.size)]).reshape(-1, 3)
+    r = np.full((i.size, 3), np.nan)
+    r[:, 0] = range_m + sigma_m * rng.standard_normal(i.size)
+    r_true = np.full((i.size, 3), np.nan)
+    r_true[:, 0] = range_m
+    ids = tuple(f"T{k + 1}" for k in range(i.size))
+    return {
+        "ranges": SimRanges(t_r, r, r_true, 0.3, 0.2, float(sigma_m)),  # LR2/LR3 baselines: no returns
+        "targets": SimTargets(ids, lla, ("truth",) * i.size),
+        "shots": SimShots(ids, t_r - 0.05, t_r + 0.05),
+    }

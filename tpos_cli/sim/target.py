@@ -46,11 +46,11 @@ MAX_SLEW_RATE_RPS = np.radians(30.0)
 
 @dataclass(frozen=True)
 class AimMotion:
-    """Static device; attitude from yaw and pitch profiles, zero roll."""
+    """Static device; attitude from yaw and pitch profiles, roll constant (default 0) or swaying."""
 
     yaw: RampProfile | SineProfile
     pitch: RampProfile | SineProfile
-    roll: ConstantProfile = ConstantProfile(0.0)
+    roll: ConstantProfile | SineProfile = ConstantProfile(0.0)
 
     def __call__(self, t) -> MotionSample:
         y, y1, _ = self.yaw.eval(t)
@@ -132,6 +132,9 @@ def simulate_target(
     mag_disturbance_end_s: float | None = None,
     mag_disturbance_noise_ut: float = 1.0,
     mag_disturbance_dir_b=(0.0, 1.0, 0.0),
+    roll_deg: float = 0.0,
+    roll_sway_deg: float = 0.0,
+    roll_sway_period_s: float = 7.0,
     start_utc: str = "2015-06-11T14:02:00Z",
     t0_s: float = 0.0,
     name: str = "target",
@@ -141,6 +144,9 @@ def simulate_target(
     `mag_disturbance_ut` > 0 adds a field of that magnitude along `mag_disturbance_dir_b` (body FRD;
     default body right) plus white noise `mag_disturbance_noise_ut` in [start, end) (end default:
     the end of the session). `noise_free` gives error-free IMU, magnetometer and ranges.
+    `roll_deg` holds the device at that roll (a hand-held device is never level) and
+    `roll_sway_deg` adds a sinusoidal roll sway of that amplitude and period `roll_sway_period_s`
+    (roll turns about the beam, so LR1 still hits the same points).
     """
     if duration_s <= 0 or rate_hz <= 0 or wall_distance_m <= 0:
         raise InvalidInputError("duration, rate and wall distance must be > 0")
@@ -160,7 +166,9 @@ def simulate_target(
     else:
         a = np.radians(54.0)
         yaw_p, pitch_p, shots = SineProfile(a, 100.0, offset=az), SineProfile(a, 100.0), []
-    mot = AimMotion(yaw_p, pitch_p)
+    roll_p = (SineProfile(np.radians(roll_sway_deg), roll_sway_period_s, offset=np.radians(roll_deg))
+              if roll_sway_deg != 0.0 else ConstantProfile(np.radians(roll_deg)))
+    mot = AimMotion(yaw_p, pitch_p, roll_p)
 
     n = int(round(duration_s * rate_hz)) + 1
     t = np.arange(n) / rate_hz
@@ -201,6 +209,8 @@ def simulate_target(
         "wall_azimuth_deg": wall_azimuth_deg,
         "field_ut_inc_dec": list(field_ut_inc_dec),
         "mag_disturbance_ut": mag_disturbance_ut,
+        "roll_deg": roll_deg,
+        "roll_sway_deg": roll_sway_deg,
         "mag_disturbance_window_s": [mag_disturbance_start_s, mag_disturbance_end_s] if mag_disturbance_ut > 0 else None,
     }
     return SimResult(
