@@ -92,23 +92,36 @@ def identify_noise(t_s, gyro_b_rps, acc_b_mps2) -> NoiseFigures:
     return NoiseFigures(g, a, float(rate))
 
 
+MIN_STATIC_S = 100.0  # shortest static stretch worth an Allan analysis (τ up to ~30 s)
+
+
+def longest_static_window(t_s, gyro_b_rps, acc_b_mps2) -> tuple[int, int]:
+    """Sample indices [i0, i1) of the longest contiguous stretch at rest (`alignment.static_mask`)."""
+    from tpos_cli.alignment import static_mask
+
+    still = static_mask(np.asarray(t_s, float), gyro_b_rps, acc_b_mps2)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
+    if edges.size == 0:
+        return 0, 0
+    a, b = edges[::2], edges[1::2]
+    k = int(np.argmax(np.asarray(t_s)[b - 1] - np.asarray(t_s)[a]))
+    return int(a[k]), int(b[k])
+
+
+def session_noise(session) -> tuple[NoiseFigures, tuple[float, float]] | None:
+    """Allan figures of the session's longest static stretch (logger clock window), or None if it is
+    shorter than MIN_STATIC_S: what the PDF report shows when a run's log is static enough."""
+    imu = session.imu
+    i0, i1 = longest_static_window(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2)
+    if i1 - i0 < 100 or imu.t_s[i1 - 1] - imu.t_s[i0] < MIN_STATIC_S:
+        return None
+    sl = slice(i0, i1)
+    nf = identify_noise(imu.t_s[sl], imu.gyro_b_rps[sl], imu.acc_b_mps2[sl])
+    return nf, (float(imu.t_s[i0] + session.t0_s), float(imu.t_s[i1 - 1] + session.t0_s))
+
+
 def plot_allan(fig_path, nf: NoiseFigures) -> None:
-    """Log-log Allan deviation plot of the six axes (PNG)."""
-    import matplotlib
+    """Log-log Allan deviation plot of the six axes (PNG); the same figure as the report's page."""
+    from tpos_cli.report.figures import allan_page
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
-    for i, a in enumerate(nf.gyro):
-        ax[0].loglog(a.tau_s, np.degrees(a.adev) * 3600, label=f"gyro {'xyz'[i]}")
-    for i, a in enumerate(nf.acc):
-        ax[1].loglog(a.tau_s, a.adev / G0 * 1e3, label=f"acc {'xyz'[i]}")
-    ax[0].set(xlabel="τ (s)", ylabel="Allan deviation (deg/h)", title="gyro")
-    ax[1].set(xlabel="τ (s)", ylabel="Allan deviation (mg)", title="accelerometer")
-    for x in ax:
-        x.grid(True, which="both", alpha=0.3)
-        x.legend()
-    fig.tight_layout()
-    fig.savefig(fig_path, dpi=120)
-    plt.close(fig)
+    allan_page(nf).savefig(fig_path, dpi=120)

@@ -267,3 +267,23 @@ def target_scatter_page(te: pd.DataFrame) -> Figure:
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=8, loc="upper right")
     return fig
+
+
+def allan_page(nf, window_note: str = "") -> Figure:
+    """Log-log Allan deviation of the gyro and accelerometer axes (`tpos_cli.noise.NoiseFigures`),
+    with the read-offs that become the session.toml `[imu]` noise keys."""
+    from tpos_cli.noise import G0
+
+    fig = new_page("IMU noise: Allan deviation", "overlapping Allan deviation per axis (IEEE Std 952-1997 Annex C)" + (f"; {window_note}" if window_note else ""))
+    specs = ((nf.gyro, lambda a: np.degrees(a) * 3600.0, "gyro Allan deviation, deg/h"), (nf.acc, lambda a: a / G0 * 1e3, "accelerometer Allan deviation, mg"))
+    for k, (axes3, conv, label) in enumerate(specs):
+        ax = fig.add_axes([0.12, 0.56 - 0.4 * k, 0.8, 0.33])
+        for i, a in enumerate(axes3):
+            ax.loglog(a.tau_s, conv(a.adev), color=COLORS[i], label="xyz"[i])
+        ax.set_xlabel("averaging time τ, s")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", lw=0.3)
+        ax.legend(fontsize=8)
+    keys = nf.toml_keys()
+    fig.text(0.12, 0.07, "\n".join(textwrap.wrap("[imu] " + ", ".join(f"{k} = {v:g}" for k, v in keys.items()), 110)), fontsize=7.5, va="top")
+    return fig

@@ -143,6 +143,12 @@ def write_pdf(path: Path, run, session, truth, acc, health, summary) -> list[str
         te = acc.targets.drop(columns=["t_start"]).rename(columns=lambda c: c.replace("_m", " m"))
         for fig in F.table_pages("Per-target errors against surveyed truth", te, "err = solution - surveyed truth (north, east, up); cep_pred = CEP predicted from sigma_n, sigma_e.", fontsize=7):
             pages.append(("targets", fig))
+    from tpos_cli.noise import session_noise
+
+    static = session_noise(session)  # a log static for >= 100 s: its IMU noise figures
+    if static is not None:
+        nf, (w0, w1) = static
+        pages.append(("allan", F.allan_page(nf, f"longest static stretch of the session, {w0:.1f}-{w1:.1f} s (logger clock)")))
     n_total = len(pages)
     with PdfPages(path, metadata={"Title": f"tpos report: {session.meta.name}", "Creator": f"tpos {summary['tpos_version']}", "Subject": f"config sha256 {run.summary.get('config_sha256')}"}) as pdf:
         for k, (_, fig) in enumerate(pages):
