@@ -1,7 +1,12 @@
 """IMU-GPS time offset recovered from a simulated drive (issue 8: within 20 ms)."""
 
+import re
+import shutil
+
+import pandas as pd
 import pytest
 
+from tests.helpers.paths import SHARED_DATA
 from tpos_cli.sim.drive import simulate_drive
 from tpos_cli.timeoffset import estimate_gps_time_offset
 
@@ -37,13 +42,6 @@ def test_too_little_motion_raises(drive):
 
 
 # A 0.2 s clock offset injected into REAL sessions is caught by the `inspect` check with the right hint.
-import re
-import shutil
-
-import pandas as pd
-
-from tests.helpers.paths import SHARED_DATA
-
 REAL = SHARED_DATA / "real"
 
 

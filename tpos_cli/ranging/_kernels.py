@@ -6,7 +6,8 @@ Joseph update). The state is the 15 navigation errors plus the common range bias
 eps_d of Eq. 17-18 at index `BIAS` (a random walk). Measurements follow `fusion`'s sign
 convention z = h(INS) - measured, so H x predicts z.
 
-The loop has the structure of `fusion._kernels.insgps_kernel`, so that the same kernel runs
+The loop shares its propagation (`fusion._kernels.mechanize_sample`, `predict_epoch`) with
+`fusion._kernels.insgps_kernel`, so that the same kernel runs
 forward and backward (reversed arrays from `ins.reverse_imu`, negated velocity, earth_sign = -1)
 and stores what `tpos_cli.smoothing` needs: the nominal at every sample and, per covariance
 epoch, P, the correction fed back, and (for RTS) Phi and the predicted P. Covariance epochs are
@@ -22,12 +23,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import discretize, nis_of, predict, update
+from tpos_cli.filters.kalman import nis_of, update
+from tpos_cli.fusion._kernels import mechanize_sample, predict_epoch
 from tpos_cli.fusion.layout import N_NAV, POS, VEL
-from tpos_cli.fusion.nav_errors import (
-    apply_feedback, corrected_increments, error_dynamics, position_jacobian, process_noise,
-)
-from tpos_cli.ins._kernels import mech_step
+from tpos_cli.fusion.nav_errors import apply_feedback, position_jacobian, process_noise
 from tpos_cli.ranging.measurements import lla_to_local_ned
 
 BIAS = N_NAV  # index of eps_d (Eq. 17-18)
@@ -106,24 +105,11 @@ def ranging_filter_kernel(
     dt_sum = 0.0
     dx_sum = np.zeros(n)
     for k in range(1, n_t):
-        dt = t[k] - t[k - 1]
-        corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
-        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
-        for i in range(3):
-            dth_prev[i] = dth[i]
-            dv_prev[i] = dv[i]
-            f_sum[i] += f_n[i] * dt
-        dt_sum += dt
+        dt_sum += mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
         has_ev = e < n_ev and ev_k[e] == k
         if has_ev or k - last >= cov_step or k == n_t - 1:
-            error_dynamics(nav, C, f_sum / dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F)
-            discretize(F, Qc, dt_sum, Phi, Qd)
-            predict(x, P, Phi, Qd)
-            ep += 1
-            ep_idx[ep] = k
-            if store_rts:
-                ep_Phi[ep] = Phi
-                ep_Ppred[ep] = P
+            ep = predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
+                               ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts)
             while e < n_ev and ev_k[e] == k:
                 lag = ev_lag[e]
                 kind = ev_kind[e]
