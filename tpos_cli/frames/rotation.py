@@ -8,7 +8,6 @@ scalar-first `[w, x, y, z]`. The numpy API accepts single values or stacks with 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 _AXIS_LETTERS = {
     "F": (1.0, 0.0, 0.0),
@@ -61,18 +60,24 @@ def dcm_to_euler(C_nb):
 
 def rotvec_to_dcm(rotvec):
     """DCM of a rotation vector (axis times angle, rad), shape (..., 3, 3)."""
+    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+
     rv = np.asarray(rotvec, dtype=float)
     return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
 
 
 def dcm_to_rotvec(C):
     """Rotation vector (rad) of a DCM, shape (..., 3)."""
+    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+
     C = np.asarray(C, dtype=float)
     return Rotation.from_matrix(C.reshape(-1, 3, 3)).as_rotvec().reshape(C.shape[:-2] + (3,))
 
 
 def quat_to_dcm(q):
     """DCM from scalar-first unit quaternions, shape (..., 3, 3)."""
+    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+
     q = np.asarray(q, dtype=float)
     xyzw = np.concatenate([q[..., 1:], q[..., :1]], axis=-1).reshape(-1, 4)
     return Rotation.from_quat(xyzw).as_matrix().reshape(q.shape[:-1] + (3, 3))
@@ -80,6 +85,8 @@ def quat_to_dcm(q):
 
 def dcm_to_quat(C):
     """Scalar-first unit quaternions (w >= 0) from DCMs, shape (..., 4)."""
+    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+
     C = np.asarray(C, dtype=float)
     xyzw = Rotation.from_matrix(C.reshape(-1, 3, 3)).as_quat(canonical=True)
     return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1).reshape(C.shape[:-2] + (4,))
