@@ -97,7 +97,7 @@ def _feedback(x, C, b, v, p, s, i_v, i_s):
 
 @njit(cache=True)
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
-             q_sf, r_acc, acc_tol, gyro_tol, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
+             q_sf, r_grav, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
              scale0, scale_var0, q_scale, still, zupt_sd, mag_heading_only, out_scale, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
@@ -105,8 +105,8 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
     `use` bit flags; C0 (3,3), bias0 (3,), P0 (6,6); w_ie_n, g_n (3,) NED Earth rate and
     gravity; q_att rad^2 per sample, q_bias (rad/s)^2 per second; q_sf the relative variance of
-    the rotation angle of a sample (scale-factor and integration errors); r_acc (m/s^2)^2;
-    acc_tol m/s^2 and gyro_tol rad/s define "quasi-static" for the gravity update;
+    the rotation angle of a sample (scale-factor and integration errors); r_grav (N,) (m/s^2)^2
+    variance of the gravity update at each sample (NaN: no update there);
     r_mag_ut uT^2; decl rad; mag_ref (norm uT, dip rad); tolerances uT and rad
     (mag_norm_tol <= 0 disables the check); n_wall (3,) NED unit wall normal; o2_b, o3_b (3,)
     LR2/LR3 offsets FRD m; r_rng (2,2) m^2; rng_gate chi2(2) gate (<= 0: none).
@@ -151,7 +151,6 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     x = np.zeros(n)
     Phi = np.eye(n)
     Qd = np.zeros((n, n))
-    gnorm = np.sqrt(g_n @ g_n)
     f_n_down = -g_n
     nis_avg = 0.0
     Hm = np.zeros((6, n))
@@ -200,8 +199,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
         # gravity: f_b = C^T f_n with f_n = -g_n (Eq. 5), only while quasi-static
         if use & USE_ACC:
             f = acc[k]
-            fn = np.sqrt(f @ f)
-            if still[k] and abs(fn - gnorm) < acc_tol and np.sqrt(wg @ wg) < gyro_tol:
+            if not np.isnan(r_grav[k]):
                 # an IMU row is the mean over (t_{k-1}, t_k]: compare with the mid-interval attitude
                 Cm = C
                 if k > 0:
@@ -211,7 +209,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 H = np.zeros((3, n))
                 H[:, 0:3] = CmT @ skew(f_n_down)
                 z = f - h
-                R = np.eye(3) * r_acc
+                R = np.eye(3) * r_grav[k]
                 out_nis_acc[k] = update(x, P, z, H, R)
                 C = _feedback(x, C, b, v, p, sf, i_v, i_s)
         if motion and motion_every > 0 and k % motion_every == 0:

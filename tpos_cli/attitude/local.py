@@ -75,6 +75,9 @@ class FilterSetup:
     scale0: np.ndarray = field(default_factory=lambda: np.zeros(3))  # gyro scale-factor errors (USE_SCALE)
     scale_sd: float = 0.005
     scale_rw_per_rts: float = 1e-5
+    grav_motion_r_m: float = 0.0  # > 0: gravity update in motion too, lever to the rotation centre
+    grav_motion_tau_s: float = 0.2
+    grav_motion_floor_mps2: float = 0.1
     gravity_mps2: float | None = None  # measured |f| at rest (absorbs the accelerometer scale); None: normal gravity
 
 
@@ -151,6 +154,26 @@ def range_differences(t_imu_s, t_rng_s, range_m):
     return out
 
 
+def gravity_variance(t, gyro, acc, still, g_n, r_acc, setup, bias0):
+    """(N,) variance (m/s^2)^2 of the gravity update at each sample; NaN where none."""
+    n = t.size
+    g = float(np.linalg.norm(g_n))
+    fn = np.linalg.norm(acc, axis=1)
+    w = np.linalg.norm(gyro - bias0, axis=1)
+    quiet = still & (np.abs(fn - g) < setup.acc_static_tol_mps2) & (w < setup.gyro_static_tol_rps)
+    r = np.full(n, np.nan)
+    r[quiet] = r_acc
+    if setup.grav_motion_r_m > 0.0:
+        dt = np.median(np.diff(t)) if n > 1 else 0.01
+        wd = np.zeros(n)
+        wd[1:] = np.linalg.norm(np.diff(gyro, axis=0), axis=1) / abs(dt)
+        a2 = (fn - g) ** 2 + (w**2 * setup.grav_motion_r_m) ** 2 + (wd * setup.grav_motion_r_m) ** 2
+        ncorr = max(1.0, setup.grav_motion_tau_s / abs(dt))
+        rm = (r_acc + setup.grav_motion_floor_mps2**2 + a2) * ncorr
+        r[~quiet] = rm[~quiet]
+    return r
+
+
 def _nav_vectors(setup: FilterSetup):
     w_ie = earth.earth_rate_ned_rps(setup.lat_rad)
     g_n = earth.gravity_ned_mps2(setup.lat_rad, setup.h_m)
@@ -203,6 +226,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         motion_share = beta
     else:
         motion_share = 1.0
+    r_grav = gravity_variance(t, gyro, acc, st, g_n, r_acc, setup, bias0)
     out_C = np.empty((n, 3, 3))
     out_P = np.empty((n, 6, 6))
     out_b = np.empty((n, 3))
@@ -217,7 +241,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         np.ascontiguousarray(setup.P0, dtype=float) / beta, w_ie, g_n,
         (noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_bias_rw_rps_rts**2 / beta,
         noise.gyro_scale_sd**2 / beta,
-        r_acc, setup.acc_static_tol_mps2, setup.gyro_static_tol_rps,
+        r_grav,
         noise.mag_noise_ut**2, setup.declination_rad,
         np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),
         setup.mag_norm_tol_ut, setup.mag_dip_tol_rad,

@@ -73,6 +73,9 @@ class TargetFkfParams:
     motion_sd_mps: float = 0.2
     motion_sd_m: float = 0.1
     motion_interval_s: float = 1.0
+    grav_motion_r_m: float = 0.0
+    grav_motion_tau_s: float = 0.2
+    grav_motion_floor_mps2: float = 0.1
     mag_heading_only: bool = False  # True: the magnetometer corrects heading only, never roll/pitch
     smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
     heading_recover_nis: float = 0.0  # > 0: LF1 re-opens its heading variance when the mean mag NIS exceeds it
@@ -277,7 +280,8 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         range_gate_chi2=float(chi2.ppf(p.range_gate_probability, 2)), beta=p.beta,
         gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps,
         motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s,
-        heading_recover_nis=p.heading_recover_nis, mag_heading_only=p.mag_heading_only, scale_sd=p.gyro_scale_sd_pct / 100.0,
+        heading_recover_nis=p.heading_recover_nis, grav_motion_r_m=p.grav_motion_r_m,
+        grav_motion_tau_s=p.grav_motion_tau_s, grav_motion_floor_mps2=p.grav_motion_floor_mps2, mag_heading_only=p.mag_heading_only, scale_sd=p.gyro_scale_sd_pct / 100.0,
         gravity_mps2=float(np.linalg.norm(np.mean(imu.acc_b_mps2[win.i0:win.i1], axis=0))) if p.gravity_from_static else None,
     )
     # the bias estimated in the window already removes the window's mean rate
