@@ -116,7 +116,7 @@ def speed(duration_s: float = 3600.0) -> None:
         ref = min(reference_loop(n, 100) for _ in range(2))
     ts = summ["timings_s"]
     print("\nstage              wall s   samples/s")
-    for k in ("ingest", "alignment", "forward", "smoothing_rts", "backward", "smoothing", "outputs", "write_outputs", "total"):
+    for k in ("ingest", "alignment", "gps_noise", "forward", "smoothing_rts", "backward", "smoothing", "outputs", "write_outputs", "total"):
         if k in ts:
             v = ts[k]
             print(f"{k:16s} {v:8.3f}   {n / v if v > 0 else float('inf'):12.3g}")

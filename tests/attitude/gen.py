@@ -2,7 +2,9 @@
 
 Truth attitude from smooth roll/pitch/yaw functions; gyro rows are the exact mean rates
 (C_{k-1}^T C_k = exp(w dt)) plus Earth rate; acc, mag are exact projections; ranges follow the
-exact plane geometry d_i = (D - n.C o_i) / (n.C e_x). Noise is added with a seeded generator.
+exact plane geometry d_i = (D - n.C o_i) / (n.C e_x). `pos_fn` adds a bounded hand motion (the
+specific force then carries its acceleration; the ranges ignore it, as they do for LF2's wall
+at 12 m). Noise is added with a seeded generator.
 """
 
 from __future__ import annotations
@@ -28,11 +30,12 @@ class Gen:
     ranges: np.ndarray
     wall_n: np.ndarray
     bias: np.ndarray
+    pos: np.ndarray  # (N,3) NED m, displacement of the device (bounded hand motion); 0 if none
 
 
 def make(rpy_fn, duration_s=60.0, rate_hz=100.0, seed=1, gyro_sd=1e-4, bias_rps=(2e-5, -1e-5, 1.5e-5),
          acc_sd=0.0098, mag_sd=0.3, rng_sd=0.0015, wall_az_deg=30.0, wall_dist_m=12.0,
-         b12=0.2, b13=0.2, mag_dist_ut=None):
+         b12=0.2, b13=0.2, mag_dist_ut=None, pos_fn=None):
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s + 1e-9, 1.0 / rate_hz)
     rpy = np.array([rpy_fn(tt) for tt in t])
@@ -52,7 +55,13 @@ def make(rpy_fn, duration_s=60.0, rate_hz=100.0, seed=1, gyro_sd=1e-4, bias_rps=
     # an IMU row is the mean over (t_{k-1}, t_k]: project gravity with the mid-interval attitude
     C_mid = C.copy()
     C_mid[1:] = C[:-1] @ rotvec_to_dcm(0.5 * rv)
-    acc = np.einsum("nji,j->ni", C_mid, -g_n) + rng.normal(0, acc_sd, (n, 3))
+    f_n = np.broadcast_to(-g_n, (n, 3)).copy()
+    pos = np.zeros((n, 3)) if pos_fn is None else np.array([pos_fn(tt) for tt in t])
+    if pos_fn is not None:
+        # the mean acceleration over (t_{k-1}, t_k] is the velocity change over it (exact)
+        v = np.array([(pos_fn(tt + 1e-4) - pos_fn(tt - 1e-4)) / 2e-4 for tt in t])
+        f_n[1:] += np.diff(v, axis=0) / dt
+    acc = np.einsum("nji,nj->ni", C_mid, f_n) + rng.normal(0, acc_sd, (n, 3))
     m_n = np.broadcast_to(MAG_NED_UT, (n, 3)).copy()
     if mag_dist_ut is not None:
         m_n = m_n + mag_dist_ut(t)
@@ -63,4 +72,4 @@ def make(rpy_fn, duration_s=60.0, rate_hz=100.0, seed=1, gyro_sd=1e-4, bias_rps=
     c = C[:, :, 0] @ wall_n
     ranges = np.stack([(wall_dist_m - (C @ oi) @ wall_n) / c for oi in o], axis=-1)
     ranges += rng.normal(0, rng_sd, ranges.shape)
-    return Gen(t, C, gyro, acc, mag, ranges, wall_n, bias)
+    return Gen(t, C, gyro, acc, mag, ranges, wall_n, bias, pos)

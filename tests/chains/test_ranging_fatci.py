@@ -102,17 +102,17 @@ def test_missing_anchor_files_is_invalid_input(tmp_path):
         process_session(sess, "ranging-fatci", tmp_path / "run")
 
 
-def test_nees_of_tc_and_fatci_over_monte_carlo_runs(tmp_path):
+def test_nees_of_tc_fatci_and_smoothed_over_monte_carlo_runs(tmp_path):
     """Horizontal NEES (diagonal SDs, 2 dof) averaged over 10 seeded runs, at every output epoch."""
     from scipy.stats import chi2
 
     n_runs = 10
-    nees: dict[str, list] = {"tc": [], "fatci": []}
+    nees: dict[str, list] = {"tc": [], "fatci": [], "smoothed": []}
     for seed in range(n_runs):
         sim = simulate_ranging(60.0, seed=100 + seed)
         sess = sim.write(tmp_path / f"s{seed}")
         rs = process_session(sess, "ranging-fatci", tmp_path / f"r{seed}",
-                             overrides={"ranging_fatci.solutions": ["tc", "fatci"], "ranging_fatci.smoothed": False})
+                             overrides={"ranging_fatci.solutions": ["tc", "fatci"]})
         tr = pd.read_parquet(rs.run_dir / "trajectory.parquet")
         origin = sim.anchors.origin_lla
         for sol in nees:
@@ -123,8 +123,21 @@ def test_nees_of_tc_and_fatci_over_monte_carlo_runs(tmp_path):
     lo, hi = chi2.ppf(0.025, 2 * n_runs) / n_runs, chi2.ppf(0.975, 2 * n_runs) / n_runs
     for sol, v in nees.items():
         m = np.mean(np.array(v), axis=0)
-        assert 1.5 < m.mean() < 3.0  # a consistent 2-dof NEES averages 2; measured 2.2 (tc), 2.5 (fatci)
-        # share of epochs inside the 95 % chi-square band of a 10-run average: a consistent filter
-        # gives 0.95; measured 0.77 / 0.76, the excess above the band comes from the unmodelled,
-        # constant per-anchor calibration error (SE ~0.01 m) seen through the weak cross-corridor geometry
-        assert np.mean((m >= lo) & (m <= hi)) > 0.7
+        # a consistent 2-dof NEES averages 2; measured 1.81 (tc), 1.86 (fatci), 2.17 (smoothed)
+        # once the floor height and calibration errors are states and the start is not counted twice
+        assert 1.5 < m.mean() < 2.5
+        # share of epochs inside the 95 % band of a 10-run average: 0.95 for a consistent filter
+        # with independent north/east errors; the diagonal form ignores their correlation, which
+        # widens the spread. Measured 0.83 (tc), 0.88 (fatci), 0.96 (smoothed); the residual
+        # excess is the NLOS spikes that pass the gate (one-sided, not Gaussian)
+        assert np.mean((m >= lo) & (m <= hi)) > 0.8
+
+
+def test_smoothed_rows_carry_the_smoothed_range_bias(processed):
+    sim, rs = processed
+    tr = pd.read_parquet(rs.run_dir / "trajectory.parquet")
+    sm = tr[tr.solution == "smoothed"].range_bias_m.to_numpy()
+    assert np.all(np.isfinite(sm))
+    # the corrected ranges have no common bias (per-anchor c_i removed, spikes gated): eps_d ~ 0
+    # within a few calibration SEs (~0.006 m each)
+    assert np.max(np.abs(sm)) < 0.03

@@ -8,6 +8,7 @@ from tests.ranging.corridor import ANCHORS_NED, NODE_DOWN_M, ORIGIN_LLA, corrido
 from tpos_cli.frames import geodetic
 from tpos_cli.ranging.filter import (
     EV_RANGE, Events, FilterConfig, InitialState, coasting_intervals, down_events, range_events, run_filter,
+    zupt_events,
 )
 
 G_MG = 9.80665e-3
@@ -39,6 +40,12 @@ def _run(c, gyro, acc, ev):
 
 
 def test_two_anchors_still_bound_the_error(scene):
+    # Two ranges fix the node only up to its mirror image about the anchors' baseline, and on a
+    # straight constant-speed leg the IMU cannot tell the mirrored track apart (no acceleration
+    # ties heading to velocity). The track crosses the baseline of anchors 0 and 1: with this
+    # range seed the EKF keeps the right branch; with 3 of 8 other seeds it locks onto the
+    # mirror with a confident covariance (a limit of a single-hypothesis filter, see the report
+    # of issue 5). Anchor pairs whose baseline lies along the corridor lose the cross-track.
     c, gyro, acc = scene
     rng = np.random.default_rng(1)
     t, a, r, d = ranges(c, rng, anchors=(0, 1))
@@ -80,3 +87,30 @@ def test_coasting_is_reported_when_all_anchors_drop(scene):
     coast = coasting_intervals(run, 0.5)
     assert len(coast) == 1
     assert coast[0][0] == pytest.approx(19.9, abs=1e-9) and coast[0][1] == pytest.approx(25.0, abs=1e-9)
+
+
+def test_one_anchor_bridges_a_dropout_of_three(scene):
+    """Anchors 0-2 drop in 22-30 s (moving down the corridor): anchor 3 alone holds the solution."""
+    c, gyro, acc = scene
+    still = zupt_events(np.arange(0.05, 2.9, 0.1), 0.02)  # the static start, as the chain does
+    rms, rms_free, nees = [], [], []
+    for seed in range(10):
+        t, a, r, d = ranges(c, np.random.default_rng(seed))
+        out = (t >= 22.0) & (t < 30.0)
+        runs = {}
+        for name, keep in (("one", ~out | (a == 3)), ("none", ~out)):
+            ev = range_events(t[keep], a[keep], r[keep], (0.05 + 0.01 * d[keep]) ** 2)
+            runs[name] = _run(c, gyro, acc, Events.merge(ev, still))
+        run, err = runs["one"]
+        w = (run.t_s >= 22.0) & (run.t_s < 30.0)
+        rng_ev = (run.events.kind == EV_RANGE) & (run.events.t_s > 0.0)
+        # clean ranges: only the gate's false alarms (P = 0.999) are rejected, no lock-out
+        assert np.mean(~run.ev_accepted[rng_ev]) < 0.01
+        rms.append(np.sqrt(np.mean(err[w, 0] ** 2 + err[w, 1] ** 2)))
+        e_free = runs["none"][1][w]
+        rms_free.append(np.sqrt(np.mean(e_free[:, 0] ** 2 + e_free[:, 1] ** 2)))
+        nees.append(np.mean((err[w, 0] / run.sd_ned_m[w, 0]) ** 2 + (err[w, 1] / run.sd_ned_m[w, 1]) ** 2))
+    # measured: 0.13 m against 0.39 m coasting (mean over 10 seeds)
+    assert np.mean(rms) < 0.5 * np.mean(rms_free)
+    # consistent in the mean (2 for 2 dof; measured 1.7): the one-anchor SDs are not overconfident
+    assert np.mean(nees) < 3.0

@@ -25,7 +25,6 @@ USE_ACC = 1
 USE_MAG = 2
 USE_RANGE = 4
 USE_MOTION = 8  # bounded-motion velocity/position states (hand-held device, standing observer)
-USE_SCALE = 16  # gyro scale-factor error states (3)
 
 
 @njit(cache=True)
@@ -57,40 +56,13 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 
 @njit(cache=True)
-def _update_heading_only(x, P, z, H, R):
-    """Scalar Joseph-form update whose gain leaves the tilt (phi north, east) untouched.
-
-    A magnetometer's systematic errors (residual soft iron, slowly varying fields) would otherwise
-    leak into roll/pitch through the dip; the suboptimal gain keeps P consistent (Joseph form).
-    Returns the NIS.
-    """
-    n = x.shape[0]
-    PHt = P @ np.ascontiguousarray(H.T)
-    S = (H @ PHt)[0, 0] + R[0, 0]
-    nu = z[0] - (H @ x)[0]
-    Kg = PHt[:, 0] / S
-    Kg[0] = 0.0
-    Kg[1] = 0.0
-    x += Kg * nu
-    I_KH = np.eye(n)
-    for i in range(n):
-        for j in range(n):
-            I_KH[i, j] -= Kg[i] * H[0, j]
-    Pn = I_KH @ P @ I_KH.T + np.outer(Kg, Kg) * R[0, 0]
-    P[:, :] = 0.5 * (Pn + Pn.T)
-    return nu * nu / S
-
-
-@njit(cache=True)
-def _feedback(x, C, b, v, p, s, i_v, i_s):
+def _feedback(x, C, b, v, p, i_v):
     """Apply an error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
     Cn = rotvec_to_dcm(x[0:3]) @ C
     b += x[3:6]
     if i_v > 0:
         v += x[i_v:i_v + 3]
         p += x[i_v + 3:i_v + 6]
-    if i_s > 0:
-        s += x[i_s:i_s + 3]
     x[:] = 0.0
     return Cn
 
@@ -99,7 +71,7 @@ def _feedback(x, C, b, v, p, s, i_v, i_s):
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
              q_sf, r_grav, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
-             scale0, scale_var0, q_scale, still, zupt_sd, mag_heading_only, out_scale, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
+             still, zupt_sd, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
@@ -116,28 +88,19 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     out, a tilt error does not (g phi t^2 / 2 of position). q_vel (m/s)^2 per sample.
     rec_nis > 0: when the mean magnetic NIS over ~rec_tau_s exceeds it, the heading variance is
     re-opened by the innovation squared (the filter was over-confident about a wrong heading).
-    USE_SCALE: three gyro scale-factor errors s join the state (omega = (gyro - b)(1 - s)), from
-    scale0 (3,) with variance scale_var0 and random-walk variance q_scale per second: at hand-held
-    rates of several hundred deg/s a 0.1 % scale error tilts the attitude by ~0.5 deg/s.
     still (N,) bool: samples in a detected still period; only there is gravity measured directly
     (and, with USE_MOTION, the velocity held to zero with SD zupt_sd m/s at each motion epoch).
     Outputs are filled for each sample (the posterior after that sample; out_P is 6x6).
     """
     N = t.shape[0]
     motion = (use & USE_MOTION) != 0
-    scale = (use & USE_SCALE) != 0
     n = 6
     i_v = 0
-    i_s = 0
     if motion:
         i_v = n
         n += 6
-    if scale:
-        i_s = n
-        n += 3
     C = C0.copy()
     b = bias0.copy()
-    sf = scale0.copy()
     v = np.zeros(3)
     p = np.zeros(3)
     P = np.zeros((n, n))
@@ -146,8 +109,6 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
         if motion:
             P[i_v + i, i_v + i] = motion_sd[0] ** 2
             P[i_v + 3 + i, i_v + 3 + i] = motion_sd[1] ** 2
-        if scale:
-            P[i_s + i, i_s + i] = scale_var0
     x = np.zeros(n)
     Phi = np.eye(n)
     Qd = np.zeros((n, n))
@@ -162,7 +123,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
         Rm[i, i] = motion_sd[0] ** 2
         Rm[3 + i, 3 + i] = motion_sd[1] ** 2
     for k in range(N):
-        wg = (gyro[k] - b) * (1.0 - sf)
+        wg = gyro[k] - b
         if k > 0:
             dt = t[k] - t[k - 1]
             Ct = np.ascontiguousarray(C.T)
@@ -170,17 +131,12 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             Phi[:, :] = 0.0
             for i in range(n):
                 Phi[i, i] = 1.0
-            Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + diag(omega) ds + noise)
-            if scale:
-                for j in range(3):
-                    Phi[0:3, i_s + j] = -C[:, j] * (gyro[k, j] - b[j]) * dt
+            Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + noise)
             Qd[:, :] = 0.0
             wdt2 = (w @ w) * dt * dt
             for i in range(3):
                 Qd[i, i] = q_att + q_sf * wdt2
                 Qd[3 + i, 3 + i] = q_bias * abs(dt)
-                if scale:
-                    Qd[i_s + i, i_s + i] = q_scale * abs(dt)
             Cm = C @ rotvec_to_dcm(0.5 * dt * w)  # mid-interval attitude of the mean sample
             if motion:
                 f_n = Cm @ acc[k]
@@ -211,7 +167,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 z = f - h
                 R = np.eye(3) * r_grav[k]
                 out_nis_acc[k] = update(x, P, z, H, R)
-                C = _feedback(x, C, b, v, p, sf, i_v, i_s)
+                C = _feedback(x, C, b, v, p, i_v)
         if motion and motion_every > 0 and k % motion_every == 0:
             z = np.empty(6)
             z[0:3] = -v
@@ -223,7 +179,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 for i in range(3):
                     Rm[i, i] = motion_sd[0] ** 2
             update(x, P, z, Hm, Rm)
-            C = _feedback(x, C, b, v, p, sf, i_v, i_s)
+            C = _feedback(x, C, b, v, p, i_v)
         # magnetic heading (Eq. 8): azimuth of the levelled field is the declination
         if use & USE_MAG:
             m = mag[k]
@@ -247,12 +203,9 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     z[0] = _wrap(decl - az)
                     R = np.empty((1, 1))
                     R[0, 0] = r_mag_ut / hn2
-                    if mag_heading_only:
-                        nis = _update_heading_only(x, P, z, H, R)
-                    else:
-                        nis = update(x, P, z, H, R)
+                    nis = update(x, P, z, H, R)
                     out_nis_mag[k] = nis
-                    C = _feedback(x, C, b, v, p, sf, i_v, i_s)
+                    C = _feedback(x, C, b, v, p, i_v)
                     if rec_nis > 0.0 and k > 0:
                         a = min(1.0, (t[k] - t[k - 1]) / rec_tau_s)
                         nis_avg += a * (nis - nis_avg)
@@ -274,12 +227,11 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     out_nis_rng[k] = nis
                     if rng_gate <= 0.0 or nis < rng_gate:
                         update(x, P, z, H, r_rng)
-                        C = _feedback(x, C, b, v, p, sf, i_v, i_s)
+                        C = _feedback(x, C, b, v, p, i_v)
         C = orthonormalize(C)
         out_C[k] = C
         out_P[k] = P[0:6, 0:6]
         out_bias[k] = b
-        out_scale[k] = sf
 
 
 @njit(cache=True)

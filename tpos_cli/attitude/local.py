@@ -68,16 +68,9 @@ class FilterSetup:
     motion_sd_mps: float = 0.5
     motion_sd_m: float = 0.3
     motion_interval_s: float = 1.0
-    mag_heading_only: bool = False  # magnetometer corrects heading only (decoupled from roll/pitch)
     zupt_sd_mps: float = 0.02  # velocity SD of a device in a detected still period
     heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
     heading_recover_tau_s: float = 1.0
-    scale0: np.ndarray = field(default_factory=lambda: np.zeros(3))  # gyro scale-factor errors (USE_SCALE)
-    scale_sd: float = 0.005
-    scale_rw_per_rts: float = 1e-5
-    grav_motion_r_m: float = 0.0  # > 0: gravity update in motion too, lever to the rotation centre
-    grav_motion_tau_s: float = 0.2
-    grav_motion_floor_mps2: float = 0.1
     gravity_mps2: float | None = None  # measured |f| at rest (absorbs the accelerometer scale); None: normal gravity
 
 
@@ -97,7 +90,6 @@ class AttitudeSolution:
     nis: dict = field(default_factory=dict)
     mag_ok: np.ndarray | None = None
     mag_gated: bool = False  # True: LF1 already dropped the samples with mag_ok False
-    scale: np.ndarray | None = None  # (N,3) gyro scale-factor error estimates (USE_SCALE)
     x8: np.ndarray | None = None  # paper8 model only: the 8 DCM states (N,8) and covariance
     P8: np.ndarray | None = None
 
@@ -154,24 +146,17 @@ def range_differences(t_imu_s, t_rng_s, range_m):
     return out
 
 
-def gravity_variance(t, gyro, acc, still, g_n, r_acc, setup, bias0):
-    """(N,) variance (m/s^2)^2 of the gravity update at each sample; NaN where none."""
-    n = t.size
-    g = float(np.linalg.norm(g_n))
-    fn = np.linalg.norm(acc, axis=1)
-    w = np.linalg.norm(gyro - bias0, axis=1)
-    quiet = still & (np.abs(fn - g) < setup.acc_static_tol_mps2) & (w < setup.gyro_static_tol_rps)
-    r = np.full(n, np.nan)
-    r[quiet] = r_acc
-    if setup.grav_motion_r_m > 0.0:
-        dt = np.median(np.diff(t)) if n > 1 else 0.01
-        wd = np.zeros(n)
-        wd[1:] = np.linalg.norm(np.diff(gyro, axis=0), axis=1) / abs(dt)
-        a2 = (fn - g) ** 2 + (w**2 * setup.grav_motion_r_m) ** 2 + (wd * setup.grav_motion_r_m) ** 2
-        ncorr = max(1.0, setup.grav_motion_tau_s / abs(dt))
-        rm = (r_acc + setup.grav_motion_floor_mps2**2 + a2) * ncorr
-        r[~quiet] = rm[~quiet]
-    return r
+def gravity_variance(gyro_b_rps, acc_b_mps2, still, g_mps2, r_acc, acc_tol_mps2, gyro_tol_rps):
+    """(N,) variance (m/s^2)^2 of the gravity update (Eq. 5) at each sample; NaN where none.
+
+    Gravity is measured only in detected still periods where | |f| - g | and |omega| are below
+    their tolerances: in motion the linear accelerations of a hand-held device are correlated over
+    seconds, and the bounded-motion model (USE_MOTION) carries that information instead.
+    """
+    fn = np.linalg.norm(acc_b_mps2, axis=1)
+    w = np.linalg.norm(gyro_b_rps, axis=1)
+    quiet = still & (np.abs(fn - g_mps2) < acc_tol_mps2) & (w < gyro_tol_rps)
+    return np.where(quiet, r_acc, np.nan)
 
 
 def _nav_vectors(setup: FilterSetup):
@@ -226,11 +211,11 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         motion_share = beta
     else:
         motion_share = 1.0
-    r_grav = gravity_variance(t, gyro, acc, st, g_n, r_acc, setup, bias0)
+    r_grav = gravity_variance(gyro - bias0, acc, st, float(np.linalg.norm(g_n)), r_acc,
+                              setup.acc_static_tol_mps2, setup.gyro_static_tol_rps)
     out_C = np.empty((n, 3, 3))
     out_P = np.empty((n, 6, 6))
     out_b = np.empty((n, 3))
-    out_s = np.empty((n, 3))
     nis_a, nis_m, nis_r = np.empty(n), np.empty(n), np.empty(n)
     mag_ok = np.empty(n, dtype=np.bool_)
     dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
@@ -248,13 +233,11 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3, r_rng, setup.range_gate_chi2,
         (noise.acc_noise_mps2 * dt_mean) ** 2, np.array([setup.motion_sd_mps, setup.motion_sd_m]) / np.sqrt(motion_share),
         max(1, int(round(setup.motion_interval_s / dt_mean))), setup.heading_recover_nis, setup.heading_recover_tau_s,
-        np.ascontiguousarray(setup.scale0, dtype=float), setup.scale_sd**2 / beta, setup.scale_rw_per_rts**2 / beta,
         np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share),
-        bool(setup.mag_heading_only), out_s,
         out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok,
     )
     if backward:
-        out_C, out_P, out_b, out_s = out_C[::-1], out_P[::-1], -out_b[::-1], out_s[::-1]
+        out_C, out_P, out_b = out_C[::-1], out_P[::-1], -out_b[::-1]
         nis_a, nis_m, nis_r, mag_ok = nis_a[::-1], nis_m[::-1], nis_r[::-1], mag_ok[::-1]
     return AttitudeSolution(
         name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(out_C),
@@ -262,7 +245,6 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         nis={"acc": nis_a, "mag": nis_m, "range": nis_r},
         mag_ok=mag_ok if (use & K.USE_MAG) else None,
         mag_gated=bool((use & K.USE_MAG) and setup.mag_norm_tol_ut > 0.0),
-        scale=out_s if (use & K.USE_SCALE) else None,
     )
 
 

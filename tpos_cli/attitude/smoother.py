@@ -25,12 +25,10 @@ def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Fil
     fwd = forward if forward is not None else run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup, use, still=still)
     P0 = np.array(setup.P0, dtype=float)
     P0[0:3, 0:3] = np.eye(3) * back_sd_rad**2 * setup.beta  # run_full divides P0 by beta
-    bsetup = replace(setup, C0=fwd.C_nb[-1], bias0_rps=fwd.bias_rps[-1], P0=P0,
-                     scale0=fwd.scale[-1] if fwd.scale is not None else setup.scale0)
+    bsetup = replace(setup, C0=fwd.C_nb[-1], bias0_rps=fwd.bias_rps[-1], P0=P0)
     bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, bsetup, use, backward=True, still=still)
     s = master.fuse(name, [fwd, bwd])
     mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)
     return AttitudeSolution(name=name, t_s=fwd.t_s, C_nb=s.C_nb, P_att=s.P_att,
                             bias_rps=0.5 * (fwd.bias_rps + bwd.bias_rps), nis=fwd.nis, mag_ok=mag_ok,
-                            mag_gated=fwd.mag_gated,
-                            scale=None if fwd.scale is None else 0.5 * (fwd.scale + bwd.scale))
+                            mag_gated=fwd.mag_gated)

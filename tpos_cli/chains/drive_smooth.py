@@ -27,7 +27,9 @@ from tpos_cli.fusion.initial import (
     search_yaw,
     with_yaw,
 )
+from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
 from tpos_cli.pipeline import ChainOutput, RunContext
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
@@ -70,7 +72,11 @@ class DriveSmoothParams:
     gps_sigma_v_m: float = 2.5
     gps_sigma_vel_mps: float = 0.1
     use_gps_velocity: bool = True
+    gps_noise: str = "estimate"  # estimate: scale the GPS SDs by covariance matching on a first
+    # decimated pass (`fusion.gps_noise`); given: use the log's SDs or the defaults above as they are
     outage_min_s: float = 2.0  # a gap between fixes longer than this is an outage
+    mounting_check_deg: float = 20.0  # warn when course - yaw while moving has a larger median (0 = no check)
+    mounting_min_speed_mps: float = 0.3  # rows faster than this count for the mounting check (slow rovers: 0.3 m/s)
 
 
 _DEFAULT_NOISE = {"gyro_noise_dps": 0.01, "acc_noise_mg": 2.0, "gyro_bias_dph": 20.0, "acc_bias_mg": 10.0}
@@ -194,6 +200,7 @@ class DriveResult:
     outages_s: np.ndarray
     fixes: GpsFixes
     info: dict
+    mounting: dict | None = None  # course - yaw check of the first solution in `names` after forward
 
 
 def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None = None,
@@ -235,6 +242,17 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                 info["heading"] += f"; confirmed against {ys.scores.size - 1} other yaws"
             info["yaw_search"] = {"t_s": list(ys.window_s), "yaw_deg": np.degrees(ys.hypotheses_rad).round(1).tolist(),
                                   "score": [round(float(v), 1) for v in ys.scores]}
+    with stage("gps_noise"):
+        if p.gps_noise == "estimate":
+            after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
+            gn = estimate_gps_noise(t, gyro, acc, fixes, init, cfg, after_s=after)
+            fixes = scaled_fixes(fixes, gn.scale)
+            info["gps_noise"] = {"method": "covariance matching of a first decimated filter pass", **gn.summary()}
+        else:
+            info["gps_noise"] = {"method": "given (log SDs or pipeline defaults)",
+                                 **{k: (None if not np.isfinite(v) else round(float(v), 4)) for k, v in zip(
+                                     ("sigma_pos_h_m", "sigma_pos_v_m", "sigma_vel_h_mps", "sigma_vel_v_mps"),
+                                     median_sigmas(fixes))}}
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
     out_idx = np.arange(0, t.size, step)
@@ -278,7 +296,18 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
             s = sols[p.smoother]
             sols["smoothed"] = smoothing.Solution("smoothed", s.idx, s.nav, s.C_nb, s.P9)
         sols = {k: v for k, v in sols.items() if k in names}
-    return DriveResult(t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info)
+    mounting = None
+    if p.mounting_check_deg > 0:
+        best = next((n for n in ("smoothed", "rts", "two_filter", "forward") if n in sols), None)
+        if best is not None:
+            s = sols[best]
+            chk = course_minus_yaw(t[s.idx], s.nav[:, 3:6], dcm_to_euler(s.C_nb)[2], p.mounting_min_speed_mps)
+            warn = mounting_warning(chk, p.mounting_check_deg)
+            mounting = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn is not None,
+                        **(chk.summary() if chk is not None else {"moving_s": 0.0})}
+            if warn is not None:
+                mounting["message"] = warn
+    return DriveResult(t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info, mounting)
 
 
 def range_epochs(session: Session):
@@ -361,6 +390,8 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         raise InvalidInputError(f"pipeline [drive_smooth]: smoother {p.smoother!r} is not one of {', '.join(SMOOTHERS)}")
     if p.cov_step_s <= 0 or p.output_rate_hz < 0 or p.bias_tau_s <= 0:
         raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
+    if p.gps_noise not in ("estimate", "given"):
+        raise InvalidInputError(f"pipeline [drive_smooth]: gps_noise {p.gps_noise!r} is not one of estimate, given")
     if p.heading_hypotheses < 0 or p.heading_search_s <= 0 or p.gps_max_rate_hz < 0:
         raise InvalidInputError("pipeline [drive_smooth]: heading_hypotheses and gps_max_rate_hz must be >= 0, "
                                 "heading_search_s > 0")
@@ -398,6 +429,9 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             rejected[f"{run_name}_{kind}"] = n_rej
             ctx.count(f"{kind}_rejected_{run_name}", n_rej)
     ctx.count("flagged_rows", int(res.flag.sum()))
+    mounting = dict(res.mounting) if res.mounting is not None else None
+    if mounting is not None and "message" in mounting:
+        ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
     mean_nis = {}
     for j, kind in enumerate(("gps_pos", "gps_vel")):
         a = res.forward.nis[res.forward.accepted[:, j], j]
@@ -412,5 +446,6 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         "forward_mean_nis": mean_nis,  # 3 d.o.f. each: about 3 when the noise model fits
         "outages_s": (res.outages_s + session.t0_s).tolist(),
         "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
+        "mounting_check": mounting,
     }
     return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov}, summary=summary)

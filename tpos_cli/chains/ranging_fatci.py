@@ -24,7 +24,7 @@ from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
 from tpos_cli.pipeline import ChainOutput, RunContext
 from tpos_cli.ranging.calibration import fit_range_model, identity_model
 from tpos_cli.ranging.filter import (
-    EV_FIX_NE, EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,
+    BIAS, EV_FIX_NE, EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,
     end_state, fix_events, fuzzy_range_variance, range_events, run_filter, zupt_events,
 )
 from tpos_cli.ranging.fuzzy import fuzzy_system_from_params
@@ -56,6 +56,7 @@ class RangingParams:
     lc_min_anchors: int = 4
     floor_down_m: float | None = None
     floor_sd_m: float = 0.05
+    floor_height_sd_m: float | None = None
     gate_probability: float = 0.999
     gate_max_consecutive: int = 20
     coast_gap_s: float = 0.5
@@ -130,10 +131,14 @@ def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_e
                         max_consecutive_rejects=p.gate_max_consecutive, output_every=output_every, cov_step=cov_step)
 
 
-def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> float:
-    """Down coordinate of the node: given, or the median of 3-D fixes of epochs with >= 4 anchors."""
+_FLOOR_UNKNOWN_SD_M = 1.0  # floor taken at the anchors' height: its error is metres, the ranges refine it
+
+
+def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> tuple[float, float]:
+    """Down coordinate of the node and the SD of its (constant) error: given (SD floor_height_sd_m,
+    default 0), or the median of 3-D fixes of epochs with >= 4 anchors (SD of that median)."""
     if p.floor_down_m is not None:
-        return float(p.floor_down_m)
+        return float(p.floor_down_m), float(p.floor_height_sd_m or 0.0)
     ep = group_epochs(t, p.epoch_window_s)
     downs, sds = [], []
     guess = np.array([*anchors_ned[:, :2].mean(axis=0), anchors_ned[:, 2].mean() + 2.0])  # start below the anchors
@@ -149,8 +154,12 @@ def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> 
         d = float(anchors_ned[:, 2].mean())
         ctx.warn(f"ranging: the anchors do not observe the node height; floor taken at the anchors' mean "
                  f"down {d:.2f} m (set ranging_fatci.floor_down_m)")
-        return d
-    return float(np.median(downs))
+        return d, float(p.floor_height_sd_m or _FLOOR_UNKNOWN_SD_M)
+    downs = np.asarray(downs)
+    med = float(np.median(downs))
+    # SD of a median of n Gaussian values: 1.2533 SD / sqrt(n); the SD from the MAD (NLOS fixes)
+    se = 1.2533 * 1.4826 * float(np.median(np.abs(downs - med))) / np.sqrt(downs.size)
+    return med, float(p.floor_height_sd_m) if p.floor_height_sd_m is not None else se
 
 
 def _initial_state(session: Session, fixes: Events, still, p: RangingParams) -> InitialState:
@@ -201,11 +210,40 @@ def _initial_state(session: Session, fixes: Events, still, p: RangingParams) -> 
                         rpy_rad=np.array([roll, pitch, yaw]))
 
 
-def _solution_frame(sol: smoothing.Solution, name: str, t_run_s, t0_s: float) -> pd.DataFrame:
+def _epoch_of(run: FilterRun, idx) -> np.ndarray:
+    """Covariance epoch of each run-local sample index (the nearest on the data side, as `run_filter`)."""
+    if run.backward:
+        return np.minimum(np.searchsorted(run.ep_idx, idx, side="left"), run.ep_idx.size - 1)
+    return np.maximum(np.searchsorted(run.ep_idx, idx, side="right") - 1, 0)
+
+
+def _smoothed_range_bias(src: FilterRun, bwd: FilterRun | None) -> np.ndarray:
+    """eps_d (Eq. 17-18) of the `smoothed` rows at src.out_idx.
+
+    RTS: the smoothed error of the BIAS state (the same recursion as `smoothing.rts`, which keeps
+    the navigation states only), interpolated between epochs as there. Two-filter: the forward
+    and backward estimates weighted by their inverse variances (the marginal Fraser-Potter
+    combination; the cross-covariances with the navigation states are not used).
+    """
+    j = src.out_idx
+    if bwd is None:
+        xs_post, xs_pre, _ = smoothing.rts_closed_loop(src.ep_Phi, src.ep_Ppred, src.ep_P, src.ep_dx)
+        ep_t = src.t_run_s[src.ep_idx]
+        e = _epoch_of(src, j)
+        nxt = np.minimum(e + 1, src.ep_idx.size - 1)
+        at = (src.ep_idx[e] == j) | (nxt == e)
+        a = np.where(at, 0.0, (src.t_run_s[j] - ep_t[e]) / np.where(at, 1.0, ep_t[nxt] - ep_t[e]))
+        xs = (1.0 - a) * xs_post[e, BIAS] + a * np.where(at, 0.0, xs_pre[nxt, BIAS])
+        return src.range_bias_all_m[j] - xs  # error = estimate - truth
+    vf = src.ep_P[_epoch_of(src, j), BIAS, BIAS]
+    vb = bwd.ep_P[_epoch_of(bwd, j), BIAS, BIAS]
+    return (src.range_bias_all_m[j] * vb + bwd.range_bias_all_m[j] * vf) / (vf + vb)
+
+
+def _solution_frame(sol: smoothing.Solution, name: str, t_run_s, t0_s: float, range_bias_m) -> pd.DataFrame:
     """Trajectory rows of a smoothed `Solution` (attitude SDs: of the nav-frame error phi, as the filters)."""
     r, pt, y = dcm_to_euler(sol.C_nb)
     sd = np.sqrt(np.clip(np.diagonal(sol.P9, axis1=1, axis2=2), 0.0, None))
-    n = sol.idx.size
     return pd.DataFrame({
         "t": t_run_s[sol.idx] + t0_s, "lat": np.degrees(sol.nav[:, 0]), "lon": np.degrees(sol.nav[:, 1]),
         "h": sol.nav[:, 2], "vn": sol.nav[:, 3], "ve": sol.nav[:, 4], "vd": sol.nav[:, 5],
@@ -213,7 +251,7 @@ def _solution_frame(sol: smoothing.Solution, name: str, t_run_s, t0_s: float) ->
         "sigma_n": sd[:, 0], "sigma_e": sd[:, 1], "sigma_u": sd[:, 2],
         "sigma_vn": sd[:, 3], "sigma_ve": sd[:, 4], "sigma_vd": sd[:, 5],
         "sigma_roll": np.degrees(sd[:, 6]), "sigma_pitch": np.degrees(sd[:, 7]), "sigma_yaw": np.degrees(sd[:, 8]),
-        "range_bias_m": np.full(n, np.nan),  # the smoothers carry the 15 navigation states only
+        "range_bias_m": range_bias_m,
     })
 
 
@@ -267,7 +305,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
     cfg = _filter_config(session, p, imu_dt, out_every, max(1, int(round(p.cov_step_s / imu_dt))))
 
     with ctx.stage("initial_alignment"):
-        floor_d = _floor_down(anchors_ned, t, a, r, sd_fit, p, ctx)
+        floor_d, floor_se = _floor_down(anchors_ned, t, a, r, sd_fit, p, ctx)
         fixes, n_nofix = fix_events(t, a, r, sd_fit, anchors_ned, floor_d, p.lc_min_anchors, p.epoch_window_s,
                                     p.gate_probability)
         still = stationary_intervals(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, t, a, r,
@@ -279,16 +317,28 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         rest = [b for a_, b in still if a_ <= fixes.t_s[0] + 0.5 and b > fixes.t_s[0]]
         zw = fixes.z[fixes.t_s <= (rest[0] if rest else fixes.t_s[0] + 1.0), :2]
         z0 = np.median(zw, axis=0)
-        # SD of that median (1.25 x SD / sqrt(n) for Gaussian scatter, MAD-based against NLOS
-        # fixes), so that the first ranges do not pull a well-averaged start around
-        mad_sd = 1.4826 * np.median(np.abs(zw - z0), axis=0)
-        sd_start = np.maximum(1.2533 * mad_sd / np.sqrt(zw.shape[0]), 0.02)
+        # At rest the start is the mean of the window's fixes (within 3 MAD-SDs of their median,
+        # against NLOS fixes) with the SD of that mean, and the filters skip the window's
+        # ranges and fixes: they are in the start already (processing them again double counted
+        # them: static-start NEES ~4). Moving, the median is only a linearization point: it
+        # carries one fix's SD and the ranges are processed.
+        sd_fix = 1.4826 * np.median(np.abs(zw - z0), axis=0)
+        sd_start = np.maximum(sd_fix, 0.02)
+        if rest:  # mean of the fixes within 3 SD of the median: NLOS-robust, as efficient as a mean
+            inl = np.all(np.abs(zw - z0) <= 3.0 * np.maximum(sd_fix, 1e-6), axis=1)
+            z0 = zw[inl].mean(axis=0)
+            sd_start = np.maximum(zw[inl].std(axis=0, ddof=1) / np.sqrt(inl.sum()), 0.02)
+        t_used = rest[0] if rest else -np.inf
         sd0 = cfg.sd0.copy()
         sd0[:2] = np.minimum(sd_start, p.initial_position_sd_m)
-        cfg = replace(cfg, sd0=sd0)
+        # beyond the paper: the floor height and the calibration are constant errors, estimated
+        # as states rather than treated as white noise (their neglect raised the NEES)
+        cfg = replace(cfg, sd0=sd0, floor_sd_m=floor_se, cal_cov_m2=model.bias_cov_m2)
         p0 = np.array([z0[0], z0[1], floor_d])
         init = InitialState(init.k0, geodetic.ned_to_lla(p0, origin), init.vel_ned_mps, init.rpy_rad)
         results["floor_down_m"] = floor_d
+        results["floor_height_sd_m"] = floor_se
+        results["start_window_end"] = float(t_used + session.t0_s) if rest else None
         results["initial_state"] = {"t": float(imu.t_s[init.k0] + session.t0_s),
                                     "lla": [float(v) for v in init.lla],
                                     "rpy_deg": [float(v) for v in np.degrees(init.rpy_rad)]}
@@ -318,15 +368,17 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
                 ev = range_events(t, a, r, R)
                 extra["fuzzy_S"] = {"min": float(S.min()), "median": float(np.median(S)), "max": float(S.max())}
             store = p.smoothed and name == p.smooth_source and p.smoother == "rts"
+            ev = _after(ev, t_used)
             runf = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, init, Events.merge(ev, *common),
                               anchors_ned, origin, cfg, store_rts=store)
         runs[name] = runf
         trajs.append(_trajectory(runf, name, session.t0_s))
-        per_sol[name] = _report(runf, name, anchors.ids, session.t0_s, p, ctx) | extra
+        per_sol[name] = _report(runf, name, anchors.ids, session.t0_s, p, ctx, t_used) | extra
         innov.append(_innovations(runf, name, anchors.ids, session.t0_s))
     if p.smoothed:
         src = runs[p.smooth_source]
         with ctx.stage("smoothing"):
+            bwd = None
             if p.smoother == "rts":
                 sol = smoothing.rts(src, src.t_run_s, src.out_idx)
                 per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "rts"}
@@ -339,12 +391,19 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
                 sol, flag, _ = smoothing.two_filter(fwd15, _nav15(bwd), src.t_run_s, src.out_idx)
                 per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "two_filter",
                                        "forward_backward_disagreements": int(flag.sum())}
-                per_sol["smoothed"]["backward"] = _report(bwd, "backward", anchors.ids, session.t0_s, p, None)
-        trajs.append(_solution_frame(sol, "smoothed", src.t_run_s, session.t0_s))
+                per_sol["smoothed"]["backward"] = _report(bwd, "backward", anchors.ids, session.t0_s, p, None, t_used)
+            rb = _smoothed_range_bias(src, bwd)
+        trajs.append(_solution_frame(sol, "smoothed", src.t_run_s, session.t0_s, rb))
     results["solutions"] = per_sol
     results["config"] = {"ranging_fatci": params_to_dict(p)}
     return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
                        summary=results)
+
+
+def _after(ev: Events, t_s: float) -> Events:
+    """The events after t_s."""
+    m = ev.t_s > t_s
+    return Events(ev.t_s[m], ev.kind[m], ev.anchor[m], ev.z[m], ev.R[m], ev.gated[m])
 
 
 def _nav15(run: FilterRun) -> FilterRun:
@@ -352,7 +411,8 @@ def _nav15(run: FilterRun) -> FilterRun:
     return replace(run, ep_P=np.ascontiguousarray(run.ep_P[:, :15, :15]))
 
 
-def _report(runf: FilterRun, name: str, ids, t0_s: float, p: RangingParams, ctx: RunContext | None) -> dict:
+def _report(runf: FilterRun, name: str, ids, t0_s: float, p: RangingParams, ctx: RunContext | None,
+            t_from_s: float = -np.inf) -> dict:
     """Summary of one filter run: aiding events, gating rejections, coasting; counts and warnings to ctx."""
     evs = runf.events
     aid = (evs.kind == EV_RANGE) | (evs.kind == EV_FIX_NE)
@@ -361,7 +421,7 @@ def _report(runf: FilterRun, name: str, ids, t0_s: float, p: RangingParams, ctx:
         rejections = {"fix": int(rej.sum())}
     else:
         rejections = {ids[i]: int(np.sum(rej & (evs.anchor == i) & (evs.kind == EV_RANGE))) for i in range(len(ids))}
-    coast = coasting_intervals(runf, p.coast_gap_s)
+    coast = coasting_intervals(runf, p.coast_gap_s, t_from_s)
     if ctx is not None:
         for k, v in rejections.items():
             ctx.count(f"{name}_gated_{k}", v)

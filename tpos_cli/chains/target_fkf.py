@@ -68,15 +68,9 @@ class TargetFkfParams:
     acc_static_tol_mps2: float = 0.5
     gyro_static_tol_dps: float = 30.0
     motion_model: bool = True
-    gyro_scale_states: bool = False  # estimate the three gyro scale-factor errors
-    gyro_scale_sd_pct: float = 0.5
     motion_sd_mps: float = 0.2
     motion_sd_m: float = 0.1
     motion_interval_s: float = 1.0
-    grav_motion_r_m: float = 0.0
-    grav_motion_tau_s: float = 0.2
-    grav_motion_floor_mps2: float = 0.1
-    mag_heading_only: bool = False  # True: the magnetometer corrects heading only, never roll/pitch
     smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
     heading_recover_nis: float = 0.0  # > 0: LF1 re-opens its heading variance when the mean mag NIS exceeds it
     # LF1 gating
@@ -280,8 +274,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         range_gate_chi2=float(chi2.ppf(p.range_gate_probability, 2)), beta=p.beta,
         gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps,
         motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s,
-        heading_recover_nis=p.heading_recover_nis, grav_motion_r_m=p.grav_motion_r_m,
-        grav_motion_tau_s=p.grav_motion_tau_s, grav_motion_floor_mps2=p.grav_motion_floor_mps2, mag_heading_only=p.mag_heading_only, scale_sd=p.gyro_scale_sd_pct / 100.0,
+        heading_recover_nis=p.heading_recover_nis,
         gravity_mps2=float(np.linalg.norm(np.mean(imu.acc_b_mps2[win.i0:win.i1], axis=0))) if p.gravity_from_static else None,
     )
     # the bias estimated in the window already removes the window's mean rate
@@ -292,7 +285,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         sols["gyro"] = run_full("gyro", t, imu.gyro_b_rps, imu.acc_b_mps2, None, None, setup_gyro, 0)
         if p.model == "full":
             run = smooth_full if p.smooth else run_full
-            mot = (K.USE_MOTION if p.motion_model else 0) | (K.USE_SCALE if p.gyro_scale_states else 0)
+            mot = K.USE_MOTION if p.motion_model else 0
             still = al.static_mask(t, imu.gyro_b_rps, imu.acc_b_mps2, gyro_tol_rps=np.radians(p.static_gyro_tol_dps),
                                    acc_sd_tol_mps2=p.static_acc_sd_tol_mps2)
             ctx.count("still_samples", int(still.sum()))

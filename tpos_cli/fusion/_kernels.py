@@ -61,14 +61,16 @@ def insgps_kernel(
     gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject,
     out_nav, out_C, out_bias,
     ep_idx, ep_Phi, ep_Ppred, ep_Pfilt, ep_dx, store_rts,
-    innov, nis, accepted,
+    innov, innov_pvar, nis, accepted,
 ):
     """Closed-loop 15-state INS/GPS filter over a whole log (forward or reversed).
 
     gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
     position and velocity variances; NaN velocity -> position-only update; NaN vd -> horizontal velocity update. Per fix, innov (M, 6)
     gets the residuals, nis (M, 2) and accepted (M, 2) the position and velocity NIS (3 d.o.f.
-    each, NaN when absent) and whether each was applied. Gate: NIS above gate[3] rejects that
+    each, NaN when absent) and whether each was applied; innov_pvar (M, 6) the diagonal of
+    H P- H^T (the filter's own share of each residual's variance, R excluded) for covariance
+    matching of the GPS noise (`fusion.gps_noise`). Gate: NIS above gate[3] rejects that
     part of the fix, except after `max_reject` consecutive rejections of that kind (the nominal
     has left the fixes for good: locking it out would diverge; 0 = no gating). Epochs (covariance steps) every
     `cov_step` samples and at every fix; per epoch e: ep_idx[e], P_filt, dx (correction fed
@@ -132,9 +134,11 @@ def insgps_kernel(
                 # bad velocity does not throw away a good position
                 position_residual(nav, C, lever_b, gps_pos[g], gps_lag[g], zp)
                 position_jacobian(nav, C, lever_b, gps_lag[g], H3, 0)
+                PHt = P @ H3.T
                 for i in range(3):
                     innov[g, i] = zp[i]
                     R3[i, i] = gps_var[g, i]
+                    innov_pvar[g, i] = H3[i] @ PHt[:, i]
                 s = nis_of(x, P, zp, H3, R3)
                 nis[g, 0] = s
                 if s <= gate[3] or n_rej >= max_reject:
@@ -150,9 +154,11 @@ def insgps_kernel(
                     velocity_residual(nav, C, lever_b, w_ib, gps_vel[g], zv)
                     velocity_jacobian(C, lever_b, w_ib, Hv, 0)
                     R3[:, :] = 0.0
+                    PHt = P @ Hv.T
                     for i in range(mv):
                         innov[g, 3 + i] = zv[i]
                         R3[i, i] = gps_var[g, 3 + i]
+                        innov_pvar[g, 3 + i] = Hv[i] @ PHt[:, i]
                     Rv = np.ascontiguousarray(R3[:mv, :mv])
                     s = nis_of(x, P, zv[:mv], Hv[:mv], Rv)
                     nis[g, 1] = s

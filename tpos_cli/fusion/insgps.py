@@ -65,7 +65,8 @@ class FilterRun:
     after the update at that epoch. Forward runs also hold ep_Phi (E,15,15) (transition from
     epoch e-1 to e), ep_Ppred (E,15,15) and ep_dx (E,15) (correction fed back at e) for RTS.
     Per fix (in the order of `GpsFixes`): innovation (M,6) [pos NED m, vel NED m/s] NaN where
-    absent; nis (M,2) and accepted (M,2): [position, velocity] NIS (3 d.o.f. each, NaN where
+    absent; innovation_pvar (M,6) the filter's predicted variance of each component (diagonal
+    of H P- H^T, without R); nis (M,2) and accepted (M,2): [position, velocity] NIS (3 d.o.f. each, NaN where
     not processed, e.g. fixes before the first sample) and whether each part was applied.
     """
 
@@ -81,6 +82,7 @@ class FilterRun:
     innovation: np.ndarray
     nis: np.ndarray
     accepted: np.ndarray
+    innovation_pvar: np.ndarray | None = None
 
 
 def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig,
@@ -132,6 +134,7 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     out_C = np.empty((n, 3, 3))
     out_bias = np.empty((n, 6))
     innov = np.full((m, 6), np.nan)
+    innov_pvar = np.full((m, 6), np.nan)
     nis = np.full((m, 2), np.nan)
     acc_flag = np.zeros((m, 2), dtype=np.bool_)
     gate = chi2_threshold(cfg.gate_probability, 6)
@@ -141,7 +144,7 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         int(max(cfg.cov_step, 1)), idx_s.astype(np.int64), lag, np.ascontiguousarray(pos),
         np.ascontiguousarray(vel_o), np.ascontiguousarray(var), np.asarray(cfg.lever_arm_b_m, dtype=float),
         gate, int(cfg.max_consecutive_rejections), out_nav, out_C, out_bias, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, bool(store_rts),
-        innov, nis, acc_flag,
+        innov, innov_pvar, nis, acc_flag,
     )
     if status != 0:
         k = status - 1
@@ -152,6 +155,8 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     nis_all = np.full((len(t_fix), 2), np.nan)
     acc_all = np.zeros((len(t_fix), 2), dtype=bool)
     innovation[order] = innov
+    pvar = np.full((len(t_fix), 6), np.nan)
+    pvar[order] = innov_pvar
     nis_all[order] = nis
     acc_all[order] = acc_flag
     ep_idx = ep_idx[:n_used]
@@ -167,8 +172,9 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         ep_P = ep_P[::-1]
         ep_P *= np.outer(sign15, sign15)  # in place: this array is the run's largest
         innovation[:, 3:] *= -1.0
-        return FilterRun(True, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, None, innovation, nis_all, acc_all)
+        return FilterRun(True, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, None, innovation, nis_all, acc_all,
+                         pvar)
     if store_rts:
         return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, ep_Phi[:n_used], ep_Ppred[:n_used],
-                         ep_dx, innovation, nis_all, acc_all)
-    return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, ep_dx, innovation, nis_all, acc_all)
+                         ep_dx, innovation, nis_all, acc_all, pvar)
+    return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, ep_dx, innovation, nis_all, acc_all, pvar)

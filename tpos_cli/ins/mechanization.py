@@ -49,6 +49,29 @@ def reverse_imu(t_s, gyro_b_rps, acc_b_mps2):
     return np.ascontiguousarray(tau), g, a
 
 
+def decimate_imu(t_s, gyro_b_rps, acc_b_mps2, factor: int):
+    """(t, gyro, acc) keeping every `factor`-th sample time, each row the mean over the merged
+    intervals (interval-weighted): exact under the mean-over-interval convention, so a decimated
+    log integrates onto the same trajectory up to the coning/sculling of the longer interval.
+    Sample 0 is kept; a tail shorter than `factor` intervals ends at the last sample."""
+    t = np.asarray(t_s, dtype=float)
+    if factor <= 1 or t.size < 3:
+        return t, np.asarray(gyro_b_rps, dtype=float), np.asarray(acc_b_mps2, dtype=float)
+    keep = np.arange(0, t.size, factor)
+    if keep[-1] != t.size - 1:
+        keep = np.append(keep, t.size - 1)
+    dt = np.diff(t)
+    out = []
+    for x in (gyro_b_rps, acc_b_mps2):
+        # cumulative increments at the kept samples, differenced: interval-weighted means
+        inc = np.zeros((t.size, 3))
+        np.cumsum(np.asarray(x, dtype=float)[1:] * dt[:, None], axis=0, out=inc[1:])
+        m = np.zeros((keep.size, 3))
+        m[1:] = np.diff(inc[keep], axis=0) / np.diff(t[keep])[:, None]
+        out.append(m)
+    return np.ascontiguousarray(t[keep]), out[0], out[1]
+
+
 def integrate(t_s, gyro_b_rps, acc_b_mps2, lla0, vel0_ned_mps, rpy0_deg, *, backward: bool = False) -> InsTrajectory:
     """Integrate an IMU log from an initial state (free inertial, no aiding).
 

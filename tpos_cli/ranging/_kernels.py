@@ -2,9 +2,12 @@
 
 Composes the shared kernels: `ins._kernels.mech_step` (nominal state), `fusion.nav_errors`
 (15-state error model, feedback, position rows), `filters.kalman` (discretize, predict, gated
-Joseph update). The state is the 15 navigation errors plus the common range bias / NLOS state
-eps_d of Eq. 17-18 at index `BIAS` (a random walk). Measurements follow `fusion`'s sign
-convention z = h(INS) - measured, so H x predicts z.
+Joseph update). The state is the 15 navigation errors, the common range bias / NLOS state eps_d
+of Eq. 17-18 at index `BIAS` (a random walk), and beyond the paper two random constants that the
+filter would otherwise treat as white noise: the error of the floor height used by the floor
+constraint (`FLOOR`) and, per anchor i, the residual bias of the calibrated range (`CAL + i`,
+the least-squares fit's error, Eq. 15-16). A state with zero initial variance stays exactly 0.
+Measurements follow `fusion`'s sign convention z = h(INS) - measured, so H x predicts z.
 
 The loop shares its propagation (`fusion._kernels.mechanize_sample`, `predict_epoch`) with
 `fusion._kernels.insgps_kernel`, so that the same kernel runs
@@ -30,7 +33,14 @@ from tpos_cli.fusion.nav_errors import apply_feedback, position_jacobian, proces
 from tpos_cli.ranging.measurements import lla_to_local_ned
 
 BIAS = N_NAV  # index of eps_d (Eq. 17-18)
-N_STATE = N_NAV + 1
+FLOOR = N_NAV + 1  # error of the floor height (estimate - truth), m
+CAL = N_NAV + 2  # first per-anchor calibration residual bias, m
+N_STATE = N_NAV + 1  # navigation + eps_d (the paper's state); the run has CAL + n_anchors states
+
+
+def n_states(n_anchors: int) -> int:
+    """Size of the filter state for n_anchors anchors."""
+    return CAL + n_anchors
 
 EV_RANGE = 0  # z = corrected range to anchor ev_anchor (Eq. 21-24)
 EV_FIX_NE = 1  # z = least-squares fix (north, east) in the local frame (Eq. 7-12)
@@ -43,7 +53,7 @@ def ranging_filter_kernel(
     t, gyro, acc, nav0, C0, bias0, range_bias0, P0, q, tau_acc_s, tau_gyro_s, q_bias, earth_sign, cov_step,
     ev_k, ev_lag, ev_kind, ev_anchor, ev_z, ev_R, ev_gated,
     anchors_ned, r0_e, C_ne0, gate, max_consecutive_rejects, store_rts,
-    out_nav, out_C, out_bias, out_rb, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, ev_nis, ev_accepted,
+    out_nav, out_C, out_bias, out_rb, out_aux, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, ev_nis, ev_accepted,
 ):
     """Closed-loop INS/range filter over the whole (possibly reversed) arrays, from sample 0.
 
@@ -51,15 +61,18 @@ def ranging_filter_kernel(
     [var_0, cov_01, var_1] (ZUPT: the variance of each axis in var_0); anchors_ned (A, 3) local
     NED; gate[m] = chi2 threshold for m dof. Writes the nominal after feedback at every sample
     (out_*), the epochs (ep_*; Phi and P_pred only when store_rts) and per event the NIS (-1 if
-    never reached) and acceptance. Returns (n_epochs, status): status 0 ok, else 1 + the sample
-    index where an innovation covariance lost positive definiteness.
+    never reached) and acceptance; out_aux (N, 1 + A) the floor and calibration corrections
+    (nominal of the FLOOR and CAL states). P0 is (n_states(A), n_states(A)). Returns (n_epochs,
+    status): status 0 ok, else 1 + the sample index where an innovation covariance lost positive
+    definiteness.
     """
-    n = N_STATE
+    n = P0.shape[0]
     n_t = t.shape[0]
     nav = nav0.copy()
     C = C0.copy()
     bias = bias0.copy()
     range_bias = range_bias0
+    aux = np.zeros(out_aux.shape[1])  # [floor correction, calibration correction per anchor], m
     P = P0.copy()
     x = np.zeros(n)
     F = np.zeros((n, n))
@@ -101,6 +114,7 @@ def ranging_filter_kernel(
     out_C[0] = C
     out_bias[0] = bias
     out_rb[0] = range_bias
+    out_aux[0] = aux
     last = 0
     dt_sum = 0.0
     dx_sum = np.zeros(n)
@@ -124,13 +138,14 @@ def ranging_filter_kernel(
                     slot = a
                     d = p - anchors_ned[a]
                     rho = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                    z1[0] = rho + range_bias - ev_z[e, 0]  # Eq. 22 with fusion's sign: h(INS) - measured
+                    z1[0] = rho + range_bias + aux[1 + a] - ev_z[e, 0]  # Eq. 22, fusion's sign: h(INS) - measured
                     for j in range(n):
                         H1[0, j] = 0.0
                     for i in range(3):
                         H1[0, POS + i] = d[i] / rho  # Eq. 23
                         H1[0, VEL + i] = -lag * d[i] / rho
                     H1[0, BIAS] = 1.0  # Eq. 24, last column (sign: error = estimate - truth)
+                    H1[0, CAL + a] = 1.0
                     R1[0, 0] = ev_R[e, 0]
                     nis = nis_of(x, P, z1, H1, R1)
                     accept = (not ev_gated[e]) or nis <= gate[1] or consecutive[slot] >= max_consecutive_rejects
@@ -155,7 +170,8 @@ def ranging_filter_kernel(
                     position_jacobian(nav, C, zero3, lag, H3, 0)
                     for j in range(n):
                         H1[0, j] = H3[2, j] if j < N_NAV else 0.0
-                    z1[0] = p[2] - ev_z[e, 0]
+                    H1[0, FLOOR] = -1.0  # the floor used is ev_z + aux[0]; its error enters with -1
+                    z1[0] = p[2] - (ev_z[e, 0] + aux[0])
                     R1[0, 0] = ev_R[e, 0]
                     nis = update(x, P, z1, H1, R1)
                     if nis < 0.0:
@@ -179,6 +195,8 @@ def ranging_filter_kernel(
                 if accept:  # closed loop: feed back and reset (paper Fig. 1, Algorithm 1 step 10)
                     apply_feedback(nav, C, bias, x)
                     range_bias -= x[BIAS]
+                    for i in range(aux.shape[0]):
+                        aux[i] -= x[FLOOR + i]
                     dx_sum += x
                     x[:] = 0.0
                 e += 1
@@ -193,4 +211,5 @@ def ranging_filter_kernel(
         out_C[k] = C
         out_bias[k] = bias
         out_rb[k] = range_bias
+        out_aux[k] = aux
     return ep + 1, 0

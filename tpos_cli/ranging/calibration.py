@@ -33,6 +33,10 @@ class RangeModel:
         pooled over anchors; sd_range_m : (min, max) distance where it was fitted (clamped outside)
     pooled_sd_m : SD of all calibration residuals (the constant-R baseline of the `tc` solution)
     fitted : False for the identity model used without a calibration table
+    bias_cov_m2 : (A, A) covariance of the error of the corrected ranges that the fit leaves,
+        (dc_i + d dF_i) / f_i at d = anchor i's mean calibration distance (where the line is best
+        known), from the heteroscedasticity-robust (sandwich) covariance of the LS coefficients;
+        constant over a run, so the filters carry it as per-anchor bias states. Zeros: unknown.
     """
 
     scale: np.ndarray
@@ -44,6 +48,7 @@ class RangeModel:
     sd_range_m: tuple[float, float]
     pooled_sd_m: float
     fitted: bool
+    bias_cov_m2: np.ndarray | None = None
 
     def correct(self, anchor: np.ndarray, range_m: np.ndarray) -> np.ndarray:
         """Invert Eq. 14 without noise: d = (d~ - c_i) / f_i."""
@@ -69,6 +74,7 @@ class RangeModel:
                     "residual_sd_m": float(self.residual_sd_m[i]),
                     "n_used": int(self.n_used[i]),
                     "n_rejected": int(self.n_rejected[i]),
+                    "bias_se_m": float(np.sqrt(self.bias_cov_m2[i, i])) if self.bias_cov_m2 is not None else None,
                 }
                 for i, aid in enumerate(anchor_ids)
             },
@@ -82,6 +88,7 @@ def identity_model(n_anchors: int, sd_m: float) -> RangeModel:
         scale=np.ones(n_anchors), bias_m=z.copy(), residual_sd_m=np.full(n_anchors, sd_m),
         n_used=np.zeros(n_anchors, np.int64), n_rejected=np.zeros(n_anchors, np.int64),
         sd_poly=np.array([sd_m]), sd_range_m=(0.0, np.inf), pooled_sd_m=float(sd_m), fitted=False,
+        bias_cov_m2=np.zeros((n_anchors, n_anchors)),
     )
 
 
@@ -157,13 +164,24 @@ def fit_range_model(
         dof = max(n_used[i] - (n_par / n_anchors), 1.0)
         resid_sd[i] = np.sqrt(np.sum(resid[m] ** 2) / dof)
     pooled = float(np.sqrt(np.sum(resid[keep] ** 2) / max(keep.sum() - n_par, 1)))
+    # Sandwich covariance (White 1980): the range noise grows with distance, so the OLS formula
+    # sigma^2 (A^T A)^-1 would misstate the SEs
+    Ak = A[keep]
+    bread = np.linalg.inv(Ak.T @ Ak)
+    cov = bread @ (Ak.T * resid[keep] ** 2) @ Ak @ bread
+    J = np.zeros((n_anchors, coef.size))  # corrected-range error of anchor i at its mean distance
+    for i in range(n_anchors):
+        d_ref = float(np.mean(true_m[keep & (anchor == i)]))
+        J[i, 0 if shared else i] = d_ref / scale_f[i]
+        J[i, (1 if shared else n_anchors) + i] = 1.0 / scale_f[i]
+    bias_cov = J @ cov @ J.T
     # Residuals in range units: the SD of the corrected range is SD(resid) / f.
     f_per = scale_f[anchor]
     poly, span = _fit_sd_curve(true_m[keep], resid[keep] / f_per[keep], sd_poly_degree)
     return RangeModel(
         scale=scale_f, bias_m=bias, residual_sd_m=resid_sd / scale_f, n_used=n_used,
         n_rejected=counts - n_used, sd_poly=poly, sd_range_m=span,
-        pooled_sd_m=pooled / float(np.mean(scale_f)), fitted=True,
+        pooled_sd_m=pooled / float(np.mean(scale_f)), fitted=True, bias_cov_m2=0.5 * (bias_cov + bias_cov.T),
     )
 
 

@@ -32,7 +32,7 @@ from tpos_cli.ranging.fuzzy import FuzzySystem, infer
 from tpos_cli.ranging.multilateration import group_epochs, ls_fix
 
 EV_RANGE, EV_FIX_NE, EV_DOWN, EV_ZUPT = K.EV_RANGE, K.EV_FIX_NE, K.EV_DOWN, K.EV_ZUPT
-N_STATE, BIAS = K.N_STATE, K.BIAS
+N_STATE, BIAS, FLOOR, CAL, n_states = K.N_STATE, K.BIAS, K.FLOOR, K.CAL, K.n_states
 
 
 @dataclass(frozen=True)
@@ -58,8 +58,12 @@ class Events:
 @dataclass(frozen=True)
 class FilterConfig:
     """Filter tuning in SI units. q = [acc white PSD (m/s^2)^2 s, gyro white PSD rad^2/s,
-    acc bias drive PSD, gyro bias drive PSD]; sd0 = initial SDs of the 16 states; output_every:
-    IMU samples per output row; cov_step: IMU samples per covariance epoch between events."""
+    acc bias drive PSD, gyro bias drive PSD]; sd0 = initial SDs of the 16 states (navigation and
+    eps_d); output_every: IMU samples per output row; cov_step: IMU samples per covariance epoch
+    between events. Random constants beyond the paper (0 = not estimated, as without them):
+    floor_sd_m = SD of the error of the floor height given to `down_events` (common to all of
+    them); cal_cov_m2 (A, A) = covariance of the anchors' calibrated-range biases
+    (`RangeModel.bias_cov_m2`)."""
 
     q: np.ndarray
     tau_acc_s: float
@@ -70,6 +74,8 @@ class FilterConfig:
     max_consecutive_rejects: int
     output_every: int
     cov_step: int = 10
+    floor_sd_m: float = 0.0
+    cal_cov_m2: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -93,6 +99,8 @@ class FilterRun:
     Output rows (every `output_every` samples and the last): out_idx (K,) run-local indices, t_s,
     lla, vel_ned_mps, rpy_deg, sd_ned_m, sd_vel_mps, sd_att_deg (SD of the attitude error phi),
     range_bias_m. Per event (in the order of `events`): ev_nis (-1 if not reached), ev_accepted.
+    floor_correction_m, cal_correction_m (A,): estimated floor-height and per-anchor calibrated-range
+    corrections after the last event of the run (0 when their states are off).
     For `tpos_cli.smoothing` (field names of `fusion.insgps.FilterRun`): t_run_s (N-k0,), nav
     (N-k0, 6), C_nb, bias (N-k0, 6) nominal after feedback; ep_idx (E,) run-local; ep_P (E,16,16)
     in forward-time signs; forward runs also ep_Phi, ep_Ppred, ep_dx (RTS history).
@@ -110,6 +118,8 @@ class FilterRun:
     ev_nis: np.ndarray
     ev_accepted: np.ndarray
     backward: bool = False
+    floor_correction_m: float = 0.0
+    cal_correction_m: np.ndarray | None = None
     k0: int = 0
     out_idx: np.ndarray | None = None
     t_run_s: np.ndarray | None = None
@@ -230,12 +240,18 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, 
     n = t.size
     if n < 2:
         raise ProcessingError("ranging filter: fewer than two IMU samples after the first position fix")
-    sign = np.ones(N_STATE)
+    n_anchor = int(np.shape(anchors_ned_m)[0])
+    ns = n_states(n_anchor)
+    sign = np.ones(ns)
     sign[:15] = backward_sign()
     nav0 = np.array([np.radians(init.lla[0]), np.radians(init.lla[1]), init.lla[2], *init.vel_ned_mps])
     C0 = euler_to_dcm(*init.rpy_rad)
     bias0 = np.array(init.bias, dtype=float)
-    P0 = np.diag(np.asarray(cfg.sd0, float) ** 2)
+    P0 = np.zeros((ns, ns))
+    P0[:N_STATE, :N_STATE] = np.diag(np.asarray(cfg.sd0, float) ** 2)
+    P0[FLOOR, FLOOR] = cfg.floor_sd_m**2
+    if cfg.cal_cov_m2 is not None:
+        P0[CAL:, CAL:] = cfg.cal_cov_m2
     t_ev = np.asarray(events.t_s, dtype=float)
     if backward:
         t, gyro, acc = reverse_imu(t, gyro, acc)
@@ -257,11 +273,12 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, 
     out_C = np.empty((n, 3, 3))
     out_bias = np.empty((n, 6))
     out_rb = np.empty(n)
+    out_aux = np.empty((n, 1 + n_anchor))
     ep_idx = np.zeros(n_ep, np.int64)
-    ep_P = np.empty((n_ep, N_STATE, N_STATE))
-    ep_dx = np.empty((n_ep, N_STATE))
-    ep_Phi = np.empty((nr, N_STATE, N_STATE))
-    ep_Ppred = np.empty((nr, N_STATE, N_STATE))
+    ep_P = np.empty((n_ep, ns, ns))
+    ep_dx = np.empty((n_ep, ns))
+    ep_Phi = np.empty((nr, ns, ns))
+    ep_Ppred = np.empty((nr, ns, ns))
     nis_o = np.full(n_ev, -1.0)
     acc_o = np.zeros(n_ev, np.bool_)
     r0_e = geodetic.lla_to_ecef(origin_lla)
@@ -275,7 +292,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, 
         ev_k[order], ev_lag[order], events.kind[order], events.anchor[order], np.ascontiguousarray(z[order]),
         np.ascontiguousarray(events.R[order]), events.gated[order], np.ascontiguousarray(anchors_ned_m, dtype=float),
         r0_e, C_ne0, gate, cfg.max_consecutive_rejects, bool(store_rts),
-        out_nav, out_C, out_bias, out_rb, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, nis_o, acc_o,
+        out_nav, out_C, out_bias, out_rb, out_aux, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, nis_o, acc_o,
     )
     if status != 0:
         tk = t[status - 1] * (-1.0 if backward else 1.0)
@@ -316,6 +333,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, 
         t_s=t[out_idx], lla=lla, vel_ned_mps=nav_o[:, 3:6].copy(), rpy_deg=rpy,
         sd_ned_m=sd[:, POS:POS + 3], sd_vel_mps=sd[:, VEL:VEL + 3], sd_att_deg=np.degrees(sd[:, ATT:ATT + 3]),
         range_bias_m=out_rb[out_idx], events=events, ev_nis=ev_nis, ev_accepted=ev_acc,
+        floor_correction_m=float(out_aux[-1, 0]),
+        cal_correction_m=out_aux[-1, 1:].copy(),
         backward=backward, k0=k0, out_idx=out_idx, t_run_s=t, nav=out_nav, C_nb=out_C, bias=out_bias,
         range_bias_all_m=out_rb, ep_idx=ep_idx, ep_P=ep_P, ep_Phi=ep_Phi[:n_used] if rts else None,
         ep_Ppred=ep_Ppred[:n_used] if rts else None, ep_dx=None if backward else ep_dx,
@@ -330,14 +349,18 @@ def end_state(run: FilterRun) -> InitialState:
                         float(run.range_bias_all_m[-1]))
 
 
-def coasting_intervals(run: FilterRun, gap_s: float) -> list[tuple[float, float]]:
-    """Intervals (s) longer than gap_s without an accepted range or fix: the filter coasted on the INS."""
+def coasting_intervals(run: FilterRun, gap_s: float, t_from_s: float = -np.inf) -> list[tuple[float, float]]:
+    """Intervals (s) longer than gap_s without an accepted range or fix: the filter coasted on the INS.
+
+    Counted from t_from_s (the end of a start window whose ranges are in the initial state).
+    """
     ev = run.events
     m = run.ev_accepted & ((ev.kind == EV_RANGE) | (ev.kind == EV_FIX_NE))
     ta = np.sort(ev.t_s[m])
     if run.t_s.size == 0:
         return []
-    edges = np.concatenate([[run.t_s[0]], ta, [run.t_s[-1]]])
+    t_start = max(float(run.t_s[0]), t_from_s)
+    edges = np.concatenate([[t_start], ta[ta > t_start], [run.t_s[-1]]])
     gaps = np.diff(edges)
     idx = np.flatnonzero(gaps > gap_s)
     return [(float(edges[i]), float(edges[i + 1])) for i in idx]

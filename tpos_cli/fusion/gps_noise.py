@@ -1,0 +1,141 @@
+"""GPS noise from the log itself: covariance matching on a cheap first filter pass.
+
+A receiver's stated SDs (or the pipeline's defaults when the log gives none) are rarely its
+real noise. The innovations of an INS/GPS filter satisfy E[nu_i^2] = (H P- H^T)_ii + R_ii
+(covariance matching, Mehra 1972, Eq. 3.9; paper 003 Eq. 3 gives S = H P- H^T + R), so R can
+be read off a first pass. Per group g (horizontal position, vertical position, horizontal
+velocity, vertical velocity) the variances used are s_g^2 sigma_i^2 (sigma_i: the fix's SD as
+given), and s_g is the fixed point of
+    m_g(s) = mean_i  nu_i^2 / (hph_i + s_g^2 sigma_i^2) = 1
+where nu and hph come from a filter run with those scales (so a root search over runs, not one
+formula: the filter's H P- H^T depends on the R it was run with, and subtracting the H P- H^T of
+a run with too large an R from the innovations' scatter drives R to zero). The mean is over the
+components whose normalized square stays under the 1-d.o.f. gate (multipath jumps must not
+inflate the noise of the other fixes; the truncation bias at the 0.9999 quantile is < 0.1%).
+A pass runs on the IMU decimated to about 25 Hz with 1 s covariance steps: its only product is
+the innovations.
+
+Time-correlated GPS errors (a receiver's own filter, multipath over minutes) are seen by the
+innovations only through their change between fixes: the matched R then describes that part,
+which keeps the NIS consistent but says nothing of the slow wander common to all fixes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.ins.mechanization import decimate_imu
+
+GROUPS = ("pos_h", "pos_v", "vel_h", "vel_v")
+_COLS = ((0, 1), (2,), (3, 4), (5,))  # innovation columns of each group
+_GATE_1DOF = 15.137  # chi-square 1 d.o.f. quantile at 0.9999
+
+
+@dataclass(frozen=True)
+class GpsNoise:
+    """Outcome of `estimate_gps_noise`: scale (4,) of the SDs per group (`GROUPS`; 1 where not
+    estimated), n_used (4,) innovation components per group, passes run, and the median SDs of
+    the scaled fixes: sigma (4,) [pos_h m, pos_v m, vel_h m/s, vel_v m/s] (NaN where absent)."""
+
+    scale: np.ndarray
+    n_used: np.ndarray
+    passes: int
+    sigma: np.ndarray
+    normalized_square: np.ndarray  # (4,) the last pass's mean nu^2 / (H P- H^T + R) per group
+
+    def summary(self) -> dict:
+        units = ("m", "m", "mps", "mps")
+        out = {f"sigma_{g}_{u}": (None if not np.isfinite(s) else round(float(s), 4))
+               for g, u, s in zip(GROUPS, units, self.sigma)}
+        out["scale"] = {g: round(float(s), 4) for g, s in zip(GROUPS, self.scale)}
+        out["n_used"] = {g: int(n) for g, n in zip(GROUPS, self.n_used)}
+        out["passes"] = self.passes
+        out["last_pass_normalized_square"] = {g: (None if not np.isfinite(v) else round(float(v), 3))
+                                              for g, v in zip(GROUPS, self.normalized_square)}
+        return out
+
+
+def scaled_fixes(fixes: GpsFixes, scale) -> GpsFixes:
+    """`fixes` with their SDs multiplied by the group scales (pos_h, pos_v, vel_h, vel_v)."""
+    s = np.asarray(scale, dtype=float)
+    return dataclasses.replace(fixes, sigma_pos_ned_m=fixes.sigma_pos_ned_m * s[[0, 0, 1]],
+                               sigma_vel_mps=fixes.sigma_vel_mps * s[[2, 2, 3]])
+
+
+def median_sigmas(fixes: GpsFixes) -> np.ndarray:
+    """(4,) median SD per group of the fixes (velocity groups NaN when no fix has that velocity)."""
+    vel = np.isfinite(fixes.vel_ned_mps)
+    out = np.full(4, np.nan)
+    if fixes.t_s.size:
+        out[0] = np.median(fixes.sigma_pos_ned_m[:, :2])
+        out[1] = np.median(fixes.sigma_pos_ned_m[:, 2])
+    if vel[:, 0].any():
+        out[2] = np.median(fixes.sigma_vel_mps[vel[:, 0], :2])
+    if vel[:, 2].any():
+        out[3] = np.median(fixes.sigma_vel_mps[vel[:, 2], 2])
+    return out
+
+
+def normalized_square(nu, hph, var) -> tuple[float, int]:
+    """Trimmed mean of nu^2 / (hph + var) over the finite components under the 1-d.o.f. gate
+    (1 when the noise model fits), and the number of components used (NaN when < 10)."""
+    r = np.asarray(nu, dtype=float) ** 2 / (np.clip(np.asarray(hph, dtype=float), 0.0, None) + np.asarray(var, dtype=float))
+    r = r[np.isfinite(r)]
+    r = r[r < _GATE_1DOF]
+    if r.size < 10:
+        return float("nan"), int(r.size)
+    return float(np.mean(r)), int(r.size)
+
+
+def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
+                       after_s: float | None = None, rate_hz: float = 25.0, max_passes: int = 6, tol: float = 0.1,
+                       scale_bounds=(0.02, 50.0)) -> GpsNoise:
+    """Scales of the fixes' SDs per group from decimated forward passes (see the module docstring).
+
+    Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
+    the scale is moved by a secant step on log m against log s (first step s sqrt(m): right when
+    H P- H^T << R) until every |m - 1| < tol. `after_s`: only fixes after this time count (the
+    heading may still be converging before); ignored when fewer than 30 fixes would remain.
+    """
+    t = np.asarray(t_s, dtype=float)
+    rate = (t.size - 1) / (t[-1] - t[0])
+    factor = max(1, int(round(rate / rate_hz)))
+    td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, factor)
+    rate_d = (td.size - 1) / (td[-1] - td[0])
+    pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))))
+    count = np.ones(fixes.t_s.size, dtype=bool)
+    if after_s is not None and np.sum(fixes.t_s > after_s) >= 30:
+        count = fixes.t_s > after_s
+    lo, hi = np.log(scale_bounds[0]), np.log(scale_bounds[1])
+    log_s = np.zeros(4)
+    hist: list[list[tuple[float, float]]] = [[] for _ in range(4)]
+    m_last = np.full(4, np.nan)
+    n_used = np.zeros(4, dtype=np.int64)
+    passes = 0
+    for passes in range(1, max_passes + 1):
+        fx = scaled_fixes(fixes, np.exp(log_s))
+        run = run_insgps(td, gd, ad, fx, init, pcfg, store_rts=False)
+        var = np.column_stack([fx.sigma_pos_ned_m, fx.sigma_vel_mps])[count] ** 2
+        nu, hph = run.innovation[count], run.innovation_pvar[count]
+        for j, cols in enumerate(_COLS):
+            c = list(cols)
+            m_last[j], n_used[j] = normalized_square(nu[:, c], hph[:, c], var[:, c])
+            if np.isfinite(m_last[j]):
+                hist[j].append((log_s[j], np.log(m_last[j])))
+        if not np.any(np.abs(m_last[np.isfinite(m_last)] - 1.0) >= tol) or passes == max_passes:
+            break
+        for j in range(4):
+            if not hist[j] or abs(m_last[j] - 1.0) < tol:
+                continue
+            ls1, lm1 = hist[j][-1]
+            step = 0.5 * lm1  # m ~ 1 / s^2 while H P- H^T << R
+            if len(hist[j]) >= 2:
+                ls0, lm0 = hist[j][-2]
+                if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:  # a usable decreasing secant
+                    step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
+            log_s[j] = float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi))
+    return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last)
