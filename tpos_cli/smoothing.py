@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from tpos_cli.filters.gating import chi2_threshold  # scipy.special: scipy.stats costs 0.3 s to import
 from tpos_cli.frames._kernels import dcm_to_rotvec, radii_m
 from tpos_cli.fusion.nav_errors import apply_feedback
 
@@ -183,15 +184,13 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
 
 
 def _run_combine(fwd, bwd, t_s, out_idx, outages_s, flag_probability, mode):
-    from scipy.stats import chi2
-
     Kn = out_idx.size
     o_nav, o_C, o_P9 = np.empty((Kn, 6)), np.empty((Kn, 3, 3)), np.empty((Kn, 9, 9))
     o_flag = np.zeros(Kn, dtype=np.bool_)
     o_nis = np.empty(Kn)
     w = outage_weight(t_s[out_idx], outages_s)
     _combine(out_idx, t_s, fwd.nav, fwd.C_nb, fwd.bias, fwd.ep_idx, fwd.ep_P, bwd.nav, bwd.C_nb, bwd.bias,
-             bwd.ep_idx, bwd.ep_P, w, float(chi2.ppf(flag_probability, 9)), o_nav, o_C, o_P9, o_flag, o_nis, mode)
+             bwd.ep_idx, bwd.ep_P, w, float(chi2_threshold(flag_probability, 9)[9]), o_nav, o_C, o_P9, o_flag, o_nis, mode)
     return o_nav, o_C, o_P9, o_flag, o_nis
 
 
@@ -229,4 +228,4 @@ def filter_solution(run, out_idx, name) -> Solution:
         e = np.minimum(np.searchsorted(ep, out_idx, side="left"), ep.size - 1)
     else:
         e = np.maximum(np.searchsorted(ep, out_idx, side="right") - 1, 0)
-    return Solution(name, out_idx, run.nav[out_idx], run.C_nb[out_idx], run.ep_P[e][:, :9, :9])
+    return Solution(name, out_idx, run.nav[out_idx], run.C_nb[out_idx], run.ep_P[e, :9, :9])
