@@ -74,6 +74,7 @@ class DriveSmoothParams:
     use_gps_velocity: bool = True
     gps_noise: str = "estimate"  # estimate: scale the GPS SDs by covariance matching on a first
     # decimated pass (`fusion.gps_noise`); given: use the log's SDs or the defaults above as they are
+    gps_noise_span_s: float = 900.0  # log time the estimation passes cover after the heading search (0 = all)
     outage_min_s: float = 2.0  # a gap between fixes longer than this is an outage
     mounting_check_deg: float = 20.0  # warn when course - yaw while moving has a larger median (0 = no check)
     mounting_min_speed_mps: float = 0.3  # rows faster than this count for the mounting check (slow rovers: 0.3 m/s)
@@ -245,9 +246,11 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("gps_noise"):
         if p.gps_noise == "estimate":
             after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
-            gn = estimate_gps_noise(t, gyro, acc, fixes, init, cfg, after_s=after)
+            gn = estimate_gps_noise(t, gyro, acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
             fixes = scaled_fixes(fixes, gn.scale)
-            info["gps_noise"] = {"method": "covariance matching of a first decimated filter pass", **gn.summary()}
+            info["gps_noise"] = {"method": "covariance matching on decimated filter passes (fusion.gps_noise)",
+                                 **gn.summary()}
+            info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + session.t0_s, 2) for v in gn.window_s]
         else:
             info["gps_noise"] = {"method": "given (log SDs or pipeline defaults)",
                                  **{k: (None if not np.isfinite(v) else round(float(v), 4)) for k, v in zip(
@@ -390,6 +393,8 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         raise InvalidInputError(f"pipeline [drive_smooth]: smoother {p.smoother!r} is not one of {', '.join(SMOOTHERS)}")
     if p.cov_step_s <= 0 or p.output_rate_hz < 0 or p.bias_tau_s <= 0:
         raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
+    if p.gps_noise_span_s < 0:
+        raise InvalidInputError("pipeline [drive_smooth]: gps_noise_span_s must be >= 0")
     if p.gps_noise not in ("estimate", "given"):
         raise InvalidInputError(f"pipeline [drive_smooth]: gps_noise {p.gps_noise!r} is not one of estimate, given")
     if p.heading_hypotheses < 0 or p.heading_search_s <= 0 or p.gps_max_rate_hz < 0:

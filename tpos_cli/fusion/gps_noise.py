@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.fusion.initial import fixes_before
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.ins.mechanization import decimate_imu
 
@@ -46,6 +47,7 @@ class GpsNoise:
     passes: int
     sigma: np.ndarray
     normalized_square: np.ndarray  # (4,) the last pass's mean nu^2 / (H P- H^T + R) per group
+    window_s: tuple  # (first, last) time of the fixes that counted
 
     def summary(self) -> dict:
         units = ("m", "m", "mps", "mps")
@@ -54,6 +56,7 @@ class GpsNoise:
         out["scale"] = {g: round(float(s), 4) for g, s in zip(GROUPS, self.scale)}
         out["n_used"] = {g: int(n) for g, n in zip(GROUPS, self.n_used)}
         out["passes"] = self.passes
+        out["fixes_from_to_s"] = [round(float(v), 2) for v in self.window_s]
         out["last_pass_normalized_square"] = {g: (None if not np.isfinite(v) else round(float(v), 3))
                                               for g, v in zip(GROUPS, self.normalized_square)}
         return out
@@ -91,17 +94,45 @@ def normalized_square(nu, hph, var) -> tuple[float, int]:
     return float(np.mean(r)), int(r.size)
 
 
+def solve_scale(nu, hph, var) -> float:
+    """s^2 with mean(nu^2 / (hph + s^2 var)) = 1 over the finite components under the 1-d.o.f.
+    gate at the start value s^2 = 1, hph held fixed; NaN when there is no positive root."""
+    nu2 = np.asarray(nu, dtype=float) ** 2
+    hph = np.clip(np.asarray(hph, dtype=float), 0.0, None)
+    var = np.asarray(var, dtype=float)
+    ok = np.isfinite(nu2) & np.isfinite(hph) & np.isfinite(var) & (var > 0)
+    ok[ok] = nu2[ok] / (hph[ok] + var[ok]) < _GATE_1DOF
+    a, b, c = nu2[ok], hph[ok], var[ok]
+    if a.size < 10 or np.mean(a / np.maximum(b, 1e-300)) <= 1.0:
+        return float("nan")
+    lo, hi = 1e-10, 1e10
+    for _ in range(100):  # bisection in log s^2: the mean decreases with s^2
+        mid = np.sqrt(lo * hi)
+        if np.mean(a / (b + mid * c)) > 1.0:
+            lo = mid
+        else:
+            hi = mid
+    return float(np.sqrt(lo * hi))
+
+
 def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
-                       after_s: float | None = None, rate_hz: float = 25.0, max_passes: int = 6, tol: float = 0.1,
-                       scale_bounds=(0.02, 50.0)) -> GpsNoise:
+                       after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
+                       max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0)) -> GpsNoise:
     """Scales of the fixes' SDs per group from decimated forward passes (see the module docstring).
 
     Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
     the scale is moved by a secant step on log m against log s (first step s sqrt(m): right when
     H P- H^T << R) until every |m - 1| < tol. `after_s`: only fixes after this time count (the
     heading may still be converging before); ignored when fewer than 30 fixes would remain.
+    `span_s`: the passes stop `span_s` after that (0 = whole log): 900 s give some 1800
+    horizontal components, a variance to about 3%, and keep the passes cheap on long logs.
     """
     t = np.asarray(t_s, dtype=float)
+    start = t[0] if after_s is None else max(after_s, t[0])
+    if span_s > 0 and start + span_s < t[-1]:
+        i_end = int(np.searchsorted(t, start + span_s)) + 1
+        t, gyro_b_rps, acc_b_mps2 = t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end]
+        fixes = fixes_before(fixes, t[-1])
     rate = (t.size - 1) / (t[-1] - t[0])
     factor = max(1, int(round(rate / rate_hz)))
     td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, factor)
@@ -132,10 +163,15 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
             if not hist[j] or abs(m_last[j] - 1.0) < tol:
                 continue
             ls1, lm1 = hist[j][-1]
-            step = 0.5 * lm1  # m ~ 1 / s^2 while H P- H^T << R
+            c = list(_COLS[j])
+            s2 = solve_scale(nu[:, c], hph[:, c], var[:, c] / np.exp(2.0 * ls1))
+            # first step: the scale matching this pass's innovations with its H P- H^T held fixed;
+            # where H P- H^T alone exceeds them (too large an R before), m ~ 1 / s^2
+            step = 0.5 * np.log(s2) - ls1 if np.isfinite(s2) else 0.5 * lm1
             if len(hist[j]) >= 2:
                 ls0, lm0 = hist[j][-2]
                 if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:  # a usable decreasing secant
                     step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
             log_s[j] = float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi))
-    return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last)
+    return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last,
+                    (float(fixes.t_s[count][0]), float(fixes.t_s[count][-1])) if count.any() else (np.nan, np.nan))

@@ -166,11 +166,11 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
     ts, zs, Rs = [], [], []
     n_missing = 0
     guess = np.array([*np.mean(anchors_ned[:, :2], axis=0), down_m])
-    for e in range(ep.max() + 1 if ep.size else 0):
-        m = ep == e
+    bounds = np.flatnonzero(np.diff(ep, prepend=-1, append=ep[-1] + 1 if ep.size else 0))  # ep is sorted
+    for a, b in zip(bounds[:-1], bounds[1:]):
         # one range per anchor per epoch: keep the last if an anchor answered twice
-        _, last = np.unique(anchor[m][::-1], return_index=True)
-        idx = np.flatnonzero(m)[::-1][last]
+        _, last = np.unique(anchor[a:b][::-1], return_index=True)
+        idx = np.arange(a, b)[::-1][last]
         if idx.size < min_anchors:
             n_missing += 1
             continue

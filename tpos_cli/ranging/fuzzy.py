@@ -19,6 +19,7 @@ import numpy as np
 from tpos_cli.errors import InvalidInputError
 
 _GRID_POINTS = 2001  # centroid quadrature; piecewise-linear integrand -> error O(h^2) ~ 1e-7 of the span
+_BLOCK = 2048  # inputs per block of the centroid computation
 
 
 @dataclass(frozen=True)
@@ -93,11 +94,17 @@ def infer(fis: FuzzySystem, x: np.ndarray) -> np.ndarray:
     x = np.clip(np.atleast_1d(np.asarray(x, dtype=float)), *fis.in_range)
     y = np.linspace(fis.out_range[0], fis.out_range[1], _GRID_POINTS)
     out_mu = {name: triangle(y, abc) for name, abc in fis.out_sets.items()}
-    agg = np.zeros((x.size, y.size))
-    for r_in, r_out in fis.rules:
-        w = triangle(x, fis.in_sets[r_in])  # firing strength of the rule
-        agg = np.maximum(agg, np.minimum(w[:, None], out_mu[r_out][None, :]))
-    area = np.trapezoid(agg, y, axis=1)
-    moment = np.trapezoid(agg * y[None, :], y, axis=1)
     mid = 0.5 * (fis.out_range[0] + fis.out_range[1])
-    return np.where(area > 0, moment / np.where(area > 0, area, 1.0), mid)
+    out = np.empty(x.size)
+    # In blocks: the aggregated membership is (inputs x grid), which for an hour of ranges
+    # would otherwise take gigabytes.
+    for a in range(0, x.size, _BLOCK):
+        xb = x[a:a + _BLOCK]
+        agg = np.zeros((xb.size, y.size))
+        for r_in, r_out in fis.rules:
+            w = triangle(xb, fis.in_sets[r_in])  # firing strength of the rule
+            np.maximum(agg, np.minimum(w[:, None], out_mu[r_out][None, :]), out=agg)
+        area = np.trapezoid(agg, y, axis=1)
+        moment = np.trapezoid(agg * y[None, :], y, axis=1)
+        out[a:a + _BLOCK] = np.where(area > 0, moment / np.where(area > 0, area, 1.0), mid)
+    return out
