@@ -33,3 +33,25 @@ def test_unknown_chain_is_refused(tmp_path):
         _chain_run(load_pipeline_file(f).chain)
     with pytest.raises(InvalidInputError):
         resolve_pipeline("no-such-pipeline", "drive")
+
+
+@pytest.mark.parametrize("path", PIPELINE_FILES, ids=[p.stem for p in PIPELINE_FILES])
+def test_pipeline_resolves_before_any_data_is_read(path):
+    from tpos_cli.pipeline import resolve_config
+
+    cfg = resolve_config(load_pipeline_file(path))
+    (section,) = cfg.resolved
+    assert section == CHAINS[cfg.pipeline.chain][1]
+    assert set(cfg.params.get(section, {})) <= set(cfg.resolved[section])  # defaults fill the rest
+    assert len(cfg.sha256) == 64
+
+
+def test_unknown_section_or_key_is_refused():
+    from tpos_cli.pipeline import resolve_config
+
+    p = load_pipeline_file(PIPELINE_FILES[0])
+    with pytest.raises(InvalidInputError, match="unknown"):
+        resolve_config(p, {"no_such_section.x": 1})
+    section = CHAINS[p.chain][1]
+    with pytest.raises(InvalidInputError, match="unknown key"):
+        resolve_config(p, {f"{section}.no_such_key": 1})

@@ -199,51 +199,23 @@ def _read_summary(run_dir: Path) -> dict | None:
 
 
 def run_is_current(session_dir: Path, pipeline: str | None, summary: Mapping[str, Any]) -> bool:
-    """True if `summary` (a finished run's summary.json) is what processing the session now would give.
-
-    Inputs: the sha256 of every session file now (so an edited or added `gps.csv` counts) must
-    equal the recorded `inputs`. Config: same pipeline name, chain and tpos version; the recorded
-    `config_sha256` must be the hash of the recorded resolved `config`, and every parameter the
-    pipeline file sets now must have that value in it. (The chain resolves defaults inside its
-    run, so the resolved config cannot be rebuilt here without running the chain.)
+    """True if `summary` (a finished run's summary.json) is what processing the session now would give:
+    the sha256 of every session file now (so an edited or added `gps.csv` counts) equals the recorded
+    `inputs`, and the pipeline resolved now (defaults included) has the recorded config hash, under
+    the same tpos version.
     """
     import tomllib
 
     from tpos_cli import __version__
-    from tpos_cli.config import config_hash, resolve_pipeline
+    from tpos_cli.config import resolve_pipeline
+    from tpos_cli.pipeline import resolve_config
     from tpos_cli.session import session_file_hashes
 
     if session_file_hashes(session_dir) != summary.get("inputs"):
         return False
     kind = tomllib.loads((session_dir / "session.toml").read_text(encoding="utf-8")).get("session", {}).get("kind")
-    pipe = resolve_pipeline(pipeline, str(kind))
-    resolved = summary.get("config")
-    return (
-        summary.get("tpos_version") == __version__
-        and summary.get("pipeline") == pipe.name
-        and summary.get("chain") == pipe.chain
-        and isinstance(resolved, dict)
-        and summary.get("config_sha256") == config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
-        and _sets_agree(pipe.params, resolved)
-    )
-
-
-def _sets_agree(raw: Mapping[str, Any], resolved: Mapping[str, Any]) -> bool:
-    """Every key set in `raw` (a pipeline file's parameters) has the same value in `resolved`."""
-    for k, v in raw.items():
-        if k not in resolved:
-            return False
-        if isinstance(v, Mapping):
-            if not (isinstance(resolved[k], Mapping) and _sets_agree(v, resolved[k])):
-                return False
-        elif _plain(v) != _plain(resolved[k]):
-            return False
-    return True
-
-
-def _plain(v: Any) -> Any:
-    # the recorded config went through JSON: tuples became lists
-    return [_plain(x) for x in v] if isinstance(v, (list, tuple)) else v
+    cfg = resolve_config(resolve_pipeline(pipeline, str(kind)))
+    return summary.get("tpos_version") == __version__ and summary.get("config_sha256") == cfg.sha256
 
 
 def finished_summary(task: SessionTask, is_current: CurrentFn | None = None) -> dict | None:

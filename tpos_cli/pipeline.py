@@ -26,17 +26,18 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli import __version__, timebase
-from tpos_cli.config import PipelineFile, apply_overrides, config_hash, resolve_pipeline
+from tpos_cli.config import PipelineFile, apply_overrides, config_hash, params_to_dict, parse_params, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.session import GpsData, Session, load_session
 
-# Chain name (as written in a pipeline file) -> module of ours holding `run`. A fixed table: a
-# pipeline file can only choose among these.
-CHAINS: dict[str, str] = {
-    "ingest": "tpos_cli.chains.ingest",
-    "target_fkf": "tpos_cli.chains.target_fkf",
-    "drive_smooth": "tpos_cli.chains.drive_smooth",
-    "ranging_fatci": "tpos_cli.chains.ranging_fatci",
+# Chain name (as written in a pipeline file) -> (module of ours holding `run`, the pipeline-file
+# section of its parameters, the frozen dataclass that validates them). A fixed table: a pipeline
+# file can only choose among these, and nothing it names is imported.
+CHAINS: dict[str, tuple[str, str, str]] = {
+    "ingest": ("tpos_cli.chains.ingest", "ingest", "IngestParams"),
+    "target_fkf": ("tpos_cli.chains.target_fkf", "target_fkf", "TargetFkfParams"),
+    "drive_smooth": ("tpos_cli.chains.drive_smooth", "drive_smooth", "DriveSmoothParams"),
+    "ranging_fatci": ("tpos_cli.chains.ranging_fatci", "ranging_fatci", "RangingParams"),
 }
 
 ACCURACY_NOTE = (
@@ -149,14 +150,42 @@ def gps_table(g: GpsData, t0_s: float) -> pd.DataFrame:
     })
 
 
-def _chain_run(name: str) -> Callable:
+def _chain_module(name: str):
     if name not in CHAINS:
         raise InvalidInputError(f"pipeline chain {name!r} is not one of {', '.join(sorted(CHAINS))}")
     try:
-        module = importlib.import_module(CHAINS[name])
+        return importlib.import_module(CHAINS[name][0])
     except ModuleNotFoundError as exc:
         raise ProcessingError(f"pipeline chain {name!r} is not available in this tpos build ({exc})") from None
-    return module.run
+
+
+def _chain_run(name: str) -> Callable:
+    return _chain_module(name).run
+
+
+@dataclass(frozen=True)
+class ResolvedConfig:
+    """A pipeline with its parameters validated and every default filled in, before any data is read."""
+
+    pipeline: PipelineFile
+    params: dict  # as the pipeline file and overrides give them
+    resolved: dict  # every parameter, defaults included: what summary.json records
+    sha256: str
+
+
+def resolve_config(pipe: PipelineFile, overrides: Mapping[str, object] | None = None) -> ResolvedConfig:
+    """Validate a pipeline's parameters (with dotted overrides) against its chain; unknown sections,
+    keys and wrong types raise InvalidInputError. Batch uses the hash to recognise finished runs."""
+    module = _chain_module(pipe.chain)
+    _, section, cls_name = CHAINS[pipe.chain]
+    params = apply_overrides(pipe.params, dict(overrides or {}))
+    unknown = sorted(set(params) - {section})
+    if unknown:
+        raise InvalidInputError(f"{pipe.path.name}: unknown section [{unknown[0]}] (chain {pipe.chain} reads [{section}])")
+    parsed = parse_params(getattr(module, cls_name), params.get(section), section)
+    resolved = {section: params_to_dict(parsed)}
+    sha = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
+    return ResolvedConfig(pipeline=pipe, params=params, resolved=resolved, sha256=sha)
 
 
 def default_run_dir(session: Session, pipeline: PipelineFile) -> Path:
@@ -214,8 +243,8 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     t_start = time.perf_counter()
     with ctx.stage("ingest"):
         session = load_session(session_dir)
-    pipe = resolve_pipeline(pipeline, session.meta.kind)
-    params = apply_overrides(pipe.params, dict(overrides or {}))
+    cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
+    pipe, params = cfg.pipeline, cfg.params
     out_dir = _check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session, pipe), session.path)
     run = _chain_run(pipe.chain)
     with ctx.stage("time_alignment"):
@@ -227,8 +256,8 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as exc:
         raise ProcessingError(f"{pipe.name} failed on {session.meta.name}: {type(exc).__name__}: {exc}") from exc
 
-    resolved = result.summary.pop("config", None) or params
-    chash = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
+    result.summary.pop("config", None)  # the chain's own echo of its parameters: cfg.resolved is the record
+    resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     _remove_stale_partials(out_dir)

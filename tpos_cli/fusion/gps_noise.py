@@ -121,8 +121,8 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     """Scales of the fixes' SDs per group from decimated forward passes (see the module docstring).
 
     Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
-    the scale is moved by a secant step on log m against log s (first step s sqrt(m): right when
-    H P- H^T << R) until every |m - 1| < tol. `after_s`: only fixes after this time count (the
+    the scale is moved by a secant step on log m against log s (the first step from this pass's
+    innovations with its H P- H^T held fixed) until every |m - 1| < max(tol, 3 sqrt(2 / n)). `after_s`: only fixes after this time count (the
     heading may still be converging before); ignored when fewer than 30 fixes would remain.
     `span_s`: the passes stop `span_s` after that (0 = whole log): 900 s give some 1800
     horizontal components, a variance to about 3%, and keep the passes cheap on long logs.
@@ -157,10 +157,14 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
             m_last[j], n_used[j] = normalized_square(nu[:, c], hph[:, c], var[:, c])
             if np.isfinite(m_last[j]):
                 hist[j].append((log_s[j], np.log(m_last[j])))
-        if not np.any(np.abs(m_last[np.isfinite(m_last)] - 1.0) >= tol) or passes == max_passes:
+        # a group moves only when its m is off by more than `tol` and by 3 SDs of a mean of
+        # n chi-square(1) / n values (sqrt(2 / n)): a consistent log keeps its SDs as given
+        tol_g = np.maximum(tol, 3.0 * np.sqrt(2.0 / np.maximum(n_used, 1)))
+        off = np.isfinite(m_last) & (np.abs(m_last - 1.0) >= tol_g)
+        if not off.any() or passes == max_passes:
             break
         for j in range(4):
-            if not hist[j] or abs(m_last[j] - 1.0) < tol:
+            if not hist[j] or not off[j]:
                 continue
             ls1, lm1 = hist[j][-1]
             c = list(_COLS[j])
