@@ -2,6 +2,7 @@
 
     python benchmarks/drive.py                 # everything (about 2-3 minutes on 2 cores)
     python benchmarks/drive.py --only speed    # or: accuracy, real
+    python benchmarks/drive.py --only accuracy --drives 40   # NEES inside outages to +-0.7
 
 Speed: a simulated one-hour drive (100 Hz IMU, 1 Hz GPS) processed by `tpos process` in a
 subprocess (stage timings from summary.json, peak RSS of that process), against a bare numba
@@ -183,9 +184,10 @@ def accuracy_case(label, outages, seeds, duration_s=600.0):
           f"{np.sqrt(18.0 / len(seeds)):.1f}, the rows of one outage being nearly one draw)")
 
 
-def accuracy() -> None:
-    accuracy_case("one 30 s outage (paper 003's case)", ((300.0, 30.0),), seeds=(1, 2, 3, 4, 5, 6, 7, 8))
-    accuracy_case("two 60 s outages", ((200.0, 60.0), (420.0, 60.0)), seeds=(1, 2, 3, 4, 5, 6, 7, 8))
+def accuracy(drives: int = 8) -> None:
+    seeds = tuple(range(1, drives + 1))
+    accuracy_case("one 30 s outage (paper 003's case)", ((300.0, 30.0),), seeds=seeds)
+    accuracy_case("two 60 s outages", ((200.0, 60.0), (420.0, 60.0)), seeds=seeds)
 
 
 # --------------------------------------------------------------------------- real logs
@@ -260,18 +262,32 @@ def real_logs() -> None:
             print(f"{label:26s} {sol:9s} {rin:9.2f} {mx:9.2f} {rout:10.2f} {yr:12.1f} {ym:10.1f}  {head}")
             label = ""
         print(f"{'':26s} windows (s from the first truth row): "
-              f"{[(round(a - tt[0], 1), round(b - tt[0], 1)) for a, b in wins]}")
+              f"{[(round(float(a - tt[0]), 1), round(float(b - tt[0]), 1)) for a, b in wins]}")
+        res = summ["results"]
+        g = res["alignment"]["gps_noise"]
+        print(f"{'':26s} GPS SDs estimated: position h {g['sigma_pos_h_m']} m, v {g['sigma_pos_v_m']} m, velocity h "
+              f"{g['sigma_vel_h_mps']} m/s ({g['passes']} passes); forward NIS mean (95% band of the mean, fixes):")
+        for kind, c in res["forward_nis_check"].items():
+            if c is not None:
+                rej = res["gps_rejected"][f"forward_{kind}"]
+                print(f"{'':28s}{kind}: {c['mean']:.2f}, dof {c['dof']:.0f} [{c['band95'][0]:.2f}, {c['band95'][1]:.2f}], "
+                      f"{c['fixes']} applied, {rej} rejected")
+        m = res["mounting_check"]
+        if m is not None and "course_minus_yaw_median_deg" in m:
+            print(f"{'':26s} mounting check: course - yaw median {m['course_minus_yaw_median_deg']:+.1f} deg, spread "
+                  f"{m['spread_deg']:.1f} deg over {m['moving_s']:.0f} s -> {'WARNING' if m['warning'] else 'ok'}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=("speed", "accuracy", "real"))
     ap.add_argument("--duration-s", type=float, default=3600.0)
+    ap.add_argument("--drives", type=int, default=8, help="simulated drives per accuracy case (40: NEES to +-0.7)")
     a = ap.parse_args()
     if a.only in (None, "speed"):
         speed(a.duration_s)
     if a.only in (None, "accuracy"):
-        accuracy()
+        accuracy(a.drives)
     if a.only in (None, "real"):
         real_logs()
 

@@ -1,6 +1,7 @@
 """Smoothers: closed-loop RTS against the batch (joint Gaussian) solution; the combination rules."""
 
 import numpy as np
+import pytest
 
 from tpos_cli.smoothing import outage_weight, rts_closed_loop
 
@@ -87,3 +88,39 @@ def test_outage_weight_grades_linearly():
     w = outage_weight(t, np.array([[10.0, 20.0]]))
     np.testing.assert_allclose(w[1:5], [0.0, 0.25, 0.5, 0.75])
     assert np.isnan(w[[0, 5, 6]]).all()
+
+
+@pytest.mark.slow
+def test_smoothed_nees_inside_outages_is_consistent(tmp_path):
+    """Monte Carlo: RTS and two-filter NEES inside a 30 s outage average to their 9 d.o.f.
+
+    The rows of one outage are nearly one draw (the smoothed error is a smooth curve across it),
+    so the mean over n drives is judged as a mean of n chi-square(9) values: SD sqrt(18 / n),
+    95% band 9 +- 1.96 sqrt(18 / n) (conservative: rows are not fully correlated).
+    """
+    from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
+    from tpos_cli.frames.geodetic import lla_to_ned
+    from tpos_cli.frames.rotation import dcm_to_rotvec
+    from tpos_cli.session import load_session
+    from tpos_cli.sim.drive import simulate_drive
+
+    seeds = range(101, 125)
+    nees = {"rts": [], "two_filter": []}
+    for seed in seeds:
+        sim = simulate_drive(420.0, seed=seed, outages=((200.0, 30.0),))
+        session = load_session(sim.write(tmp_path / f"s{seed}"))
+        res = process_drive(session, DriveSmoothParams(gps_sigma_vel_mps=0.05), None, names=tuple(nees))
+        tr = sim.truth
+        for name in nees:
+            sol = res.solutions[name]
+            t = tr.t_s[sol.idx]
+            m = (t >= 200.0) & (t < 230.0)
+            idx = sol.idx[m]
+            lla = np.column_stack([np.degrees(sol.nav[m, 0]), np.degrees(sol.nav[m, 1]), sol.nav[m, 2]])
+            e = np.column_stack([lla_to_ned(lla, tr.lla[0]) - lla_to_ned(tr.lla[idx], tr.lla[0]),
+                                 sol.nav[m, 3:] - tr.vel_ned_mps[idx],
+                                 -dcm_to_rotvec(sol.C_nb[m] @ np.transpose(tr.C_nb[idx], (0, 2, 1)))])
+            nees[name].append(np.mean(np.einsum("ki,ki->k", e, np.linalg.solve(sol.P9[m], e[..., None])[..., 0])))
+    half = 1.96 * np.sqrt(18.0 / len(seeds))
+    for name, v in nees.items():
+        assert abs(np.mean(v) - 9.0) < half, (name, np.mean(v), half)

@@ -56,10 +56,14 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 
 @njit(cache=True)
-def _feedback(x, C, b, v, p, i_v):
+def _feedback(x, C, b, v, p, i_v, M, i_m):
     """Apply an error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
     Cn = rotvec_to_dcm(x[0:3]) @ C
     b += x[3:6]
+    if i_m > 0:
+        for r in range(3):
+            for c in range(3):
+                M[r, c] += x[i_m + 3 * r + c]
     if i_v > 0:
         v += x[i_v:i_v + 3]
         p += x[i_v + 3:i_v + 6]
@@ -71,7 +75,7 @@ def _feedback(x, C, b, v, p, i_v):
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
              q_sf, r_grav, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
-             still, zupt_sd, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok):
+             still, zupt_sd, M0, gyro_err_sd, q_gyro_err, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok, out_ll, out_M):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
@@ -90,11 +94,20 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     re-opened by the innovation squared (the filter was over-confident about a wrong heading).
     still (N,) bool: samples in a detected still period; only there is gravity measured directly
     (and, with USE_MOTION, the velocity held to zero with SD zupt_sd m/s at each motion epoch).
-    Outputs are filled for each sample (the posterior after that sample; out_P is 6x6).
+    gyro_err_sd > 0: nine more states, the gyro's scale-factor and misalignment matrix M
+    (omega_meas = (I + M) omega + b; prior SD gyro_err_sd, random walk q_gyro_err per second,
+    initial value M0 (3,3)), observable whenever the device turns.
+    Outputs are filled for each sample (the posterior after that sample; out_P is 6x6);
+    out_ll (N,2): Gaussian log-likelihood of the magnetic and the motion-model innovations of the
+    sample (NaN: none), from which noise levels are estimated by maximum likelihood.
     """
     N = t.shape[0]
     motion = (use & USE_MOTION) != 0
     n = 6
+    i_m = 0
+    if gyro_err_sd > 0.0:
+        i_m = n
+        n += 9
     i_v = 0
     if motion:
         i_v = n
@@ -103,8 +116,11 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     b = bias0.copy()
     v = np.zeros(3)
     p = np.zeros(3)
+    M = M0.copy()
     P = np.zeros((n, n))
     P[0:6, 0:6] = P0
+    for i in range(9 if i_m > 0 else 0):
+        P[i_m + i, i_m + i] = gyro_err_sd**2
     for i in range(3):
         if motion:
             P[i_v + i, i_v + i] = motion_sd[0] ** 2
@@ -124,6 +140,8 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
         Rm[3 + i, 3 + i] = motion_sd[1] ** 2
     for k in range(N):
         wg = gyro[k] - b
+        if i_m > 0:
+            wg = wg - M @ wg  # (I + M)^-1 to first order
         if k > 0:
             dt = t[k] - t[k - 1]
             Ct = np.ascontiguousarray(C.T)
@@ -132,11 +150,18 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             for i in range(n):
                 Phi[i, i] = 1.0
             Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + noise)
+            if i_m > 0:
+                for r in range(3):
+                    for c in range(3):
+                        for j in range(3):
+                            Phi[j, i_m + 3 * r + c] = -C[j, r] * wg[c] * dt  # phi_dot = -C_hat dM omega
             Qd[:, :] = 0.0
             wdt2 = (w @ w) * dt * dt
             for i in range(3):
                 Qd[i, i] = q_att + q_sf * wdt2
                 Qd[3 + i, 3 + i] = q_bias * abs(dt)
+            for i in range(9 if i_m > 0 else 0):
+                Qd[i_m + i, i_m + i] = q_gyro_err * abs(dt)
             Cm = C @ rotvec_to_dcm(0.5 * dt * w)  # mid-interval attitude of the mean sample
             if motion:
                 f_n = Cm @ acc[k]
@@ -152,6 +177,8 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
         out_nis_mag[k] = np.nan
         out_nis_rng[k] = np.nan
         out_mag_ok[k] = True
+        out_ll[k, 0] = np.nan
+        out_ll[k, 1] = np.nan
         # gravity: f_b = C^T f_n with f_n = -g_n (Eq. 5), only while quasi-static
         if use & USE_ACC:
             f = acc[k]
@@ -167,7 +194,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 z = f - h
                 R = np.eye(3) * r_grav[k]
                 out_nis_acc[k] = update(x, P, z, H, R)
-                C = _feedback(x, C, b, v, p, i_v)
+                C = _feedback(x, C, b, v, p, i_v, M, i_m)
         if motion and motion_every > 0 and k % motion_every == 0:
             z = np.empty(6)
             z[0:3] = -v
@@ -178,8 +205,10 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             else:
                 for i in range(3):
                     Rm[i, i] = motion_sd[0] ** 2
-            update(x, P, z, Hm, Rm)
-            C = _feedback(x, C, b, v, p, i_v)
+            Sm = P[i_v:i_v + 6, i_v:i_v + 6] + Rm
+            nis_m = update(x, P, z, Hm, Rm)
+            out_ll[k, 1] = -0.5 * (nis_m + np.log(np.linalg.det(Sm)) + 6.0 * np.log(2.0 * np.pi))
+            C = _feedback(x, C, b, v, p, i_v, M, i_m)
         # magnetic heading (Eq. 8): azimuth of the levelled field is the declination
         if use & USE_MAG:
             m = mag[k]
@@ -203,9 +232,11 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     z[0] = _wrap(decl - az)
                     R = np.empty((1, 1))
                     R[0, 0] = r_mag_ut / hn2
+                    s_mag = (H @ P @ H.T)[0, 0] + R[0, 0]
                     nis = update(x, P, z, H, R)
                     out_nis_mag[k] = nis
-                    C = _feedback(x, C, b, v, p, i_v)
+                    out_ll[k, 0] = -0.5 * (nis + np.log(s_mag) + np.log(2.0 * np.pi))
+                    C = _feedback(x, C, b, v, p, i_v, M, i_m)
                     if rec_nis > 0.0 and k > 0:
                         a = min(1.0, (t[k] - t[k - 1]) / rec_tau_s)
                         nis_avg += a * (nis - nis_avg)
@@ -227,11 +258,13 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     out_nis_rng[k] = nis
                     if rng_gate <= 0.0 or nis < rng_gate:
                         update(x, P, z, H, r_rng)
-                        C = _feedback(x, C, b, v, p, i_v)
+                        C = _feedback(x, C, b, v, p, i_v, M, i_m)
         C = orthonormalize(C)
         out_C[k] = C
         out_P[k] = P[0:6, 0:6]
         out_bias[k] = b
+        if i_m > 0:
+            out_M[k] = M
 
 
 @njit(cache=True)

@@ -71,6 +71,9 @@ class FilterSetup:
     zupt_sd_mps: float = 0.02  # velocity SD of a device in a detected still period
     heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
     heading_recover_tau_s: float = 1.0
+    gyro_err_sd: float = 0.0  # > 0: scale-factor/misalignment states (I + M), prior SD of each element
+    gyro_err_rw_rts: float = 0.0  # their random walk, per sqrt(s)
+    gyro_M0: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     gravity_mps2: float | None = None  # measured |f| at rest (absorbs the accelerometer scale); None: normal gravity
 
 
@@ -89,6 +92,8 @@ class AttitudeSolution:
     bias_rps: np.ndarray | None = None
     nis: dict = field(default_factory=dict)
     mag_ok: np.ndarray | None = None
+    gyro_M: np.ndarray | None = None  # (N,3,3) estimated gyro scale/misalignment (setup.gyro_err_sd > 0)
+    loglik: dict = field(default_factory=dict)  # {"mag"|"motion": (N,) innovation log-likelihood, NaN where none}
     mag_gated: bool = False  # True: LF1 already dropped the samples with mag_ok False
     x8: np.ndarray | None = None  # paper8 model only: the 8 DCM states (N,8) and covariance
     P8: np.ndarray | None = None
@@ -218,6 +223,8 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     out_b = np.empty((n, 3))
     nis_a, nis_m, nis_r = np.empty(n), np.empty(n), np.empty(n)
     mag_ok = np.empty(n, dtype=np.bool_)
+    ll = np.empty((n, 2))
+    out_M = np.zeros((n, 3, 3))
     dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
     K.run_full(
         np.ascontiguousarray(t), np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
@@ -234,16 +241,19 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         (noise.acc_noise_mps2 * dt_mean) ** 2, np.array([setup.motion_sd_mps, setup.motion_sd_m]) / np.sqrt(motion_share),
         max(1, int(round(setup.motion_interval_s / dt_mean))), setup.heading_recover_nis, setup.heading_recover_tau_s,
         np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share),
-        out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok,
+        np.ascontiguousarray(setup.gyro_M0, dtype=float), setup.gyro_err_sd / np.sqrt(beta),
+        setup.gyro_err_rw_rts**2 / beta,
+        out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok, ll, out_M,
     )
     if backward:
         out_C, out_P, out_b = out_C[::-1], out_P[::-1], -out_b[::-1]
-        nis_a, nis_m, nis_r, mag_ok = nis_a[::-1], nis_m[::-1], nis_r[::-1], mag_ok[::-1]
+        nis_a, nis_m, nis_r, mag_ok, ll = nis_a[::-1], nis_m[::-1], nis_r[::-1], mag_ok[::-1], ll[::-1]
+        out_M = out_M[::-1]
     return AttitudeSolution(
         name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(out_C),
         P_att=np.ascontiguousarray(out_P[:, 0:3, 0:3]), bias_rps=out_b,
-        nis={"acc": nis_a, "mag": nis_m, "range": nis_r},
-        mag_ok=mag_ok if (use & K.USE_MAG) else None,
+        nis={"acc": nis_a, "mag": nis_m, "range": nis_r}, loglik={"mag": ll[:, 0], "motion": ll[:, 1]},
+        mag_ok=mag_ok if (use & K.USE_MAG) else None, gyro_M=out_M if setup.gyro_err_sd > 0 else None,
         mag_gated=bool((use & K.USE_MAG) and setup.mag_norm_tol_ut > 0.0),
     )
 

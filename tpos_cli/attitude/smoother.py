@@ -26,6 +26,8 @@ def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Fil
     P0 = np.array(setup.P0, dtype=float)
     P0[0:3, 0:3] = np.eye(3) * back_sd_rad**2 * setup.beta  # run_full divides P0 by beta
     bsetup = replace(setup, C0=fwd.C_nb[-1], bias0_rps=fwd.bias_rps[-1], P0=P0)
+    if fwd.gyro_M is not None:
+        bsetup = replace(bsetup, gyro_M0=fwd.gyro_M[-1])
     bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, bsetup, use, backward=True, still=still)
     s = master.fuse(name, [fwd, bwd])
     mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)

@@ -1,9 +1,11 @@
 """The `drive_smooth` chain (issue 4, paper 003): INS/GPS forward and backward filters and smoothers.
 
-Stages: alignment (levelling + GPS heading), forward 15-state closed-loop filter, the same
+Stages: alignment (levelling + GPS heading), GPS noise (covariance matching on decimated
+passes, `fusion.gps_noise`), forward 15-state closed-loop filter, the same
 filter backward in reversed time (initialized from the forward end state with the initial
 SDs, so that the two runs stay nearly independent), smoothing (`rts`, `two_filter`,
-`simplified`), and the trajectory table with sigma, `outage` and `flag` columns.
+`simplified`), and the trajectory table with sigma, `outage` and `flag` columns; a mounting
+check (course over ground against the smoothed yaw, `fusion.mounting`) warns in the summary.
 """
 
 from __future__ import annotations
@@ -230,7 +232,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate, (nz["gyro_noise_dps"] * DEG) ** 2 / rate,
                   2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
     cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability,
-                       p.max_consecutive_rejections)
+                       p.max_consecutive_rejections, p.outage_min_s)
     with stage("alignment"):
         info["imu_noise"] = {k: {"value": round(v, 6), "source": nz_src[k]} for k, v in nz.items()}
         if p.heading_hypotheses > 0:

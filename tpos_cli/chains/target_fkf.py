@@ -72,6 +72,8 @@ class TargetFkfParams:
     motion_sd_m: float = 0.1
     motion_interval_s: float = 1.0
     smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
+    gyro_err_pct: float = 0.0  # > 0: local filters estimate the gyro scale/misalignment (prior SD, %)
+    gyro_err_rw_ppm_rts: float = 0.0
     heading_recover_nis: float = 0.0  # > 0: LF1 re-opens its heading variance when the mean mag NIS exceeds it
     # LF1 gating
     mag_norm_tol_ut: float = 4.0  # <= 0 disables the field-magnitude/dip check
@@ -275,10 +277,11 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps,
         motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s,
         heading_recover_nis=p.heading_recover_nis,
+        gyro_err_sd=p.gyro_err_pct * 1e-2, gyro_err_rw_rts=p.gyro_err_rw_ppm_rts * 1e-6,
         gravity_mps2=float(np.linalg.norm(np.mean(imu.acc_b_mps2[win.i0:win.i1], axis=0))) if p.gravity_from_static else None,
     )
     # the bias estimated in the window already removes the window's mean rate
-    setup_gyro = FilterSetup(**{**setup.__dict__, "beta": 1.0})
+    setup_gyro = FilterSetup(**{**setup.__dict__, "beta": 1.0, "gyro_err_sd": 0.0})
 
     with ctx.stage("local filters"):
         sols: dict[str, AttitudeSolution] = {}

@@ -35,6 +35,10 @@ reuses the pieces, all `@njit(cache=True)` functions callable from its own numba
   error state relates to the forward one by `nav_errors.backward_sign()` (velocity and gyro bias
   flip sign).
 
+`tpos_cli.fusion.gps_noise.estimate_gps_noise` scales the GPS SDs by covariance matching on
+decimated forward passes (the kernel's per-fix `innovation_pvar` = diag H P- H^T), and
+`tpos_cli.fusion.mounting` checks course over ground against yaw for land vehicles.
+
 `tpos_cli.fusion.insgps.run_insgps(...)` is the INS/GPS loop built from these pieces; its
 compiled loop `tpos_cli.fusion._kernels.insgps_kernel` is the worked example to follow (epochs
 every `cov_step` samples and at each measurement; RTS history stored per epoch), and

@@ -56,9 +56,18 @@ def predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Q
 
 
 @njit(cache=True)
+def _row_dot(H, PHt, i):
+    """(H P H^T)_ii from H (m, n) and P H^T (n, m)."""
+    v = 0.0
+    for j in range(H.shape[1]):
+        v += H[i, j] * PHt[j, i]
+    return v
+
+
+@njit(cache=True)
 def insgps_kernel(
     t, gyro, acc, nav0, C0, bias0, P0, q, tau_acc_s, tau_gyro_s, earth_sign, cov_step,
-    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject,
+    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject, gap_s,
     out_nav, out_C, out_bias,
     ep_idx, ep_Phi, ep_Ppred, ep_Pfilt, ep_dx, store_rts,
     innov, innov_pvar, nis, accepted,
@@ -72,7 +81,10 @@ def insgps_kernel(
     H P- H^T (the filter's own share of each residual's variance, R excluded) for covariance
     matching of the GPS noise (`fusion.gps_noise`). Gate: NIS above gate[3] rejects that
     part of the fix, except after `max_reject` consecutive rejections of that kind (the nominal
-    has left the fixes for good: locking it out would diverge; 0 = no gating). Epochs (covariance steps) every
+    has left the fixes for good: locking it out would diverge; 0 = no gating), and except the
+    first fix after a gap of more than `gap_s` between fixes (an outage: the INS has then drifted
+    by more than a MEMS error model predicts, and refusing the returning fixes prolongs the
+    outage; gap_s <= 0: no exception). Epochs (covariance steps) every
     `cov_step` samples and at every fix; per epoch e: ep_idx[e], P_filt, dx (correction fed
     back), and when store_rts also Phi (from epoch e-1) and P_pred. Returns (n_epochs, status):
     status 0 ok, else 1 + sample index where an innovation covariance lost positive definiteness.
@@ -119,6 +131,7 @@ def insgps_kernel(
     status = 0
     n_rej = 0
     n_rej_v = 0
+    t_prev_fix = t[0]
     for k in range(1, n):
         dt = mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
         for i in range(3):
@@ -129,6 +142,10 @@ def insgps_kernel(
             ep = predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
                                ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts)
             while g < m_gps and gps_idx[g] == k:
+                if gap_s > 0.0 and t[k] - t_prev_fix > gap_s:
+                    n_rej = max_reject  # the first fix after an outage is applied ungated
+                    n_rej_v = max_reject
+                t_prev_fix = t[k]
                 # position and velocity are processed as two sequential 3-dim updates (exact for
                 # their diagonal R): each kind has its own NIS (3 d.o.f.) and its own gate, so a
                 # bad velocity does not throw away a good position
@@ -138,7 +155,7 @@ def insgps_kernel(
                 for i in range(3):
                     innov[g, i] = zp[i]
                     R3[i, i] = gps_var[g, i]
-                    innov_pvar[g, i] = H3[i] @ PHt[:, i]
+                    innov_pvar[g, i] = _row_dot(H3, PHt, i)
                 s = nis_of(x, P, zp, H3, R3)
                 nis[g, 0] = s
                 if s <= gate[3] or n_rej >= max_reject:
@@ -158,7 +175,7 @@ def insgps_kernel(
                     for i in range(mv):
                         innov[g, 3 + i] = zv[i]
                         R3[i, i] = gps_var[g, 3 + i]
-                        innov_pvar[g, 3 + i] = Hv[i] @ PHt[:, i]
+                        innov_pvar[g, 3 + i] = _row_dot(Hv, PHt, i)
                     Rv = np.ascontiguousarray(R3[:mv, :mv])
                     s = nis_of(x, P, zv[:mv], Hv[:mv], Rv)
                     nis[g, 1] = s

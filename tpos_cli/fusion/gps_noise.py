@@ -177,5 +177,13 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
                 if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:  # a usable decreasing secant
                     step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
             log_s[j] = float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi))
+    for j in range(4):
+        # the loop stops within the tolerance: a last secant step between the two latest passes
+        # (no further pass) removes most of that remainder for the groups that moved
+        if len(hist[j]) >= 2:
+            (ls0, lm0), (ls1, lm1) = hist[j][-2], hist[j][-1]
+            if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:
+                step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
+                log_s[j] = float(np.clip(ls1 + np.clip(step, -np.log(1.2), np.log(1.2)), lo, hi))
     return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last,
                     (float(fixes.t_s[count][0]), float(fixes.t_s[count][-1])) if count.any() else (np.nan, np.nan))

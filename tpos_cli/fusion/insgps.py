@@ -43,6 +43,7 @@ class FilterConfig:
     cov_step: int = 10
     gate_probability: float = 0.9999
     max_consecutive_rejections: int = 5
+    ungated_after_gap_s: float = 0.0  # > 0: the first fix after a longer gap between fixes is not gated
 
 
 @dataclass(frozen=True)
@@ -143,7 +144,7 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), earth_sign,
         int(max(cfg.cov_step, 1)), idx_s.astype(np.int64), lag, np.ascontiguousarray(pos),
         np.ascontiguousarray(vel_o), np.ascontiguousarray(var), np.asarray(cfg.lever_arm_b_m, dtype=float),
-        gate, int(cfg.max_consecutive_rejections), out_nav, out_C, out_bias, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, bool(store_rts),
+        gate, int(cfg.max_consecutive_rejections), float(cfg.ungated_after_gap_s), out_nav, out_C, out_bias, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, bool(store_rts),
         innov, innov_pvar, nis, acc_flag,
     )
     if status != 0:

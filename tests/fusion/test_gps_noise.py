@@ -1,0 +1,109 @@
+"""GPS noise by covariance matching (`fusion.gps_noise`) and IMU decimation (`ins.decimate_imu`)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
+from tpos_cli.fusion.gps_noise import normalized_square, scaled_fixes, solve_scale
+from tpos_cli.fusion.insgps import GpsFixes
+from tpos_cli.ins.mechanization import decimate_imu, integrate
+from tpos_cli.session import load_session
+from tpos_cli.sim.drive import simulate_drive
+
+
+def test_decimate_imu_keeps_the_increments():
+    """Decimated rows are interval means: their increments sum to the original ones exactly."""
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.009, 0.011, 1001))  # jittered 100 Hz
+    g, a = rng.standard_normal((1001, 3)), rng.standard_normal((1001, 3))
+    td, gd, ad = decimate_imu(t, g, a, 4)
+    assert td[0] == t[0] and td[-1] == t[-1] and td.size == 251
+    for full, dec in ((g, gd), (a, ad)):
+        inc = np.concatenate([[np.zeros(3)], np.cumsum(full[1:] * np.diff(t)[:, None], axis=0)])
+        inc_d = np.concatenate([[np.zeros(3)], np.cumsum(dec[1:] * np.diff(td)[:, None], axis=0)])
+        np.testing.assert_allclose(inc_d, inc[::4], atol=1e-12)  # sums of 1000 O(1e-2) terms
+    # a tail shorter than the factor ends at the last sample
+    td, gd, _ = decimate_imu(t[:1000], g[:1000], a[:1000], 4)
+    assert td[-1] == t[999]
+    np.testing.assert_allclose(gd[-1], np.average(g[997:1000], axis=0, weights=np.diff(t[996:1000])))
+
+
+def test_decimated_noise_free_drive_stays_on_the_truth():
+    """Noise-free simulated IMU decimated 100 Hz -> 25 Hz integrates onto the truth over 60 s."""
+    sim = simulate_drive(75.0, seed=2, noise_free=True, outages=())
+    tr = sim.truth
+    i0 = int(np.searchsorted(tr.t_s, 15.0))  # after the static start
+    td, gd, ad = decimate_imu(sim.imu.t_s[i0:], sim.imu.gyro_b_rps[i0:], sim.imu.acc_b_mps2[i0:], 4)
+    ins = integrate(td, gd, ad, tr.lla[i0], tr.vel_ned_mps[i0], np.degrees(tr.rpy_rad[i0]))
+    from tpos_cli.frames.geodetic import lla_to_ned
+    e = lla_to_ned(ins.lla, tr.lla[i0]) - lla_to_ned(tr.lla[i0::4][: td.size], tr.lla[i0])
+    # 25 Hz drops the coning/sculling of the 100 Hz intervals: about a millimetre over a minute
+    # of driving (measured 1.2 mm; 100 Hz: 0.3 mm); a bound 8x that still catches any misweighting
+    assert np.abs(e).max() < 0.01
+
+
+def test_normalized_square_and_scale_on_gaussian_innovations():
+    rng = np.random.default_rng(1)
+    n = 4000
+    hph = rng.uniform(0.01, 0.2, n)
+    var_true = 0.25
+    nu = rng.standard_normal(n) * np.sqrt(hph + var_true)
+    m, used = normalized_square(nu, hph, np.full(n, var_true))
+    # mean of 4000 chi-square(1): SD sqrt(2/4000) = 0.022; 4 SD
+    assert abs(m - 1.0) < 0.09 and used >= n - 5
+    s2 = solve_scale(nu, hph, np.full(n, 1.0))
+    assert s2 == pytest.approx(var_true, rel=0.1)
+    # hph alone larger than the innovations: no positive root
+    assert np.isnan(solve_scale(nu * 0.1, hph + 1.0, np.full(n, 1.0)))
+
+
+def test_scaled_fixes_scales_each_group():
+    f = GpsFixes(np.arange(3.0), np.zeros((3, 3)), np.zeros((3, 3)), np.ones((3, 3)), np.ones((3, 3)))
+    g = scaled_fixes(f, [2.0, 3.0, 0.5, 0.25])
+    np.testing.assert_array_equal(g.sigma_pos_ned_m[0], [2.0, 2.0, 3.0])
+    np.testing.assert_array_equal(g.sigma_vel_mps[0], [0.5, 0.5, 0.25])
+
+
+@pytest.fixture(scope="module")
+def quiet_gps(tmp_path_factory):
+    """A drive whose receiver is 3x better than the defaults the pipeline assumes (no SD columns)."""
+    sim = simulate_drive(420.0, seed=5, outages=((200.0, 20.0),), gps_sigma_h_m=0.5, gps_sigma_v_m=0.8,
+                         gps_sigma_vel_mps=0.05)
+    session = load_session(sim.write(tmp_path_factory.mktemp("quiet") / "s"))
+    gps = dataclasses.replace(session.gps, sigma_neu_m=np.full_like(session.gps.sigma_neu_m, np.nan))
+    return sim, dataclasses.replace(session, gps=gps)
+
+
+def test_estimated_sigmas_recover_the_simulated_receiver(quiet_gps):
+    sim, session = quiet_gps
+    res = process_drive(session, DriveSmoothParams(), None, names=("forward", "smoothed"))
+    g = res.info["gps_noise"]
+    # ~700 horizontal / 350 vertical components: the variance to 5-8% (1 SD), the stopping rule
+    # |m - 1| < max(0.1, 3 sqrt(2/n)) to ~10-16%: SDs within 15% / 20%
+    assert g["sigma_pos_h_m"] == pytest.approx(0.5, rel=0.15)
+    assert g["sigma_pos_v_m"] == pytest.approx(0.8, rel=0.2)
+    assert g["sigma_vel_h_mps"] == pytest.approx(0.05, rel=0.15)
+    # and the main forward run's NIS lands in the band of a mean of M chi-square(3) values
+    a = res.forward.nis[res.forward.accepted[:, 0], 0]
+    assert abs(np.mean(a) - 3.0) < 3 * np.sqrt(6.0 / a.size) + 0.3  # 3 SD plus the 10% stopping rule
+
+
+def test_given_noise_is_kept(quiet_gps):
+    _, session = quiet_gps
+    res = process_drive(session, DriveSmoothParams(gps_noise="given"), None, names=("forward",))
+    g = res.info["gps_noise"]
+    assert g["sigma_pos_h_m"] == 1.5 and g["sigma_pos_v_m"] == 2.5
+    # the 3x too large SDs make the NIS about 9x too small: the problem the estimate solves
+    a = res.forward.nis[res.forward.accepted[:, 0], 0]
+    assert np.mean(a) < 1.0
+
+
+def test_consistent_log_keeps_its_sds(tmp_path):
+    """The simulator writes its true SDs: the estimate must leave the position scales at 1."""
+    sim = simulate_drive(300.0, seed=9, outages=())
+    session = load_session(sim.write(tmp_path / "s"))
+    res = process_drive(session, DriveSmoothParams(gps_sigma_vel_mps=0.05), None, names=("forward",))
+    sc = res.info["gps_noise"]["scale"]
+    assert sc["pos_h"] == 1.0 and sc["pos_v"] == 1.0 and sc["vel_h"] == 1.0
