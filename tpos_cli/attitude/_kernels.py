@@ -75,7 +75,8 @@ def _feedback(x, C, b, v, p, i_v, M, i_m):
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
              q_sf, r_grav, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
-             still, zupt_sd, M0, gyro_err_sd, q_gyro_err, out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok, out_ll, out_M):
+             still, zupt_sd, M0, gyro_err_sd, q_gyro_err,
+             out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok, out_ll, out_M):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
     t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
@@ -96,7 +97,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     (and, with USE_MOTION, the velocity held to zero with SD zupt_sd m/s at each motion epoch).
     gyro_err_sd > 0: nine more states, the gyro's scale-factor and misalignment matrix M
     (omega_meas = (I + M) omega + b; prior SD gyro_err_sd, random walk q_gyro_err per second,
-    initial value M0 (3,3)), observable whenever the device turns.
+    initial value M0 (3,3)), observable whenever the device turns; out_M (N,3,3) is written only then.
     Outputs are filled for each sample (the posterior after that sample; out_P is 6x6);
     out_ll (N,2): Gaussian log-likelihood of the magnetic and the motion-model innovations of the
     sample (NaN: none), from which noise levels are estimated by maximum likelihood.

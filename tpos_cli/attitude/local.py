@@ -224,7 +224,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     nis_a, nis_m, nis_r = np.empty(n), np.empty(n), np.empty(n)
     mag_ok = np.empty(n, dtype=np.bool_)
     ll = np.empty((n, 2))
-    out_M = np.zeros((n, 3, 3))
+    out_M = np.zeros((n if setup.gyro_err_sd > 0 else 1, 3, 3))
     dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
     K.run_full(
         np.ascontiguousarray(t), np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
