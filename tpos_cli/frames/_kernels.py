@@ -70,10 +70,10 @@ def skew(v):
 
 
 @njit(cache=True)
-def rotvec_to_dcm(rv):
-    """Rodrigues' formula, with a series expansion near zero angle."""
-    a2 = rv[0] * rv[0] + rv[1] * rv[1] + rv[2] * rv[2]
-    K = skew(rv)
+def rotvec_to_dcm_into(x, y, z, R):
+    """Rodrigues DCM of rotation vector (x, y, z) written into R (3, 3), without allocating
+    (for per-sample loops); series form near zero angle."""
+    a2 = x * x + y * y + z * z
     if a2 < 1e-12:
         s = 1.0 - a2 / 6.0
         c = 0.5 - a2 / 24.0
@@ -81,7 +81,23 @@ def rotvec_to_dcm(rv):
         a = np.sqrt(a2)
         s = np.sin(a) / a
         c = (1.0 - np.cos(a)) / a2
-    return np.eye(3) + s * K + c * (K @ K)
+    R[0, 0] = 1.0 - c * (y * y + z * z)
+    R[1, 1] = 1.0 - c * (x * x + z * z)
+    R[2, 2] = 1.0 - c * (x * x + y * y)
+    R[0, 1] = -s * z + c * x * y
+    R[1, 0] = s * z + c * x * y
+    R[0, 2] = s * y + c * x * z
+    R[2, 0] = -s * y + c * x * z
+    R[1, 2] = -s * x + c * y * z
+    R[2, 1] = s * x + c * y * z
+
+
+@njit(cache=True)
+def rotvec_to_dcm(rv):
+    """Rodrigues' formula, with a series expansion near zero angle."""
+    R = np.empty((3, 3))
+    rotvec_to_dcm_into(rv[0], rv[1], rv[2], R)
+    return R
 
 
 @njit(cache=True)

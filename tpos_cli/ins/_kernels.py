@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import normal_gravity, radii_m
+from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm_into
 from tpos_cli.frames.earth import OMEGA_IE_RPS
 
 
@@ -39,28 +39,6 @@ def nav_rates(nav, earth_sign, w_ie, w_en):
     w_en[0] = nav[4] / (re + h)
     w_en[1] = -nav[3] / (rn + h)
     w_en[2] = -nav[4] * np.tan(lat) / (re + h)
-
-
-@njit(cache=True)
-def _rotvec_dcm(x, y, z, R):
-    """Rodrigues DCM of rotation vector (x, y, z) into R (3, 3), series form near zero angle."""
-    a2 = x * x + y * y + z * z
-    if a2 < 1e-12:
-        s = 1.0 - a2 / 6.0
-        c = 0.5 - a2 / 24.0
-    else:
-        a = np.sqrt(a2)
-        s = np.sin(a) / a
-        c = (1.0 - np.cos(a)) / a2
-    R[0, 0] = 1.0 - c * (y * y + z * z)
-    R[1, 1] = 1.0 - c * (x * x + z * z)
-    R[2, 2] = 1.0 - c * (x * x + y * y)
-    R[0, 1] = -s * z + c * x * y
-    R[1, 0] = s * z + c * x * y
-    R[0, 2] = s * y + c * x * z
-    R[2, 0] = -s * y + c * x * z
-    R[1, 2] = -s * x + c * y * z
-    R[2, 1] = s * x + c * y * z
 
 
 @njit(cache=True)
@@ -133,8 +111,8 @@ def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n):
     Rb = np.empty((3, 3))
     Rn = np.empty((3, 3))
     T = np.empty((3, 3))
-    _rotvec_dcm(f0, f1, f2, Rb)
-    _rotvec_dcm(-z0, -z1, -z2, Rn)
+    rotvec_to_dcm_into(f0, f1, f2, Rb)
+    rotvec_to_dcm_into(-z0, -z1, -z2, Rn)
     for i in range(3):
         for j in range(3):
             T[i, j] = C[i, 0] * Rb[0, j] + C[i, 1] * Rb[1, j] + C[i, 2] * Rb[2, j]
