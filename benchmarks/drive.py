@@ -11,7 +11,8 @@ reference loop of the same algebra (15-state predict at every IMU sample, 6-dim 
 Accuracy: simulated MEMS drives with one 30 s outage and with two 60 s outages; horizontal
 RMS / max error inside and outside the outages per solution, and the forward filter's NEES.
 Real logs: GPS withheld (`--mask-gps`) in three 30 s windows while moving; forward and
-smoothed errors inside the windows against the session's truth.
+smoothed errors inside the windows against the session's truth, and how often the sigma columns
+cover them (GPS error states: `fusion.gps_error`).
 """
 
 from __future__ import annotations
@@ -92,10 +93,11 @@ def reference_loop(n_imu: int, imu_per_fix: int) -> float:
 
 
 # --------------------------------------------------------------------------- speed
-def speed(duration_s: float = 3600.0) -> None:
+def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        sim = simulate_drive(duration_s, seed=11, outages=((600.0, 30.0), (1800.0, 60.0), (3000.0, 60.0)))
+        sim = simulate_drive(duration_s, seed=11, outages=((600.0, 30.0), (1800.0, 60.0), (3000.0, 60.0)),
+                             gps_correlated_sigma_neu_m=correlated_gps_m, gps_correlated_tau_s=60.0)
         path = sim.write(Path(tmp) / "drive_1h")
         n = sim.imu.t_s.size
         print(f"simulated {duration_s:.0f} s drive ({n} IMU samples) in {time.perf_counter() - t0:.1f} s")
@@ -125,6 +127,9 @@ def speed(duration_s: float = 3600.0) -> None:
     print(f"reference loop   {ref:8.3f}")
     print(f"ratio total/reference: {ts['total'] / ref:.2f} (goal <= 2.5); process wall/reference {wall / ref:.2f}")
     print(f"peak memory (max RSS of the process): {rss_mb:.0f} MB (goal < 1024)")
+    ge = summ["results"]["alignment"].get("gps_error_states", {})
+    print(f"GPS error states: sigma_h {ge.get('sigma_h_m')} m, tau {ge.get('tau_s')} s "
+          f"({'18' if ge.get('sigma_h_m') else '15'}-state filter)")
 
 
 # --------------------------------------------------------------------------- accuracy
@@ -149,7 +154,9 @@ def accuracy_case(label, outages, seeds, duration_s=600.0):
             p = DriveSmoothParams(gps_sigma_vel_mps=0.05, smoother="rts")
             res = process_drive(session, p, None, names=SOLUTIONS)
             g = res.info["gps_noise"]
-            sig.append([g["sigma_pos_h_m"], g["sigma_pos_v_m"], g["sigma_vel_h_mps"]])
+            ge = res.info.get("gps_error_states", {})
+            sig.append([g["sigma_pos_h_m"], g["sigma_pos_v_m"], g["sigma_vel_h_mps"], ge.get("sigma_h_m", 0.0),
+                        ge.get("tau_s", 0.0)])
             for name in SOLUTIONS:
                 sol = res.solutions[name]
                 e = _errors(sim, sol)
@@ -170,7 +177,8 @@ def accuracy_case(label, outages, seeds, duration_s=600.0):
     print(f"\n{label}: {len(seeds)} drives of {duration_s:.0f} s, MEMS IMU, GPS 1.5 m / 2.5 m / 0.05 m/s at 1 Hz")
     sg = np.mean(sig, axis=0)
     print(f"GPS SDs estimated from the logs (mean over drives): position h {sg[0]:.3f} m, v {sg[1]:.3f} m, "
-          f"velocity {sg[2]:.4f} m/s")
+          f"velocity {sg[2]:.4f} m/s; GPS error states kept in {np.mean(np.array(sig)[:, 3] > 0) * 100:.0f}% "
+          f"of the drives, sigma_h mean {sg[3]:.3f} m")
     print(f"{'solution':12s} {'in RMS m':>9s} {'in max m':>9s} {'/forward':>9s} {'out RMS m':>10s} {'NEES in':>8s}")
     f_in = np.sqrt(np.mean(np.concatenate(rows["forward"]["in"])))
     for name in SOLUTIONS:
@@ -223,7 +231,8 @@ def real_logs() -> None:
     from tpos_cli.pipeline import process_session
 
     print("\nreal logs, default drive-smooth pipeline, GPS withheld in three 30 s windows while moving")
-    print(f"{'session':26s} {'solution':9s} {'in RMS m':>9s} {'in max m':>9s} {'out RMS m':>10s} {'yaw RMS deg':>12s} {'yaw median':>10s}  heading")
+    print("in 2sig: fraction of the masked epochs with |error| < 2 sigma per horizontal axis (0.95 when consistent)")
+    print(f"{'session':26s} {'solution':9s} {'in RMS m':>9s} {'in max m':>9s} {'in 2sig':>8s} {'out RMS m':>10s} {'yaw RMS deg':>12s} {'yaw median':>10s}  heading")
     for name in ("navego_canada_enav", "rtklibexplorer_walk_0827", "comma2k19_seg40"):
         sdir = REAL / name
         if not sdir.exists():
@@ -254,12 +263,14 @@ def real_logs() -> None:
             lla = np.column_stack([np.interp(tt, d["t"], d[c]) for c in ("lat", "lon", "h")])
             e = lla_to_ned(lla, ref[0]) - lla_to_ned(ref, ref[0])
             eh = np.hypot(e[:, 0], e[:, 1])
+            sd = np.column_stack([np.interp(tt, d["t"], d[c]) for c in ("sigma_n", "sigma_e")])
+            cover = np.mean(np.abs(e[inside, :2]) < 2.0 * sd[inside]) if inside.any() else float("nan")
             rin = np.sqrt(np.mean(eh[inside] ** 2)) if inside.any() else float("nan")
             mx = eh[inside].max() if inside.any() else float("nan")
             rout = np.sqrt(np.mean(eh[~inside & (tt > tt[0] + 20)] ** 2))
             head = summ["results"]["alignment"]["heading"] if sol == "forward" else ""
             yr, ym = _yaw_rms_deg(d, truth)
-            print(f"{label:26s} {sol:9s} {rin:9.2f} {mx:9.2f} {rout:10.2f} {yr:12.1f} {ym:10.1f}  {head}")
+            print(f"{label:26s} {sol:9s} {rin:9.2f} {mx:9.2f} {cover:8.2f} {rout:10.2f} {yr:12.1f} {ym:10.1f}  {head}")
             label = ""
         print(f"{'':26s} windows (s from the first truth row): "
               f"{[(round(float(a - tt[0]), 1), round(float(b - tt[0]), 1)) for a, b in wins]}")
@@ -267,6 +278,10 @@ def real_logs() -> None:
         g = res["alignment"]["gps_noise"]
         print(f"{'':26s} GPS SDs estimated: position h {g['sigma_pos_h_m']} m, v {g['sigma_pos_v_m']} m, velocity h "
               f"{g['sigma_vel_h_mps']} m/s ({g['passes']} passes); forward NIS mean (95% band of the mean, fixes):")
+        ge = res["alignment"].get("gps_error_states")
+        if ge is not None:
+            print(f"{'':26s} GPS error states: sigma h {ge['sigma_h_m']} m, v {ge['sigma_v_m']} m, tau {ge['tau_s']} s"
+                  + (" (white model kept: no likelihood gain)" if not ge["sigma_h_m"] else ""))
         for kind, c in res["forward_nis_check"].items():
             if c is not None:
                 rej = res["gps_rejected"][f"forward_{kind}"]
@@ -282,10 +297,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=("speed", "accuracy", "real"))
     ap.add_argument("--duration-s", type=float, default=3600.0)
+    ap.add_argument("--correlated-gps-m", type=float, default=0.0,
+                    help="speed: add a Gauss-Markov GPS error of this SD (tau 60 s), so the 18-state filter runs")
     ap.add_argument("--drives", type=int, default=8, help="simulated drives per accuracy case (40: NEES to +-0.7)")
     a = ap.parse_args()
     if a.only in (None, "speed"):
-        speed(a.duration_s)
+        speed(a.duration_s, a.correlated_gps_m)
     if a.only in (None, "accuracy"):
         accuracy(a.drives)
     if a.only in (None, "real"):

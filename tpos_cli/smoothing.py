@@ -9,7 +9,9 @@
       P^s_e = P_e + A_e (P^s_{e+1} - P^-_{e+1}) A_e^T.
   Between epochs the smoothed error is interpolated linearly in time.
 - `two_filter`: the optimal combination of the forward and backward estimates with their full
-  15x15 covariances (Fraser-Potter), blended about the forward nominal, attitude on SO(3):
+  covariances (Fraser-Potter; 15 states, or 18 with GPS error states: their forward and backward
+  estimates must be combined too, since both runs saw the same slowly varying fix errors), blended
+  about the forward nominal, attitude on SO(3):
       x = K d,  K = P_f (P_f + P_b)^-1,  P = P_f - K P_f,
   d = the backward estimate expressed as an error of the forward nominal.
 - `simplified`: paper 003's simplified two-filter smoother (Fig. 2): inside each GPS outage
@@ -103,7 +105,8 @@ def rts(run, t_s, out_idx) -> Solution:
 
 @njit(cache=True)
 def state_difference(nav_f, C_f, bias_f, nav_b, C_b, bias_b, d):
-    """d (15,) = state b expressed as an error of nominal f (f minus b, attitude on SO(3))."""
+    """d (n,) = state b expressed as an error of nominal f (f minus b, attitude on SO(3)); n > 15:
+    the extra states are the differences of the extra bias entries (bias[6:], e.g. GPS errors)."""
     lat = nav_f[0]
     h = nav_f[2]
     rn, re = radii_m(lat)
@@ -117,6 +120,8 @@ def state_difference(nav_f, C_f, bias_f, nav_b, C_b, bias_b, d):
         d[6 + i] = phi[i]
     for i in range(6):
         d[9 + i] = bias_f[i] - bias_b[i]
+    for i in range(d.shape[0] - 15):
+        d[15 + i] = bias_f[6 + i] - bias_b[6 + i]
 
 
 @njit(cache=True)
@@ -130,10 +135,11 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
     Eb = b_ep.shape[0]
     last_f = -1
     last_b = -1
-    K = np.zeros((15, 15))
-    Pc = np.zeros((15, 15))
+    n = f_P.shape[1]
+    K = np.zeros((n, n))
+    Pc = np.zeros((n, n))
     S9i = np.zeros((9, 9))
-    d = np.empty(15)
+    d = np.empty(n)
     for k in range(out_idx.shape[0]):
         j = out_idx[k]
         while ef + 1 < Ef and f_ep[ef + 1] <= j:
@@ -162,10 +168,10 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
             xs = K @ d
             o_P9[k] = Pc[:9, :9]
         else:
-            xs = np.empty(15)
+            xs = np.empty(n)
             w = out_w[k]
             o_P9[k] = 0.0
-            for i in range(15):
+            for i in range(n):
                 if np.isnan(w):
                     wi = Pf[i, i] / (Pf[i, i] + Pb[i, i])
                     var = Pf[i, i] * Pb[i, i] / (Pf[i, i] + Pb[i, i])

@@ -75,7 +75,7 @@ def _feedback(x, C, b, v, p, i_v, M, i_m):
 def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
              q_sf, r_grav, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
              n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
-             still, zupt_sd, M0, gyro_err_sd, q_gyro_err,
+             still, zupt_sd, M0, gyro_err_sd, q_gyro_err, osc, osc_every,
              out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok, out_ll, out_M):
     """Forward (or, on reversed inputs, backward) error-state attitude filter.
 
@@ -98,6 +98,14 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     gyro_err_sd > 0: nine more states, the gyro's scale-factor and misalignment matrix M
     (omega_meas = (I + M) omega + b; prior SD gyro_err_sd, random walk q_gyro_err per second,
     initial value M0 (3,3)), observable whenever the device turns; out_M (N,3,3) is written only then.
+    osc = (omega rad/s, zeta, q (m/s^2)^2/Hz) with omega > 0 replaces the independent v = 0, p = 0
+    pseudo-measurements by a correlated model of the hand's displacement about its mean position:
+    a damped oscillator p'' = -omega^2 p - 2 zeta omega p' + w, w white with PSD q (stationary SDs
+    sqrt(q / (4 zeta omega^3)) m and omega times that in m/s). Every `osc_every` samples the
+    strapdown velocity change (specific force rotated by C plus gravity) must equal the model's
+    integrated acceleration within the integral of w (variance q T): the accelerometer itself is
+    the tilt measurement in motion, with a noise that is honest about the correlation of the motion.
+    In still periods the zero-velocity update is still applied every `motion_every` samples.
     Outputs are filled for each sample (the posterior after that sample; out_P is 6x6);
     out_ll (N,2): Gaussian log-likelihood of the magnetic and the motion-model innovations of the
     sample (NaN: none), from which noise levels are estimated by maximum likelihood.
@@ -139,6 +147,18 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     for i in range(3):
         Rm[i, i] = motion_sd[0] ** 2
         Rm[3 + i, 3 + i] = motion_sd[1] ** 2
+    om = osc[0]
+    use_osc = motion and om > 0.0
+    c_p = om * om
+    c_v = 2.0 * osc[1] * om
+    acc_dv = np.zeros(3)  # sum of (f_n + g) dt over the current model interval
+    acc_dvf = np.zeros(3)  # sum of f_n dt
+    acc_p = np.zeros(3)  # sum of p dt
+    acc_v = np.zeros(3)  # sum of v dt
+    acc_T = 0.0
+    acc_k = 0
+    Ho = np.zeros((3, n))
+    Ro = np.zeros((3, 3))
     for k in range(N):
         wg = gyro[k] - b
         if i_m > 0:
@@ -172,6 +192,13 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     Qd[i_v + i, i_v + i] = q_vel
                 p += v * dt + 0.5 * (f_n + g_n) * dt * dt
                 v += (f_n + g_n) * dt
+                if use_osc:
+                    acc_dv += (f_n + g_n) * dt
+                    acc_dvf += f_n * dt
+                    acc_p += p * dt
+                    acc_v += v * dt
+                    acc_T += dt
+                    acc_k += 1
             predict(x, P, Phi, Qd)
             C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
         out_nis_acc[k] = np.nan
@@ -196,7 +223,36 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 R = np.eye(3) * r_grav[k]
                 out_nis_acc[k] = update(x, P, z, H, R)
                 C = _feedback(x, C, b, v, p, i_v, M, i_m)
-        if motion and motion_every > 0 and k % motion_every == 0:
+        if use_osc and acc_k >= osc_every:
+            # 0 = dv_true + int(omega^2 p + 2 zeta omega v) dt - int w dt, with the true values
+            # v = v_hat + dv, p = p_hat + dp and C f = C_hat f - [f_n x] phi (phi at the epoch)
+            z = -(acc_dv + c_p * acc_p + c_v * acc_v)
+            Ho[:, :] = 0.0
+            Ho[:, 0:3] = -skew(acc_dvf)
+            for i in range(3):
+                Ho[i, i_v + i] = c_v * acc_T
+                Ho[i, i_v + 3 + i] = c_p * acc_T
+                Ro[i, i] = osc[2] * acc_T + q_vel * acc_k
+            So = Ho @ P @ Ho.T + Ro
+            nis_o = update(x, P, z, Ho, Ro)
+            out_ll[k, 1] = -0.5 * (nis_o + np.log(np.linalg.det(So)) + 3.0 * np.log(2.0 * np.pi))
+            C = _feedback(x, C, b, v, p, i_v, M, i_m)
+            acc_dv[:] = 0.0
+            acc_dvf[:] = 0.0
+            acc_p[:] = 0.0
+            acc_v[:] = 0.0
+            acc_T = 0.0
+            acc_k = 0
+        if use_osc and still[k] and motion_every > 0 and k % motion_every == 0:
+            z3 = -v
+            Hz = np.zeros((3, n))
+            Rz = np.zeros((3, 3))
+            for i in range(3):
+                Hz[i, i_v + i] = 1.0
+                Rz[i, i] = zupt_sd**2
+            update(x, P, z3, Hz, Rz)
+            C = _feedback(x, C, b, v, p, i_v, M, i_m)
+        if motion and (not use_osc) and motion_every > 0 and k % motion_every == 0:
             z = np.empty(6)
             z[0:3] = -v
             z[3:6] = -p

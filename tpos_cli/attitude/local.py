@@ -69,6 +69,11 @@ class FilterSetup:
     motion_sd_m: float = 0.3
     motion_interval_s: float = 1.0
     zupt_sd_mps: float = 0.02  # velocity SD of a device in a detected still period
+    # > 0: the displacement is a damped oscillator (natural frequency, damping ratio, stationary SD
+    # motion_sd_m) checked against the integrated specific force every motion_step_s (kernel `osc`)
+    motion_freq_hz: float = 0.0
+    motion_damping: float = 0.7071
+    motion_step_s: float = 0.05
     heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
     heading_recover_tau_s: float = 1.0
     gyro_err_sd: float = 0.0  # > 0: scale-factor/misalignment states (I + M), prior SD of each element
@@ -226,6 +231,13 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     ll = np.empty((n, 2))
     out_M = np.zeros((n if setup.gyro_err_sd > 0 else 1, 3, 3))
     dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
+    om = 2.0 * np.pi * setup.motion_freq_hz
+    motion_sd = np.array([setup.motion_sd_mps, setup.motion_sd_m])
+    osc = np.zeros(3)
+    if om > 0.0:
+        # stationary oscillator: var(p) = q / (4 zeta omega^3), var(v) = omega^2 var(p)
+        osc[:] = (om, setup.motion_damping, 4.0 * setup.motion_damping * om**3 * setup.motion_sd_m**2 / motion_share)
+        motion_sd = np.array([om * setup.motion_sd_m, setup.motion_sd_m])
     K.run_full(
         np.ascontiguousarray(t), np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
         np.ascontiguousarray(mag), np.ascontiguousarray(rd), int(use),
@@ -238,11 +250,11 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),
         setup.mag_norm_tol_ut, setup.mag_dip_tol_rad,
         np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3, r_rng, setup.range_gate_chi2,
-        (noise.acc_noise_mps2 * dt_mean) ** 2, np.array([setup.motion_sd_mps, setup.motion_sd_m]) / np.sqrt(motion_share),
+        (noise.acc_noise_mps2 * dt_mean) ** 2, motion_sd / np.sqrt(motion_share),
         max(1, int(round(setup.motion_interval_s / dt_mean))), setup.heading_recover_nis, setup.heading_recover_tau_s,
         np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share),
         np.ascontiguousarray(setup.gyro_M0, dtype=float), setup.gyro_err_sd / np.sqrt(beta),
-        setup.gyro_err_rw_rts**2 / beta,
+        setup.gyro_err_rw_rts**2 / beta, osc, max(1, int(round(setup.motion_step_s / dt_mean))),
         out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok, ll, out_M,
     )
     if backward:

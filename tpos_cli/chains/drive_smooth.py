@@ -29,6 +29,7 @@ from tpos_cli.fusion.initial import (
     search_yaw,
     with_yaw,
 )
+from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
@@ -77,6 +78,11 @@ class DriveSmoothParams:
     gps_noise: str = "estimate"  # estimate: scale the GPS SDs by covariance matching on a first
     # decimated pass (`fusion.gps_noise`); given: use the log's SDs or the defaults above as they are
     gps_noise_span_s: float = 900.0  # log time the estimation passes cover after the heading search (0 = all)
+    gps_error_model: str = "gauss_markov"  # gauss_markov: 3 GPS position-error states (time-correlated
+    # receiver errors, `fusion.gps_error`); white: fixes independent from one to the next
+    gps_gm_tau_s: float | None = None  # time constant of the GPS error states, s; None: fitted with the SDs
+    gps_gm_sigma_h_m: float | None = None  # stationary SD of the correlated error; None: estimated
+    gps_gm_sigma_v_m: float | None = None
     outage_min_s: float = 2.0  # a gap between fixes longer than this is an outage
     mounting_check_deg: float = 20.0  # warn when course - yaw while moving has a larger median (0 = no check)
     mounting_min_speed_mps: float = 0.3  # rows faster than this count for the mounting check (slow rovers: 0.3 m/s)
@@ -258,6 +264,31 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                                  **{k: (None if not np.isfinite(v) else round(float(v), 4)) for k, v in zip(
                                      ("sigma_pos_h_m", "sigma_pos_v_m", "sigma_vel_h_mps", "sigma_vel_v_mps"),
                                      median_sigmas(fixes))}}
+    with stage("gps_noise"):
+        if p.gps_error_model == "gauss_markov":
+            after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
+            if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
+                taus = (p.gps_gm_tau_s,) if p.gps_gm_tau_s is not None else TAU_GRID_S
+                fit = fit_gps_error(t, gyro, acc, fixes, init, cfg, taus_s=taus, after_s=after,
+                                    span_s=p.gps_noise_span_s)
+                sd, tau = fit.sigma_gm_ned_m.copy(), fit.tau_s
+                info["gps_error_states"] = fit.summary()
+            else:
+                sd, tau = np.zeros(3), p.gps_gm_tau_s or 30.0
+                info["gps_error_states"] = {"method": "set by the pipeline", "tau_s": tau}
+            if p.gps_gm_sigma_h_m is not None:
+                sd[:2] = p.gps_gm_sigma_h_m
+            if p.gps_gm_sigma_v_m is not None:
+                sd[2] = p.gps_gm_sigma_v_m
+            info["gps_error_states"].update(sigma_h_m=round(float(sd[0]), 4), sigma_v_m=round(float(sd[2]), 4))
+            cfg = dataclasses.replace(cfg, gps_gm_sigma_ned_m=sd, gps_gm_tau_s=tau)
+            if p.gps_noise == "estimate" and cfg.n_states > 15:
+                # the white part again, with the error states on: they now carry the share of
+                # the fix-to-fix scatter that the wander makes
+                fixes = scaled_fixes(fixes, 1.0 / gn.scale)
+                gn = estimate_gps_noise(t, gyro, acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+                fixes = scaled_fixes(fixes, gn.scale)
+                info["gps_noise"].update(gn.summary())
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
     out_idx = np.arange(0, t.size, step)
@@ -276,7 +307,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("backward"):
         # backward starts from the forward end state but with the initial SDs (not the forward
         # covariance): the two runs then share no information beyond that rough start
-        init_b = InitialState(fwd.nav[-1].copy(), fwd.C_nb[-1].copy(), fwd.bias[-1].copy(),
+        init_b = InitialState(fwd.nav[-1].copy(), fwd.C_nb[-1].copy(), fwd.bias[-1, :6].copy(),
                               initial_covariance(InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps,
                                                                sig.level_rad, sig.yaw_rad, sig.acc_bias_mps2,
                                                                sig.gyro_bias_rps)))
@@ -409,6 +440,9 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
     if p.gps_noise_span_s < 0:
         raise InvalidInputError("pipeline [drive_smooth]: gps_noise_span_s must be >= 0")
+    if p.gps_error_model not in ("gauss_markov", "white") or (p.gps_gm_tau_s is not None and p.gps_gm_tau_s <= 0):
+        raise InvalidInputError(f"pipeline [drive_smooth]: gps_error_model {p.gps_error_model!r} is not one of "
+                                "gauss_markov, white, or gps_gm_tau_s <= 0")
     if p.gps_noise not in ("estimate", "given"):
         raise InvalidInputError(f"pipeline [drive_smooth]: gps_noise {p.gps_noise!r} is not one of estimate, given")
     if p.heading_hypotheses < 0 or p.heading_search_s <= 0 or p.gps_max_rate_hz < 0:

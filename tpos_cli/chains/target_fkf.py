@@ -10,7 +10,7 @@ A target session without ranges (attitude-only MARG log) yields `gyro`, `lf1`, `
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -20,13 +20,13 @@ from scipy.stats import chi2
 from tpos_cli import alignment as al
 from tpos_cli import magnetic, targeting
 from tpos_cli.attitude import _kernels as K
-from tpos_cli.attitude import faults, master
+from tpos_cli.attitude import faults, master, motion
 from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.attitude.local import (
     AttitudeSolution, add_heading_variance, FilterNoise, FilterSetup, euler_sigma_deg, range_differences, run_full, run_paper8,
 )
 from tpos_cli.config import params_to_dict, parse_params
-from tpos_cli.errors import InvalidInputError
+from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
 from tpos_cli.pipeline import ChainOutput, RunContext
 from tpos_cli.session import Session
@@ -71,6 +71,11 @@ class TargetFkfParams:
     motion_sd_mps: float = 0.2
     motion_sd_m: float = 0.1
     motion_interval_s: float = 1.0
+    motion_freq_hz: float = 0.0  # > 0: correlated (damped-oscillator) hand-motion model instead of v = 0, p = 0 epochs
+    motion_damping: float = 0.7071
+    motion_step_s: float = 0.05
+    motion_fit: bool = True  # fit the oscillator (frequency, displacement SD) to the log's own acceleration PSD
+    motion_fit_band_hz: tuple[float, float] = (0.3, 5.0)
     smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
     gyro_err_pct: float = 0.0  # > 0: local filters estimate the gyro scale/misalignment (prior SD, %)
     gyro_err_rw_ppm_rts: float = 0.0
@@ -275,7 +280,8 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         baseline_13_m=rf.baseline_13_m if rf else 0.2,
         range_gate_chi2=float(chi2.ppf(p.range_gate_probability, 2)), beta=p.beta,
         gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps,
-        motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s,
+        motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s, motion_freq_hz=p.motion_freq_hz,
+        motion_damping=p.motion_damping, motion_step_s=p.motion_step_s,
         heading_recover_nis=p.heading_recover_nis,
         gyro_err_sd=p.gyro_err_pct * 1e-2, gyro_err_rw_rts=p.gyro_err_rw_ppm_rts * 1e-6,
         gravity_mps2=float(np.linalg.norm(np.mean(imu.acc_b_mps2[win.i0:win.i1], axis=0))) if p.gravity_from_static else None,
@@ -292,6 +298,8 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             still = al.static_mask(t, imu.gyro_b_rps, imu.acc_b_mps2, gyro_tol_rps=np.radians(p.static_gyro_tol_dps),
                                    acc_sd_tol_mps2=p.static_acc_sd_tol_mps2)
             ctx.count("still_samples", int(still.sum()))
+            if p.motion_model and p.motion_fit:
+                setup = _fit_motion(setup, p, t, sols["gyro"], imu.acc_b_mps2, still, summary, ctx)
             use1 = K.USE_ACC | mot | (K.USE_MAG if imu.mag_b_ut is not None else 0)
             sols["lf1"] = run("lf1", t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, None, setup, use1, still=still)
             if rdiff is not None:
@@ -363,6 +371,21 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
     summary["solutions"] = list(sols)
     return ChainOutput(trajectory=traj, targets=targets, tables=tables,
                        summary={"config": {"target_fkf": params_to_dict(p)}, **summary})
+
+
+def _fit_motion(setup: FilterSetup, p: TargetFkfParams, t, gyro_sol: AttitudeSolution, acc_b, still, summary, ctx):
+    """`setup` with the hand-motion oscillator fitted to the log (attitude.motion); unchanged, with a
+    warning, when the log cannot support a fit. The gyro-only attitude suffices: its slow tilt drift
+    only reaches frequencies below the fitted band."""
+    acc_n = np.einsum("nij,nj->ni", gyro_sol.C_nb, acc_b)
+    try:
+        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz), damping=p.motion_damping)
+    except ProcessingError as e:
+        ctx.warn(f"{e}; using the fixed bounded-motion epochs (motion_sd_mps, motion_sd_m)")
+        return setup
+    summary["motion_fit"] = {"freq_hz": fit.freq_hz, "sd_m": fit.sd_m, "q_m2ps3": fit.q_m2ps3,
+                             "moving_fraction": fit.moving_fraction}
+    return replace(setup, motion_freq_hz=fit.freq_hz, motion_sd_m=fit.sd_m, motion_damping=fit.damping)
 
 
 def _d1_on_imu(session: Session, t):

@@ -35,6 +35,12 @@ reuses the pieces, all `@njit(cache=True)` functions callable from its own numba
   error state relates to the forward one by `nav_errors.backward_sign()` (velocity and gyro bias
   flip sign).
 
+Time-correlated GPS errors: with an 18 x 18 P0 (`FilterConfig.gps_gm_sigma_ned_m`, `gps_gm_tau_s`)
+`insgps_kernel` carries three Gauss-Markov GPS position-error states (x[15:18], nominal in
+bias[6:9]); `tpos_cli.fusion.gps_error.fit_gps_error` sizes them by maximum likelihood of the
+innovations, keeping them only when a likelihood-ratio test rejects white fixes. The smoothers
+take 15 or 18 states.
+
 `tpos_cli.fusion.gps_noise.estimate_gps_noise` scales the GPS SDs by covariance matching on
 decimated forward passes (the kernel's per-fix `innovation_pvar` = diag H P- H^T), and
 `tpos_cli.fusion.mounting` checks course over ground against yaw for land vehicles.

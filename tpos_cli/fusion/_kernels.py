@@ -56,6 +56,20 @@ def predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Q
 
 
 @njit(cache=True)
+def _log_det(S):
+    """log det of a symmetric positive definite matrix (NaN if it is not)."""
+    Ss = 0.5 * (S + S.T)
+    for i in range(Ss.shape[0]):
+        if not Ss[i, i] > 0.0:
+            return np.nan
+    L = np.linalg.cholesky(Ss)
+    v = 0.0
+    for i in range(L.shape[0]):
+        v += 2.0 * np.log(L[i, i])
+    return v
+
+
+@njit(cache=True)
 def _row_dot(H, PHt, i):
     """(H P H^T)_ii from H (m, n) and P H^T (n, m)."""
     v = 0.0
@@ -67,19 +81,27 @@ def _row_dot(H, PHt, i):
 @njit(cache=True)
 def insgps_kernel(
     t, gyro, acc, nav0, C0, bias0, P0, q, tau_acc_s, tau_gyro_s, earth_sign, cov_step,
-    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject, gap_s,
+    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject, gap_s, gm_tau_s, gm_q,
     out_nav, out_C, out_bias,
     ep_idx, ep_Phi, ep_Ppred, ep_Pfilt, ep_dx, store_rts,
-    innov, innov_pvar, nis, accepted,
+    innov, innov_pvar, nis, accepted, innov_ldet,
 ):
-    """Closed-loop 15-state INS/GPS filter over a whole log (forward or reversed).
+    """Closed-loop INS/GPS filter over a whole log (forward or reversed): 15 navigation states,
+    plus, when P0 is 18 x 18, three GPS position-error states (NED m, estimate minus truth of the
+    fixes' own error) as first-order Gauss-Markov processes with time constant gm_tau_s and
+    driving PSDs gm_q (3,) = 2 sigma^2 / tau (time-correlated receiver errors: multipath, the
+    receiver's own filter, SBAS corrections). Their nominal (the estimated fix error) is
+    bias0[6:9], subtracted from each fix, decaying by exp(-dt / tau) between epochs and fed back
+    like the sensor biases; the process is stationary, so it runs unchanged in reversed time.
 
     gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
     position and velocity variances; NaN velocity -> position-only update; NaN vd -> horizontal velocity update. Per fix, innov (M, 6)
     gets the residuals, nis (M, 2) and accepted (M, 2) the position and velocity NIS (3 d.o.f.
     each, NaN when absent) and whether each was applied; innov_pvar (M, 6) the diagonal of
     H P- H^T (the filter's own share of each residual's variance, R excluded) for covariance
-    matching of the GPS noise (`fusion.gps_noise`). Gate: NIS above gate[3] rejects that
+    matching of the GPS noise (`fusion.gps_noise`); innov_ldet (M, 2) log det S of each part, so
+    that -(ldet + nis) / 2 summed over the fixes is the log-likelihood of the innovations up to a
+    constant (prediction-error decomposition, used to fit the GPS error model). Gate: NIS above gate[3] rejects that
     part of the fix, except after `max_reject` consecutive rejections of that kind (the nominal
     has left the fixes for good: locking it out would diverge; 0 = no gating), and except the
     first fix after a gap of more than `gap_s` between fixes (an outage: the INS has then drifted
@@ -94,15 +116,22 @@ def insgps_kernel(
     nav = nav0.copy()
     C = C0.copy()
     bias = bias0.copy()
-    x = np.zeros(15)
+    ns = P0.shape[0]
+    n_gm = ns - 15
+    x = np.zeros(ns)
     P = P0.copy()
-    F = np.zeros((15, 15))
-    Qc = np.zeros((15, 15))
+    F = np.zeros((ns, ns))
+    Qc = np.zeros((ns, ns))
     process_noise(q, Qc)
-    Phi = np.empty((15, 15))
-    Qd = np.empty((15, 15))
-    H3 = np.zeros((3, 15))
-    Hv = np.zeros((3, 15))
+    for i in range(n_gm):
+        F[15 + i, 15 + i] = -1.0 / gm_tau_s  # error_dynamics writes only F[:15, :15]
+        Qc[15 + i, 15 + i] = gm_q[i]
+    Phi = np.empty((ns, ns))
+    Qd = np.empty((ns, ns))
+    H3 = np.zeros((3, ns))
+    for i in range(n_gm):
+        H3[i, 15 + i] = 1.0  # z = INS - (fix - b_est) = dp + (b_est - b) - noise
+    Hv = np.zeros((3, ns))
     R3 = np.zeros((3, 3))
     zp = np.empty(3)
     zv = np.empty(3)
@@ -121,7 +150,7 @@ def insgps_kernel(
     ep_Pfilt[0] = P
     ep_dx[0] = 0.0
     if store_rts:
-        ep_Phi[0] = np.eye(15)
+        ep_Phi[0] = np.eye(ns)
         ep_Ppred[0] = P
     out_nav[0] = nav
     out_C[0] = C
@@ -141,6 +170,10 @@ def insgps_kernel(
         if is_fix or k - last >= cov_step or k == n - 1:
             ep = predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
                                ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts)
+            if n_gm > 0:
+                decay = np.exp(-dt_sum / gm_tau_s)  # the nominal fix error follows its mean
+                for i in range(n_gm):
+                    bias[6 + i] *= decay
             while g < m_gps and gps_idx[g] == k:
                 if gap_s > 0.0 and t[k] - t_prev_fix > gap_s:
                     n_rej = max_reject  # the first fix after an outage is applied ungated
@@ -151,6 +184,8 @@ def insgps_kernel(
                 # bad velocity does not throw away a good position
                 position_residual(nav, C, lever_b, gps_pos[g], gps_lag[g], zp)
                 position_jacobian(nav, C, lever_b, gps_lag[g], H3, 0)
+                for i in range(n_gm):
+                    zp[i] += bias[6 + i]
                 PHt = P @ H3.T
                 for i in range(3):
                     innov[g, i] = zp[i]
@@ -158,6 +193,7 @@ def insgps_kernel(
                     innov_pvar[g, i] = _row_dot(H3, PHt, i)
                 s = nis_of(x, P, zp, H3, R3)
                 nis[g, 0] = s
+                innov_ldet[g, 0] = _log_det(H3 @ PHt + R3)
                 if s <= gate[3] or n_rej >= max_reject:
                     n_rej = 0
                     if update(x, P, zp, H3, R3) < 0.0:
@@ -179,6 +215,7 @@ def insgps_kernel(
                     Rv = np.ascontiguousarray(R3[:mv, :mv])
                     s = nis_of(x, P, zv[:mv], Hv[:mv], Rv)
                     nis[g, 1] = s
+                    innov_ldet[g, 1] = _log_det(np.ascontiguousarray((Hv @ PHt)[:mv, :mv]) + Rv)
                     if s <= gate[mv] or n_rej_v >= max_reject:
                         n_rej_v = 0
                         if update(x, P, zv[:mv], Hv[:mv], Rv) < 0.0:
@@ -188,6 +225,8 @@ def insgps_kernel(
                         n_rej_v += 1
                 g += 1
             apply_feedback(nav, C, bias, x)
+            for i in range(n_gm):
+                bias[6 + i] -= x[15 + i]
             ep_dx[ep] = x
             x[:] = 0.0
             ep_Pfilt[ep] = P

@@ -44,12 +44,24 @@ class FilterConfig:
     gate_probability: float = 0.9999
     max_consecutive_rejections: int = 5
     ungated_after_gap_s: float = 0.0  # > 0: the first fix after a longer gap between fixes is not gated
+    # time-correlated GPS position error: three first-order Gauss-Markov states (NED) with these
+    # stationary SDs (m) and time constant; None or all zero = white fixes only (15 states)
+    gps_gm_sigma_ned_m: np.ndarray | None = None
+    gps_gm_tau_s: float = 30.0
+
+    @property
+    def n_states(self) -> int:
+        """15, or 18 with the GPS error states."""
+        s = self.gps_gm_sigma_ned_m
+        return 18 if s is not None and np.any(np.asarray(s) > 0) else 15
 
 
 @dataclass(frozen=True)
 class InitialState:
     """Nominal state at the run's first sample (forward time signs): nav (6,) [lat_rad, lon_rad,
-    h_m, vn, ve, vd], C_nb (3,3), bias (6,) [acc m/s^2, gyro rad/s], P0 (15,15)."""
+    h_m, vn, ve, vd], C_nb (3,3), bias (6,) [acc m/s^2, gyro rad/s], P0 (15,15). With GPS error
+    states (`FilterConfig.n_states` 18) `run_insgps` appends them: estimate 0 (or bias[6:9] when
+    given), covariance the stationary one of the process, uncorrelated with the rest."""
 
     nav: np.ndarray
     C_nb: np.ndarray
@@ -61,10 +73,11 @@ class InitialState:
 class FilterRun:
     """One filter run in forward time order.
 
-    nav (N,6), C_nb (N,3,3), bias (N,6): nominal after feedback at every IMU sample.
-    ep_idx (E,): sample index of each covariance epoch, increasing; ep_P (E,15,15): covariance
-    after the update at that epoch. Forward runs also hold ep_Phi (E,15,15) (transition from
-    epoch e-1 to e), ep_Ppred (E,15,15) and ep_dx (E,15) (correction fed back at e) for RTS.
+    nav (N,6), C_nb (N,3,3), bias (N,6): nominal after feedback at every IMU sample (N,9 with
+    the GPS error states: bias[:, 6:9] the estimated error of the fixes, NED m).
+    ep_idx (E,): sample index of each covariance epoch, increasing; ep_P (E,n,n) (n = 15 or 18):
+    covariance after the update at that epoch. Forward runs also hold ep_Phi (E,n,n) (transition
+    from epoch e-1 to e), ep_Ppred (E,n,n) and ep_dx (E,n) (correction fed back at e) for RTS.
     Per fix (in the order of `GpsFixes`): innovation (M,6) [pos NED m, vel NED m/s] NaN where
     absent; innovation_pvar (M,6) the filter's predicted variance of each component (diagonal
     of H P- H^T, without R); nis (M,2) and accepted (M,2): [position, velocity] NIS (3 d.o.f. each, NaN where
@@ -84,6 +97,7 @@ class FilterRun:
     nis: np.ndarray
     accepted: np.ndarray
     innovation_pvar: np.ndarray | None = None
+    innovation_logdet: np.ndarray | None = None  # (M,2) log det S per part (NaN where not processed)
 
 
 def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig,
@@ -98,16 +112,25 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     n = t.size
     if store_rts is None:
         store_rts = not backward
-    sign15 = backward_sign()
+    ns = cfg.n_states
+    gm_sd = np.zeros(3) if ns == 15 else np.asarray(cfg.gps_gm_sigma_ned_m, dtype=float) * np.ones(3)
+    if ns > 15 and not cfg.gps_gm_tau_s > 0:
+        raise ValueError("`gps_gm_tau_s` must be > 0 with GPS error states")
+    sign15 = np.ones(ns)  # GPS position errors keep their sign in reversed time
+    sign15[:15] = backward_sign()
     nav0 = np.array(init.nav, dtype=float)
-    bias0 = np.array(init.bias, dtype=float)
-    P0 = np.array(init.P0, dtype=float)
+    bias0 = np.zeros(6 + ns - 15)
+    nb = min(bias0.size, np.size(init.bias))
+    bias0[:nb] = np.asarray(init.bias, dtype=float)[:nb]
+    P0 = np.zeros((ns, ns))
+    P0[:15, :15] = np.asarray(init.P0, dtype=float)[:15, :15]
+    P0[15:, 15:] = np.diag(gm_sd[: ns - 15] ** 2)  # stationary: the error is there from the start
     t_fix = np.asarray(fixes.t_s, dtype=float)
     vel = np.array(fixes.vel_ned_mps, dtype=float)
     if backward:
         t, gyro, acc = reverse_imu(t, gyro, acc)
         nav0[3:] *= -1.0
-        bias0[3:] *= -1.0
+        bias0[3:6] *= -1.0
         P0 = P0 * np.outer(sign15, sign15)
         t_fix = -t_fix
         vel = -vel
@@ -126,16 +149,17 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     m = order.size
     n_ep = n // max(cfg.cov_step, 1) + m + 3
     ep_idx = np.zeros(n_ep, dtype=np.int64)
-    ep_P = np.empty((n_ep, 15, 15))
-    ep_dx = np.empty((n_ep, 15))
+    ep_P = np.empty((n_ep, ns, ns))
+    ep_dx = np.empty((n_ep, ns))
     nr = n_ep if store_rts else 1
-    ep_Phi = np.empty((nr, 15, 15))
-    ep_Ppred = np.empty((nr, 15, 15))
+    ep_Phi = np.empty((nr, ns, ns))
+    ep_Ppred = np.empty((nr, ns, ns))
     out_nav = np.empty((n, 6))
     out_C = np.empty((n, 3, 3))
-    out_bias = np.empty((n, 6))
+    out_bias = np.empty((n, bias0.size))
     innov = np.full((m, 6), np.nan)
     innov_pvar = np.full((m, 6), np.nan)
+    innov_ldet = np.full((m, 2), np.nan)
     nis = np.full((m, 2), np.nan)
     acc_flag = np.zeros((m, 2), dtype=np.bool_)
     gate = chi2_threshold(cfg.gate_probability, 6)
@@ -144,8 +168,9 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), earth_sign,
         int(max(cfg.cov_step, 1)), idx_s.astype(np.int64), lag, np.ascontiguousarray(pos),
         np.ascontiguousarray(vel_o), np.ascontiguousarray(var), np.asarray(cfg.lever_arm_b_m, dtype=float),
-        gate, int(cfg.max_consecutive_rejections), float(cfg.ungated_after_gap_s), out_nav, out_C, out_bias, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, bool(store_rts),
-        innov, innov_pvar, nis, acc_flag,
+        gate, int(cfg.max_consecutive_rejections), float(cfg.ungated_after_gap_s),
+        float(cfg.gps_gm_tau_s), 2.0 * gm_sd**2 / max(float(cfg.gps_gm_tau_s), 1e-300), out_nav, out_C, out_bias, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, bool(store_rts),
+        innov, innov_pvar, nis, acc_flag, innov_ldet,
     )
     if status != 0:
         k = status - 1
@@ -159,6 +184,8 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     pvar = np.full((len(t_fix), 6), np.nan)
     pvar[order] = innov_pvar
     nis_all[order] = nis
+    ldet = np.full((len(t_fix), 2), np.nan)
+    ldet[order] = innov_ldet
     acc_all[order] = acc_flag
     ep_idx = ep_idx[:n_used]
     ep_P = ep_P[:n_used]
@@ -168,14 +195,14 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
         out_nav[:, 3:] *= -1.0
         out_C = out_C[::-1]
         out_bias = out_bias[::-1]
-        out_bias[:, 3:] *= -1.0
+        out_bias[:, 3:6] *= -1.0
         ep_idx = (n - 1 - ep_idx)[::-1]
         ep_P = ep_P[::-1]
         ep_P *= np.outer(sign15, sign15)  # in place: this array is the run's largest
         innovation[:, 3:] *= -1.0
         return FilterRun(True, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, None, innovation, nis_all, acc_all,
-                         pvar)
+                         pvar, ldet)
     if store_rts:
         return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, ep_Phi[:n_used], ep_Ppred[:n_used],
-                         ep_dx, innovation, nis_all, acc_all, pvar)
-    return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, ep_dx, innovation, nis_all, acc_all, pvar)
+                         ep_dx, innovation, nis_all, acc_all, pvar, ldet)
+    return FilterRun(False, out_nav, out_C, out_bias, ep_idx, ep_P, None, None, ep_dx, innovation, nis_all, acc_all, pvar, ldet)

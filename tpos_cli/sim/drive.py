@@ -116,6 +116,8 @@ def simulate_drive(
     shots: int = 0,
     shot_range_m: float = 40.0,
     range_sigma_m: float = 0.05,
+    gps_correlated_sigma_neu_m=(0.0, 0.0, 0.0),
+    gps_correlated_tau_s: float = 30.0,
 ) -> SimResult:
     """Simulate the `drive` scenario; see the module docstring.
 
@@ -150,6 +152,8 @@ def simulate_drive(
         sigma_vel_mps=gps_sigma_vel_mps,
         outages_s=outages_arr,
         rng=gps_rng,
+        correlated_sigma_neu_m=gps_correlated_sigma_neu_m,
+        correlated_tau_s=gps_correlated_tau_s,
     )
     params = {
         "scenario": "drive",
@@ -162,6 +166,9 @@ def simulate_drive(
         "gps_sigma_v_m": gps_sigma_v_m,
         "gps_sigma_vel_mps": gps_sigma_vel_mps,
     }
+    if np.any(np.asarray(gps_correlated_sigma_neu_m, dtype=float) > 0):
+        params.update({"gps_correlated_sigma_neu_m": np.broadcast_to(np.asarray(gps_correlated_sigma_neu_m, dtype=float), 3).tolist(),
+                       "gps_correlated_tau_s": gps_correlated_tau_s})
     win = np.column_stack([outages_arr[:, 0], outages_arr.sum(axis=1)])
     extra = {}
     if shots > 0:

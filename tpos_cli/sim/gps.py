@@ -28,6 +28,8 @@ def simulate_gps(
     sigma_vel_mps: float = 0.05,
     outages_s=((40.0, 30.0),),
     rng: np.random.Generator,
+    correlated_sigma_neu_m=(0.0, 0.0, 0.0),
+    correlated_tau_s: float = 30.0,
 ) -> SimGps:
     """Sample the truth at `rate_hz` (a divisor of the IMU rate) and add white noise.
 
@@ -35,6 +37,11 @@ def simulate_gps(
     mapped to lat/lon/h with the radii of curvature; velocity noise is `sigma_vel_mps` per NED axis.
     Noise is drawn for every epoch before the outage rows are removed, so outages do not change the
     noise of the other epochs. Every kept row has fix = 2 (SBAS/WAAS differential).
+    `correlated_sigma_neu_m` > 0 adds a time-correlated position error on top (first-order
+    Gauss-Markov per axis, stationary SD as given, time constant `correlated_tau_s`, drawn exactly
+    at the epochs: b_k = a b_(k-1) + sqrt(1 - a^2) sigma w_k, a = exp(-dt / tau)), drawn after
+    the white noise so that the white draws of a seed do not change; the `sigma_*` columns still
+    give the white SDs only (a receiver does not know its multipath).
     """
     stride = imu_rate_hz / rate_hz
     if rate_hz <= 0 or abs(stride - round(stride)) > 1e-9 or round(stride) < 1:
@@ -47,6 +54,17 @@ def simulate_gps(
     e_neu = rng.standard_normal((n, 3)) * sig
     e_vel = rng.standard_normal((n, 3)) * sigma_vel_mps
     nsat = rng.integers(7, 13, size=n)
+    csig = np.asarray(correlated_sigma_neu_m, dtype=float) * np.ones(3)
+    if np.any(csig < 0) or correlated_tau_s <= 0:
+        raise InvalidInputError("gps correlated error: SDs must be >= 0 and the time constant > 0")
+    if np.any(csig > 0):
+        a = np.exp(-stride / imu_rate_hz / correlated_tau_s)
+        w = rng.standard_normal((n, 3)) * csig
+        b = np.empty((n, 3))
+        b[0] = w[0]  # stationary start
+        for k in range(1, n):
+            b[k] = a * b[k - 1] + np.sqrt(1.0 - a * a) * w[k]
+        e_neu = e_neu + b
     keep = ~outage_mask(truth.t_s[idx], outages_s)
     idx, e_neu, e_vel, nsat = idx[keep], e_neu[keep], e_vel[keep], nsat[keep]
 
