@@ -56,7 +56,7 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 
 @njit(cache=True)
-def _feedback(x, C, b, v, p, i_v, M, i_m):
+def _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u):
     """Apply an error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
     Cn = rotvec_to_dcm(x[0:3]) @ C
     b += x[3:6]
@@ -67,6 +67,8 @@ def _feedback(x, C, b, v, p, i_v, M, i_m):
     if i_v > 0:
         v += x[i_v:i_v + 3]
         p += x[i_v + 3:i_v + 6]
+    if i_u > 0:
+        u += x[i_u:i_u + 3]
     x[:] = 0.0
     return Cn
 
@@ -106,6 +108,10 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     integrated acceleration within the integral of w (variance q T): the accelerometer itself is
     the tilt measurement in motion, with a noise that is honest about the correlation of the motion.
     In still periods the zero-velocity update is still applied every `motion_every` samples.
+    osc[3] = omega_c > 0 makes the driving force itself a first-order Gauss-Markov process
+    (u' = -omega_c u + w, three more states): a band-pass acceleration spectrum, flat between omega and
+    omega_c and falling above, as a hand's; the integral of u over a model interval is then a state
+    (H = -T) and only its within-interval change (variance q T^3 / 3) is measurement noise.
     Outputs are filled for each sample (the posterior after that sample; out_P is 6x6);
     out_ll (N,2): Gaussian log-likelihood of the magnetic and the motion-model innovations of the
     sample (NaN: none), from which noise levels are estimated by maximum likelihood.
@@ -121,10 +127,16 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
     if motion:
         i_v = n
         n += 6
+    om_c = osc[3] if osc.shape[0] > 3 else 0.0
+    i_u = 0
+    if motion and osc[0] > 0.0 and om_c > 0.0:
+        i_u = n
+        n += 3
     C = C0.copy()
     b = bias0.copy()
     v = np.zeros(3)
     p = np.zeros(3)
+    u = np.zeros(3)  # driving force of the band-pass hand model (m/s^2)
     M = M0.copy()
     P = np.zeros((n, n))
     P[0:6, 0:6] = P0
@@ -134,6 +146,8 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
         if motion:
             P[i_v + i, i_v + i] = motion_sd[0] ** 2
             P[i_v + 3 + i, i_v + 3 + i] = motion_sd[1] ** 2
+        if i_u > 0:
+            P[i_u + i, i_u + i] = osc[2] / (2.0 * om_c)  # stationary variance of u
     x = np.zeros(n)
     Phi = np.eye(n)
     Qd = np.zeros((n, n))
@@ -192,6 +206,12 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     Qd[i_v + i, i_v + i] = q_vel
                 p += v * dt + 0.5 * (f_n + g_n) * dt * dt
                 v += (f_n + g_n) * dt
+                if i_u > 0:
+                    eu = np.exp(-om_c * abs(dt))
+                    u *= eu
+                    for i in range(3):
+                        Phi[i_u + i, i_u + i] = eu
+                        Qd[i_u + i, i_u + i] = osc[2] / (2.0 * om_c) * (1.0 - eu * eu)
                 if use_osc:
                     acc_dv += (f_n + g_n) * dt
                     acc_dvf += f_n * dt
@@ -222,7 +242,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 z = f - h
                 R = np.eye(3) * r_grav[k]
                 out_nis_acc[k] = update(x, P, z, H, R)
-                C = _feedback(x, C, b, v, p, i_v, M, i_m)
+                C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
         if use_osc and acc_k >= osc_every:
             # 0 = dv_true + int(omega^2 p + 2 zeta omega v) dt - int w dt, with the true values
             # v = v_hat + dv, p = p_hat + dp and C f = C_hat f - [f_n x] phi (phi at the epoch)
@@ -233,10 +253,16 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 Ho[i, i_v + i] = c_v * acc_T
                 Ho[i, i_v + 3 + i] = c_p * acc_T
                 Ro[i, i] = osc[2] * acc_T + q_vel * acc_k
+            if i_u > 0:
+                # ... with the force a state: int u dt = T u(epoch) + (within-interval change)
+                z += acc_T * u
+                for i in range(3):
+                    Ho[i, i_u + i] = -acc_T
+                    Ro[i, i] = osc[2] * acc_T**3 / 3.0 + q_vel * acc_k
             So = Ho @ P @ Ho.T + Ro
             nis_o = update(x, P, z, Ho, Ro)
             out_ll[k, 1] = -0.5 * (nis_o + np.log(np.linalg.det(So)) + 3.0 * np.log(2.0 * np.pi))
-            C = _feedback(x, C, b, v, p, i_v, M, i_m)
+            C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
             acc_dv[:] = 0.0
             acc_dvf[:] = 0.0
             acc_p[:] = 0.0
@@ -251,7 +277,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                 Hz[i, i_v + i] = 1.0
                 Rz[i, i] = zupt_sd**2
             update(x, P, z3, Hz, Rz)
-            C = _feedback(x, C, b, v, p, i_v, M, i_m)
+            C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
         if motion and (not use_osc) and motion_every > 0 and k % motion_every == 0:
             z = np.empty(6)
             z[0:3] = -v
@@ -265,7 +291,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             Sm = P[i_v:i_v + 6, i_v:i_v + 6] + Rm
             nis_m = update(x, P, z, Hm, Rm)
             out_ll[k, 1] = -0.5 * (nis_m + np.log(np.linalg.det(Sm)) + 6.0 * np.log(2.0 * np.pi))
-            C = _feedback(x, C, b, v, p, i_v, M, i_m)
+            C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
         # magnetic heading (Eq. 8): azimuth of the levelled field is the declination
         if use & USE_MAG:
             m = mag[k]
@@ -293,7 +319,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     nis = update(x, P, z, H, R)
                     out_nis_mag[k] = nis
                     out_ll[k, 0] = -0.5 * (nis + np.log(s_mag) + np.log(2.0 * np.pi))
-                    C = _feedback(x, C, b, v, p, i_v, M, i_m)
+                    C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
                     if rec_nis > 0.0 and k > 0:
                         a = min(1.0, (t[k] - t[k - 1]) / rec_tau_s)
                         nis_avg += a * (nis - nis_avg)
@@ -315,7 +341,7 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
                     out_nis_rng[k] = nis
                     if rng_gate <= 0.0 or nis < rng_gate:
                         update(x, P, z, H, r_rng)
-                        C = _feedback(x, C, b, v, p, i_v, M, i_m)
+                        C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
         C = orthonormalize(C)
         out_C[k] = C
         out_P[k] = P[0:6, 0:6]

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from tpos_cli.attitude import _kernels as K
+from tpos_cli.attitude import motion
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import axes_to_dcm, dcm_to_euler
 
@@ -74,6 +75,7 @@ class FilterSetup:
     motion_freq_hz: float = 0.0
     motion_damping: float = 0.7071
     motion_step_s: float = 0.05
+    motion_corner_hz: float = 0.0  # > 0: the oscillator's driving force is Gauss-Markov with this corner (band-pass)
     heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
     heading_recover_tau_s: float = 1.0
     gyro_err_sd: float = 0.0  # > 0: scale-factor/misalignment states (I + M), prior SD of each element
@@ -233,11 +235,13 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
     om = 2.0 * np.pi * setup.motion_freq_hz
     motion_sd = np.array([setup.motion_sd_mps, setup.motion_sd_m])
-    osc = np.zeros(3)
+    osc = np.zeros(4)
     if om > 0.0:
-        # stationary oscillator: var(p) = q / (4 zeta omega^3), var(v) = omega^2 var(p)
-        osc[:] = (om, setup.motion_damping, 4.0 * setup.motion_damping * om**3 * setup.motion_sd_m**2 / motion_share)
-        motion_sd = np.array([om * setup.motion_sd_m, setup.motion_sd_m])
+        # q from the stationary displacement SD (white force: var(p) = q / (4 zeta omega^3))
+        vp1, vv1 = motion.displacement_var(setup.motion_freq_hz, setup.motion_damping, 1.0, setup.motion_corner_hz)
+        q = setup.motion_sd_m**2 / vp1
+        osc[:] = (om, setup.motion_damping, q / motion_share, 2.0 * np.pi * setup.motion_corner_hz)
+        motion_sd = np.array([np.sqrt(vv1 * q), setup.motion_sd_m])
     K.run_full(
         np.ascontiguousarray(t), np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
         np.ascontiguousarray(mag), np.ascontiguousarray(rd), int(use),

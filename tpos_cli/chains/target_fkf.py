@@ -76,6 +76,7 @@ class TargetFkfParams:
     motion_step_s: float = 0.05
     motion_fit: bool = True  # fit the oscillator (frequency, displacement SD) to the log's own acceleration PSD
     motion_fit_band_hz: tuple[float, float] = (0.3, 5.0)
+    motion_corner: bool = False  # with motion_fit: also fit a corner above which the hand's acceleration falls (band-pass)
     smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
     gyro_err_pct: float = 0.0  # > 0: local filters estimate the gyro scale/misalignment (prior SD, %)
     gyro_err_rw_ppm_rts: float = 0.0
@@ -379,13 +380,15 @@ def _fit_motion(setup: FilterSetup, p: TargetFkfParams, t, gyro_sol: AttitudeSol
     only reaches frequencies below the fitted band."""
     acc_n = np.einsum("nij,nj->ni", gyro_sol.C_nb, acc_b)
     try:
-        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz), damping=p.motion_damping)
+        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz), damping=p.motion_damping,
+                                    corner=p.motion_corner)
     except ProcessingError as e:
         ctx.warn(f"{e}; using the fixed bounded-motion epochs (motion_sd_mps, motion_sd_m)")
         return setup
     summary["motion_fit"] = {"freq_hz": fit.freq_hz, "sd_m": fit.sd_m, "q_m2ps3": fit.q_m2ps3,
-                             "moving_fraction": fit.moving_fraction}
-    return replace(setup, motion_freq_hz=fit.freq_hz, motion_sd_m=fit.sd_m, motion_damping=fit.damping)
+                             "moving_fraction": fit.moving_fraction, "corner_hz": fit.corner_hz}
+    return replace(setup, motion_freq_hz=fit.freq_hz, motion_sd_m=fit.sd_m, motion_damping=fit.damping,
+                   motion_corner_hz=fit.corner_hz)
 
 
 def _d1_on_imu(session: Session, t):

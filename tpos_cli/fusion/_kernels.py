@@ -40,6 +40,18 @@ def mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_pre
 
 
 @njit(cache=True)
+def start_epochs(P, ep_idx, ep_P, ep_dx, ep_Phi, ep_Ppred, store_rts):
+    """Covariance epoch 0 is the prior at sample 0 (what the smoothers start from); returns 0."""
+    ep_idx[0] = 0
+    ep_P[0] = P
+    ep_dx[0] = 0.0
+    if store_rts:
+        ep_Phi[0] = np.eye(P.shape[0])
+        ep_Ppred[0] = P
+    return 0
+
+
+@njit(cache=True)
 def predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
                   ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts):
     """Open covariance epoch ep + 1 at sample k: F from the mean specific force, Van Loan Phi/Qd,
@@ -145,13 +157,7 @@ def insgps_kernel(
     g = 0
     while g < m_gps and gps_idx[g] < 1:  # fixes at or before the first sample are not used
         g += 1
-    ep = 0
-    ep_idx[0] = 0
-    ep_Pfilt[0] = P
-    ep_dx[0] = 0.0
-    if store_rts:
-        ep_Phi[0] = np.eye(ns)
-        ep_Ppred[0] = P
+    ep = start_epochs(P, ep_idx, ep_Pfilt, ep_dx, ep_Phi, ep_Ppred, store_rts)
     out_nav[0] = nav
     out_C[0] = C
     out_bias[0] = bias

@@ -34,9 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.fusion.initial import fixes_before
+from tpos_cli.fusion.gps_noise import pass_window
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
-from tpos_cli.ins.mechanization import decimate_imu
 
 RATIO_GRID = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0)  # sigma_gm / sigma_white tried
 TAU_GRID_S = (10.0, 30.0, 100.0, 300.0)  # time constants tried
@@ -88,19 +87,7 @@ def fit_gps_error(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialSta
     from scipy.special import chdtri  # not scipy.stats (import time)
 
     min_gain = 0.5 * float(chdtri(2, 1.0 - test_probability))
-    t = np.asarray(t_s, dtype=float)
-    start = t[0] if after_s is None else max(after_s, t[0])
-    if span_s > 0 and start + span_s < t[-1]:
-        i_end = int(np.searchsorted(t, start + span_s)) + 1
-        t, gyro_b_rps, acc_b_mps2 = t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end]
-        fixes = fixes_before(fixes, t[-1])
-    rate = (t.size - 1) / (t[-1] - t[0])
-    factor = max(1, int(round(rate / rate_hz)))
-    td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, factor)
-    rate_d = (td.size - 1) / (td[-1] - td[0])
-    count = np.ones(fixes.t_s.size, dtype=bool)
-    if after_s is not None and np.sum(fixes.t_s > after_s) >= 30:
-        count = fixes.t_s > after_s
+    td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
     sw = np.median(fixes.sigma_pos_ned_m, axis=0)
     grid = np.asarray(grid, dtype=float)
     taus = np.asarray(taus_s, dtype=float)

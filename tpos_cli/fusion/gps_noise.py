@@ -115,6 +115,26 @@ def solve_scale(nu, hph, var) -> float:
     return float(np.sqrt(lo * hi))
 
 
+def pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, after_s: float | None, span_s: float, rate_hz: float):
+    """The stretch of log the cheap tuning passes run over: `span_s` from `after_s` (0 = all),
+    IMU decimated to about `rate_hz`. Returns (t, gyro, acc, fixes, counted-fix mask, rate):
+    only fixes after `after_s` count, unless fewer than 30 would remain."""
+    t = np.asarray(t_s, dtype=float)
+    start = t[0] if after_s is None else max(after_s, t[0])
+    if span_s > 0 and start + span_s < t[-1]:
+        i_end = int(np.searchsorted(t, start + span_s)) + 1
+        t, gyro_b_rps, acc_b_mps2 = t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end]
+        fixes = fixes_before(fixes, t[-1])
+    rate = (t.size - 1) / (t[-1] - t[0])
+    factor = max(1, int(round(rate / rate_hz)))
+    td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, factor)
+    rate_d = (td.size - 1) / (td[-1] - td[0])
+    count = np.ones(fixes.t_s.size, dtype=bool)
+    if after_s is not None and np.sum(fixes.t_s > after_s) >= 30:
+        count = fixes.t_s > after_s
+    return td, gd, ad, fixes, count, rate_d
+
+
 def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                        after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
                        max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0)) -> GpsNoise:
@@ -127,20 +147,8 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     `span_s`: the passes stop `span_s` after that (0 = whole log): 900 s give some 1800
     horizontal components, a variance to about 3%, and keep the passes cheap on long logs.
     """
-    t = np.asarray(t_s, dtype=float)
-    start = t[0] if after_s is None else max(after_s, t[0])
-    if span_s > 0 and start + span_s < t[-1]:
-        i_end = int(np.searchsorted(t, start + span_s)) + 1
-        t, gyro_b_rps, acc_b_mps2 = t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end]
-        fixes = fixes_before(fixes, t[-1])
-    rate = (t.size - 1) / (t[-1] - t[0])
-    factor = max(1, int(round(rate / rate_hz)))
-    td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, factor)
-    rate_d = (td.size - 1) / (td[-1] - td[0])
+    td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
     pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))))
-    count = np.ones(fixes.t_s.size, dtype=bool)
-    if after_s is not None and np.sum(fixes.t_s > after_s) >= 30:
-        count = fixes.t_s > after_s
     lo, hi = np.log(scale_bounds[0]), np.log(scale_bounds[1])
     log_s = np.zeros(4)
     hist: list[list[tuple[float, float]]] = [[] for _ in range(4)]

@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from tpos_cli.filters.kalman import nis_of, update
-from tpos_cli.fusion._kernels import mechanize_sample, predict_epoch
+from tpos_cli.fusion._kernels import mechanize_sample, predict_epoch, start_epochs
 from tpos_cli.fusion.layout import N_NAV, POS, VEL
 from tpos_cli.fusion.nav_errors import apply_feedback, position_jacobian, process_noise
 from tpos_cli.ranging.measurements import lla_to_local_ned
@@ -103,13 +103,7 @@ def ranging_filter_kernel(
     n_ev = ev_k.shape[0]
     while e < n_ev and ev_k[e] < 1:  # events at or before the first sample are not used
         e += 1
-    ep = 0
-    ep_idx[0] = 0
-    ep_P[0] = P
-    ep_dx[0] = 0.0
-    if store_rts:
-        ep_Phi[0] = np.eye(n)
-        ep_Ppred[0] = P
+    ep = start_epochs(P, ep_idx, ep_P, ep_dx, ep_Phi, ep_Ppred, store_rts)
     out_nav[0] = nav
     out_C[0] = C
     out_bias[0] = bias
