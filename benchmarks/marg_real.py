@@ -32,7 +32,9 @@ DEFAULTS_NOTE = (
     "damped oscillator (damping 0.7071) whose frequency and displacement SD are fitted per log to the PSD of the "
     "log's own acceleration in 0.3-5 Hz (summary.json results.motion_fit); gyro bias random walk and 300 ppm rate "
     "noise are settings that were compared on THESE two trials (one configuration for both), so this is not a "
-    "blind test.")
+    "blind test. Also compared on them and not adopted: a band-pass hand model (motion_corner = true: worse on "
+    "both), other fit bands and log-frequency weighting of the fit (no gain), a heading-only magnetometer update "
+    "(broad_02 0.443, broad_28 2.18).")
 
 
 def error_rotvec_deg(C_est, C_true):
