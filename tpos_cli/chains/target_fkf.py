@@ -35,14 +35,6 @@ G0 = 9.80665
 
 
 @dataclass(frozen=True)
-class FaultParams:
-    nis_window_s: float = 1.0
-    nis_probability: float = 0.9999
-    consistency_probability: float = 0.9999
-    recover_s: float = 2.0
-
-
-@dataclass(frozen=True)
 class TargetFkfParams:
     model: Literal["full", "paper8"] = "full"
     beta: float = 0.5  # Eq. 24 information share of each local filter
@@ -89,7 +81,7 @@ class TargetFkfParams:
     # shots detected when shots.csv is absent
     shot_min_s: float = 2.0
     shot_gyro_tol_dps: float = 0.5
-    fault: FaultParams = field(default_factory=FaultParams)
+    fault: faults.FaultConfig = field(default_factory=faults.FaultConfig)  # the [target_fkf.fault] table
 
 
 def static_noise(imu, win) -> dict:
@@ -319,7 +311,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
     with ctx.stage("federated fusion"):
         locals_ = [sols[k] for k in ("lf1", "lf2") if k in sols]
         if len(locals_) == 2:
-            fr = faults.detect(locals_, faults.FaultConfig(**p.fault.__dict__), setup.range_gate_chi2)
+            fr = faults.detect(locals_, p.fault, setup.range_gate_chi2)
             w = fr.weights() if p.fault_tolerant else None
             sols["fkf"] = master.fuse("fkf", locals_, w)
             sols["fkf_raw"] = master.fuse("fkf_raw", locals_, None)
