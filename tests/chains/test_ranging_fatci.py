@@ -141,3 +141,16 @@ def test_smoothed_rows_carry_the_smoothed_range_bias(processed):
     # the corrected ranges have no common bias (per-anchor c_i removed, spikes gated): eps_d ~ 0
     # within a few calibration SEs (~0.006 m each)
     assert np.max(np.abs(sm)) < 0.03
+
+
+def test_stretches_with_fewer_than_three_anchors_are_reported():
+    from tpos_cli.chains.ranging_fatci import few_anchor_intervals
+
+    # 10 Hz polls of 4 anchors; from 5 s to 8 s only anchors 0 and 1 answer
+    t = np.repeat(np.arange(0.0, 10.0, 0.1), 4) + np.tile([0.0, 0.01, 0.02, 0.03], 100)
+    a = np.tile([0, 1, 2, 3], 100)
+    keep = ~((t >= 5.0) & (t < 8.0) & (a >= 2))
+    got = few_anchor_intervals(t[keep], a[keep], window_s=0.05, min_s=1.0)
+    assert len(got) == 1
+    np.testing.assert_allclose(got[0], (5.0, 8.0), atol=1e-9)  # from the first 2-anchor epoch to the next full one
+    assert few_anchor_intervals(t, a, window_s=0.05, min_s=1.0) == []

@@ -28,7 +28,7 @@ from tpos_cli.ranging.filter import (
     end_state, fix_events, fuzzy_range_variance, range_events, run_filter, zupt_events,
 )
 from tpos_cli.ranging.fuzzy import fuzzy_system_from_params
-from tpos_cli.ranging.multilateration import group_epochs, ls_fix
+from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
 from tpos_cli.ranging.stillness import stationary_intervals
 from tpos_cli.session import Session
 
@@ -298,6 +298,14 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         r = model.correct(a, ar.range_m[ok][order])  # Eq. 14 inverted
         sd_fit = model.range_sd_m(r)
         ctx.count("anchor_ranges_used", int(t.size))
+        few = few_anchor_intervals(t, a, p.epoch_window_s, min_s=p.coast_gap_s)
+        if few:
+            # With one or two anchors the node is known only up to a mirror image about them: a
+            # straight, steady leg cannot tell the two apart, and the filter may lock onto the wrong one.
+            total = sum(b - a_ for a_, b in few)
+            ctx.warn(f"ranging: {len(few)} stretch(es), {total:.1f} s in all, with fewer than 3 anchors answering: "
+                     "there the position is ambiguous up to a mirror image about the anchors; check those stretches")
+            results["few_anchor_intervals"] = [[a_ + session.t0_s, b + session.t0_s] for a_, b in few]
 
     imu = session.imu
     imu_dt = float(np.median(np.diff(imu.t_s)))
@@ -398,6 +406,20 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
     results["config"] = {"ranging_fatci": params_to_dict(p)}
     return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
                        summary=results)
+
+
+def few_anchor_intervals(t_s: np.ndarray, anchor: np.ndarray, window_s: float, min_s: float) -> list[tuple[float, float]]:
+    """Stretches of at least `min_s` whose range epochs (time-sorted `t_s`) each heard fewer than 3 anchors."""
+    bounds = epoch_bounds(group_epochs(t_s, window_s))
+    t_ep = t_s[bounds[:-1]]
+    n_ep = np.array([np.unique(anchor[a_:b]).size for a_, b in zip(bounds[:-1], bounds[1:])])
+    out = []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], (n_ep < 3).astype(np.int8), [0]])))
+    for a_, b in zip(edges[::2], edges[1::2]):
+        t_start, t_end = t_ep[a_], t_ep[b] if b < t_ep.size else t_ep[-1]
+        if t_end - t_start >= min_s:
+            out.append((float(t_start), float(t_end)))
+    return out
 
 
 def _after(ev: Events, t_s: float) -> Events:

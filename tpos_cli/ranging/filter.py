@@ -29,7 +29,7 @@ from tpos_cli.fusion.nav_errors import backward_sign
 from tpos_cli.ins.mechanization import reverse_imu
 from tpos_cli.ranging import _kernels as K
 from tpos_cli.ranging.fuzzy import FuzzySystem, infer
-from tpos_cli.ranging.multilateration import group_epochs, ls_fix
+from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
 
 EV_RANGE, EV_FIX_NE, EV_DOWN, EV_ZUPT = K.EV_RANGE, K.EV_FIX_NE, K.EV_DOWN, K.EV_ZUPT
 N_STATE, BIAS, FLOOR, CAL, n_states = K.N_STATE, K.BIAS, K.FLOOR, K.CAL, K.n_states
@@ -166,7 +166,7 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
     ts, zs, Rs = [], [], []
     n_missing = 0
     guess = np.array([*np.mean(anchors_ned[:, :2], axis=0), down_m])
-    bounds = np.flatnonzero(np.diff(ep, prepend=-1, append=ep[-1] + 1 if ep.size else 0))  # ep is sorted
+    bounds = epoch_bounds(ep)
     for a, b in zip(bounds[:-1], bounds[1:]):
         # one range per anchor per epoch: keep the last if an anchor answered twice
         _, last = np.unique(anchor[a:b][::-1], return_index=True)

@@ -94,3 +94,9 @@ def group_epochs(t_s: np.ndarray, window_s: float) -> np.ndarray:
             start = ti
         out[i] = e
     return out
+
+
+def epoch_bounds(epoch: np.ndarray) -> np.ndarray:
+    """Start indices of each epoch of a sorted `group_epochs` result, plus the end: epoch e is
+    rows bounds[e]:bounds[e + 1]."""
+    return np.flatnonzero(np.diff(epoch, prepend=-1, append=epoch[-1] + 1 if epoch.size else 0))
