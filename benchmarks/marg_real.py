@@ -34,7 +34,10 @@ DEFAULTS_NOTE = (
     "noise are settings that were compared on THESE two trials (one configuration for both), so this is not a "
     "blind test. Also compared on them and not adopted: a band-pass hand model (motion_corner = true: worse on "
     "both), other fit bands and log-frequency weighting of the fit (no gain), a heading-only magnetometer update "
-    "(broad_02 0.443, broad_28 2.18).")
+    "(broad_02 0.443, broad_28 2.18); a long-term levelling pseudo-measurement (mean specific force over non-overlapping "
+    "3 or 10 s windows, rotated with the filter's attitude, = gravity within the fitted model's mean-acceleration SD "
+    "or 0.001-0.03 m/s^2: broad_02 0.447 at best, 0.470 when tight; broad_28 1.64-2.30); a random-walk equilibrium "
+    "of the oscillator (looser at low frequency: broad_02 0.448-0.466).")
 
 
 def error_rotvec_deg(C_est, C_true):
