@@ -343,3 +343,24 @@ def test_pool_workers_compute_single_threaded(tmp_path, monkeypatch):
     res = b.run_batch(tasks_for(sessions, tmp_path / "out"), jobs=2, process=report_threads, is_current=fake_is_current)
     assert {r.error for r in res.results} == {"OMP=1 NUMBA=3"}
     assert "OMP_NUM_THREADS" not in os.environ  # the parent's environment is restored
+
+
+def test_batch_report_adds_errors_against_truth(tmp_path):
+    # --report runs `tpos report` on each finished run: accuracy files in the run directory and the
+    # headline errors against the session's truth in the row; a run with nothing to score gets a note.
+    from tpos_cli.cli import app
+
+    repo = Path(__file__).resolve().parents[1]
+    shutil.copytree(repo / "sample_logs" / "drive_outage", tmp_path / "logs" / "drive")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["batch", str(tmp_path / "logs" / "*"), "--out", str(out), "-p", "ingest", "-j", "1", "--report"])
+    assert res.exit_code == 0, res.output
+    rows = {r["name"]: r for r in json.loads((out / "batch.json").read_text())["sessions"]}
+    # the ingest pipeline writes no solutions: nothing to score, said in the note
+    assert rows["drive"]["report_note"].startswith("no report:")
+    res = CliRunner().invoke(app, ["batch", str(tmp_path / "logs" / "drive"), "--out", str(out / "smooth"), "-j", "1", "--report"])
+    assert res.exit_code == 0, res.output
+    row = json.loads((out / "smooth" / "batch.json").read_text())["sessions"][0]
+    assert row["report_note"] == ""
+    assert 0.0 < row["accuracy"]["truth.smoothed.trajectory.rms_pos_h_m"] < 2.0  # sample drive: 1.5 m GPS noise, 30 s outage
+    assert (out / "smooth" / "drive" / "report.pdf").exists() and (out / "smooth" / "drive" / "accuracy.json").exists()

@@ -81,7 +81,8 @@ class SessionResult:
     worker: str  # host:pid that ran the task
     pipeline: str = ""
     timings_s: dict[str, float] = field(default_factory=dict)  # per stage, from summary.json
-    accuracy: dict[str, float] = field(default_factory=dict)  # numeric chain results, when report
+    accuracy: dict[str, float] = field(default_factory=dict)  # with report: chain results and truth.* errors
+    report_note: str = ""  # with report: why no accuracy against truth was computed, if it was not
 
 
 @dataclass(frozen=True, slots=True)
@@ -251,6 +252,24 @@ def accuracy_figures(summary: Mapping[str, Any]) -> dict[str, float]:
     return _flatten_numbers(results) if isinstance(results, Mapping) else {}
 
 
+def _report(run_dir: Path, summary: Mapping[str, Any]) -> dict:
+    """`tpos report` on a finished run (accuracy files and PDF in the run directory) and its headline
+    errors against truth as `truth.<solution>.<of>.<statistic>`, beside the chain's own figures.
+    No truth, or no run directory, is a note on the row, not a failure of the session."""
+    acc = accuracy_figures(summary)
+    try:
+        from tpos_cli.report.build import headline, make_report
+
+        res = make_report(run_dir)
+    except TposError as exc:
+        return {"accuracy": acc, "report_note": f"no report: {_one_line(exc)}"}
+    for row in headline(res.accuracy):
+        for k in ("rms_pos_h_m", "rms_pos_3d_m", "rms_att_deg"):
+            if k in row and math.isfinite(row[k]):
+                acc[f"truth.{row['solution']}.{row['of']}.{k}"] = float(row[k])
+    return {"accuracy": acc}
+
+
 def _one_line(exc: BaseException) -> str:
     msg = " ".join(str(exc).split())
     if isinstance(exc, TposError):
@@ -320,7 +339,7 @@ def run_session_task(
         worker=_worker_id(),
         pipeline=str(summary.get("pipeline") or task.pipeline or ""),
         timings_s=_flatten_numbers(timings) if isinstance(timings, Mapping) else {},
-        accuracy=accuracy_figures(summary) if task.report else {},
+        **(_report(Path(task.run_dir), summary) if task.report else {}),
     )
 
 

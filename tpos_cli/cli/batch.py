@@ -15,7 +15,7 @@ def batch(
     out: Annotated[Path, typer.Option("--out", "-o", help="Root directory: each session goes to OUT/<session-name>/.")],
     pipeline: Annotated[str | None, typer.Option("--pipeline", "-p", help="Pipeline name or TOML file; default: the pipeline for each session's kind.")] = None,
     jobs: Annotated[int | None, typer.Option("--jobs", "-j", help="Worker processes (default: all cores; 1 runs in this process).")] = None,
-    report: Annotated[bool, typer.Option("--report", help="Add each run's accuracy summary to the table and batch files.")] = False,
+    report: Annotated[bool, typer.Option("--report", help="Run `tpos report` on each finished run (accuracy files and report.pdf in it) and add its errors against truth, with the run's own figures, to the table and batch files.")] = False,
     force: Annotated[bool, typer.Option("--force", help="Redo sessions whose finished run is current.")] = False,
     scheduler: Annotated[str | None, typer.Option("--scheduler", help="Dask scheduler address (tcp://host:8786): run the sessions on that cluster.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
