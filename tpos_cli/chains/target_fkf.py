@@ -20,7 +20,7 @@ from scipy.stats import chi2
 from tpos_cli import alignment as al
 from tpos_cli import magnetic, targeting
 from tpos_cli.attitude import _kernels as K
-from tpos_cli.attitude import faults, master, motion
+from tpos_cli.attitude import faults, master, motion, sensor_lag
 from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.attitude.local import (
     AttitudeSolution, add_heading_variance, FilterNoise, FilterSetup, euler_sigma_deg, range_differences, run_full, run_paper8,
@@ -76,6 +76,8 @@ class TargetFkfParams:
     # LF1 gating
     mag_norm_tol_ut: float = 4.0  # <= 0 disables the field-magnitude/dip check
     mag_dip_tol_deg: float = 3.0
+    mag_lag_from_log: bool = True  # estimate the magnetometer's delay behind the gyro from the log's turns and remove it
+    mag_lag_max_s: float = 0.05
     # LF2 gating
     range_gate_probability: float = 0.9999
     # shots detected when shots.csv is absent
@@ -208,10 +210,20 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         raise InvalidInputError(f"pipeline [target_fkf] beta: must be in (0, 1], got {p.beta}")
     imu = session.imu
     t = imu.t_s
+    summary: dict = {}
+    if imu.mag_b_ut is not None and p.mag_lag_from_log:
+        with ctx.stage("magnetometer delay"):
+            lag = sensor_lag.estimate_mag_lag(t, imu.gyro_b_rps, imu.mag_b_ut, max_lag_s=p.mag_lag_max_s)
+            summary["mag_lag"] = {"lag_s": lag.lag_s, "residual_uts": lag.rms_uts, "residual_zero_lag_uts": lag.rms_zero_uts,
+                                  "turning_samples": lag.n_used, "note": lag.reason}
+            if lag.lag_s != 0.0:
+                # every consumer (alignment, LF1, paper8 observations) sees the delay-free magnetometer
+                imu = replace(imu, mag_b_ut=sensor_lag.advance(t, imu.mag_b_ut, lag.lag_s))
+                session = replace(session, imu=imu)
     noise = _noise(session, p)
     obs_lla, obs_src = observer_position(session)
     lat = np.radians(obs_lla[0])
-    summary: dict = {"observer": {"lla": obs_lla.tolist(), "source": obs_src}, "model": p.model}
+    summary.update({"observer": {"lla": obs_lla.tolist(), "source": obs_src}, "model": p.model})
 
     with ctx.stage("initial alignment"):
         decl_deg = 0.0

@@ -32,3 +32,15 @@ def parse_window(text: str, option: str) -> tuple[float, float]:
         return float(a), float(b)
     except ValueError:
         raise typer.BadParameter(f"expected T0:T1 in seconds, got {text!r}", param_hint=option) from None
+
+
+@contextlib.contextmanager
+def working(label: str, quiet: bool = False):
+    """A spinner with `label` on stderr while a long step runs, for a person at a terminal only."""
+    if not show_progress(quiet):
+        yield
+        return
+    from rich.console import Console
+
+    with Console(stderr=True).status(label):
+        yield

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error, parse_window
+from tpos_cli.cli._common import exit_on_error, parse_window, working
 
 
 def calibrate_mag(
@@ -24,7 +24,7 @@ def calibrate_mag(
     from tpos_cli.magcal import calibrate_session, write_calibrated_copy
     from tpos_cli.importers.session_out import dumps_toml
 
-    with exit_on_error():
+    with exit_on_error(), working("tpos calibrate-mag"):
         cal, note = calibrate_session(session, parse_window(window, "--window") if window else None)
         if out is not None:
             write_calibrated_copy(session, out, cal, force=force)

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error
+from tpos_cli.cli._common import exit_on_error, working
 
 
 def import_(
@@ -24,7 +24,7 @@ def import_(
     """
     from tpos_cli.importers import import_into_session
 
-    with exit_on_error():
+    with exit_on_error(), working(f"tpos import {fmt}"):
         written, notes = import_into_session(fmt, list(srcs), out, mapping=mapping, clock=clock, force=force)
     for n in notes:
         typer.echo(f"  {n}")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error
+from tpos_cli.cli._common import exit_on_error, working
 
 
 def inspect(
@@ -22,7 +22,7 @@ def inspect(
     from tpos_cli.inspection import describe_session
     from tpos_cli.session import load_session
 
-    with exit_on_error():
+    with exit_on_error(), working(f"tpos inspect {session}"):
         loaded = load_session(session)
         info = describe_session(loaded)
         from tpos_cli.conventions import check_conventions

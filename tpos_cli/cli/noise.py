@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error, parse_window
+from tpos_cli.cli._common import exit_on_error, parse_window, working
 
 
 def noise(
@@ -26,7 +26,7 @@ def noise(
     from tpos_cli.session import load_session
     from tpos_cli.importers.session_out import dumps_toml
 
-    with exit_on_error():
+    with exit_on_error(), working("tpos noise: Allan deviation"):
         s = load_session(session)
         t = s.imu.t_s + s.t0_s
         sel = np.ones(t.size, bool)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error
+from tpos_cli.cli._common import exit_on_error, working
 
 
 def report(
@@ -25,7 +25,7 @@ def report(
     """
     from tpos_cli.report.build import make_report
 
-    with exit_on_error():
+    with exit_on_error(), working(f"tpos report {run}"):
         res = make_report(run, truth)
     if json_:
         typer.echo(json.dumps(res.summary, indent=1))

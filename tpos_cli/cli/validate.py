@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from tpos_cli.cli._common import working
 from tpos_cli.errors import InvalidInputError
 
 
@@ -26,7 +27,9 @@ def validate(
     bad = 0
     for s in sessions:
         try:
-            session = load_session(s)
+            with working(f"validating {s}"):
+                session = load_session(s)
+                warnings = [*session.warnings, *check_conventions(session)]
         except InvalidInputError as exc:
             bad += 1
             problems = exc.problems or [str(exc)]
@@ -35,7 +38,7 @@ def validate(
             continue
         if not quiet:
             typer.echo(f"ok {s}: {session.meta.kind}, {len(session.imu.t_s)} IMU samples, {session.t_end_s:.1f} s")
-        for w in [*session.warnings, *check_conventions(session)]:
+        for w in warnings:
             typer.echo(f"warning {s}: {w}")
     if bad:
         raise typer.Exit(2)
