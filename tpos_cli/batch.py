@@ -18,6 +18,7 @@ results of the chain (its accuracy summary) when `report` is set.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import glob
 import json
@@ -406,6 +407,7 @@ def _run_pool(
     # spawn, not fork: the parent may hold threads (progress bar, Dask) and forking those is unsafe
     ctx = multiprocessing.get_context("spawn")
     lost: list[int] = []
+    t_start = time.time()
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker) as ex:
         with _single_threaded_children():  # workers start during submit
             futures = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
@@ -432,9 +434,18 @@ def _run_pool(
             try:
                 with _single_threaded_children():
                     fut = ex.submit(fn, tasks[i])
-                emit(i, fut.result())
+                emit(i, _processed_in_this_batch(fut.result(), t_start))
             except BrokenProcessPool:
                 emit(i, _failed(tasks[i], "worker process died (crashed, killed or out of memory)"))
+
+
+def _processed_in_this_batch(r: SessionResult, t_start: float) -> SessionResult:
+    """A lost task may have finished in its worker before the pool broke: its rerun then finds a
+    current run and would say `skipped`, but the session was processed by this batch."""
+    summary = Path(r.run_dir) / "summary.json"
+    if r.status == STATUS_SKIPPED and summary.exists() and summary.stat().st_mtime >= t_start:
+        return dataclasses.replace(r, status=STATUS_OK)
+    return r
 
 
 def _run_dask(
