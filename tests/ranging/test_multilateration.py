@@ -37,3 +37,26 @@ def test_too_few_ranges_or_bad_geometry():
     p = np.array([0.0, 5.0, 0.0])
     fix = ls_fix(line, np.linalg.norm(line - p, axis=1), np.full(3, 0.1), np.array([0.5, 4.0, 0.0]))
     assert not fix.ok
+
+
+def test_fix_sensitivity_matches_finite_differences():
+    """The fix rows for the FLOOR and CAL states equal the fix's change under a small floor error
+    or per-anchor range bias (the LS fix is linear in them to first order)."""
+    from tpos_cli.ranging.filter import _fix_sensitivity
+
+    anchors = np.array([[0.0, -3.0, -2.5], [10.0, 3.0, -2.4], [20.0, -3.0, -2.6], [30.0, 3.0, -2.5]])
+    node = np.array([12.0, 0.5, 0.0])
+    sd = np.array([0.05, 0.06, 0.07, 0.08])
+    r = np.linalg.norm(anchors - node, axis=1)
+    fix = ls_fix(anchors, r, sd, node + [0.3, -0.2, 0.0])
+    S = _fix_sensitivity(fix, anchors, np.arange(4), sd, 4)
+    h = 1e-4
+    for i in range(4):  # bias on anchor i's range: fix moves by K[:, i] h
+        rb = r.copy()
+        rb[i] += h
+        moved = ls_fix(anchors, rb, sd, node).pos_ned_m[:2] - fix.pos_ned_m[:2]
+        np.testing.assert_allclose(moved / h, S[:, 1 + i], atol=1e-3)  # second-order term ~ h / range
+    # floor error +h (the fix holds down at node_d + h, truth at node_d): fix moves by -K h_d h;
+    # the filter's z = INS - fix sees +K h_d per unit floor error
+    moved = ls_fix(anchors, r, sd, node + [0.0, 0.0, h]).pos_ned_m[:2] - fix.pos_ned_m[:2]
+    np.testing.assert_allclose(-moved / h, S[:, 0], atol=1e-3)

@@ -251,7 +251,7 @@ def _solution_frame(sol: smoothing.Solution, name: str, t_run_s, t0_s: float, ra
         "sigma_n": sd[:, 0], "sigma_e": sd[:, 1], "sigma_u": sd[:, 2],
         "sigma_vn": sd[:, 3], "sigma_ve": sd[:, 4], "sigma_vd": sd[:, 5],
         "sigma_roll": np.degrees(sd[:, 6]), "sigma_pitch": np.degrees(sd[:, 7]), "sigma_yaw": np.degrees(sd[:, 8]),
-        "range_bias_m": range_bias_m,
+        "range_bias_m": range_bias_m, "cov_ne_m2": sol.P9[:, 0, 1],
     })
 
 
@@ -264,7 +264,7 @@ def _trajectory(run: FilterRun, name: str, t0_s: float) -> pd.DataFrame:
         "sigma_n": run.sd_ned_m[:, 0], "sigma_e": run.sd_ned_m[:, 1], "sigma_u": run.sd_ned_m[:, 2],
         "sigma_vn": run.sd_vel_mps[:, 0], "sigma_ve": run.sd_vel_mps[:, 1], "sigma_vd": run.sd_vel_mps[:, 2],
         "sigma_roll": run.sd_att_deg[:, 0], "sigma_pitch": run.sd_att_deg[:, 1], "sigma_yaw": run.sd_att_deg[:, 2],
-        "range_bias_m": run.range_bias_m,
+        "range_bias_m": run.range_bias_m, "cov_ne_m2": run.cov_ne_m2,
     })
 
 
@@ -424,8 +424,7 @@ def few_anchor_intervals(t_s: np.ndarray, anchor: np.ndarray, window_s: float, m
 
 def _after(ev: Events, t_s: float) -> Events:
     """The events after t_s."""
-    m = ev.t_s > t_s
-    return Events(ev.t_s[m], ev.kind[m], ev.anchor[m], ev.z[m], ev.R[m], ev.gated[m])
+    return ev.select(ev.t_s > t_s)
 
 
 def _nav15(run: FilterRun) -> FilterRun:

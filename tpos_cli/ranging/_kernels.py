@@ -51,14 +51,15 @@ EV_ZUPT = 3  # z = nominal NED velocity - 0 while the IMU says the node stands s
 @njit(cache=True)
 def ranging_filter_kernel(
     t, gyro, acc, nav0, C0, bias0, range_bias0, P0, q, tau_acc_s, tau_gyro_s, q_bias, earth_sign, cov_step,
-    ev_k, ev_lag, ev_kind, ev_anchor, ev_z, ev_R, ev_gated,
+    ev_k, ev_lag, ev_kind, ev_anchor, ev_z, ev_R, ev_gated, ev_sidx, sens,
     anchors_ned, r0_e, C_ne0, gate, max_consecutive_rejects, store_rts,
     out_nav, out_C, out_bias, out_rb, out_aux, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, ev_nis, ev_accepted,
 ):
     """Closed-loop INS/range filter over the whole (possibly reversed) arrays, from sample 0.
 
     ev_* (E,) sorted by ev_k (sample index of processing, >= 1), ev_z (E, 3), ev_R (E, 3) =
-    [var_0, cov_01, var_1] (ZUPT: the variance of each axis in var_0); anchors_ned (A, 3) local
+    [var_0, cov_01, var_1] (ZUPT: the variance of each axis in var_0); a fix with ev_sidx[e] >= 0
+    has sens[ev_sidx[e]] (2, 1 + A), its rows for the FLOOR and CAL states; anchors_ned (A, 3) local
     NED; gate[m] = chi2 threshold for m dof. Writes the nominal after feedback at every sample
     (out_*), the epochs (ep_*; Phi and P_pred only when store_rts) and per event the NIS (-1 if
     never reached) and acceptance; out_aux (N, 1 + A) the floor and calibration corrections
@@ -152,6 +153,12 @@ def ranging_filter_kernel(
                         H2[1, j] = H3[1, j] if j < N_NAV else 0.0
                     z2[0] = p[0] - ev_z[e, 0]
                     z2[1] = p[1] - ev_z[e, 1]
+                    si = ev_sidx[e]
+                    if si >= 0:  # the fix corrected by the current floor and calibration estimates
+                        for i in range(2):
+                            for j in range(aux.shape[0]):
+                                H2[i, FLOOR + j] = sens[si, i, j]
+                                z2[i] += sens[si, i, j] * aux[j]
                     R2[0, 0] = ev_R[e, 0]
                     R2[0, 1] = ev_R[e, 1]
                     R2[1, 0] = ev_R[e, 1]

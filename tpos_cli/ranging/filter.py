@@ -38,7 +38,9 @@ N_STATE, BIAS, FLOOR, CAL, n_states = K.N_STATE, K.BIAS, K.FLOOR, K.CAL, K.n_sta
 @dataclass(frozen=True)
 class Events:
     """Aiding events, time sorted: t_s (E,), kind (E,), anchor (E,) (-1 if none), z (E, 3),
-    R (E, 3) = [var_0, cov_01, var_1] (ZUPT: var_0 per axis), gated (E,) bool."""
+    R (E, 3) = [var_0, cov_01, var_1] (ZUPT: var_0 per axis), gated (E,) bool.
+    sens (E, 2, 1 + A) or None: for a fix, d(fix north, east) / d[floor-height error, calibrated-range
+    bias of each anchor] (`fix_events`); zeros for the other kinds."""
 
     t_s: np.ndarray
     kind: np.ndarray
@@ -46,13 +48,26 @@ class Events:
     z: np.ndarray
     R: np.ndarray
     gated: np.ndarray
+    sens: np.ndarray | None = None
 
     @staticmethod
     def merge(*parts: Events) -> Events:
         t = np.concatenate([p.t_s for p in parts])
         order = np.argsort(t, kind="stable")
-        return Events(*(np.concatenate([getattr(p, f) for p in parts])[order]
-                        for f in ("t_s", "kind", "anchor", "z", "R", "gated")))
+        cols = [np.concatenate([getattr(p, f) for p in parts])[order]
+                for f in ("t_s", "kind", "anchor", "z", "R", "gated")]
+        with_sens = [p.sens for p in parts if p.sens is not None]
+        sens = None
+        if with_sens:
+            shape = with_sens[0].shape[1:]
+            sens = np.concatenate([p.sens if p.sens is not None else np.zeros((p.t_s.size, *shape))
+                                   for p in parts])[order]
+        return Events(*cols, sens)
+
+    def select(self, mask: np.ndarray) -> Events:
+        """The events where mask is True."""
+        return Events(self.t_s[mask], self.kind[mask], self.anchor[mask], self.z[mask], self.R[mask],
+                      self.gated[mask], None if self.sens is None else self.sens[mask])
 
 
 @dataclass(frozen=True)
@@ -98,7 +113,7 @@ class FilterRun:
 
     Output rows (every `output_every` samples and the last): out_idx (K,) run-local indices, t_s,
     lla, vel_ned_mps, rpy_deg, sd_ned_m, sd_vel_mps, sd_att_deg (SD of the attitude error phi),
-    range_bias_m. Per event (in the order of `events`): ev_nis (-1 if not reached), ev_accepted.
+    range_bias_m, cov_ne_m2 (north-east position covariance). Per event (in the order of `events`): ev_nis (-1 if not reached), ev_accepted.
     floor_correction_m, cal_correction_m (A,): estimated floor-height and per-anchor calibrated-range
     corrections after the last event of the run (0 when their states are off).
     For `tpos_cli.smoothing` (field names of `fusion.insgps.FilterRun`): t_run_s (N-k0,), nav
@@ -120,6 +135,7 @@ class FilterRun:
     backward: bool = False
     floor_correction_m: float = 0.0
     cal_correction_m: np.ndarray | None = None
+    cov_ne_m2: np.ndarray | None = None
     k0: int = 0
     out_idx: np.ndarray | None = None
     t_run_s: np.ndarray | None = None
@@ -160,10 +176,15 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
                window_s: float, gate_probability: float = 0.999) -> tuple[Events, int]:
     """Least-squares (north, east) fixes of the epochs with >= min_anchors ranges (Eq. 7-8).
 
-    Returns the events and the number of epochs without a fix.
+    Returns the events and the number of epochs without a fix. Beyond the paper, each fix carries
+    its sensitivity `sens` to the floor-height error (the fix holds down at `down_m`) and to the
+    calibrated-range bias of each anchor, K = (H^T W H)^-1 H^T W of the final LS step: these
+    errors are constant over a run, so the filter carries them as states (`FLOOR`, `CAL`) instead
+    of white noise on each fix, which averaging over fixes would shrink.
     """
     ep = group_epochs(t_s, window_s)
-    ts, zs, Rs = [], [], []
+    n_anchor = anchors_ned.shape[0]
+    ts, zs, Rs, Ss = [], [], [], []
     n_missing = 0
     guess = np.array([*np.mean(anchors_ned[:, :2], axis=0), down_m])
     bounds = epoch_bounds(ep)
@@ -190,9 +211,24 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
         ts.append(t_s[idx].max())
         zs.append(fix.pos_ned_m[:2])
         Rs.append([fix.cov_ne_m2[0, 0], fix.cov_ne_m2[0, 1], fix.cov_ne_m2[1, 1]])
+        Ss.append(_fix_sensitivity(fix, anchors_ned, anchor[idx], sd_m[idx], n_anchor))
     n = len(ts)
     return Events(np.array(ts, float), np.full(n, EV_FIX_NE, np.int64), np.full(n, -1, np.int64),
-                  np.column_stack([np.array(zs, float).reshape(n, 2), np.zeros(n)]), np.array(Rs, float).reshape(n, 3), np.ones(n, bool)), n_missing
+                  np.column_stack([np.array(zs, float).reshape(n, 2), np.zeros(n)]), np.array(Rs, float).reshape(n, 3),
+                  np.ones(n, bool), np.array(Ss, float).reshape(n, 2, 1 + n_anchor)), n_missing
+
+
+def _fix_sensitivity(fix, anchors_ned, anchor, sd_m, n_anchor: int) -> np.ndarray:
+    """(2, 1 + A): fix error = K (bias - h_d floor_error) + K noise with K = cov H^T W (Eq. 8 gain),
+    h_d the down components of the unit vectors: columns [K h_d, K per anchor] as the filter's
+    measurement rows for the FLOOR and CAL states (sign: z = INS - fix)."""
+    d = fix.pos_ned_m[None, :] - anchors_ned[anchor]
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    K = fix.cov_ne_m2 @ (u[:, :2].T / np.asarray(sd_m, float) ** 2)
+    out = np.zeros((2, 1 + n_anchor))
+    out[:, 0] = K @ u[:, 2]
+    np.add.at(out.T, 1 + anchor, K.T)
+    return out
 
 
 def zupt_events(t_s, sd_mps: float) -> Events:
@@ -286,11 +322,18 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, 
     gate = chi2_threshold(cfg.gate_probability, 2)
     z = np.zeros((n_ev, 3))
     z[:, : events.z.shape[1]] = events.z
+    ev_sidx = np.full(n_ev, -1, np.int64)
+    sens = np.zeros((1, 2, 1 + n_anchor))
+    if events.sens is not None:  # only the fixes' rows are passed
+        fx = np.flatnonzero(events.kind == EV_FIX_NE)
+        ev_sidx[fx] = np.arange(fx.size)
+        sens = np.ascontiguousarray(events.sens[fx], dtype=float) if fx.size else sens
     n_used, status = K.ranging_filter_kernel(
         t, gyro, acc, nav0, C0, bias0, float(init.range_bias_m), P0, np.asarray(cfg.q, float), cfg.tau_acc_s,
         cfg.tau_gyro_s, cfg.q_range_bias_m2ps, earth_sign, int(max(cfg.cov_step, 1)),
         ev_k[order], ev_lag[order], events.kind[order], events.anchor[order], np.ascontiguousarray(z[order]),
-        np.ascontiguousarray(events.R[order]), events.gated[order], np.ascontiguousarray(anchors_ned_m, dtype=float),
+        np.ascontiguousarray(events.R[order]), events.gated[order], ev_sidx[order], sens,
+        np.ascontiguousarray(anchors_ned_m, dtype=float),
         r0_e, C_ne0, gate, cfg.max_consecutive_rejects, bool(store_rts),
         out_nav, out_C, out_bias, out_rb, out_aux, ep_idx, ep_Phi, ep_Ppred, ep_P, ep_dx, nis_o, acc_o,
     )
@@ -333,7 +376,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, events: Events, 
         t_s=t[out_idx], lla=lla, vel_ned_mps=nav_o[:, 3:6].copy(), rpy_deg=rpy,
         sd_ned_m=sd[:, POS:POS + 3], sd_vel_mps=sd[:, VEL:VEL + 3], sd_att_deg=np.degrees(sd[:, ATT:ATT + 3]),
         range_bias_m=out_rb[out_idx], events=events, ev_nis=ev_nis, ev_accepted=ev_acc,
-        floor_correction_m=float(out_aux[-1, 0]),
+        floor_correction_m=float(out_aux[-1, 0]), cov_ne_m2=ep_P[e, POS, POS + 1].copy(),
         cal_correction_m=out_aux[-1, 1:].copy(),
         backward=backward, k0=k0, out_idx=out_idx, t_run_s=t, nav=out_nav, C_nb=out_C, bias=out_bias,
         range_bias_all_m=out_rb, ep_idx=ep_idx, ep_P=ep_P, ep_Phi=ep_Phi[:n_used] if rts else None,
