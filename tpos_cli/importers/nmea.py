@@ -19,8 +19,8 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.importers.gpstime import CLOCKS, utc_calendar_to_clock
-from tpos_cli.importers.result import ImportResult
+from tpos_cli.importers.gpstime import utc_calendar_to_clock
+from tpos_cli.importers.result import ImportResult, read_source
 
 KNOT_MPS = 1852.0 / 3600.0
 GGA_QUALITY_TO_FIX = {0: 0, 1: 1, 2: 2, 3: 1, 4: 2, 5: 2, 6: 0, 7: 0, 8: 0}
@@ -103,12 +103,7 @@ def parse_nmea(data: bytes) -> tuple[pd.DataFrame, dict]:
 def import_nmea(path: Path, *, clock: str = "gps_tow") -> ImportResult:
     """Read GGA epochs (with RMC/VTG velocity) of one NMEA log into a contract `gps` table."""
     path = Path(path)
-    if clock not in CLOCKS:
-        raise InvalidInputError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path}: file not found") from None
+    data = read_source(path, clock)
     ep, counts = parse_nmea(data)
     if ep.empty:
         raise InvalidInputError(f"{path}: no valid NMEA GGA sentences ({counts['bad_checksum']} with a bad checksum)")

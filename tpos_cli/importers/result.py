@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import pandas as pd
+
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.importers.gpstime import CLOCKS
 
 
 @dataclass(frozen=True)
@@ -12,3 +16,13 @@ class ImportResult:
     tables: dict[str, pd.DataFrame]  # contract table name -> DataFrame with contract columns
     toml: dict = field(default_factory=dict)  # merged into session.toml
     notes: tuple[str, ...] = ()  # what was dropped, assumed or fitted (printed by the CLI)
+
+
+def read_source(path: Path, clock: str) -> bytes:
+    """The bytes of a receiver log to import onto `clock`; a bad clock or a missing file exits 2."""
+    if clock not in CLOCKS:
+        raise InvalidInputError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
+    try:
+        return Path(path).read_bytes()
+    except FileNotFoundError:
+        raise InvalidInputError(f"{path}: file not found") from None

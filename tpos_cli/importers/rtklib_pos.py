@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.importers.gpstime import CLOCKS, WEEK_S, gps_s_to_clock, gpst_calendar_to_clock, utc_calendar_to_clock
-from tpos_cli.importers.result import ImportResult
+from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, gpst_calendar_to_clock, utc_calendar_to_clock
+from tpos_cli.importers.result import ImportResult, read_source
 
 Q_TO_FIX = {0: 0, 1: 2, 2: 2, 3: 2, 4: 2, 5: 1, 6: 2}
 _DATE = re.compile(r"^(\d{4})/(\d{1,2})/(\d{1,2})$")
@@ -45,12 +45,7 @@ def _header(lines: list[str]) -> tuple[list[str], str, bool]:
 def import_rtklib_pos(path: Path, *, clock: str = "gps_tow") -> ImportResult:
     """Read one .pos file into a contract `gps` table on `clock` ("gps_tow", "gps" or "unix")."""
     path = Path(path)
-    if clock not in CLOCKS:
-        raise InvalidInputError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path}: file not found") from None
+    text = read_source(path, clock).decode("utf-8", errors="replace")
     lines = text.splitlines()
     labels, time_sys, geoid = _header(lines)
     if not labels:

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.importers.gpstime import CLOCKS, WEEK_S, gps_s_to_clock, utc_calendar_to_clock
-from tpos_cli.importers.result import ImportResult
+from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, utc_calendar_to_clock
+from tpos_cli.importers.result import ImportResult, read_source
 
 SYNC = b"\xb5\x62"
 NAV_PVT = (0x01, 0x07)
@@ -68,12 +68,7 @@ def decode_nav_pvt(payload: bytes) -> dict:
 def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
     """Read the NAV-PVT messages of a u-blox log into a contract `gps` table."""
     path = Path(path)
-    if clock not in CLOCKS:
-        raise InvalidInputError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path}: file not found") from None
+    data = read_source(path, clock)
     recs = [decode_nav_pvt(p) for c, i, p in _frames(data) if (c, i) == NAV_PVT and len(p) == 92]
     bad = getattr(_frames, "bad", 0)
     if not recs:
