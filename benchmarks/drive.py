@@ -37,7 +37,6 @@ sys.path.insert(0, str(REPO))
 
 from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive  # noqa: E402
 from tpos_cli.frames.geodetic import lla_to_ned  # noqa: E402
-from tpos_cli.frames.rotation import dcm_to_rotvec  # noqa: E402
 from tpos_cli.session import load_session  # noqa: E402
 from tpos_cli.sim.drive import simulate_drive  # noqa: E402
 
@@ -134,13 +133,8 @@ def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
 
 # --------------------------------------------------------------------------- accuracy
 def _errors(sim, sol):
-    tr = sim.truth
-    idx = sol.idx
-    lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
-    e_p = lla_to_ned(lla, tr.lla[0]) - lla_to_ned(tr.lla[idx], tr.lla[0])
-    e_v = sol.nav[:, 3:] - tr.vel_ned_mps[idx]
-    phi = -dcm_to_rotvec(sol.C_nb @ np.transpose(tr.C_nb[idx], (0, 2, 1)))
-    return np.column_stack([e_p, e_v, phi])
+    """(K, 9) errors [NED m, NED m/s, phi rad] of a solution against the exact truth."""
+    return sim.truth.navigation_errors(sol.idx, sol.nav, sol.C_nb)
 
 
 def accuracy_case(label, outages, seeds, duration_s=600.0):

@@ -47,8 +47,7 @@ def test_white_simulated_gps_keeps_the_15_state_filter():
 
 def _stats(sim, sol, inside):
     tr = sim.truth
-    lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
-    e = lla_to_ned(lla, tr.lla[0]) - lla_to_ned(tr.lla[sol.idx], tr.lla[0])
+    e = tr.navigation_errors(sol.idx, sol.nav, sol.C_nb)[:, :3]
     t = tr.t_s[sol.idx]
     m = (t >= OUTAGE[0]) & (t < OUTAGE[0] + OUTAGE[1]) if inside else (t > 30.0) & ~((t >= OUTAGE[0]) & (t < sum(OUTAGE)))
     z = e[m, :2] / np.sqrt(np.diagonal(sol.P9[m, :2, :2], axis1=1, axis2=2))

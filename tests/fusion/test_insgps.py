@@ -5,8 +5,6 @@ import pytest
 from scipy.stats import chi2
 
 from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
-from tpos_cli.frames.geodetic import lla_to_ned
-from tpos_cli.frames.rotation import dcm_to_rotvec
 from tpos_cli.session import load_session
 from tpos_cli.sim.drive import simulate_drive
 
@@ -26,14 +24,7 @@ def drive(tmp_path_factory):
 
 def _errors(sim, sol):
     """(K, 9) errors [NED m, NED m/s, phi rad] of a solution against the exact truth."""
-    tr = sim.truth
-    idx = sol.idx
-    lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
-    e_p = lla_to_ned(lla, tr.lla[0]) - lla_to_ned(tr.lla[idx], tr.lla[0])
-    e_v = sol.nav[:, 3:] - tr.vel_ned_mps[idx]
-    # C_est = (I - [phi x]) C_true  ->  phi = -rotvec(C_est C_true^T)
-    phi = -dcm_to_rotvec(sol.C_nb @ np.transpose(tr.C_nb[idx], (0, 2, 1)))
-    return np.column_stack([e_p, e_v, phi])
+    return sim.truth.navigation_errors(sol.idx, sol.nav, sol.C_nb)
 
 
 def _in_outage(sim, sol):

@@ -25,6 +25,19 @@ class SimTruth:
         """(N, 3, 3) body FRD -> NED."""
         return euler_to_dcm(self.rpy_rad[:, 0], self.rpy_rad[:, 1], self.rpy_rad[:, 2])
 
+    def navigation_errors(self, idx: np.ndarray, nav: np.ndarray, C_nb: np.ndarray) -> np.ndarray:
+        """(K, 9) errors of an estimate at truth samples `idx`: NED position (m, about the first truth
+        point), NED velocity (m/s), and attitude phi (rad) with C_est = (I - [phi x]) C_true.
+        `nav` (K, 6) is lat, lon (rad), h (m), vn, ve, vd (m/s); `C_nb` (K, 3, 3)."""
+        from tpos_cli.frames.geodetic import lla_to_ned
+        from tpos_cli.frames.rotation import dcm_to_rotvec
+
+        lla = np.column_stack([np.degrees(nav[:, 0]), np.degrees(nav[:, 1]), nav[:, 2]])
+        e_p = lla_to_ned(lla, self.lla[0]) - lla_to_ned(self.lla[idx], self.lla[0])
+        e_v = nav[:, 3:] - self.vel_ned_mps[idx]
+        phi = -dcm_to_rotvec(C_nb @ np.transpose(self.C_nb[idx], (0, 2, 1)))
+        return np.column_stack([e_p, e_v, phi])
+
     @property
     def rpy_deg(self) -> np.ndarray:
         return np.degrees(self.rpy_rad)
