@@ -8,26 +8,25 @@ complete, so a failed or killed run leaves no partial output.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import importlib
 import json
 import os
 import shutil
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from tpos_cli import __version__, timebase
 from tpos_cli.config import PipelineFile, apply_overrides, config_hash, params_to_dict, parse_params, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
+from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.io.run_dir import check_run_dir, default_run_dir, json_default, remove_stale_partials, replace_dir, write_parquet
 from tpos_cli.session import GpsData, Session, load_session
 
 # Chain name (as written in a pipeline file) -> (module of ours holding `run`, the pipeline-file
@@ -47,72 +46,9 @@ ACCURACY_NOTE = (
 
 
 @dataclass(frozen=True)
-class ChainOutput:
-    """What a chain returns; `pipeline` writes it."""
-
-    trajectory: pd.DataFrame | None = None
-    targets: pd.DataFrame | None = None
-    tables: dict = field(default_factory=dict)
-    files: dict = field(default_factory=dict)
-    summary: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
 class RunSummary:
     run_dir: Path
     summary: dict
-
-
-class RunContext:
-    """Timings, counts, warnings and progress for one run; handed to the chain."""
-
-    def __init__(self, progress: bool = False):
-        self.timings_s: dict[str, float] = {}
-        self.counts: dict[str, int] = {}
-        self.warnings: list[str] = []
-        self._progress = progress
-        self._status = None
-        self._t0 = time.perf_counter()
-
-    @contextlib.contextmanager
-    def stage(self, name: str):
-        """Time a stage into summary.json; with progress on, show it on a status line."""
-        t = time.perf_counter()
-        if self._status is not None:
-            self._status.update(f"[bold]{name.replace('_', ' ')}[/bold] ({time.perf_counter() - self._t0:.1f} s)")
-        try:
-            yield
-        finally:
-            self.timings_s[name] = self.timings_s.get(name, 0.0) + time.perf_counter() - t
-
-    @contextlib.contextmanager
-    def live(self, label: str):
-        """A status line (rich) for the whole run when progress is on; nothing otherwise."""
-        if not self._progress:
-            yield
-            return
-        from rich.console import Console
-
-        with Console(stderr=True).status(label) as status:
-            self._status = status
-            try:
-                yield
-            finally:
-                self._status = None
-
-    def count(self, key: str, n: int = 1) -> None:
-        self.counts[key] = self.counts.get(key, 0) + int(n)
-
-    def warn(self, message: str) -> None:
-        self.warnings.append(message)
-
-    def progress(self, iterable: Iterable, total: int | None = None, label: str = "") -> Iterable:
-        """Wrap a loop in a progress bar when enabled (a TTY and not --quiet)."""
-        if not self._progress:
-            return iterable
-        from rich.progress import track
-
-        return track(iterable, total=total, description=label or "working")
 
 
 def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tuple[Session, pd.DataFrame | None]:
@@ -188,42 +124,6 @@ def resolve_config(pipe: PipelineFile, overrides: Mapping[str, object] | None = 
     return ResolvedConfig(pipeline=pipe, params=params, resolved=resolved, sha256=sha)
 
 
-def default_run_dir(session: Session, pipeline: PipelineFile) -> Path:
-    return Path("runs") / f"{session.path.name}-{pipeline.name}"
-
-
-def _check_run_dir(run_dir: Path, session_dir: Path) -> Path:
-    run_dir = run_dir.resolve()
-    if run_dir == session_dir or session_dir.is_relative_to(run_dir):
-        raise InvalidInputError(f"run directory {run_dir} would overwrite the session's input files; choose another -o")
-    if run_dir.exists() and not run_dir.is_dir():
-        raise InvalidInputError(f"run directory {run_dir} exists and is not a directory")
-    if run_dir.exists() and any(run_dir.iterdir()) and not (run_dir / "summary.json").exists():
-        raise InvalidInputError(f"run directory {run_dir} exists and is not a tpos run (no summary.json); refusing to replace it")
-    return run_dir
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, (datetime, Path)):
-        return str(o)
-    if dataclasses.is_dataclass(o):
-        return dataclasses.asdict(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def write_parquet(df: pd.DataFrame, path: Path, metadata: Mapping[str, str] | None = None) -> None:
-    table = pa.Table.from_pandas(df, preserve_index=False)
-    if metadata:
-        meta = dict(table.schema.metadata or {})
-        meta.update({f"tpos.{k}".encode(): str(v).encode() for k, v in metadata.items()})
-        table = table.replace_schema_metadata(meta)
-    pq.write_table(table, path)
-
-
 def process_session(
     session_dir: str | Path,
     pipeline: str | Path | None = None,
@@ -245,7 +145,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         session = load_session(session_dir)
     cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
     pipe, params = cfg.pipeline, cfg.params
-    out_dir = _check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session, pipe), session.path)
+    out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
     run = _chain_run(pipe.chain)
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows))
@@ -260,7 +160,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale_partials(out_dir)
+    remove_stale_partials(out_dir)
     tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
@@ -304,38 +204,9 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
             "outputs": outputs + ["summary.json"],
             "accuracy_note": ACCURACY_NOTE,
         }
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=_json_default))
-        _replace_dir(tmp, out_dir)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=json_default))
+        replace_dir(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return RunSummary(run_dir=out_dir, summary=summary)
-
-
-def _remove_stale_partials(out_dir: Path) -> None:
-    """Delete the temporary directories of runs into `out_dir` whose process is gone (killed runs)."""
-    for p in out_dir.parent.glob(f".{out_dir.name}.tmp-*"):
-        pid = p.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and not _pid_alive(int(pid)):
-            shutil.rmtree(p, ignore_errors=True)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _replace_dir(tmp: Path, out_dir: Path) -> None:
-    """Move the finished temporary directory into place, replacing an older run only now."""
-    old = None
-    if out_dir.exists():
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        out_dir.rename(old)
-    tmp.rename(out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)

@@ -33,7 +33,7 @@ from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
-from tpos_cli.pipeline import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
 

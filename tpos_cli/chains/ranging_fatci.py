@@ -21,7 +21,7 @@ from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
-from tpos_cli.pipeline import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.ranging.calibration import fit_range_model, identity_model
 from tpos_cli.ranging.filter import (
     BIAS, EV_FIX_NE, EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,

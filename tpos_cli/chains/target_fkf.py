@@ -28,7 +28,7 @@ from tpos_cli.attitude.local import (
 from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
-from tpos_cli.pipeline import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.session import Session
 
 G0 = 9.80665
