@@ -25,7 +25,6 @@ from tpos_cli.alignment import static_mask
 from tpos_cli.frames.earth import OMEGA_IE_RPS, normal_gravity_mps2
 from tpos_cli.frames.rotation import axes_to_dcm
 
-G0 = 9.80665
 STILL_GYRO_MAX_RPS = 0.05  # ~3 deg/s: above any MEMS turn-on bias, far below deg/s read as rad/s
 UP_ANGLE_MAX_DEG = 45.0  # the body up axis within 45 deg of vertical at rest (vehicles, hand-held starts)
 _LETTERS = "FBRLUD"

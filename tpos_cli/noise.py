@@ -15,8 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tpos_cli.errors import InvalidInputError
-
-G0 = 9.80665
+from tpos_cli.frames.earth import G0_MPS2
 
 
 @dataclass(frozen=True)
@@ -70,8 +69,8 @@ class NoiseFigures:
         out = {
             "gyro_noise_dps": float(np.degrees(g_n)),
             "gyro_bias_dph": float(np.degrees(max(a.bias_instability for a in self.gyro)) * 3600.0),
-            "acc_noise_mg": float(a_n / G0 * 1e3),
-            "acc_bias_mg": float(max(a.bias_instability for a in self.acc) / G0 * 1e3),
+            "acc_noise_mg": float(a_n / G0_MPS2 * 1e3),
+            "acc_bias_mg": float(max(a.bias_instability for a in self.acc) / G0_MPS2 * 1e3),
             "gyro_arw_dprh": float(np.degrees(max(a.random_walk for a in self.gyro)) * 60.0),  # deg/√h
             "acc_vrw_mpsrh": float(max(a.random_walk for a in self.acc) * 60.0),  # m/s/√h
         }

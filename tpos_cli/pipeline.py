@@ -23,10 +23,24 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli import __version__, timebase
-from tpos_cli.config import PipelineFile, apply_overrides, config_hash, params_to_dict, parse_params, resolve_pipeline
-from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.chains.context import ChainOutput, RunContext
-from tpos_cli.io.run_dir import check_run_dir, default_run_dir, json_default, remove_stale_partials, replace_dir, write_parquet
+from tpos_cli.config import (
+    PipelineFile,
+    apply_overrides,
+    config_hash,
+    params_to_dict,
+    parse_params,
+    resolve_pipeline,
+)
+from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
+from tpos_cli.io.run_dir import (
+    check_run_dir,
+    default_run_dir,
+    json_default,
+    remove_stale_partials,
+    replace_dir,
+    write_parquet,
+)
 from tpos_cli.session import GpsData, Session, load_session
 
 # Chain name (as written in a pipeline file) -> (module of ours holding `run`, the pipeline-file

@@ -29,7 +29,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.gating import chi2_threshold  # scipy.special: scipy.stats costs 0.3 s to import
+from tpos_cli.filters.gating import (
+    chi2_threshold,  # scipy.special: scipy.stats costs 0.3 s to import
+)
 from tpos_cli.frames._kernels import dcm_to_rotvec, radii_m
 from tpos_cli.fusion.nav_errors import apply_feedback
 

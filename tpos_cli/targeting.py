@@ -24,7 +24,7 @@ import pandas as pd
 
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames import geodetic
-from tpos_cli.frames.rotation import euler_to_dcm, skew
+from tpos_cli.frames.rotation import attitude_cov_from_euler_sigmas, euler_to_dcm, skew
 
 
 @dataclass(frozen=True)
@@ -84,13 +84,7 @@ def geolocate_rpy(observer_lla, roll_deg, pitch_deg, yaw_deg, range_m, *, sigma_
     C = euler_to_dcm(r, p, y)
     P = None
     if sigma_rpy_deg is not None:
-        s = np.radians(np.broadcast_to(np.asarray(sigma_rpy_deg, dtype=float), (C.shape[0], 3)))
-        # phi = d_roll C e_x + d_pitch Rz(yaw) e_E + d_yaw e_D
-        M = np.zeros(C.shape)
-        M[:, :, 0] = C[:, :, 0]
-        M[:, 0, 1], M[:, 1, 1] = -np.sin(y), np.cos(y)
-        M[:, 2, 2] = 1.0
-        P = M @ (s[:, :, None] ** 2 * np.eye(3)) @ np.swapaxes(M, 1, 2)
+        P = attitude_cov_from_euler_sigmas(C, np.broadcast_to(np.asarray(sigma_rpy_deg, dtype=float), (C.shape[0], 3)))
     return geolocate(observer_lla, C, range_m, P_att_rad2=P, sigma_range_m=sigma_range_m, P_obs_ned_m2=P_obs_ned_m2)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude import motion
 from tpos_cli.frames import earth
-from tpos_cli.frames.rotation import axes_to_dcm, dcm_to_euler
+from tpos_cli.frames.rotation import axes_to_dcm, dcm_to_euler, euler_sigmas_deg
 
 # C_bs for the paper's RFU body axes, and the fixed ENU->NED swap: the one place where the
 # paper's frames meet the package's (docs/architecture.md).
@@ -114,23 +114,7 @@ class AttitudeSolution:
 
     def euler_sigma_deg(self):
         """(N,3) SD of roll, pitch, yaw (deg) from P_att (phi = M d(roll, pitch, yaw))."""
-        return euler_sigma_deg(self.C_nb, self.P_att)
-
-
-def euler_sigma_deg(C_nb, P_att):
-    """SD of roll, pitch, yaw (deg) for NED attitude-error covariances P_att (N,3,3).
-
-    phi = d_yaw e_D + d_pitch Rz(yaw) e_E + d_roll C_nb e_x, so d_euler = M^-1 phi.
-    """
-    _, _, yaw = dcm_to_euler(C_nb)
-    M = np.zeros(C_nb.shape)
-    M[:, :, 0] = C_nb[:, :, 0]
-    M[:, 0, 1] = -np.sin(yaw)
-    M[:, 1, 1] = np.cos(yaw)
-    M[:, 2, 2] = 1.0
-    Mi = np.linalg.inv(M)
-    cov = Mi @ P_att @ np.swapaxes(Mi, 1, 2)
-    return np.degrees(np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None)))
+        return euler_sigmas_deg(self.C_nb, self.P_att)
 
 
 def add_heading_variance(sol: AttitudeSolution, var_rad2: float) -> AttitudeSolution:

@@ -17,10 +17,14 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli import smoothing
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import parse_params
 from tpos_cli.errors import InvalidInputError, ProcessingError
+from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
-from tpos_cli.frames.rotation import dcm_to_euler
+from tpos_cli.frames.rotation import dcm_to_euler, euler_sigmas_deg
+from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
+from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import (
     InitialSigmas,
     align_vehicle,
@@ -29,15 +33,11 @@ from tpos_cli.fusion.initial import (
     search_yaw,
     with_yaw,
 )
-from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
-from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
-from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
 
-G0_MPS2 = 9.80665
 DEG = np.pi / 180.0
 SMOOTHERS = ("rts", "two_filter", "simplified")
 
@@ -157,23 +157,6 @@ def fix_outages(t_fix, t_end_s, min_gap_s) -> np.ndarray:
     if t_end_s - t_fix[-1] > thr:
         out.append([t_fix[-1], t_end_s])
     return np.array(out, dtype=float).reshape(-1, 2)
-
-
-def euler_sigmas_deg(C_nb, P_phi) -> np.ndarray:
-    """SDs of roll, pitch, yaw (deg) from the covariance of the nav-frame attitude error phi.
-
-    A nav-frame rotation alpha relates to Euler-angle changes by alpha = E de with
-    E = [Rz Ry e_x, Rz e_y, e_z] (C_nb = Rz Ry Rx), and alpha = -phi.
-    """
-    r, p, y = dcm_to_euler(C_nb)
-    cy, sy, cp, sp = np.cos(y), np.sin(y), np.cos(p), np.sin(p)
-    E = np.zeros(C_nb.shape)
-    E[:, 0, 0], E[:, 1, 0], E[:, 2, 0] = cy * cp, sy * cp, -sp
-    E[:, 0, 1], E[:, 1, 1] = -sy, cy
-    E[:, 2, 2] = 1.0
-    Ei = np.linalg.inv(E)
-    Pe = Ei @ P_phi @ np.transpose(Ei, (0, 2, 1))
-    return np.degrees(np.sqrt(np.clip(np.diagonal(Pe, axis1=1, axis2=2), 0.0, None)))
 
 
 def solution_frame(sol: smoothing.Solution, t0_s, t_s, outage, flag) -> pd.DataFrame:

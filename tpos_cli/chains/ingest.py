@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.session import Session
 
 

@@ -17,22 +17,35 @@ import pandas as pd
 
 from tpos_cli import smoothing
 from tpos_cli.alignment import level_rad
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import geodetic
+from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
-from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.ranging.calibration import fit_range_model, identity_model
 from tpos_cli.ranging.filter import (
-    BIAS, EV_FIX_NE, EV_RANGE, Events, FilterConfig, FilterRun, InitialState, coasting_intervals, down_events,
-    end_state, fix_events, fuzzy_range_variance, range_events, run_filter, zupt_events,
+    BIAS,
+    EV_FIX_NE,
+    EV_RANGE,
+    Events,
+    FilterConfig,
+    FilterRun,
+    InitialState,
+    coasting_intervals,
+    down_events,
+    end_state,
+    fix_events,
+    fuzzy_range_variance,
+    range_events,
+    run_filter,
+    zupt_events,
 )
 from tpos_cli.ranging.fuzzy import fuzzy_system_from_params
 from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
 from tpos_cli.ranging.stillness import stationary_intervals
 from tpos_cli.session import Session
 
-G0 = 9.80665
 SOLUTIONS = ("lc", "tc", "fatci")
 SMOOTHERS = ("rts", "two_filter")
 
@@ -114,9 +127,9 @@ def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_e
     gyro_bias = n.gyro_bias_dph if n.gyro_bias_dph is not None else p.gyro_bias_dph
     acc_bias = n.acc_bias_mg if n.acc_bias_mg is not None else p.acc_bias_mg
     gb = np.radians(gyro_bias / 3600.0)
-    ab = acc_bias * 1e-3 * G0
+    ab = acc_bias * 1e-3 * G0_MPS2
     q = np.array([
-        (acc_noise * 1e-3 * G0) ** 2 * imu_dt_s,  # per-sample SD -> PSD: sigma^2 dt
+        (acc_noise * 1e-3 * G0_MPS2) ** 2 * imu_dt_s,  # per-sample SD -> PSD: sigma^2 dt
         np.radians(gyro_noise) ** 2 * imu_dt_s,
         ab**2 / p.bias_drift_time_s,  # bias may wander by its own size over bias_drift_time_s
         gb**2 / p.bias_drift_time_s,

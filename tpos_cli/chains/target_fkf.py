@@ -21,17 +21,27 @@ from tpos_cli import alignment as al
 from tpos_cli import magnetic, targeting
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude import faults, master, motion, sensor_lag
-from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.attitude.local import (
-    AttitudeSolution, add_heading_variance, FilterNoise, FilterSetup, euler_sigma_deg, range_differences, run_full, run_paper8,
+    AttitudeSolution,
+    FilterNoise,
+    FilterSetup,
+    add_heading_variance,
+    range_differences,
+    run_full,
+    run_paper8,
 )
+from tpos_cli.attitude.smoother import smooth_full
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import params_to_dict, parse_params
 from tpos_cli.errors import InvalidInputError, ProcessingError
-from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
-from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.frames.earth import G0_MPS2
+from tpos_cli.frames.rotation import (
+    dcm_to_rotvec,
+    euler_sigmas_deg,
+    euler_to_dcm,
+    rotvec_to_dcm,
+)
 from tpos_cli.session import Session
-
-G0 = 9.80665
 
 
 @dataclass(frozen=True)
@@ -104,7 +114,7 @@ def static_noise(imu, win) -> dict:
     g = sd(imu.gyro_b_rps)
     a = sd(imu.acc_b_mps2)
     m = sd(imu.mag_b_ut) if imu.mag_b_ut is not None else None
-    return {"gyro_dps": None if g is None else float(np.degrees(g)), "acc_mg": None if a is None else a / G0 * 1e3,
+    return {"gyro_dps": None if g is None else float(np.degrees(g)), "acc_mg": None if a is None else a / G0_MPS2 * 1e3,
             "mag_ut": m}
 
 
@@ -126,7 +136,7 @@ def _noise(session: Session, p: TargetFkfParams, measured: dict | None = None) -
     return FilterNoise(
         gyro_noise_rps=np.radians(gyro_dps), gyro_bias_rps=np.radians(max(bias_dph, 1e-3) / 3600.0),
         gyro_bias_rw_rps_rts=np.radians(p.gyro_bias_rw_dph_per_rth / 3600.0 / 60.0),
-        acc_noise_mps2=acc_mg * 1e-3 * G0, mag_noise_ut=mag_ut, range_sigma_m=rng_m,
+        acc_noise_mps2=acc_mg * 1e-3 * G0_MPS2, mag_noise_ut=mag_ut, range_sigma_m=rng_m,
         gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6,
     )
 
@@ -476,7 +486,7 @@ def _trajectory(sols: dict, t_logger, obs_lla) -> pd.DataFrame:
     n = t_logger.size
     for name, s in sols.items():
         e = s.euler_deg()
-        sg = euler_sigma_deg(s.C_nb, s.P_att)
+        sg = euler_sigmas_deg(s.C_nb, s.P_att)
         frames.append(pd.DataFrame({
             "t": t_logger, "lat": np.full(n, obs_lla[0]), "lon": np.full(n, obs_lla[1]), "h": np.full(n, obs_lla[2]),
             "vn": np.zeros(n), "ve": np.zeros(n), "vd": np.zeros(n),

@@ -11,14 +11,14 @@ import sys
 import typer
 
 from tpos_cli.cli import batch as _batch
+from tpos_cli.cli import calibrate_mag as _calibrate_mag
+from tpos_cli.cli import import_ as _import
 from tpos_cli.cli import inspect as _inspect
+from tpos_cli.cli import noise as _noise
 from tpos_cli.cli import pipelines as _pipelines
 from tpos_cli.cli import process as _process
-from tpos_cli.cli import simulate as _simulate
-from tpos_cli.cli import import_ as _import
-from tpos_cli.cli import noise as _noise
-from tpos_cli.cli import calibrate_mag as _calibrate_mag
 from tpos_cli.cli import report as _report
+from tpos_cli.cli import simulate as _simulate
 from tpos_cli.cli import validate as _validate
 
 app = typer.Typer(

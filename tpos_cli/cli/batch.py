@@ -47,7 +47,14 @@ def _err(msg: str) -> None:
 
 def _run_with_progress(tasks, jobs, scheduler, quiet):
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     from tpos_cli.batch import run_batch
 

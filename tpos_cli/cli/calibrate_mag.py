@@ -21,8 +21,8 @@ def calibrate_mag(
 
     Example: tpos calibrate-mag broad_02 --window 10:90 -o broad_02_cal
     """
-    from tpos_cli.magcal import calibrate_session, write_calibrated_copy
     from tpos_cli.importers.session_out import dumps_toml
+    from tpos_cli.magcal import calibrate_session, write_calibrated_copy
 
     with exit_on_error(), working("tpos calibrate-mag"):
         cal, note = calibrate_session(session, parse_window(window, "--window") if window else None)

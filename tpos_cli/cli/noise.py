@@ -22,9 +22,9 @@ def noise(
     import numpy as np
 
     from tpos_cli.errors import InvalidInputError
+    from tpos_cli.importers.session_out import dumps_toml
     from tpos_cli.noise import identify_noise, plot_allan
     from tpos_cli.session import load_session
-    from tpos_cli.importers.session_out import dumps_toml
 
     with exit_on_error(), working("tpos noise: Allan deviation"):
         s = load_session(session)

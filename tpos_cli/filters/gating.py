@@ -11,7 +11,9 @@ def chi2_threshold(probability: float, dof_max: int) -> np.ndarray:
     g[0] is +inf so that index = measurement dimension inside a kernel. Innovations with
     NIS > g[m] are rejected (counted, not applied).
     """
-    from scipy.special import chdtri  # not scipy.stats: its import alone costs 0.5 s of `tpos process`
+    from scipy.special import (
+        chdtri,  # not scipy.stats: its import alone costs 0.5 s of `tpos process`
+    )
 
     if not 0.0 < probability < 1.0:
         raise ValueError(f"`probability` must be in (0, 1), got {probability}")

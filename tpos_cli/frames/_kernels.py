@@ -12,11 +12,11 @@ from numba import njit
 from tpos_cli.frames.earth import (
     A_M,
     E2,
-    F,
     GAMMA_E_MPS2,
     M_RATIO,
     OMEGA_IE_RPS,
     SOMIGLIANA_K,
+    F,
 )
 
 

@@ -15,6 +15,7 @@ F = 1.0 / 298.257223563  # flattening
 B_M = A_M * (1.0 - F)
 E2 = F * (2.0 - F)  # first eccentricity squared
 OMEGA_IE_RPS = 7.292115e-5  # Earth rotation rate
+G0_MPS2 = 9.80665  # standard gravity (CGPM 1901): the unit g of accelerometer data sheets, mg, and the `g` unit
 GM_M3PS2 = 3.986004418e14
 GAMMA_E_MPS2 = 9.7803253359  # normal gravity at the equator
 GAMMA_P_MPS2 = 9.8321849378  # normal gravity at the poles

@@ -58,9 +58,47 @@ def dcm_to_euler(C_nb):
     return roll, pitch, yaw
 
 
+def euler_error_map(C_nb):
+    """M (..., 3, 3) with phi = M @ d(roll, pitch, yaw) for a NED attitude error phi (small angles).
+
+    phi = d_roll C_nb e_x + d_pitch Rz(yaw) e_y + d_yaw e_z (C_nb = Rz Ry Rx: each Euler rate
+    turns about its own intermediate axis); the sign convention of phi does not matter for
+    covariances.
+    """
+    C = np.asarray(C_nb, dtype=float)
+    _, _, yaw = dcm_to_euler(C)
+    M = np.zeros(C.shape)
+    M[..., :, 0] = C[..., :, 0]
+    M[..., 0, 1] = -np.sin(yaw)
+    M[..., 1, 1] = np.cos(yaw)
+    M[..., 2, 2] = 1.0
+    return M
+
+
+def euler_sigmas_deg(C_nb, P_att_rad2):
+    """SDs (..., 3) of roll, pitch, yaw in degrees from NED attitude-error covariances (..., 3, 3) rad^2.
+
+    The one conversion every solution table uses: Cov(d_euler) = M^-1 P_att M^-T (`euler_error_map`).
+    Singular at pitch = +-90 deg, where Euler angles are.
+    """
+    Mi = np.linalg.inv(euler_error_map(C_nb))
+    cov = Mi @ np.asarray(P_att_rad2, dtype=float) @ np.swapaxes(Mi, -1, -2)
+    return np.degrees(np.sqrt(np.clip(np.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)))
+
+
+def attitude_cov_from_euler_sigmas(C_nb, sigma_rpy_deg):
+    """NED attitude-error covariances (..., 3, 3) rad^2 for independent Euler-angle SDs (..., 3) deg:
+    the inverse of `euler_sigmas_deg`, P_att = M diag(sigma^2) M^T."""
+    M = euler_error_map(C_nb)
+    s = np.radians(np.broadcast_to(np.asarray(sigma_rpy_deg, dtype=float), M.shape[:-1]))
+    return M @ (s[..., :, None] ** 2 * np.eye(3)) @ np.swapaxes(M, -1, -2)
+
+
 def rotvec_to_dcm(rotvec):
     """DCM of a rotation vector (axis times angle, rad), shape (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+    from scipy.spatial.transform import (
+        Rotation,  # lazy: 0.2 s of start-up for every command otherwise
+    )
 
     rv = np.asarray(rotvec, dtype=float)
     return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
@@ -68,7 +106,9 @@ def rotvec_to_dcm(rotvec):
 
 def dcm_to_rotvec(C):
     """Rotation vector (rad) of a DCM, shape (..., 3)."""
-    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+    from scipy.spatial.transform import (
+        Rotation,  # lazy: 0.2 s of start-up for every command otherwise
+    )
 
     C = np.asarray(C, dtype=float)
     return Rotation.from_matrix(C.reshape(-1, 3, 3)).as_rotvec().reshape(C.shape[:-2] + (3,))
@@ -76,7 +116,9 @@ def dcm_to_rotvec(C):
 
 def quat_to_dcm(q):
     """DCM from scalar-first unit quaternions, shape (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+    from scipy.spatial.transform import (
+        Rotation,  # lazy: 0.2 s of start-up for every command otherwise
+    )
 
     q = np.asarray(q, dtype=float)
     xyzw = np.concatenate([q[..., 1:], q[..., :1]], axis=-1).reshape(-1, 4)
@@ -85,7 +127,9 @@ def quat_to_dcm(q):
 
 def dcm_to_quat(C):
     """Scalar-first unit quaternions (w >= 0) from DCMs, shape (..., 4)."""
-    from scipy.spatial.transform import Rotation  # lazy: 0.2 s of start-up for every command otherwise
+    from scipy.spatial.transform import (
+        Rotation,  # lazy: 0.2 s of start-up for every command otherwise
+    )
 
     C = np.asarray(C, dtype=float)
     xyzw = Rotation.from_matrix(C.reshape(-1, 3, 3)).as_quat(canonical=True)

@@ -17,7 +17,12 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, gpst_calendar_to_clock, utc_calendar_to_clock
+from tpos_cli.importers.gpstime import (
+    WEEK_S,
+    gps_s_to_clock,
+    gpst_calendar_to_clock,
+    utc_calendar_to_clock,
+)
 from tpos_cli.importers.result import ImportResult, read_source
 
 Q_TO_FIX = {0: 0, 1: 2, 2: 2, 3: 2, 4: 2, 5: 1, 6: 2}

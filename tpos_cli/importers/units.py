@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-G0_MPS2 = 9.80665  # standard gravity: the definition of the unit "g" (CGPM 1901)
+from tpos_cli.frames.earth import G0_MPS2
 
 # contract unit per quantity: rad/s, m/s², µT, deg, m, m/s
 GYRO_RATE = {"rad/s": 1.0, "deg/s": math.pi / 180.0, "mrad/s": 1e-3, "deg/h": math.pi / 180.0 / 3600.0}

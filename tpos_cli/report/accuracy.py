@@ -16,10 +16,15 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.frames.rotation import euler_to_dcm
-from tpos_cli.timebase import in_intervals
 from tpos_cli.report import metrics
 from tpos_cli.report.rundir import RunData, ordered_solutions
-from tpos_cli.report.truth import ReportTruth, interpolate_attitude, interpolate_flag, interpolate_positions
+from tpos_cli.report.truth import (
+    ReportTruth,
+    interpolate_attitude,
+    interpolate_flag,
+    interpolate_positions,
+)
+from tpos_cli.timebase import in_intervals
 
 ROW_KEYS = ("solution", "target", "segment", "quantity")
 COLUMNS = ROW_KEYS + metrics.STAT_FIELDS + ("cep", "ce90")

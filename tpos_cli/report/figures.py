@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 from scipy import stats
 
+from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report.metrics import ellipse_scale
 
@@ -272,10 +273,9 @@ def target_scatter_page(te: pd.DataFrame) -> Figure:
 def allan_page(nf, window_note: str = "") -> Figure:
     """Log-log Allan deviation of the gyro and accelerometer axes (`tpos_cli.noise.NoiseFigures`),
     with the read-offs that become the session.toml `[imu]` noise keys."""
-    from tpos_cli.noise import G0
 
     fig = new_page("IMU noise: Allan deviation", "overlapping Allan deviation per axis (IEEE Std 952-1997 Annex C)" + (f"; {window_note}" if window_note else ""))
-    specs = ((nf.gyro, lambda a: np.degrees(a) * 3600.0, "gyro Allan deviation, deg/h"), (nf.acc, lambda a: a / G0 * 1e3, "accelerometer Allan deviation, mg"))
+    specs = ((nf.gyro, lambda a: np.degrees(a) * 3600.0, "gyro Allan deviation, deg/h"), (nf.acc, lambda a: a / G0_MPS2 * 1e3, "accelerometer Allan deviation, mg"))
     for k, (axes3, conv, label) in enumerate(specs):
         ax = fig.add_axes([0.12, 0.56 - 0.4 * k, 0.8, 0.33])
         for i, a in enumerate(axes3):

@@ -18,7 +18,14 @@ from tpos_cli.sim.gps import simulate_gps
 from tpos_cli.sim.kinematics import MotionSample, simulate_truth_imu
 from tpos_cli.sim.profiles import SMOOTHSTEP_PEAK_RATE as PEAK
 from tpos_cli.sim.profiles import RampProfile
-from tpos_cli.sim.result import SimImu, SimRanges, SimResult, SimShots, SimTargets, SimTruth
+from tpos_cli.sim.result import (
+    SimImu,
+    SimRanges,
+    SimResult,
+    SimShots,
+    SimTargets,
+    SimTruth,
+)
 from tpos_cli.sim.sensor_errors import corrupt_imu, imu_grade
 
 DEFAULT_START_LLA = (48.0496, 8.2076, 870.0)  # Furtwangen (paper 003's university), ellipsoidal h

@@ -21,7 +21,14 @@ from tpos_cli.frames.geodetic import enu_to_lla, lla_to_ecef
 from tpos_cli.sim.kinematics import MotionSample, simulate_truth_imu
 from tpos_cli.sim.profiles import SMOOTHSTEP_PEAK_RATE as PEAK
 from tpos_cli.sim.profiles import RampProfile
-from tpos_cli.sim.result import SimAnchorRanges, SimAnchors, SimImu, SimRangeCalibration, SimResult, SimTruth
+from tpos_cli.sim.result import (
+    SimAnchorRanges,
+    SimAnchors,
+    SimImu,
+    SimRangeCalibration,
+    SimResult,
+    SimTruth,
+)
 from tpos_cli.sim.sensor_errors import corrupt_imu, imu_grade
 
 DEFAULT_ORIGIN_LLA = (45.0, 126.0, 100.0)  # Harbin, as in the contract's [local] example

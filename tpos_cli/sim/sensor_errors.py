@@ -21,9 +21,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames.earth import G0_MPS2
 
 DEG = np.pi / 180.0
-G0_MPS2 = 9.80665  # standard gravity: the milli-g of data sheets
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,14 @@ from tpos_cli.frames.geodetic import ned_to_lla
 from tpos_cli.sim.kinematics import MotionSample, simulate_truth_imu
 from tpos_cli.sim.profiles import SMOOTHSTEP_PEAK_RATE as PEAK
 from tpos_cli.sim.profiles import ConstantProfile, RampProfile, SineProfile
-from tpos_cli.sim.result import SimImu, SimRanges, SimResult, SimShots, SimTargets, SimTruth
+from tpos_cli.sim.result import (
+    SimImu,
+    SimRanges,
+    SimResult,
+    SimShots,
+    SimTargets,
+    SimTruth,
+)
 from tpos_cli.sim.sensor_errors import corrupt_imu, imu_grade
 
 DEFAULT_OBSERVER_LLA = (45.4946, -73.5622, 40.0)  # ETS Montreal (paper 000's experiments)
