@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.frames.geodetic import ned_to_lla
+from tpos_cli.session import session_file_hashes
 
 ORIGIN = np.array([45.5, -73.6, 50.0])
 T0 = 1000.0  # logger clock of the first IMU sample
@@ -136,7 +137,7 @@ def write_run(
         "config": {},
         "config_sha256": "ab" * 32,
         "session": {"path": str(session_dir), "name": "synthetic_report", "kind": "drive"},
-        "inputs": {"imu.csv": "cd" * 32},
+        "inputs": session_file_hashes(session_dir),  # as tpos process records them
         "timings_s": {"total": 0.1},
         "counts": {},
         "warnings": ["a warning from the chain"],

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 from numpy.testing import assert_allclose
+from scipy import stats
 
 from tests.report import synth
-from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.report.build import make_report
 
@@ -161,8 +161,12 @@ def test_paper002_table_for_ranging(tmp_path):
     assert_allclose([row.max_m, row.average_m], [np.hypot(0.2, 0.25), np.hypot(e, n).mean()], atol=GEO_ATOL_M)
 
 
-def test_no_truth_is_invalid_input(tmp_path):
+def test_no_truth_is_a_quality_control_report(tmp_path):
     s = synth.write_session(tmp_path / "s", truth=False)
-    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0]))
-    with pytest.raises(InvalidInputError, match="no truth"):
-        make_report(r, pdf=False)
+    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0], sigma=(0.3, 0.4, 1.0)))
+    res = make_report(r, pdf=False)
+    assert res.accuracy.table.empty and res.summary["headline"] == [] and res.summary["truth"] is None
+    est = res.summary["estimated"][0]
+    # circular-enough: the 95 % ellipse semi-major axis is sqrt(chi2_2(0.95)) sigma_max; vertical 1.96 sigma
+    assert_allclose(est["h95_median_m"], np.sqrt(stats.chi2.ppf(0.95, 2)) * 0.4, rtol=1e-9)
+    assert_allclose(est["v95_median_m"], stats.norm.ppf(0.975) * 1.0, rtol=1e-9)

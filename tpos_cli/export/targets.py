@@ -15,7 +15,7 @@ than the shots show. The independence assumption is the limit of this combinatio
 session share the attitude filter's slowly varying errors, so agreeing shots can still share a bias.
 
 The 95 % horizontal ellipse of a 2x2 north-east covariance C has semi-axes sqrt(chi2_2(0.95) l_k)
-for the eigenvalues l_k of C, and its orientation is the azimuth of the major axis, degrees
+for the eigenvalues l_k of C (chi2_2(p) = -2 ln(1 - p), exactly), and its orientation is the azimuth of the major axis, degrees
 clockwise from true north in [0, 180).
 """
 
@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from tpos_cli.frames.geodetic import enu_to_lla, lla_to_enu
 
@@ -64,7 +63,7 @@ def horizontal_ellipse(cov_ne_m2, prob: float = ELLIPSE_PROB) -> HorizontalEllip
     """The `prob` confidence ellipse of each (2, 2) north-east covariance (NaN where not finite)."""
     c = np.asarray(cov_ne_m2, dtype=float).reshape(-1, 2, 2)
     ok = np.all(np.isfinite(c), axis=(1, 2))
-    k2 = stats.chi2.ppf(prob, 2)  # squared Mahalanobis radius of the ellipse
+    k2 = -2.0 * np.log1p(-prob)  # squared Mahalanobis radius: chi-square with 2 dof is exponential, mean 2
     major = np.full(len(c), np.nan)
     minor = np.full(len(c), np.nan)
     az = np.full(len(c), np.nan)
