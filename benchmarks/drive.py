@@ -35,7 +35,8 @@ from scipy.stats import chi2
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive  # noqa: E402
+from tpos_cli.chains.drive_smooth import process_drive  # noqa: E402
+from tpos_cli.config import DriveSmoothParams  # noqa: E402
 from tpos_cli.frames.geodetic import lla_to_ned  # noqa: E402
 from tpos_cli.session import load_session  # noqa: E402
 from tpos_cli.sim.drive import simulate_drive  # noqa: E402

@@ -1,4 +1,11 @@
-"""Pipeline files: declarative TOML, validated against the chain's frozen parameter dataclass.
+"""Pipeline files: declarative TOML validated by pydantic v2 models before any data is read.
+
+A pipeline file has a `[pipeline]` table (`PipelineHead`) and the table of its chain (one of the
+section models below, `SECTIONS`). Every model forbids unknown keys, is frozen, strict about types
+(an integer is accepted for a float, nothing else is converted), refuses NaN and infinities, and
+bounds each value as its physics says (probabilities in (0, 1), standard deviations >= 0 or > 0).
+The defaults of every key live here, in the models, and nowhere else; `pipelines/README.md`
+documents each key (a test checks that it lists them all).
 
 A pipeline file names a chain from the fixed registry in `tpos_cli.pipeline`; nothing a file names
 is imported or evaluated.
@@ -6,28 +13,305 @@ is imported or evaluated.
 
 from __future__ import annotations
 
-import dataclasses
+import difflib
 import hashlib
 import json
 import tomllib
-import types
-import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.ranging.fuzzy import uncovered_input
 
 PIPELINES_DIR = Path(__file__).resolve().parent.parent / "pipelines"
 
+# value types with their bounds (all floats finite: the models set allow_inf_nan=False)
+Probability = Annotated[float, Field(gt=0.0, lt=1.0)]
+Positive = Annotated[float, Field(gt=0.0)]
+NonNegative = Annotated[float, Field(ge=0.0)]
+Count = Annotated[int, Field(ge=0)]
 
+
+def _lists_to_tuples(value: Any) -> Any:
+    """TOML arrays arrive as lists; the frozen models hold tuples (strict mode takes no list for a tuple)."""
+    if isinstance(value, list):
+        return tuple(_lists_to_tuples(v) for v in value)
+    if isinstance(value, dict):
+        return {k: _lists_to_tuples(v) for k, v in value.items()}
+    return value
+
+
+class Section(BaseModel):
+    """Base of every pipeline table: unknown keys, wrong types, NaN/inf are errors; frozen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _tuples(cls, data: Any) -> Any:
+        return _lists_to_tuples(data) if isinstance(data, dict) else data
+
+
+# --------------------------------------------------------------------------- [pipeline]
+class PipelineHead(Section):
+    """`[pipeline]`: what `tpos pipelines` lists and which chain runs."""
+
+    name: str
+    description: str = ""
+    chain: str
+    kinds: tuple[str, ...] = ()
+
+
+# --------------------------------------------------------------------------- [ingest]
+class IngestParams(Section):
+    """`[ingest]`: no keys yet; the table exists so that an unknown key is still refused."""
+
+
+# --------------------------------------------------------------------------- [drive_smooth]
+class DriveSmoothParams(Section):
+    """`[drive_smooth]` (paper 003): INS/GPS forward/backward filters and smoothers.
+
+    IMU noise figures left unset come from the session's `[imu]`, else the log or MEMS defaults
+    (`tpos_cli.fusion.imu_noise`)."""
+
+    smoother: Literal["rts", "two_filter", "simplified"] = "rts"  # the `smoothed` solution
+    compare: bool = False  # also write every smoother under its own name
+    cov_step_s: Positive = 0.1  # covariance propagation / storage step
+    output_rate_hz: NonNegative = 10.0  # rows per second per solution; 0 = every IMU sample
+    gate_probability: Probability = 0.9999  # chi-square gate on GPS innovations
+    flag_probability: Probability = 0.999  # forward/backward disagreement flag
+    heading_min_speed_mps: Positive = 3.0  # course from GPS velocity once this fast
+    heading_hypotheses: Count = 12  # initial yaws tried by the filter (0 = trust the course / magnetometer)
+    heading_search_s: Positive = 30.0  # filter time after the platform first moved 5 m, per hypothesis
+    gps_max_rate_hz: NonNegative = 1.0  # fixes used per second at most (0 = all): receiver fixes at
+    # 5-20 Hz are correlated in time, and a filter treating them as white trusts them far too much
+    init_sigma_pos_m: Positive = 5.0
+    init_sigma_vel_mps: Positive = 1.0
+    init_sigma_level_deg: Positive = 1.0
+    init_sigma_yaw_deg: Positive = 3.0
+    gyro_noise_dps: Positive | None = None  # white noise SD per sample
+    acc_noise_mg: Positive | None = None
+    gyro_bias_dph: NonNegative | None = None  # initial bias SD
+    acc_bias_mg: NonNegative | None = None
+    gyro_bias_inrun_dph: NonNegative = 10.0  # Gauss-Markov in-run bias SD
+    acc_bias_inrun_mg: NonNegative = 2.0
+    bias_tau_s: Positive = 300.0
+    gps_sigma_h_m: Positive = 1.5  # used when gps has no sigma columns
+    gps_sigma_floor_m: NonNegative = 0.3  # reported SDs below this (e.g. RTK) are raised to it: lever
+    # arm, timing and antenna motion errors of a low-cost setup are not below a few decimetres
+    max_consecutive_rejections: Count = 5  # then the next fix is applied ungated
+    gps_sigma_v_m: Positive = 2.5
+    gps_sigma_vel_mps: Positive = 0.1
+    use_gps_velocity: bool = True
+    gps_noise: Literal["estimate", "given"] = "estimate"  # estimate: scale the GPS SDs by covariance
+    # matching on a first decimated pass (`fusion.gps_noise`); given: the log's SDs or the defaults
+    gps_noise_span_s: NonNegative = 900.0  # log time the estimation passes cover (0 = all)
+    gps_error_model: Literal["gauss_markov", "white"] = "gauss_markov"  # gauss_markov: 3 GPS
+    # position-error states (time-correlated receiver errors, `fusion.gps_error`); white: independent fixes
+    gps_gm_tau_s: Positive | None = None  # time constant of the GPS error states; None: fitted
+    gps_gm_sigma_h_m: NonNegative | None = None  # stationary SD of the correlated error; None: estimated
+    gps_gm_sigma_v_m: NonNegative | None = None
+    outage_min_s: Positive = 2.0  # a gap between fixes longer than this is an outage
+    mounting_check_deg: Annotated[float, Field(ge=0.0, le=180.0)] = 20.0  # warn above this median
+    # of course - yaw while moving (0 = no check)
+    mounting_min_speed_mps: NonNegative = 0.3  # rows faster than this count for the mounting check
+
+
+# --------------------------------------------------------------------------- [ranging_fatci]
+Triangle = tuple[float, float, float]
+
+
+class FuzzyParams(Section):
+    """`[ranging_fatci.fuzzy]`: paper 002's Algorithm 1 rule base (defaults: the paper's three sets)."""
+
+    input_range: tuple[float, float] = (0.0, 3.0)
+    output_range: tuple[float, float] = (0.0, 3.0)
+    rules: tuple[tuple[str, str], ...] = (("LE", "LE"), ("EQ", "EQ"), ("MO", "MO"))
+    input_sets: dict[str, Triangle] = Field(default_factory=lambda: {
+        "LE": (-1.0, 0.4, 1.0), "EQ": (0.4, 1.0, 1.6), "MO": (1.0, 1.6, 4.0)})
+    output_sets: dict[str, Triangle] = Field(default_factory=lambda: {
+        "LE": (0.1, 0.4, 0.7), "EQ": (0.7, 1.0, 1.3), "MO": (1.2, 1.6, 2.0)})
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FuzzyParams:
+        for name, (a, b, c) in [*self.input_sets.items(), *self.output_sets.items()]:
+            if not a <= b <= c or a == c:
+                raise ValueError(f"set {name!r} must be [left <= peak <= right] with left < right, got {[a, b, c]}")
+        for r_in, r_out in self.rules:
+            if r_in not in self.input_sets or r_out not in self.output_sets:
+                raise ValueError(f"rule [{r_in!r}, {r_out!r}] names an undefined set")
+        for key in ("input_range", "output_range"):
+            lo, hi = getattr(self, key)
+            if not lo < hi:
+                raise ValueError(f"{key} must be [lo, hi] with lo < hi")
+        if not self.rules:
+            raise ValueError("the rule base is empty")
+        gap = uncovered_input(self.input_sets, self.rules, self.input_range)
+        if gap is not None:
+            raise ValueError(f"no rule fires at input {gap:g}; the input sets must cover input_range")
+        return self
+
+
+RangingSolution = Literal["lc", "tc", "fatci"]
+
+
+class RangingParams(Section):
+    """`[ranging_fatci]` (paper 002); see pipelines/README.md for each key."""
+
+    solutions: Annotated[tuple[RangingSolution, ...], Field(min_length=1)] = ("lc", "tc", "fatci")
+    smoothed: bool = True
+    smooth_source: RangingSolution = "fatci"
+    smoother: Literal["rts", "two_filter"] = "rts"
+    output_rate_hz: Positive = 10.0
+    cov_step_s: Positive = 0.1
+    calibration_scale: Literal["shared", "per_anchor"] = "shared"
+    calibration_reject_sigma: NonNegative = 4.0
+    sd_poly_degree: Count = 1
+    range_sd_m: Positive = 0.15
+    tc_range_sd_m: Positive | None = None
+    epoch_window_s: Positive = 0.02
+    lc_min_anchors: Annotated[int, Field(ge=3)] = 4  # a horizontal fix needs at least 3
+    floor_down_m: float | None = None
+    floor_sd_m: Positive = 0.05
+    floor_height_sd_m: NonNegative | None = None
+    gate_probability: Probability = 0.999
+    gate_max_consecutive: Count = 20
+    coast_gap_s: Positive = 0.5
+    align_distance_m: Positive = 12.0
+    align_max_turn_deg: Positive = 5.0
+    level_window_s: Positive = 1.0
+    zupt: bool = True
+    zupt_sd_mps: Positive = 0.02
+    zupt_rate_hz: Positive = 10.0
+    zupt_max_speed_mps: Positive = 0.05
+    zupt_acc_step_mps2: Positive = 0.05
+    zupt_min_duration_s: NonNegative = 1.0
+    initial_position_sd_m: Positive = 0.3
+    initial_velocity_sd_mps: Positive = 0.1
+    initial_level_sd_deg: Positive = 1.0
+    initial_yaw_sd_deg: Positive = 10.0
+    range_bias_sd_m: NonNegative = 0.05
+    range_bias_rw_m_per_sqrt_s: NonNegative = 0.002
+    gyro_noise_dps: Positive = 0.02
+    acc_noise_mg: Positive = 2.0
+    gyro_bias_dph: NonNegative = 10.0
+    acc_bias_mg: NonNegative = 2.0
+    bias_drift_time_s: Positive = 600.0
+    fuzzy_exponent_b: NonNegative = 2.0
+    fuzzy: FuzzyParams = Field(default_factory=FuzzyParams)
+
+    @model_validator(mode="after")
+    def _source_is_run(self) -> RangingParams:
+        if self.smoothed and self.smooth_source not in self.solutions:
+            raise ValueError(f"smooth_source {self.smooth_source!r} is not among solutions {list(self.solutions)}")
+        return self
+
+
+# --------------------------------------------------------------------------- [target_fkf]
+class FaultParams(Section):
+    """`[target_fkf.fault]`: fault detection of the local filters (`attitude.faults`)."""
+
+    nis_window_s: Positive = 1.0
+    nis_probability: Probability = 0.9999
+    consistency_probability: Probability = 0.9999
+    recover_s: NonNegative = 2.0
+
+
+class TargetFkfParams(Section):
+    """`[target_fkf]` (papers 000 and 001); see pipelines/README.md for each key."""
+
+    model: Literal["full", "paper8"] = "full"
+    beta: Annotated[float, Field(gt=0.0, le=1.0)] = 0.5  # Eq. 24 information share of each local filter
+    lr_yaw_form: Literal["exact", "paper"] = "exact"  # paper8 only: Eq. 10 without the cos(pitch) factor
+    fault_tolerant: bool = True
+    # sensor figures used when session.toml gives none
+    gyro_noise_dps: Positive = 0.01
+    gyro_bias_dph: NonNegative = 20.0
+    gyro_bias_rw_dph_per_rth: NonNegative = 1.0
+    gyro_scale_sd_ppm: NonNegative = 300.0
+    acc_noise_mg: Positive = 2.0
+    mag_noise_ut: Positive = 0.5
+    range_sigma_m: Positive = 0.0015
+    # alignment
+    static_min_s: Positive = 1.0
+    static_max_s: Positive = 30.0
+    static_gyro_tol_dps: Positive = 1.5
+    static_acc_sd_tol_mps2: Positive = 0.15
+    align_mag_step_tol_ut: Positive = 3.0
+    noise_from_static: bool = True  # figures session.toml lacks: measured in the alignment window
+    gravity_from_static: bool = True  # gravity magnitude = mean |f| in the alignment window
+    # LF1/LF2 accelerometer aiding: gravity update while quasi-static, bounded motion otherwise
+    acc_static_tol_mps2: Positive = 0.5
+    gyro_static_tol_dps: Positive = 30.0
+    motion_model: bool = True
+    motion_sd_mps: Positive = 0.2
+    motion_sd_m: Positive = 0.1
+    motion_interval_s: Positive = 1.0
+    motion_freq_hz: NonNegative = 0.0  # > 0: correlated (damped-oscillator) hand-motion model
+    motion_damping: Positive = 0.7071
+    motion_step_s: Positive = 0.05
+    motion_fit: bool = True  # fit the oscillator to the log's own acceleration PSD
+    motion_fit_band_hz: tuple[NonNegative, Positive] = (0.3, 5.0)
+    motion_corner: bool = False  # with motion_fit: also fit a corner above which the hand's acceleration falls
+    smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
+    gyro_err_pct: NonNegative = 0.0  # > 0: local filters estimate the gyro scale/misalignment (prior SD, %)
+    gyro_err_rw_ppm_rts: NonNegative = 0.0
+    heading_recover_nis: NonNegative = 0.0  # > 0: LF1 re-opens its heading variance above this mean mag NIS
+    # LF1 gating
+    mag_norm_tol_ut: float = 4.0  # <= 0 disables the field-magnitude/dip check
+    mag_dip_tol_deg: float = 3.0
+    mag_lag_from_log: bool = True  # estimate the magnetometer's delay behind the gyro and remove it
+    mag_lag_max_s: NonNegative = 0.05
+    # LF2 gating
+    range_gate_probability: Probability = 0.9999
+    # shots detected when shots.csv is absent
+    shot_min_s: Positive = 2.0
+    shot_gyro_tol_dps: Positive = 0.5
+    fault: FaultParams = Field(default_factory=FaultParams)  # the [target_fkf.fault] table
+
+    @model_validator(mode="after")
+    def _ordered(self) -> TargetFkfParams:
+        if self.static_min_s > self.static_max_s:
+            raise ValueError("static_min_s must not exceed static_max_s")
+        lo, hi = self.motion_fit_band_hz
+        if not lo < hi:
+            raise ValueError("motion_fit_band_hz must be [lo, hi] with lo < hi")
+        return self
+
+
+# Chain name -> (its table in a pipeline file, the model of that table). `tpos_cli.pipeline.CHAINS`
+# pairs the same names with the chains' `run` functions.
+SECTIONS: dict[str, tuple[str, type[Section]]] = {
+    "ingest": ("ingest", IngestParams),
+    "target_fkf": ("target_fkf", TargetFkfParams),
+    "drive_smooth": ("drive_smooth", DriveSmoothParams),
+    "ranging_fatci": ("ranging_fatci", RangingParams),
+}
+
+
+# --------------------------------------------------------------------------- files
 @dataclass(frozen=True)
 class PipelineFile:
     name: str
     description: str
     chain: str
-    kinds: tuple
+    kinds: tuple[str, ...]
     params: dict
     path: Path
+
+
+@dataclass(frozen=True)
+class ResolvedConfig:
+    """A pipeline with its chain's table validated and every default filled in."""
+
+    pipeline: PipelineFile
+    params: Section  # the validated model the chain runs with
+    resolved: dict  # {section: every key, defaults included}: what summary.json records
+    sha256: str  # hash of pipeline name, chain and `resolved` (batch recognises finished runs by it)
 
 
 def pipelines_dir() -> Path:
@@ -59,29 +343,25 @@ def resolve_pipeline(name_or_path: str | Path | None, kind: str) -> PipelineFile
 
 
 def load_pipeline_file(path: Path) -> PipelineFile:
+    """Read a pipeline TOML and validate its `[pipeline]` table (the chain's table: `resolve_config`)."""
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise InvalidInputError(f"{path.name}: not valid TOML ({exc})") from None
     except OSError as exc:
         raise InvalidInputError(f"{path}: cannot be read ({exc.strerror})") from None
-    head = raw.get("pipeline")
-    if not isinstance(head, dict):
+    head_raw = raw.get("pipeline")
+    if not isinstance(head_raw, dict):
         raise InvalidInputError(f"{path.name}: [pipeline] section with name, description, chain is required")
-    unknown = set(head) - {"name", "description", "chain", "kinds"}
-    if unknown:
-        raise InvalidInputError(f"{path.name}: [pipeline] unknown key {sorted(unknown)[0]!r}")
-    for key in ("name", "chain"):
-        if not isinstance(head.get(key), str):
-            raise InvalidInputError(f"{path.name}: [pipeline] {key} must be a string")
+    head = _validate(PipelineHead, head_raw, path.name, "pipeline", {})
+    if head.chain not in SECTIONS:
+        raise InvalidInputError(f"{path.name} [pipeline] chain: {head.chain!r} is not one of {', '.join(sorted(SECTIONS))}")
     params = {k: v for k, v in raw.items() if k != "pipeline"}
-    return PipelineFile(
-        name=head["name"], description=str(head.get("description", "")), chain=head["chain"],
-        kinds=tuple(head.get("kinds", ())), params=params, path=path,
-    )
+    return PipelineFile(name=head.name, description=head.description, chain=head.chain, kinds=head.kinds,
+                        params=params, path=path)
 
 
-def apply_overrides(params: dict, overrides: dict) -> dict:
+def apply_overrides(params: dict, overrides: Mapping[str, object]) -> dict:
     """Dotted overrides (`section.key = value`) onto a parameter dict (a copy)."""
     out = json.loads(json.dumps(params))
     for dotted, value in overrides.items():
@@ -90,85 +370,68 @@ def apply_overrides(params: dict, overrides: dict) -> dict:
         for p in parts[:-1]:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
-                raise InvalidInputError(f"override {dotted!r}: {p!r} is not a section")
+                raise InvalidInputError(f"--set {dotted}: {p!r} is not a table")
         node[parts[-1]] = value
     return out
 
 
+def resolve_config(pipe: PipelineFile, overrides: Mapping[str, object] | None = None) -> ResolvedConfig:
+    """Validate a pipeline's chain table (with dotted `--set` overrides) against its model.
+
+    Unknown tables and keys, wrong types and out-of-range values raise InvalidInputError naming the
+    file, the table and the key (and the `--set` that gave the value).
+    """
+    overrides = dict(overrides or {})
+    section, model = SECTIONS[pipe.chain]
+    params = apply_overrides(pipe.params, overrides)
+    unknown = sorted(set(params) - {section})
+    if unknown:
+        raise InvalidInputError(f"{pipe.path.name}: unknown table [{unknown[0]}] (chain {pipe.chain} reads [{section}])")
+    table = params.get(section, {})
+    if not isinstance(table, dict):
+        raise InvalidInputError(f"{pipe.path.name}: [{section}] must be a table")
+    parsed = _validate(model, table, pipe.path.name, section, overrides)
+    resolved = {section: parsed.model_dump(mode="json")}
+    sha = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
+    return ResolvedConfig(pipeline=pipe, params=parsed, resolved=resolved, sha256=sha)
+
+
+def _validate(model: type[Section], table: dict, file: str, section: str, overrides: Mapping[str, object]):
+    try:
+        return model.model_validate(table)
+    except ValidationError as exc:
+        raise InvalidInputError(_message(exc, model, file, section, overrides)) from None
+
+
+def _message(exc: ValidationError, model: type[Section], file: str, section: str, overrides: Mapping[str, object]) -> str:
+    """One line per problem: `file [section] key: what` (+ the `--set` that gave the value)."""
+    lines = []
+    for err in exc.errors():
+        loc = [str(x) for x in err["loc"] if not str(x).startswith("function-after")]
+        key = ".".join(loc)
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            known = _known_keys(model, loc[:-1])
+            close = difflib.get_close_matches(loc[-1], known, n=1)
+            msg = "unknown key" + (f" (did you mean {close[0]!r}?)" if close else f" (known: {', '.join(known)})")
+        # the `--set` overrides that gave this value: the key itself, a table above it or keys below it
+        dotted = f"{section}.{key}" if key else section
+        sets = [f"--set {k}={v!r}" for k, v in overrides.items()
+                if k == dotted or dotted.startswith(k + ".") or k.startswith(dotted + ".")]
+        given = f" ({', '.join(sets)})" if sets else ""
+        lines.append(f"{file} [{section}]{' ' + key if key else ''}{given}: {msg}")
+    return "; ".join(lines)
+
+
+def _known_keys(model: type[BaseModel], path: list[str]) -> list[str]:
+    for name in path:
+        field = model.model_fields.get(name)
+        ann = getattr(field, "annotation", None)
+        if not (isinstance(ann, type) and issubclass(ann, BaseModel)):
+            return []
+        model = ann
+    return sorted(model.model_fields)
+
+
 def config_hash(config: dict) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
-
-
-T = typing.TypeVar("T")
-
-
-def parse_params(cls: type[T], section: dict | None, where: str) -> T:
-    """Build frozen dataclass `cls` from a TOML section; unknown keys and wrong types are errors."""
-    section = dict(section or {})
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(section) - set(fields))
-    if unknown:
-        raise InvalidInputError(f"pipeline [{where}]: unknown key {unknown[0]!r} (known: {', '.join(sorted(fields))})")
-    hints = typing.get_type_hints(cls)
-    kwargs = {}
-    for name, value in section.items():
-        sub = hints[name]
-        if dataclasses.is_dataclass(sub):
-            kwargs[name] = parse_params(sub, value, f"{where}.{name}")
-            continue
-        kwargs[name] = _coerce(value, sub, f"{where}.{name}")
-    return cls(**kwargs)
-
-
-def _coerce(value, typ, where):
-    origin = typing.get_origin(typ)
-    args = typing.get_args(typ)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(value, a, where)
-            except InvalidInputError as exc:
-                errors.append(exc)
-        raise errors[0]
-    if origin is typing.Literal:
-        if value not in args:
-            raise InvalidInputError(f"pipeline [{where}]: must be one of {', '.join(map(repr, args))}, got {value!r}")
-        return value
-    if origin in (tuple, list):
-        if not isinstance(value, (list, tuple)):
-            raise InvalidInputError(f"pipeline [{where}]: must be a list, got {value!r}")
-        inner = args[0] if args else typing.Any
-        return tuple(_coerce(v, inner, where) for v in value) if origin is tuple else [_coerce(v, inner, where) for v in value]
-    if origin is dict:
-        if not isinstance(value, dict):
-            raise InvalidInputError(f"pipeline [{where}]: must be a table, got {value!r}")
-        return dict(value)
-    if typ is typing.Any:
-        return value
-    if typ is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InvalidInputError(f"pipeline [{where}]: must be a number, got {value!r}")
-        return float(value)
-    if typ is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InvalidInputError(f"pipeline [{where}]: must be an integer, got {value!r}")
-        return value
-    if typ is bool:
-        if not isinstance(value, bool):
-            raise InvalidInputError(f"pipeline [{where}]: must be true or false, got {value!r}")
-        return value
-    if typ is str:
-        if not isinstance(value, str):
-            raise InvalidInputError(f"pipeline [{where}]: must be a string, got {value!r}")
-        return value
-    return value
-
-
-def params_to_dict(params) -> dict:
-    """The fully resolved parameters (defaults included) for summary.json."""
-    return json.loads(json.dumps(dataclasses.asdict(params), default=str))

@@ -9,11 +9,11 @@ complete, so a failed or killed run leaves no partial output.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import os
 import shutil
 import time
+import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -25,14 +25,8 @@ import pandas as pd
 from tpos_cli import __version__, timebase
 from tpos_cli.advice import review
 from tpos_cli.chains.context import ChainOutput, RunContext
-from tpos_cli.config import (
-    PipelineFile,
-    apply_overrides,
-    config_hash,
-    params_to_dict,
-    parse_params,
-    resolve_pipeline,
-)
+from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
+from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.run_dir import (
     check_run_dir,
@@ -44,14 +38,14 @@ from tpos_cli.io.run_dir import (
 )
 from tpos_cli.session import GpsData, Session, load_session
 
-# Chain name (as written in a pipeline file) -> (module of ours holding `run`, the pipeline-file
-# section of its parameters, the frozen dataclass that validates them). A fixed table: a pipeline
-# file can only choose among these, and nothing it names is imported.
-CHAINS: dict[str, tuple[str, str, str]] = {
-    "ingest": ("tpos_cli.chains.ingest", "ingest", "IngestParams"),
-    "target_fkf": ("tpos_cli.chains.target_fkf", "target_fkf", "TargetFkfParams"),
-    "drive_smooth": ("tpos_cli.chains.drive_smooth", "drive_smooth", "DriveSmoothParams"),
-    "ranging_fatci": ("tpos_cli.chains.ranging_fatci", "ranging_fatci", "RangingParams"),
+# Chain name (as written in a pipeline file) -> its `run(session, params, ctx)`. A fixed table: a
+# pipeline file can only choose among these, and nothing it names is imported. The model of each
+# chain's parameter table is `tpos_cli.config.SECTIONS[name]`.
+CHAINS: dict[str, Callable[[Session, Section, RunContext], ChainOutput]] = {
+    "ingest": ingest.run,
+    "target_fkf": target_fkf.run,
+    "drive_smooth": drive_smooth.run,
+    "ranging_fatci": ranging_fatci.run,
 }
 
 ACCURACY_NOTE = (
@@ -101,42 +95,18 @@ def gps_table(g: GpsData, t0_s: float) -> pd.DataFrame:
     })
 
 
-def _chain_module(name: str):
-    if name not in CHAINS:
-        raise InvalidInputError(f"pipeline chain {name!r} is not one of {', '.join(sorted(CHAINS))}")
+def _resolve_before_reading(session_dir, pipeline, overrides) -> ResolvedConfig | None:
+    """The validated pipeline before the session's data is read: a named pipeline directly, the
+    default one through the `kind` in session.toml. None when session.toml cannot tell (then the
+    session's own loading reports what is wrong with it first)."""
+    if pipeline is not None:
+        return resolve_config(resolve_pipeline(pipeline, ""), overrides)
     try:
-        return importlib.import_module(CHAINS[name][0])
-    except ModuleNotFoundError as exc:
-        raise ProcessingError(f"pipeline chain {name!r} is not available in this tpos build ({exc})") from None
-
-
-def _chain_run(name: str) -> Callable:
-    return _chain_module(name).run
-
-
-@dataclass(frozen=True)
-class ResolvedConfig:
-    """A pipeline with its parameters validated and every default filled in, before any data is read."""
-
-    pipeline: PipelineFile
-    params: dict  # as the pipeline file and overrides give them
-    resolved: dict  # every parameter, defaults included: what summary.json records
-    sha256: str
-
-
-def resolve_config(pipe: PipelineFile, overrides: Mapping[str, object] | None = None) -> ResolvedConfig:
-    """Validate a pipeline's parameters (with dotted overrides) against its chain; unknown sections,
-    keys and wrong types raise InvalidInputError. Batch uses the hash to recognise finished runs."""
-    module = _chain_module(pipe.chain)
-    _, section, cls_name = CHAINS[pipe.chain]
-    params = apply_overrides(pipe.params, dict(overrides or {}))
-    unknown = sorted(set(params) - {section})
-    if unknown:
-        raise InvalidInputError(f"{pipe.path.name}: unknown section [{unknown[0]}] (chain {pipe.chain} reads [{section}])")
-    parsed = parse_params(getattr(module, cls_name), params.get(section), section)
-    resolved = {section: params_to_dict(parsed)}
-    sha = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
-    return ResolvedConfig(pipeline=pipe, params=params, resolved=resolved, sha256=sha)
+        head = tomllib.loads((Path(session_dir) / "session.toml").read_text(encoding="utf-8")).get("session", {})
+    except (OSError, ValueError):
+        return None
+    kind = head.get("kind") if isinstance(head, dict) else None
+    return resolve_config(resolve_pipeline(None, kind), overrides) if isinstance(kind, str) else None
 
 
 def process_session(
@@ -156,16 +126,19 @@ def process_session(
 
 def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, overrides) -> RunSummary:
     t_start = time.perf_counter()
+    # the configuration first: a bad key or value is refused before any data is read
+    cfg = _resolve_before_reading(session_dir, pipeline, overrides)
     with ctx.stage("ingest"):
         session = load_session(session_dir)
-    cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
-    pipe, params = cfg.pipeline, cfg.params
+    if cfg is None:
+        cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
+    pipe = cfg.pipeline
     out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
-    run = _chain_run(pipe.chain)
+    run = CHAINS[pipe.chain]
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows))
     try:
-        result: ChainOutput = run(session, params, ctx)
+        result: ChainOutput = run(session, cfg.params, ctx)
     except TposError:
         raise
     except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as exc:

@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from tpos_cli.errors import InvalidInputError
-from tpos_cli.ranging.fuzzy import fuzzy_system_from_params, infer, triangle
+from pydantic import ValidationError
+
+from tpos_cli.config import FuzzyParams
+from tpos_cli.ranging.fuzzy import fuzzy_system, infer, triangle
 
 PARAMS = {
     "input_range": [0.0, 3.0],
@@ -26,7 +28,7 @@ def test_triangle_breakpoints():
 
 
 def test_output_at_input_peaks_is_output_set_centroid():
-    fis = fuzzy_system_from_params(PARAMS, "test")
+    fis = fuzzy_system(FuzzyParams.model_validate(PARAMS))
     # at each input peak exactly one rule fires with strength 1 (neighbours are 0 there),
     # so the output is the centroid of the whole output triangle: (a + b + c) / 3
     s = infer(fis, np.array([0.5, 1.0, 1.5]))
@@ -35,7 +37,7 @@ def test_output_at_input_peaks_is_output_set_centroid():
 
 
 def test_output_between_peaks_two_rules_clipped():
-    fis = fuzzy_system_from_params(PARAMS, "test")
+    fis = fuzzy_system(FuzzyParams.model_validate(PARAMS))
     # x = 0.75: LE and EQ both fire at 0.5. Aggregate = max(min(.5, LE), min(.5, EQ)).
     # Exact centroid of that piecewise-linear area, by a 1e6-point independent quadrature:
     y = np.linspace(0, 3, 1_000_001)
@@ -47,7 +49,7 @@ def test_output_between_peaks_two_rules_clipped():
 
 
 def test_monotonic_and_clamped():
-    fis = fuzzy_system_from_params(PARAMS, "test")
+    fis = fuzzy_system(FuzzyParams.model_validate(PARAMS))
     x = np.linspace(0.0, 3.0, 301)
     s = infer(fis, x)
     assert np.all(np.diff(s) >= -1e-9)  # "less SD -> less R": the rule base is ordered
@@ -56,13 +58,13 @@ def test_monotonic_and_clamped():
 
 def test_bad_rule_base_rejected():
     bad = {**PARAMS, "rules": [["LE", "XX"]]}
-    with pytest.raises(InvalidInputError, match="undefined set"):
-        fuzzy_system_from_params(bad, "ranging_fatci.fuzzy")
+    with pytest.raises(ValidationError, match="undefined set"):
+        FuzzyParams.model_validate(bad)
     bad = {**PARAMS, "input_sets": {"LE": [1.0, 0.5, 2.0]}}
-    with pytest.raises(InvalidInputError, match="left <= peak"):
-        fuzzy_system_from_params(bad, "ranging_fatci.fuzzy")
+    with pytest.raises(ValidationError, match="left <= peak"):
+        FuzzyParams.model_validate(bad)
     gap = {**PARAMS, "input_sets": {**PARAMS["input_sets"], "MO": [1.0, 1.5, 2.0]}}
-    with pytest.raises(InvalidInputError, match="no rule fires at input 2"):
-        fuzzy_system_from_params(gap, "ranging_fatci.fuzzy")
-    with pytest.raises(InvalidInputError, match="unknown key"):
-        fuzzy_system_from_params({**PARAMS, "extra": 1}, "ranging_fatci.fuzzy")
+    with pytest.raises(ValidationError, match="no rule fires at input 2"):
+        FuzzyParams.model_validate(gap)
+    with pytest.raises(ValidationError, match="Extra inputs"):
+        FuzzyParams.model_validate({**PARAMS, "extra": 1})

@@ -11,14 +11,14 @@ check (course over ground against the smoothed yaw, `fusion.mounting`) warns in 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from tpos_cli import smoothing
 from tpos_cli.chains.context import ChainOutput, RunContext
-from tpos_cli.config import parse_params
+from tpos_cli.config import DriveSmoothParams
 from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
@@ -40,52 +40,6 @@ from tpos_cli.targeting import geolocate
 
 DEG = np.pi / 180.0
 SMOOTHERS = ("rts", "two_filter", "simplified")
-
-
-@dataclass(frozen=True)
-class DriveSmoothParams:
-    """`[drive_smooth]` keys; noise figures left unset come from the session's `[imu]`, else MEMS defaults."""
-
-    smoother: str = "rts"  # the `smoothed` solution: rts | two_filter | simplified
-    compare: bool = False  # also write every smoother under its own name
-    cov_step_s: float = 0.1  # covariance propagation / storage step
-    output_rate_hz: float = 10.0  # rows per second per solution; 0 = every IMU sample
-    gate_probability: float = 0.9999  # chi-square gate on GPS innovations
-    flag_probability: float = 0.999  # forward/backward disagreement flag
-    heading_min_speed_mps: float = 3.0  # course from GPS velocity once this fast (slower logs: see `_gps_heading`)
-    heading_hypotheses: int = 12  # initial yaws tried by the filter (0 = trust the course / magnetometer)
-    heading_search_s: float = 30.0  # filter time after the platform first moved 5 m, per hypothesis
-    gps_max_rate_hz: float = 1.0  # fixes used per second at most (0 = all): receiver fixes at 5-20 Hz
-    # are correlated in time, and a filter treating them as white trusts them far too much
-    init_sigma_pos_m: float = 5.0
-    init_sigma_vel_mps: float = 1.0
-    init_sigma_level_deg: float = 1.0
-    init_sigma_yaw_deg: float = 3.0
-    gyro_noise_dps: float | None = None  # white noise SD per sample
-    acc_noise_mg: float | None = None
-    gyro_bias_dph: float | None = None  # initial bias SD
-    acc_bias_mg: float | None = None
-    gyro_bias_inrun_dph: float = 10.0  # Gauss-Markov in-run bias SD
-    acc_bias_inrun_mg: float = 2.0
-    bias_tau_s: float = 300.0
-    gps_sigma_h_m: float = 1.5  # used when gps has no sigma columns
-    gps_sigma_floor_m: float = 0.3  # reported SDs below this (e.g. RTK) are raised to it: lever arm,
-    # timing and antenna motion errors of a low-cost setup are not below a few decimetres
-    max_consecutive_rejections: int = 5  # then the next fix is applied ungated
-    gps_sigma_v_m: float = 2.5
-    gps_sigma_vel_mps: float = 0.1
-    use_gps_velocity: bool = True
-    gps_noise: str = "estimate"  # estimate: scale the GPS SDs by covariance matching on a first
-    # decimated pass (`fusion.gps_noise`); given: use the log's SDs or the defaults above as they are
-    gps_noise_span_s: float = 900.0  # log time the estimation passes cover after the heading search (0 = all)
-    gps_error_model: str = "gauss_markov"  # gauss_markov: 3 GPS position-error states (time-correlated
-    # receiver errors, `fusion.gps_error`); white: fixes independent from one to the next
-    gps_gm_tau_s: float | None = None  # time constant of the GPS error states, s; None: fitted with the SDs
-    gps_gm_sigma_h_m: float | None = None  # stationary SD of the correlated error; None: estimated
-    gps_gm_sigma_v_m: float | None = None
-    outage_min_s: float = 2.0  # a gap between fixes longer than this is an outage
-    mounting_check_deg: float = 20.0  # warn when course - yaw while moving has a larger median (0 = no check)
-    mounting_min_speed_mps: float = 0.3  # rows faster than this count for the mounting check (slow rovers: 0.3 m/s)
 
 
 _DEFAULT_NOISE = {"gyro_noise_dps": 0.01, "acc_noise_mg": 2.0, "gyro_bias_dph": 20.0, "acc_bias_mg": 10.0}
@@ -415,22 +369,7 @@ class _nostage:
         return False
 
 
-def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
-    p = parse_params(DriveSmoothParams, params.get("drive_smooth"), "drive_smooth")
-    if p.smoother not in SMOOTHERS:
-        raise InvalidInputError(f"pipeline [drive_smooth]: smoother {p.smoother!r} is not one of {', '.join(SMOOTHERS)}")
-    if p.cov_step_s <= 0 or p.output_rate_hz < 0 or p.bias_tau_s <= 0:
-        raise InvalidInputError("pipeline [drive_smooth]: cov_step_s and bias_tau_s must be > 0, output_rate_hz >= 0")
-    if p.gps_noise_span_s < 0:
-        raise InvalidInputError("pipeline [drive_smooth]: gps_noise_span_s must be >= 0")
-    if p.gps_error_model not in ("gauss_markov", "white") or (p.gps_gm_tau_s is not None and p.gps_gm_tau_s <= 0):
-        raise InvalidInputError(f"pipeline [drive_smooth]: gps_error_model {p.gps_error_model!r} is not one of "
-                                "gauss_markov, white, or gps_gm_tau_s <= 0")
-    if p.gps_noise not in ("estimate", "given"):
-        raise InvalidInputError(f"pipeline [drive_smooth]: gps_noise {p.gps_noise!r} is not one of estimate, given")
-    if p.heading_hypotheses < 0 or p.heading_search_s <= 0 or p.gps_max_rate_hz < 0:
-        raise InvalidInputError("pipeline [drive_smooth]: heading_hypotheses and gps_max_rate_hz must be >= 0, "
-                                "heading_search_s > 0")
+def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:
     names = ["forward", "backward", "smoothed"] + (list(SMOOTHERS) if p.compare else [])
     epochs = range_epochs(session)
     res = process_drive(session, p, ctx, names, extra_idx=None if epochs is None else epochs[0])
@@ -475,7 +414,6 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         mean_nis[kind] = float(np.mean(a)) if a.size else None
         nis_check[kind] = nis_band(a, res.forward.innovation[res.forward.accepted[:, j], 3 * j: 3 * j + 3])
     summary = {
-        "config": {"drive_smooth": asdict(p)},
         "alignment": res.info,
         "smoothed_method": p.smoother,
         "solutions": names,

@@ -10,7 +10,7 @@ as the INS/GPS pipeline). The ranging node is assumed at the IMU (zero lever arm
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -18,7 +18,7 @@ import pandas as pd
 from tpos_cli import smoothing
 from tpos_cli.alignment import level_rad
 from tpos_cli.chains.context import ChainOutput, RunContext
-from tpos_cli.config import params_to_dict, parse_params
+from tpos_cli.config import RangingParams
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.earth import G0_MPS2
@@ -41,83 +41,10 @@ from tpos_cli.ranging.filter import (
     run_filter,
     zupt_events,
 )
-from tpos_cli.ranging.fuzzy import fuzzy_system_from_params
+from tpos_cli.ranging.fuzzy import fuzzy_system
 from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
 from tpos_cli.ranging.stillness import stationary_intervals
 from tpos_cli.session import Session
-
-SOLUTIONS = ("lc", "tc", "fatci")
-SMOOTHERS = ("rts", "two_filter")
-
-
-@dataclass(frozen=True)
-class RangingParams:
-    """`[ranging_fatci]`; units in the key names. See pipelines/ranging-fatci.toml for meanings."""
-
-    solutions: tuple[str, ...] = SOLUTIONS
-    smoothed: bool = True
-    smooth_source: str = "fatci"
-    smoother: str = "rts"
-    output_rate_hz: float = 10.0
-    cov_step_s: float = 0.1
-    calibration_scale: str = "shared"
-    calibration_reject_sigma: float = 4.0
-    sd_poly_degree: int = 1
-    range_sd_m: float = 0.15
-    tc_range_sd_m: float | None = None
-    epoch_window_s: float = 0.02
-    lc_min_anchors: int = 4
-    floor_down_m: float | None = None
-    floor_sd_m: float = 0.05
-    floor_height_sd_m: float | None = None
-    gate_probability: float = 0.999
-    gate_max_consecutive: int = 20
-    coast_gap_s: float = 0.5
-    align_distance_m: float = 8.0
-    align_max_turn_deg: float = 5.0
-    level_window_s: float = 1.0
-    zupt: bool = True
-    zupt_sd_mps: float = 0.02
-    zupt_rate_hz: float = 10.0
-    zupt_max_speed_mps: float = 0.05
-    zupt_acc_step_mps2: float = 0.05
-    zupt_min_duration_s: float = 1.0
-    initial_position_sd_m: float = 0.3
-    initial_velocity_sd_mps: float = 0.1
-    initial_level_sd_deg: float = 1.0
-    initial_yaw_sd_deg: float = 10.0
-    range_bias_sd_m: float = 0.05
-    range_bias_rw_m_per_sqrt_s: float = 0.002
-    gyro_noise_dps: float = 0.02
-    acc_noise_mg: float = 2.0
-    gyro_bias_dph: float = 10.0
-    acc_bias_mg: float = 2.0
-    bias_drift_time_s: float = 600.0
-    fuzzy_exponent_b: float = 2.0
-    fuzzy: dict = field(default_factory=dict)
-
-
-def _check(p: RangingParams) -> None:
-    bad = [s for s in p.solutions if s not in SOLUTIONS]
-    if bad or not p.solutions:
-        raise InvalidInputError(f"pipeline [ranging_fatci.solutions]: each must be one of {SOLUTIONS}, got {list(p.solutions)}")
-    if p.calibration_scale not in ("shared", "per_anchor"):
-        raise InvalidInputError("pipeline [ranging_fatci.calibration_scale]: must be 'shared' or 'per_anchor'")
-    for name in ("output_rate_hz", "range_sd_m", "floor_sd_m", "coast_gap_s", "initial_position_sd_m",
-                 "initial_velocity_sd_mps", "initial_level_sd_deg", "initial_yaw_sd_deg", "bias_drift_time_s"):
-        if not getattr(p, name) > 0:
-            raise InvalidInputError(f"pipeline [ranging_fatci.{name}]: must be > 0, got {getattr(p, name)}")
-    if not 0.0 < p.gate_probability < 1.0:
-        raise InvalidInputError("pipeline [ranging_fatci.gate_probability]: must be in (0, 1)")
-    if p.smoothed and p.smooth_source not in p.solutions:
-        raise InvalidInputError(f"pipeline [ranging_fatci.smooth_source]: {p.smooth_source!r} is not among solutions {list(p.solutions)}")
-    if p.smoother not in SMOOTHERS:
-        raise InvalidInputError(f"pipeline [ranging_fatci.smoother]: must be one of {SMOOTHERS}, got {p.smoother!r}")
-    for name in ("cov_step_s", "zupt_sd_mps", "zupt_rate_hz", "zupt_max_speed_mps", "zupt_acc_step_mps2"):
-        if not getattr(p, name) > 0:
-            raise InvalidInputError(f"pipeline [ranging_fatci.{name}]: must be > 0, got {getattr(p, name)}")
-    if p.lc_min_anchors < 3:
-        raise InvalidInputError("pipeline [ranging_fatci.lc_min_anchors]: a horizontal fix needs at least 3")
 
 
 def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_every: int, cov_step: int) -> FilterConfig:
@@ -281,10 +208,8 @@ def _trajectory(run: FilterRun, name: str, t0_s: float) -> pd.DataFrame:
     })
 
 
-def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
-    p = parse_params(RangingParams, params.get("ranging_fatci"), "ranging_fatci")
-    _check(p)
-    fis = fuzzy_system_from_params(p.fuzzy, "ranging_fatci.fuzzy") if "fatci" in p.solutions else None
+def run(session: Session, p: RangingParams, ctx: RunContext) -> ChainOutput:
+    fis = fuzzy_system(p.fuzzy) if "fatci" in p.solutions else None
     if session.anchors is None or session.anchor_ranges is None:
         raise InvalidInputError(f"{session.path}: the ranging_fatci pipeline needs anchors.csv and anchor_ranges")
     anchors = session.anchors
@@ -416,7 +341,6 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
             rb = _smoothed_range_bias(src, bwd)
         trajs.append(_solution_frame(sol, "smoothed", src.t_run_s, session.t0_s, rb))
     results["solutions"] = per_sol
-    results["config"] = {"ranging_fatci": params_to_dict(p)}
     return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
                        summary=results)
 

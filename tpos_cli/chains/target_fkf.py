@@ -10,8 +10,7 @@ A target session without ranges (attitude-only MARG log) yields `gyro`, `lf1`, `
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Literal
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -32,7 +31,7 @@ from tpos_cli.attitude.local import (
 )
 from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.chains.context import ChainOutput, RunContext
-from tpos_cli.config import params_to_dict, parse_params
+from tpos_cli.config import TargetFkfParams
 from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.rotation import (
@@ -42,58 +41,6 @@ from tpos_cli.frames.rotation import (
     rotvec_to_dcm,
 )
 from tpos_cli.session import Session
-
-
-@dataclass(frozen=True)
-class TargetFkfParams:
-    model: Literal["full", "paper8"] = "full"
-    beta: float = 0.5  # Eq. 24 information share of each local filter
-    lr_yaw_form: Literal["exact", "paper"] = "exact"  # paper8 only: Eq. 10 without the cos(pitch) factor
-    fault_tolerant: bool = True
-    # sensor figures used when session.toml gives none
-    gyro_noise_dps: float = 0.01
-    gyro_bias_dph: float = 20.0
-    gyro_bias_rw_dph_per_rth: float = 1.0
-    gyro_scale_sd_ppm: float = 300.0
-    acc_noise_mg: float = 2.0
-    mag_noise_ut: float = 0.5
-    range_sigma_m: float = 0.0015
-    # alignment
-    static_min_s: float = 1.0
-    static_max_s: float = 30.0
-    static_gyro_tol_dps: float = 1.5
-    static_acc_sd_tol_mps2: float = 0.15
-    align_mag_step_tol_ut: float = 3.0
-    noise_from_static: bool = True  # figures session.toml lacks: measured in the alignment window
-    gravity_from_static: bool = True  # gravity magnitude = mean |f| in the alignment window
-    # LF1/LF2 accelerometer aiding: gravity update while quasi-static, bounded motion otherwise
-    acc_static_tol_mps2: float = 0.5
-    gyro_static_tol_dps: float = 30.0
-    motion_model: bool = True
-    motion_sd_mps: float = 0.2
-    motion_sd_m: float = 0.1
-    motion_interval_s: float = 1.0
-    motion_freq_hz: float = 0.0  # > 0: correlated (damped-oscillator) hand-motion model instead of v = 0, p = 0 epochs
-    motion_damping: float = 0.7071
-    motion_step_s: float = 0.05
-    motion_fit: bool = True  # fit the oscillator (frequency, displacement SD) to the log's own acceleration PSD
-    motion_fit_band_hz: tuple[float, float] = (0.3, 5.0)
-    motion_corner: bool = False  # with motion_fit: also fit a corner above which the hand's acceleration falls (band-pass)
-    smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
-    gyro_err_pct: float = 0.0  # > 0: local filters estimate the gyro scale/misalignment (prior SD, %)
-    gyro_err_rw_ppm_rts: float = 0.0
-    heading_recover_nis: float = 0.0  # > 0: LF1 re-opens its heading variance when the mean mag NIS exceeds it
-    # LF1 gating
-    mag_norm_tol_ut: float = 4.0  # <= 0 disables the field-magnitude/dip check
-    mag_dip_tol_deg: float = 3.0
-    mag_lag_from_log: bool = True  # estimate the magnetometer's delay behind the gyro from the log's turns and remove it
-    mag_lag_max_s: float = 0.05
-    # LF2 gating
-    range_gate_probability: float = 0.9999
-    # shots detected when shots.csv is absent
-    shot_min_s: float = 2.0
-    shot_gyro_tol_dps: float = 0.5
-    fault: faults.FaultConfig = field(default_factory=faults.FaultConfig)  # the [target_fkf.fault] table
 
 
 def static_noise(imu, win) -> dict:
@@ -214,10 +161,7 @@ def _paper8_obs(session, p, t, al_res, decl, rdiff, noise, wall_yaw):
     return o1, v1, o2, v2
 
 
-def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
-    p = parse_params(TargetFkfParams, params.get("target_fkf"), "target_fkf")
-    if not 0.0 < p.beta <= 1.0:
-        raise InvalidInputError(f"pipeline [target_fkf] beta: must be in (0, 1], got {p.beta}")
+def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
     imu = session.imu
     t = imu.t_s
     summary: dict = {}
@@ -385,7 +329,7 @@ def run(session: Session, params: dict, ctx: RunContext) -> ChainOutput:
         tables["targets_pairs"] = pd.concat(pair_tables, ignore_index=True)
     summary["solutions"] = list(sols)
     return ChainOutput(trajectory=traj, targets=targets, tables=tables,
-                       summary={"config": {"target_fkf": params_to_dict(p)}, **summary})
+                       summary=summary)
 
 
 def _fit_motion(setup: FilterSetup, p: TargetFkfParams, t, gyro_sol: AttitudeSolution, acc_b, still, summary, ctx):

@@ -3,7 +3,8 @@
 Mamdani inference: triangular memberships for the input (the range SD) and the output (the
 coefficient S), rules "if input is A then output is B", min implication, max aggregation and
 centroid ("gravity") defuzzification. The measurement noise of a range is then
-`R = S^b R_ref` (Eq. 31). The rule base and breakpoints come from the pipeline TOML.
+`R = S^b R_ref` (Eq. 31). The rule base and breakpoints come from the pipeline TOML
+(`tpos_cli.config.FuzzyParams`, validated there).
 
 Eq. 31 is garbled in the text ("Rii1 = Spy Ry"); we read it as `R_k = S_k^b R_ref` applied per
 range with a fixed reference `R_ref`, because a recursive `R_{k+1} = S^b R_k` would drift without
@@ -16,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.errors import InvalidInputError
 
 _GRID_POINTS = 2001  # centroid quadrature; piecewise-linear integrand -> error O(h^2) ~ 1e-7 of the span
 _BLOCK = 2048  # inputs per block of the centroid computation
@@ -47,42 +47,15 @@ def triangle(x: np.ndarray, abc: tuple[float, float, float]) -> np.ndarray:
     return np.clip(np.minimum(left, right), 0.0, 1.0) * ((x >= a) & (x <= c))
 
 
-def fuzzy_system_from_params(p: dict, where: str) -> FuzzySystem:
-    """Build and check a FuzzySystem from the TOML table `[<chain>.fuzzy]`.
+def uncovered_input(in_sets: dict, rules, in_range) -> float | None:
+    """The first input in `in_range` at which no rule fires, or None when the rule base covers it.
 
-    Keys: `input_sets` / `output_sets` (name -> [left, peak, right]), `rules` ([[in, out], ...]),
-    `input_range`, `output_range` ([lo, hi]).
+    Every input in the universe must fire some rule, or the output would be undefined there
+    (`tpos_cli.config.FuzzyParams` refuses such a rule base before any data is read).
     """
-    try:
-        in_sets = {str(k): tuple(float(v) for v in abc) for k, abc in p["input_sets"].items()}
-        out_sets = {str(k): tuple(float(v) for v in abc) for k, abc in p["output_sets"].items()}
-        rules = tuple((str(r[0]), str(r[1])) for r in p["rules"])
-        in_range = tuple(float(v) for v in p["input_range"])
-        out_range = tuple(float(v) for v in p["output_range"])
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise InvalidInputError(f"{where}: fuzzy system needs input_sets, output_sets, rules, "
-                                f"input_range, output_range ({exc!r})") from exc
-    unknown = set(p) - {"input_sets", "output_sets", "rules", "input_range", "output_range"}
-    if unknown:
-        raise InvalidInputError(f"{where}: unknown key(s) {sorted(unknown)}")
-    for name, abc in [*in_sets.items(), *out_sets.items()]:
-        if len(abc) != 3 or not abc[0] <= abc[1] <= abc[2] or abc[0] == abc[2]:
-            raise InvalidInputError(f"{where}: set {name!r} must be [left <= peak <= right], got {list(abc)}")
-    for r_in, r_out in rules:
-        if r_in not in in_sets or r_out not in out_sets:
-            raise InvalidInputError(f"{where}: rule [{r_in!r}, {r_out!r}] names an undefined set")
-    if len(in_range) != 2 or len(out_range) != 2 or in_range[0] >= in_range[1] or out_range[0] >= out_range[1]:
-        raise InvalidInputError(f"{where}: input_range/output_range must be [lo, hi] with lo < hi")
-    if not rules:
-        raise InvalidInputError(f"{where}: the rule base is empty")
-    fis = FuzzySystem(in_sets, out_sets, rules, in_range, out_range)  # type: ignore[arg-type]
-    # Every input in the universe must fire some rule, or the output would be undefined there.
     x = np.linspace(in_range[0], in_range[1], _GRID_POINTS)
     fired = np.max([triangle(x, in_sets[r_in]) for r_in, _ in rules], axis=0)
-    if np.any(fired <= 0.0):
-        gap = float(x[np.argmax(fired <= 0.0)])
-        raise InvalidInputError(f"{where}: no rule fires at input {gap:g}; the input sets must cover input_range")
-    return fis
+    return float(x[np.argmax(fired <= 0.0)]) if np.any(fired <= 0.0) else None
 
 
 def infer(fis: FuzzySystem, x: np.ndarray) -> np.ndarray:
@@ -108,3 +81,10 @@ def infer(fis: FuzzySystem, x: np.ndarray) -> np.ndarray:
         moment = np.trapezoid(agg * y[None, :], y, axis=1)
         out[a:a + _BLOCK] = np.where(area > 0, moment / np.where(area > 0, area, 1.0), mid)
     return out
+
+
+def fuzzy_system(rule_base) -> FuzzySystem:
+    """The FuzzySystem of a validated rule base (`tpos_cli.config.FuzzyParams`: input_sets,
+    output_sets, rules, input_range, output_range)."""
+    return FuzzySystem(dict(rule_base.input_sets), dict(rule_base.output_sets), tuple(rule_base.rules),
+                       tuple(rule_base.input_range), tuple(rule_base.output_range))
