@@ -31,7 +31,7 @@ Z_ACCEPT = float(stats.norm.isf(1.0 - 0.99865))  # 3.0: one-sided 0.135 %
 LEVER_MATERIAL_SIGMAS = 3.0  # a lever-arm flip is suggested only when it moves the antenna by more
 # than this many of the solution's own horizontal position sigmas
 
-ChainRun = Callable[[object, dict, object], object]  # the chain's run(session, params, ctx) -> ChainOutput
+ChainRun = Callable[[object, object, object], object]  # the chain's run(session, params model, ctx) -> ChainOutput
 
 
 def crop_session(session, a_s: float, b_s: float):
@@ -154,11 +154,11 @@ def _window(session) -> tuple[float, float] | None:
 class _Runner:
     """Runs the chain on the advice window, caching the unchanged run."""
 
-    def __init__(self, session, output, run: ChainRun, params: Mapping):
+    def __init__(self, session, output, run: ChainRun, params):
         self.win = _window(session)
         self.session = session if self.win is None else crop_session(session, *self.win)
         self._run = run
-        self._params = dict(params)
+        self._params = params  # the chain's validated (frozen pydantic) parameters
         self._base = output if self.win is None else None
 
     def base_output(self):
@@ -171,11 +171,12 @@ class _Runner:
         return None if out is None else out.tables.get("innovations")
 
     def output(self, session, overrides: Mapping | None = None):
+        """The chain's output on `session` with parameter `overrides` ({key: value}), None if it fails."""
         from tpos_cli.chains.context import RunContext
-        from tpos_cli.config import apply_overrides
 
+        params = self._params.model_copy(update=dict(overrides)) if overrides else self._params
         try:
-            return self._run(session, apply_overrides(self._params, dict(overrides or {})), RunContext())
+            return self._run(session, params, RunContext())
         except (TposError, np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError):
             return None
 
@@ -443,7 +444,7 @@ def anchor_advice(session, output, runner: _Runner, gate_probability: float | No
     runs = {}
     for i, aid in enumerate(session.anchors.ids):
         # three anchors still give a horizontal fix (the floor height is known)
-        out = runner.output(_without_anchor(runner.session, i), {"ranging_fatci.lc_min_anchors": 3})
+        out = runner.output(_without_anchor(runner.session, i), {"lc_min_anchors": 3})
         runs[i] = out
         scores[aid] = _range_score(None if out is None else out.tables.get("innovations"))
     fig["range_score_without"] = scores
@@ -499,7 +500,7 @@ def units_advice(session, output, runner: _Runner, gate_probability: float | Non
                     f"prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): convert gyro_x/y/z to rad/s", fig)]
 
 
-def review(session, output, *, chain: str, config: Mapping | None, params: Mapping, run: ChainRun,
+def review(session, output, *, chain: str, config: Mapping | None, params, run: ChainRun,
            counts: Mapping | None = None) -> Quality:
     """The verdict of a run: convention checks on the session, the chain's own statistics
     (`quality.assess`), and candidate fixes tried by re-running the chain's `run` with `params`."""

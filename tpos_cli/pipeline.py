@@ -146,7 +146,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
 
     result.summary.pop("config", None)  # the chain's own echo of its parameters: cfg.resolved is the record
     with ctx.stage("quality"):  # the verdict (tpos_cli.quality); candidate fixes re-run the chain on a window
-        verdict = review(session, result, chain=pipe.chain, config=cfg.resolved, params=params, run=run,
+        verdict = review(session, result, chain=pipe.chain, config=cfg.resolved, params=cfg.params, run=run,
                          counts={**session.counts, **ctx.counts})
     resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}

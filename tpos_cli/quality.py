@@ -76,25 +76,8 @@ class Quality:
     findings: tuple[Finding, ...] = ()
 
     def as_dict(self) -> dict:
-        return {"verdict": self.verdict, "reasons": list(self.reasons), "checks": _plain(dict(self.checks))}
-
-
-def _plain(x):
-    """JSON-ready copy: numpy scalars to Python, NaN/inf to None."""
-    if isinstance(x, Mapping):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, (np.bool_, bool)):
-        return bool(x)
-    if isinstance(x, (np.integer, int)):
-        return int(x)
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return round(v, 6) if np.isfinite(v) else None
-    return x
+        """`summary.json["quality"]` (numpy values are converted where the summary is written)."""
+        return {"verdict": self.verdict, "reasons": list(self.reasons), "checks": {k: dict(v) for k, v in self.checks.items()}}
 
 
 def combine(findings: Iterable[Finding]) -> Quality:
