@@ -191,22 +191,61 @@ class _Runner:
         return f"{self.win[0]:.0f}-{self.win[1]:.0f} s of the log"
 
 
-def clock_advice(session, runner: _Runner, off) -> list[Finding]:
-    """The raw-data clock estimate `off` (conventions.gps_clock_estimate) tried by reprocessing."""
+CLOCK_Z = float(stats.norm.isf(0.0005))  # 3.29: two-sided 99.9 %
+
+
+def clock_signature(output) -> dict | None:
+    """GPS position innovations regressed on the velocity at the fix: a GPS stamped δ late gives
+    INS - GPS = v δ (the filter absorbs part of it, so the fitted δ is shrunk towards zero). Per run
+    (forward, backward): δ (s) and its SD from the residual scatter."""
+    inn = output.tables.get("innovations") if output is not None else None
+    tr = getattr(output, "trajectory", None)
+    if inn is None or tr is None or "nu_0" not in inn:
+        return None
+    out = {}
+    for sol in ("forward", "backward"):
+        f = tr[tr["solution"] == sol].sort_values("t")
+        g = inn[(inn["solution"] == sol) & (inn["kind"] == "gps_pos")]
+        if len(g) < 10 or len(f) < 2:
+            continue
+        t = g["t"].to_numpy(float)
+        v = np.column_stack([np.interp(t, f["t"], f[c]) for c in ("vn", "ve")])
+        nu = g[["nu_0", "nu_1"]].to_numpy(float)
+        ok = np.isfinite(nu).all(axis=1)
+        x, y = v[ok].ravel(), nu[ok].ravel()
+        if x.size < 20 or not float(x @ x) > 0:
+            continue
+        d = float(x @ y / (x @ x))
+        r = y - d * x
+        out[sol] = {"late_s": d, "sd_s": float(np.sqrt(r @ r / (y.size - 1) / (x @ x)))}
+    return out or None
+
+
+def clock_advice(session, output, runner: _Runner, off) -> list[Finding]:
+    """GPS clock offsets tried by reprocessing: from the raw-data estimate `off`
+    (conventions.gps_clock_estimate: δ and δ/2) and, when both runs' innovations carry a
+    significant signature of the same sign (`clock_signature`), from it (δ and 2δ: the filter
+    absorbs part of an offset). The candidate that predicts the GPS best is suggested if it
+    predicts it better than the times given (`compare`)."""
     cur = conventions._current_gps_offset(session)
     f = conventions.clock_finding(off, cur)
-    if f is None:
-        return []
-    fig = dict(f.figures)
-    if not fig["candidate"]:
-        return [Finding("clock", "ok", None, fig)]
-    base = runner.base()
+    fig = dict(f.figures) if f is not None else {}
+    cands = [frac * off.offset_s for frac in (1.0, 0.5)] if fig.get("candidate") else []
+    sig = clock_signature(output)
+    if sig is not None:
+        fig["innovation_signature"] = sig
+        ds = [v["late_s"] for v in sig.values()]
+        z = [abs(v["late_s"]) / v["sd_s"] for v in sig.values() if v["sd_s"] > 0]
+        if len(ds) == 2 and len(z) == 2 and min(z) > CLOCK_Z and np.sign(ds[0]) == np.sign(ds[1]):
+            d = -float(np.mean(ds))  # late GPS: add a negative offset
+            cands += [d, 2.0 * d]
+    cands = [d for d in cands if abs(d) >= conventions.CLOCK_MIN_S / 2]
+    base = runner.base() if cands else None
     if base is None:
-        return [Finding("clock", "ok", None, fig)]
+        return [Finding("clock", "ok", None, fig)] if fig else []
     tried = []
     best = None
-    for frac in (1.0, 0.5):
-        d = frac * off.offset_s
+    for d in cands:
         inn = runner.innovations(shift_gps(runner.session, d))
         if inn is None:
             continue
@@ -221,11 +260,11 @@ def clock_advice(session, runner: _Runner, off) -> list[Finding]:
     d, c = best
     late = "late" if d < 0 else "early"
     fig["suggested_gps_offset_s"] = cur + d
+    raw = f" (raw data: {abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s)" if off is not None else ""
     return [Finding("clock", "suspect",
-                    f"gps/imu: the GPS is time-stamped about {abs(d):.3f} s {late} against the IMU (raw data: "
-                    f"{abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s); re-processing {runner.label} with it cuts the GPS "
-                    f"prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set [time] gps_offset_s = {cur + d:.3f} "
-                    "in session.toml", fig)]
+                    f"gps/imu: the GPS is time-stamped about {abs(d):.3f} s {late} against the IMU{raw}; re-processing "
+                    f"{runner.label} with it cuts the GPS prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): "
+                    f"set [time] gps_offset_s = {cur + d:.3f} in session.toml", fig)]
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
@@ -387,7 +426,9 @@ def _with_anchor_at(session, i: int, ned_m):
 def locate_anchor(session, output, i: int, model: Mapping | None):
     """Anchor i's north/east (its height as given) from a run that did not use it: robust least
     squares of its ranges (corrected by the range model, measured = f true + c) against the run's
-    positions at the range times. Returns (ned (3,), sd_ne (2,), n) or None."""
+    positions at the range times, started at the listed position. Returns [(ned (3,), sd_ne (2,),
+    n)] or None. From a nearly straight track an anchor and its mirror image about the track fit
+    almost alike; the fit keeps the side it starts on unless the data prefer the other."""
     from scipy.optimize import least_squares
 
     from tpos_cli.frames.geodetic import lla_to_ned
@@ -423,14 +464,180 @@ def locate_anchor(session, output, i: int, model: Mapping | None):
         cov = np.linalg.inv(fit.jac.T @ fit.jac) * s2 * r.size / consistency.effective_sample_size(fit.fun)
     except np.linalg.LinAlgError:
         return None
-    return np.array([fit.x[0], fit.x[1], a0[2]]), np.sqrt(np.diag(cov)), int(r.size)
+    return [(np.array([fit.x[0], fit.x[1], a0[2]]), np.sqrt(np.diag(cov)), int(r.size))]
+
+
+def _position_sigma_m(trajectory: pd.DataFrame | None) -> float:
+    """Median horizontal position sigma of the run's best solution (smoothed, else forward)."""
+    if trajectory is None or "sigma_n" not in trajectory:
+        return float("nan")
+    for sol in ("smoothed", "forward"):
+        t = trajectory[trajectory["solution"] == sol]
+        if len(t):
+            return float(np.nanmedian(np.hypot(t["sigma_n"], t["sigma_e"]) / np.sqrt(2.0)))
+    return float("nan")
+
+
+def lever_arm_advice(session, output, runner: _Runner) -> list[Finding]:
+    """A flipped lever-arm sign, looked for when the velocity innovations carry its signature."""
+    sig = lever_arm_signature(session, output)
+    if sig is None:
+        return []
+    lever = np.asarray(session.meta.lever_arm_b_m, dtype=float)
+    thr = float(stats.chi2.isf(1.0 - 0.999, 3))
+    flip = -2.0 * lever  # the correction a flipped sign needs
+    # fired: significant in a run, and pointing the way a flipped sign would (a positive share of -2 l)
+    fired = [s for s, v in sig.items() if v["chi2"] > thr and float(np.dot(v["correction_m"], flip)) > 0]
+    sigma_h = _position_sigma_m(output.trajectory)
+    fig = {"signature": sig, "chi2_limit": thr, "lever_arm_m": lever.tolist(), "position_sigma_m": sigma_h}
+    # a flip that moves the antenna by less than 3 sigmas of the solution cannot be told from noise
+    # in what the user gets, so it is not worth an edit (nor a re-run)
+    if not fired or not np.linalg.norm(flip) > LEVER_MATERIAL_SIGMAS * sigma_h:
+        return [Finding("lever_arm", "ok", None, fig)]
+    base = runner.base()
+    inn = runner.innovations(with_lever_arm(runner.session, -lever)) if base is not None else None
+    if inn is None:
+        return [Finding("lever_arm", "ok", None, fig)]
+    c = compare(base, inn)
+    fig["tried"] = [{"lever_arm_m": (-lever).tolist(), "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes}]
+    fig["window"] = runner.label
+    if not c.better:
+        return [Finding("lever_arm", "ok", None, fig)]
+    logged = session.meta.raw.get("gps", {}).get("lever_arm_m") if isinstance(session.meta.raw, Mapping) else None
+    shown = 0.0 - (np.asarray(logged, dtype=float) if logged is not None else lever)  # 0.0 - : no "-0"
+    fig["suggested_lever_arm_m"] = shown.tolist()
+    return [Finding("lever_arm", "suspect",
+                    f"gps: the lever arm's sign looks flipped (the GPS velocities carry an antenna-offset signature, chi2 "
+                    f"{max(v['chi2'] for v in sig.values()):.0f} > {thr:.0f}); re-processing {runner.label} with it negated "
+                    f"cuts the GPS prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set [gps] lever_arm_m = "
+                    f"[{', '.join(f'{v:g}' for v in shown)}] (antenna minus IMU, in the IMU's logged axes)", fig)]
+
+
+def _lf2_excluded(output) -> float:
+    faults = (getattr(output, "summary", None) or {}).get("faults") or {}
+    return float((faults.get("lf2") or {}).get("excluded_fraction", float("nan")))
+
+
+def baseline_advice(session, output, runner: _Runner) -> list[Finding]:
+    """Rangefinder baselines estimated from the ranges and the gyro-only attitude
+    (`conventions.baseline_findings`), suggested when re-processing with them ends the federated
+    filter's exclusion of LF2 (the fault detector's verdict that LF2 disagrees with LF1)."""
+    fs = conventions.baseline_findings(session, getattr(output, "trajectory", None))
+    cands = {f.check.split(".")[-1]: f.figures["estimate_m"] for f in fs if f.figures.get("candidate")}
+    if not cands:
+        return fs
+    before = _lf2_excluded(runner.base_output())
+    rf = dataclasses.replace(session.meta.rangefinders, **cands)
+    trial = runner.output(dataclasses.replace(runner.session, meta=dataclasses.replace(runner.session.meta, rangefinders=rf)))
+    after = _lf2_excluded(trial)
+    fig = {"candidates_m": cands, "lf2_excluded_before": before, "lf2_excluded_after": after, "window": runner.label}
+    if not (before > quality.DISTURBED_ALLOWANCE and after <= quality.DISTURBED_ALLOWANCE):
+        return [*fs, Finding("baseline", "ok", None, fig)]
+    given = {k: float(getattr(session.meta.rangefinders, k)) for k in cands}
+    est = {f.check.split(".")[-1]: f.figures for f in fs}
+    what = "; ".join(f"{k} = {given[k]:g} but the ranges and the gyro say {v:.4f} ± {est[k]['sd_m']:.4f}" for k, v in cands.items())
+    sets = ", ".join(f"{k} = {v:.3f}" for k, v in cands.items())
+    return [*fs, Finding("baseline", "suspect",
+                         f"rangefinders: {what}: a wrong baseline in session.toml; re-processing {runner.label} with it "
+                         f"ends the fusion's exclusion of LF2 ({100 * before:.0f} % -> {100 * after:.0f} % of the log): "
+                         f"set [rangefinders] {sets}", fig)]
+
+
+RANGE_KINDS = ("range",)
+
+
+def _range_score(innovations: pd.DataFrame | None) -> float:
+    """Median NIS of the scalar range updates over the median of chi-square(1) (0.455): 1 when
+    consistent, robust to the NLOS spikes the gate rejects."""
+    if innovations is None:
+        return float("inf")
+    r = innovations[innovations["kind"].isin(RANGE_KINDS)]["nis"].to_numpy(float)
+    r = r[np.isfinite(r)]
+    return float(np.median(r) / stats.chi2.median(1)) if r.size else float("inf")
+
+
+def _without_anchor(session, i: int):
+    ar = session.anchor_ranges
+    keep = ar.anchor != i
+    return dataclasses.replace(session, anchor_ranges=dataclasses.replace(ar, t_s=ar.t_s[keep], anchor=ar.anchor[keep],
+                                                                          range_m=ar.range_m[keep]))
+
+
+def _with_anchor_at(session, i: int, ned_m):
+    from tpos_cli.frames.geodetic import ned_to_lla
+
+    a = session.anchors
+    ned = a.ned_m.copy()
+    ned[i] = ned_m
+    lla = a.lla.copy()
+    lla[i] = ned_to_lla(np.asarray(ned_m, dtype=float), a.origin_lla)
+    return dataclasses.replace(session, anchors=dataclasses.replace(a, ned_m=ned, lla=lla))
+
+
+def locate_anchor(session, output, i: int, model: Mapping | None):
+    """Anchor i's north/east (its height as given) from a run that did not use it: robust least
+    squares of its ranges (corrected by the range model, measured = f true + c) against the run's
+    positions at the range times, started at the listed position. Returns [(ned (3,), sd_ne (2,),
+    n)] or None. From a nearly straight track an anchor and its mirror image about the track fit
+    almost alike; the fit keeps the side it starts on unless the data prefer the other."""
+    from scipy.optimize import least_squares
+
+    from tpos_cli.frames.geodetic import lla_to_ned
+
+    tr = getattr(output, "trajectory", None)
+    if tr is None:
+        return None
+    sols = [s for s in ("smoothed", "fatci", "tc", "lc") if (tr["solution"] == s).any()]
+    if not sols:
+        return None
+    f = tr[tr["solution"] == sols[0]].sort_values("t")
+    ar = session.anchor_ranges
+    m = (ar.anchor == i) & np.isfinite(ar.range_m)
+    t = ar.t_s[m] + session.t0_s
+    inside = (t >= f["t"].iloc[0]) & (t <= f["t"].iloc[-1])
+    if inside.sum() < 20:
+        return None
+    t, r = t[inside], ar.range_m[m][inside]
+    aid = session.anchors.ids[i]
+    coef = ((model or {}).get("anchors") or {}).get(aid) or {}
+    r = (r - float(coef.get("c_m", 0.0))) / float(coef.get("f", 1.0))
+    ned = lla_to_ned(f[["lat", "lon", "h"]].to_numpy(float), session.anchors.origin_lla)
+    p = np.column_stack([np.interp(t, f["t"], ned[:, j]) for j in range(3)])
+    a0 = session.anchors.ned_m[i].astype(float)
+
+    def res(x):
+        return np.linalg.norm(p - np.array([x[0], x[1], a0[2]]), axis=1) - r
+
+    scale = max(1.4826 * float(np.median(np.abs(res(a0[:2]) - np.median(res(a0[:2]))))), 0.01)
+    fit = least_squares(res, a0[:2], loss="soft_l1", f_scale=scale)
+    s2 = float(np.median(fit.fun**2)) / stats.chi2.median(1)
+    # Ranges from a nearly straight track fit the anchor and its mirror image about the track
+    # almost alike, and the track itself came from anchors on both sides: both places are
+    # returned, for re-processing with all anchors to tell them apart
+    c = p[:, :2].mean(axis=0)
+    u = np.linalg.svd(p[:, :2] - c, full_matrices=False)[2][0]  # the track's direction (north, east)
+    x = fit.x - c
+    mirror = c + 2.0 * (x @ u) * u - x
+    fit2 = least_squares(res, mirror, loss="soft_l1", f_scale=scale)
+    out = []
+    for xy in (fit.x, fit2.x, mirror):  # the fit, the fit from the mirror image, the mirror image
+        if any(np.hypot(*(xy - o[0][:2])) < 3.0 * np.sqrt(s2) for o in out):
+            continue
+        jac = least_squares(res, xy, max_nfev=1).jac if xy is mirror else (fit if xy is fit.x else fit2).jac
+        fun = res(xy)
+        try:
+            cov = np.linalg.inv(jac.T @ jac) * s2 * r.size / consistency.effective_sample_size(fun)
+        except np.linalg.LinAlgError:
+            continue
+        out.append((np.array([xy[0], xy[1], a0[2]]), np.sqrt(np.diag(cov)), int(r.size)))
+    return out or None
 
 
 def anchor_advice(session, output, runner: _Runner, gate_probability: float | None) -> list[Finding]:
-    """A moved anchor: when the range updates fail their NIS or rejection checks, each anchor is
-    left out in turn (re-processing); the one whose absence makes the rest most consistent is
-    located from that run, and its new coordinates are suggested when re-processing with them
-    predicts the ranges better than the coordinates given (`compare` on the range NIS)."""
+    """A moved anchor: when the range updates fail their NIS or rejection checks, each anchor in turn
+    is left out (re-processing), located from that run (`locate_anchor`), and the log re-processed
+    with it there; the relocation that predicts the ranges best, better than the coordinates given
+    (`compare` on the range NIS, z > 3), is suggested."""
     inn = output.tables.get("innovations") if output is not None else None
     if inn is None or session.anchors is None or session.anchor_ranges is None:
         return []
@@ -439,37 +646,44 @@ def anchor_advice(session, output, runner: _Runner, gate_probability: float | No
     fig: dict = {"range_score": score_all}
     if not fired or len(session.anchors.ids) < 4:
         return [Finding("anchors", "ok", None, fig)]
-    base = runner.base_output()
-    scores = {}
-    runs = {}
+    base = runner.base()
+    model = (output.summary or {}).get("range_model")
+    tried = {}
+    best = None
     for i, aid in enumerate(session.anchors.ids):
         # three anchors still give a horizontal fix (the floor height is known)
-        out = runner.output(_without_anchor(runner.session, i), {"lc_min_anchors": 3})
-        runs[i] = out
-        scores[aid] = _range_score(None if out is None else out.tables.get("innovations"))
-    fig["range_score_without"] = scores
-    i_best = int(np.argmin([scores[a] for a in session.anchors.ids]))
-    aid = session.anchors.ids[i_best]
-    if not scores[aid] < score_all or runs[i_best] is None:
+        without = runner.output(_without_anchor(runner.session, i), {"lc_min_anchors": 3})
+        places = locate_anchor(runner.session, without, i, model) if without is not None else None
+        if not places or base is None:
+            continue
+        for ned, sd, n in places:
+            trial = runner.innovations(_with_anchor_at(runner.session, i, ned))
+            if trial is None:
+                continue
+            c = compare(base, trial, kinds=RANGE_KINDS)
+            if aid in tried and c.ratio >= tried[aid]["ratio"]:
+                continue
+            given = session.anchors.ned_m[i]
+            tried[aid] = {"estimate_ne_m": [float(ned[0]), float(ned[1])], "sd_ne_m": sd.tolist(), "ranges": n,
+                          "moved_m": float(np.hypot(*(ned[:2] - given[:2]))), "ratio": c.ratio, "z": c.z,
+                          "range_score_without": _range_score(without.tables.get("innovations"))}
+        if aid in tried and tried[aid]["z"] > Z_ACCEPT and tried[aid]["ratio"] < 1.0 and (
+                best is None or tried[aid]["ratio"] < tried[best]["ratio"]):
+            best = aid
+    fig.update({"tried": tried, "window": runner.label})
+    if best is None:
         return [Finding("anchors", "ok", None, fig)]
-    loc = locate_anchor(runner.session, runs[i_best], i_best, (output.summary or {}).get("range_model"))
-    if loc is None:
-        return [Finding("anchors", "ok", None, fig)]
-    ned, sd, n = loc
-    trial = runner.output(_with_anchor_at(runner.session, i_best, ned))
-    c = compare(base.tables.get("innovations"), None if trial is None else trial.tables.get("innovations"),
-                kinds=RANGE_KINDS) if trial is not None else Comparison(0, float("nan"), float("nan"))
-    given = session.anchors.ned_m[i_best]
-    fig.update({"anchor": aid, "given_ne_m": [float(given[0]), float(given[1])], "estimate_ne_m": [float(ned[0]), float(ned[1])],
-                "sd_ne_m": sd.tolist(), "ranges": n, "ratio": c.ratio, "z": c.z, "window": runner.label})
-    if not c.better:
-        return [Finding("anchors", "ok", None, fig)]
-    moved = float(np.hypot(*(ned[:2] - given[:2])))
+    t = tried[best]
+    i = session.anchors.ids.index(best)
+    given = session.anchors.ned_m[i]
+    fig.update({"anchor": best, "given_ne_m": [float(given[0]), float(given[1])], "estimate_ne_m": t["estimate_ne_m"],
+                "sd_ne_m": t["sd_ne_m"]})
+    n_, e_ = t["estimate_ne_m"]
     return [Finding("anchors", "suspect",
-                    f"anchors: {aid}'s ranges disagree with the other anchors (leaving it out brings the range NIS from "
-                    f"{score_all:.1f}x to {scores[aid]:.1f}x its expectation); they put it {moved:.2f} m from its listed "
-                    f"position, at e = {ned[1]:.2f}, n = {ned[0]:.2f} m (± {max(sd):.2f}); re-processing with that cuts the "
-                    f"range NIS by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): re-survey {aid} or correct anchors.csv", fig)]
+                    f"anchors: {best}'s ranges disagree with the other anchors: they put it {t['moved_m']:.2f} m from its "
+                    f"listed position, at e = {e_:.2f}, n = {n_:.2f} m (± {max(t['sd_ne_m']):.2f}); re-processing "
+                    f"{runner.label} with that cuts the range NIS by {100 * (1 - t['ratio']):.0f} % (z = {t['z']:.1f}): "
+                    f"re-survey {best} or correct anchors.csv", fig)]
 
 
 def with_gyro_scale(session, factor: float):
@@ -510,7 +724,7 @@ def review(session, output, *, chain: str, config: Mapping | None, params, run: 
         off = conventions.gps_clock_estimate(session, max_span_s=WINDOW_S)
         gate = ((config or {}).get(chain) or {}).get("gate_probability")
         findings += units_advice(session, output, runner, gate)
-        findings += clock_advice(session, runner, off)
+        findings += clock_advice(session, output, runner, off)
         findings += lever_arm_advice(session, output, runner)
     if chain == "ranging_fatci" and output is not None:
         gate = ((config or {}).get(chain) or {}).get("gate_probability")
