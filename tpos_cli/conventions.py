@@ -72,11 +72,12 @@ def _suggest_axes(axes: str, sensor_up: int, up_positive: bool) -> str:
     return best or axes
 
 
-def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[Finding]:
+def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", still=None, still_strict=None) -> list[Finding]:
     """+g on the up axis named by `axes` (at rest, else averaged over the whole log: a vehicle's or a
-    hand's accelerations average out over minutes), and a gyro norm at rest near Earth rate + bias."""
+    hand's accelerations average out over minutes), and a gyro norm at rest near Earth rate + bias.
+    `still`, `still_strict`: the `_still` masks at the default and the strict tolerance, if known."""
     out: list[Finding] = []
-    still = _still(t, gyro_b, acc_b)
+    still = _still(t, gyro_b, acc_b) if still is None else still
     at_rest = still.sum() >= 50
     long_enough = t.size >= 50 and t[-1] - t[0] >= 10.0
     if at_rest or long_enough:
@@ -101,7 +102,9 @@ def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[Fin
             out.append(Finding("conventions.axes", "ok", None, fig))
     # The quietest rest period decides: a constant-rate turn can look still to the accelerometer,
     # but a log in deg/s reads high in every rest period.
-    w = _quietest_rest_rate(t, gyro_b, _still(t, gyro_b, acc_b, ACC_STILL_SD_MPS2))
+    if still_strict is None:
+        still_strict = _still(t, gyro_b, acc_b, ACC_STILL_SD_MPS2)
+    w = _quietest_rest_rate(t, gyro_b, still_strict)
     if w > STILL_GYRO_MAX_RPS:
         deg = w * np.pi / 180 < STILL_GYRO_MAX_RPS
         hint = " (it is deg/s logged as rad/s: multiply by pi/180)" if deg else ""
@@ -264,7 +267,8 @@ def session_findings(session) -> list[Finding]:
     imu = session.imu
     t, gyro, acc = imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2
     axes = session.meta.axes
-    out = gravity_findings(t, gyro, acc, axes)
+    still = _still(t, gyro, acc)
+    out = gravity_findings(t, gyro, acc, axes, still=still)
     out += tilt_findings(t, gyro, acc, axes)
     out += course_findings(session)
     pos = None
@@ -274,7 +278,6 @@ def session_findings(session) -> list[Finding]:
         pos = session.meta.observer_lla
     if pos is not None:
         g_ref = float(normal_gravity_mps2(np.radians(pos[0]), pos[2]))
-        still = _still(t, gyro, acc)
         if still.sum() > 50:
             gm = float(np.linalg.norm(acc[still].mean(axis=0)))
             fig = {"rest_norm_mps2": gm, "normal_gravity_mps2": g_ref}

@@ -142,9 +142,14 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     wrap = np.abs(w.d_course) > np.pi / 2  # a course jump (reversing, noise at low speed)
     base_w = {"course": mask * ~wrap, "along": mask}
 
+    cache: dict = {}  # the jackknife re-scans the same offsets with other weights
+
     def regressors(delta):
-        d = np.stack([np.interp(w.tb + delta, t, integ[:, k]) - np.interp(w.ta + delta, t, integ[:, k]) for k in range(3)], axis=1)
-        return {"course": hp((w.s_mean * d[:, 0])[:, None], mask), "along": hp(d[:, 1:], mask)}
+        key = round(float(delta), 9)
+        if key not in cache:
+            d = np.stack([np.interp(w.tb + delta, t, integ[:, k]) - np.interp(w.ta + delta, t, integ[:, k]) for k in range(3)], axis=1)
+            cache[key] = {"course": hp((w.s_mean * d[:, 0])[:, None], mask), "along": hp(d[:, 1:], mask)}
+        return cache[key]
 
     def fit(delta, wts):
         X = regressors(delta)
@@ -178,7 +183,6 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
         return x + np.arange(-half_s, half_s + step / 2, step)
 
     # channel noise levels at their own best; channels that explain too little are dropped
-    n_c = np.array([wts[c].sum() for c in channels])
     ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
     r2 = 1 - sse.min(axis=0) / np.maximum(ss_y, 1e-300)
     i_best = np.argmin(sse, axis=0)
