@@ -8,6 +8,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from tests.helpers.sessions import G, write_minimal_session
+from tpos_cli.errors import InvalidInputError
 from tpos_cli.session import load_session
 
 EXCERPTS = Path(__file__).parent / "data" / "real_excerpts"
@@ -80,3 +81,73 @@ def test_anchors_in_enu_and_lla_agree(tmp_path):
     s = load_session(write_minimal_session(tmp_path / "s", with_anchors=True))
     assert_allclose(s.anchors.ned_m[1], [0.0, 10.0, -2.0], atol=1e-9)
     assert s.anchor_ranges.range_m.size == 400 and set(s.anchor_ranges.anchor) == {0, 1, 2, 3}
+
+
+# --- the contract's optional odometry table and [imu] mounting_rpy_deg ---------------------------
+
+def test_real_odometry_excerpt_loads_on_the_imu_clock():
+    """comma2k19's CAN speed (written by another tool) becomes Session.odometry, on the IMU clock."""
+    d = EXCERPTS / "comma2k19_seg40"
+    raw = pd.read_csv(d / "odometry.csv")
+    s = load_session(d)
+    assert s.odometry is not None and s.odometry.t_s.size == len(raw)
+    assert_allclose(s.odometry.t_s, raw["t"].to_numpy() - s.t0_s, atol=1e-9)
+    assert_allclose(s.odometry.speed_mps, raw["speed_mps"].to_numpy())
+    assert "odometry.csv" in s.file_hashes
+    assert s.meta.mounting_rpy_deg is None  # absent: unknown, not zero
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_odometry_in_both_formats_with_offset_and_nan(tmp_path, fmt):
+    d = write_minimal_session(tmp_path / "s", fmt=fmt, with_odometry=True)
+    odo = pd.read_csv(d / "odometry.csv") if fmt == "csv" else pd.read_parquet(d / "odometry.parquet")
+    odo.loc[[3, 4], "speed_mps"] = np.nan
+    odo.loc[10, "speed_mps"] = 2.5
+    odo.to_csv(d / "odometry.csv", index=False) if fmt == "csv" else odo.to_parquet(d / "odometry.parquet", index=False)
+    (d / "session.toml").write_text((d / "session.toml").read_text() + "\n[time]\nodometry_offset_s = 0.125\n")
+    s = load_session(d)
+    assert s.odometry.t_s.size == len(odo) - 2
+    assert s.counts["odometry_nan_samples"] == 2 and any("odometry" in w for w in s.warnings)
+    # Rows 0..2 kept, then 5.. : row 10 of the file is index 8 of the kept rows.
+    assert s.odometry.speed_mps[8] == 2.5
+    assert_allclose(s.odometry.t_s[:3], np.arange(3) / 50.0 + 0.125)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda o: o.assign(speed_mps=np.where(np.arange(len(o)) == 7, -0.4, o.speed_mps)), "column 'speed_mps', row 8: speed -0.4 m/s is negative"),
+    (lambda o: o.assign(t=o.t + 3600.0), "no odometry row falls within the IMU's time span"),
+    (lambda o: o.iloc[::-1], "column 't', row 2: time goes backwards"),
+    (lambda o: o.drop(columns=["speed_mps"]), "column 'speed_mps': required column is missing"),
+    (lambda o: o.assign(speed_mps=np.nan), "no row carries a speed value"),
+])
+def test_bad_odometry_is_refused(tmp_path, edit, message):
+    d = write_minimal_session(tmp_path / "s", with_odometry=True)
+    edit(pd.read_csv(d / "odometry.csv")).to_csv(d / "odometry.csv", index=False)
+    with pytest.raises(InvalidInputError) as exc:
+        load_session(d)
+    assert "odometry.csv" in str(exc.value) and message in str(exc.value)
+
+
+def test_mounting_rpy_deg_read_when_present(tmp_path):
+    d = write_minimal_session(tmp_path / "s")
+    (d / "session.toml").write_text((d / "session.toml").read_text().replace("[imu]\n", "[imu]\nmounting_rpy_deg = [0.0, -6.8, 5.4]\n"))
+    s = load_session(d)
+    assert s.meta.mounting_rpy_deg.shape == (3,)
+    assert_allclose(s.meta.mounting_rpy_deg, [0.0, -6.8, 5.4])
+    assert load_session(write_minimal_session(tmp_path / "t")).meta.mounting_rpy_deg is None
+
+
+@pytest.mark.parametrize("value, message", [
+    ("[0.0, 1.0]", "must be three finite numbers"),
+    ('"0,0,0"', "must be three finite numbers"),
+    ("[0.0, nan, 0.0]", "must be three finite numbers"),
+    ("[0.0, 1e308, 0.0]", "pitch 1e+308 is outside ±90 degrees"),
+    ("[0.0, 95.0, 0.0]", "pitch 95 is outside ±90 degrees"),
+    ("[200.0, 0.0, 0.0]", "roll 200 is outside ±180 degrees"),
+])
+def test_bad_mounting_rpy_deg_is_refused(tmp_path, value, message):
+    d = write_minimal_session(tmp_path / "s")
+    (d / "session.toml").write_text((d / "session.toml").read_text().replace("[imu]\n", f"[imu]\nmounting_rpy_deg = {value}\n"))
+    with pytest.raises(InvalidInputError) as exc:
+        load_session(d)
+    assert "[imu] mounting_rpy_deg" in str(exc.value) and message in str(exc.value)

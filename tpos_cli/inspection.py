@@ -18,8 +18,11 @@ def describe_session(s: Session) -> dict:
     t0 = s.t0_s
     tables: dict[str, dict] = {}
     imu = s.imu
+    mounting = s.meta.mounting_rpy_deg
     tables["imu"] = {"rows": int(imu.t_s.size), "span_s": float(imu.t_s[-1] - imu.t_s[0]), "rate_hz": _rate(imu.t_s),
-                     "notes": f"axes {s.meta.axes}, nominal {s.meta.rate_hz:g} Hz" + (", magnetometer" if imu.mag_b_ut is not None else "")}
+                     "mounting_rpy_deg": None if mounting is None else [float(x) for x in mounting],
+                     "notes": f"axes {s.meta.axes}, nominal {s.meta.rate_hz:g} Hz" + (", magnetometer" if imu.mag_b_ut is not None else "")
+                     + (", mounting " + "/".join(f"{x:g}" for x in mounting) + " deg" if mounting is not None else ", mounting unknown")}
     if s.gps is not None:
         g = s.gps
         fixes = {str(k): int(v) for k, v in zip(*np.unique(g.fix, return_counts=True))}
@@ -32,6 +35,11 @@ def describe_session(s: Session) -> dict:
         tables["ranges"] = {"rows": int(s.ranges.t_s.size), "span_s": float(np.ptp(s.ranges.t_s)), "rate_hz": _rate(s.ranges.t_s),
                             "no_return": {f"d{i + 1}": int(n) for i, n in enumerate(nan)},
                             "notes": "no return: " + ", ".join(f"d{i + 1} {int(n)}" for i, n in enumerate(nan))}
+    if s.odometry is not None:
+        o = s.odometry
+        tables["odometry"] = {"rows": int(o.t_s.size), "span_s": float(np.ptp(o.t_s)), "rate_hz": _rate(o.t_s),
+                              "speed_max_mps": float(o.speed_mps.max()),
+                              "notes": f"speed {float(np.median(o.speed_mps)):.2f} m/s median, {float(o.speed_mps.max()):.2f} max"}
     if s.anchors is not None:
         tables["anchors"] = {"rows": len(s.anchors.ids), "ids": list(s.anchors.ids),
                              "notes": "ids " + ", ".join(s.anchors.ids)}

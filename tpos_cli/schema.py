@@ -11,11 +11,12 @@ ANCHOR_RANGES_REQUIRED = ("t", "id", "range")
 RANGE_CALIBRATION_REQUIRED = ("id", "true_m", "measured_m")
 TARGETS_REQUIRED = ("id", "lat", "lon", "h")
 SHOTS_REQUIRED = ("id", "t_start", "t_end")
+ODOMETRY_REQUIRED = ("t", "speed_mps")
 TRUTH_REQUIRED = ("t", "lat", "lon", "h")
 TRUTH_OPTIONAL = ("vn", "ve", "vd", "roll", "pitch", "yaw")
 
 # Tables that may be CSV or Parquet, and those the contract gives as CSV only.
-TABLES_ANY_FORMAT = ("imu", "ranges", "gps", "anchor_ranges", "truth")
+TABLES_ANY_FORMAT = ("imu", "ranges", "gps", "anchor_ranges", "odometry", "truth")
 TABLES_CSV_ONLY = ("anchors", "range_calibration", "targets", "shots")
 
 SESSION_KINDS = ("target", "drive", "ranging")

@@ -70,6 +70,10 @@ class SessionMeta:
     hard_iron_ut: np.ndarray | None
     soft_iron: np.ndarray | None
     raw: dict
+    # `[imu] mounting_rpy_deg`: the sensor's roll, pitch, yaw on the vehicle body after `axes`
+    # (v_body = Rz(yaw) Ry(pitch) Rx(roll) v_sensor), degrees; None when absent, which means
+    # unknown (not zero): a vehicle chain may estimate it from the log.
+    mounting_rpy_deg: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,14 @@ class GpsData:
 class RangeData:
     t_s: np.ndarray
     range_m: np.ndarray
+
+
+@dataclass(frozen=True)
+class OdometryData:
+    """The contract's `odometry` table: forward speed of the vehicle body (>= 0), on the IMU clock."""
+
+    t_s: np.ndarray
+    speed_mps: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -166,6 +178,7 @@ class Session:
     counts: dict
     warnings: tuple
     file_hashes: dict
+    odometry: OdometryData | None = None
 
     @property
     def t_end_s(self) -> float:
@@ -275,6 +288,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
     except ValueError as exc:
         c.problem("session.toml", f"[imu] {exc}")
     rate = _number(c, imu, "rate_hz", "imu", required=True, positive=True)
+    mounting = _mounting(c, imu)
     noise = ImuNoise(**{k: _number(c, imu, k, "imu", positive=False) for k in ImuNoise.__dataclass_fields__})
     rf = None
     if "rangefinders" in raw:
@@ -316,7 +330,29 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
         name=name, kind=kind, start_utc=start_utc, axes=axes.upper(), rate_hz=rate, imu_noise=noise,
         rangefinders=rf, declination_deg=decl, lever_arm_b_m=C_bs @ lever, observer_lla=observer,
         local_origin_lla=local, time_offsets_s=offsets, hard_iron_ut=hard_iron, soft_iron=soft_iron, raw=raw,
+        mounting_rpy_deg=mounting,
     )
+
+
+# Bounds of the Euler angles of `[imu] mounting_rpy_deg` (same convention as attitude: pitch within
+# +-90 deg); a value outside is not an angle of this convention (e.g. radians, or a typo).
+MOUNTING_LIMITS_DEG = (180.0, 90.0, 360.0)
+
+
+def _mounting(c: _Collector, imu: dict) -> np.ndarray | None:
+    """`[imu] mounting_rpy_deg` as (3,) degrees, or None when the key is absent (unknown)."""
+    if "mounting_rpy_deg" not in imu:
+        return None
+    v = imu["mounting_rpy_deg"]
+    if not _is_matrix(v, (3,)):
+        c.problem("session.toml", f"[imu] mounting_rpy_deg must be three finite numbers (roll, pitch, yaw in degrees), got {v!r}")
+        return None
+    rpy = np.asarray(v, dtype=float)
+    for name, val, lim in zip(("roll", "pitch", "yaw"), rpy, MOUNTING_LIMITS_DEG):
+        if abs(val) > lim:
+            c.problem("session.toml", f"[imu] mounting_rpy_deg {name} {val:g} is outside ±{lim:g} degrees")
+            return None
+    return rpy
 
 
 def _v(x) -> str:
@@ -492,6 +528,39 @@ def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
         return None
     c.count("ranges_no_return", int((~np.isfinite(d[keep])).sum()))
     return RangeData(t_s=t[keep] + _offset(meta, "ranges") - t0, range_m=d[keep])
+
+
+def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[float, float] | None):
+    """The optional `odometry` table: time checks, NaN speeds dropped and counted, speed >= 0."""
+    df, fname = c.table("odometry", schema.ODOMETRY_REQUIRED, required=schema.ODOMETRY_REQUIRED)
+    if df is None:
+        return None
+    t = df["t"].to_numpy()
+    keep = _check_time(c, fname, t, "odometry")
+    if keep is None:
+        return None
+    v = df["speed_mps"].to_numpy()
+    neg = np.flatnonzero(v < 0)
+    if neg.size:
+        c.problem(fname, f"speed {_v(v[neg[0]])} m/s is negative; the contract's speed_mps is the forward speed, >= 0",
+                  "speed_mps", int(neg[0]) + 1)
+        return None
+    nan = keep & ~np.isfinite(v)
+    if nan.any():
+        c.count("odometry_nan_samples", int(nan.sum()))
+        c.warnings.append(f"{fname}: {int(nan.sum())} rows without a speed value dropped")
+    keep = keep & np.isfinite(v)
+    if not keep.any():
+        c.problem(fname, "no row carries a speed value", "speed_mps")
+        return None
+    t_rel = t[keep] + _offset(meta, "odometry") - t0
+    if imu_span_s is not None:
+        inside = (t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1])
+        if not inside.any():
+            c.problem(fname, f"no odometry row falls within the IMU's time span (odometry {t_rel[0] + t0:.3f}-{t_rel[-1] + t0:.3f} s, "
+                      f"IMU {imu_span_s[0] + t0:.3f}-{imu_span_s[1] + t0:.3f} s on the logger clock): wrong clock or [time] odometry_offset_s", "t")
+            return None
+    return OdometryData(t_s=t_rel, speed_mps=v[keep])
 
 
 def _load_anchors(c: _Collector, meta: SessionMeta):
@@ -685,6 +754,7 @@ def load_session(path: str | Path) -> Session:
     t0 = float(imu[0][0]) if imu is not None else 0.0
     gps = _load_gps(c, meta, t0)
     ranges = _load_ranges(c, meta, t0)
+    odometry = _load_odometry(c, meta, t0, (0.0, float(imu[0][-1] - t0)) if imu is not None else None)
     anchors = _load_anchors(c, meta)
     anchor_ranges = _load_anchor_ranges(c, meta, t0, anchors)
     range_cal = _load_range_calibration(c, anchors)
@@ -709,7 +779,7 @@ def load_session(path: str | Path) -> Session:
                     mag_b_ut=None if mag_b is None else np.ascontiguousarray(mag_b)),
         gps=gps, ranges=ranges, anchors=anchors, anchor_ranges=anchor_ranges, range_calibration=range_cal,
         targets=targets, shots=shots, truth=truth, gps_outages_s=outages, imu_gaps_s=gaps - t0,
-        counts=dict(c.counts), warnings=tuple(c.warnings), file_hashes=hashes,
+        counts=dict(c.counts), warnings=tuple(c.warnings), file_hashes=hashes, odometry=odometry,
     )
 
 

@@ -11,9 +11,9 @@ G = 9.80665
 
 
 def write_minimal_session(path: Path, *, fmt: str = "csv", seconds: float = 10.0, rate_hz: float = 100.0,
-                          with_gps: bool = True, with_ranges: bool = False, with_anchors: bool = False,
+                          with_gps: bool = True, with_ranges: bool = False, with_anchors: bool = False, with_odometry: bool = False,
                           t0: float = 1000.0, seed: int = 0) -> Path:
-    """A static FRD IMU (gravity on -z, Earth-rate-sized gyro noise), 1 Hz GPS, optional ranges/anchors."""
+    """A static FRD IMU (gravity on -z, Earth-rate-sized gyro noise), 1 Hz GPS, optional ranges/anchors/odometry."""
     rng = np.random.default_rng(seed)
     path.mkdir(parents=True, exist_ok=True)
     n = int(seconds * rate_hz)
@@ -38,6 +38,9 @@ def write_minimal_session(path: Path, *, fmt: str = "csv", seconds: float = 10.0
         rng_df = pd.DataFrame({"t": tr, "d1": 12.0 + np.zeros(tr.size), "d2": 12.0 + np.zeros(tr.size), "d3": 12.0 + np.zeros(tr.size)})
         _write(rng_df, path / "ranges", fmt)
         toml += ["[rangefinders]", "baseline_12_m = 0.2", "baseline_13_m = 0.2", "sigma_m = 0.0015", ""]
+    if with_odometry:
+        to = t0 + np.arange(int(seconds * 50)) / 50.0
+        _write(pd.DataFrame({"t": to, "speed_mps": np.zeros(to.size)}), path / "odometry", fmt)
     if with_anchors:
         pd.DataFrame({"id": ["A1", "A2", "A3", "A4"], "e": [0.0, 10.0, 10.0, 0.0], "n": [0.0, 0.0, 5.0, 5.0],
                       "u": [2.0, 2.0, 2.0, 2.0]}).to_csv(path / "anchors.csv", index=False)

@@ -161,6 +161,14 @@ def bad_lever_arm(s):
     (s / "session.toml").write_text((s / "session.toml").read_text() + "\n[gps]\nlever_arm_m = [0.1, 0.2]\n")
 
 
+def negative_odometry_speed(s):
+    _edit_csv(s / "odometry.csv", lambda d: d.assign(speed_mps=np.where(np.arange(len(d)) == 4, -3.0, d.speed_mps)))
+
+
+def bad_mounting(s):
+    (s / "session.toml").write_text((s / "session.toml").read_text().replace("[imu]\n", "[imu]\nmounting_rpy_deg = [0.0, 0.0]\n"))
+
+
 # (case, session options, file the message must name, column it must name or None)
 CASES = [
     (truncated_csv, {}, "imu.csv", None),
@@ -194,6 +202,8 @@ CASES = [
     (shots_reversed, {}, "shots.csv", "t_end"),
     (bad_target_role, {}, "targets.csv", "role"),
     (bad_lever_arm, {}, "session.toml", None),
+    (negative_odometry_speed, {"with_odometry": True}, "odometry.csv", "speed_mps"),
+    (bad_mounting, {}, "session.toml", None),
 ]
 
 
