@@ -16,15 +16,16 @@ import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from tpos_cli import __version__, timebase
-from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.advice import review
 from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.run_dir import (
@@ -144,6 +145,9 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         raise ProcessingError(f"{pipe.name} failed on {session.meta.name}: {type(exc).__name__}: {exc}") from exc
 
     result.summary.pop("config", None)  # the chain's own echo of its parameters: cfg.resolved is the record
+    with ctx.stage("quality"):  # the verdict (tpos_cli.quality); candidate fixes re-run the chain on a window
+        verdict = review(session, result, chain=pipe.chain, config=cfg.resolved, params=cfg.params, run=run,
+                         counts={**session.counts, **ctx.counts})
     resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -172,7 +176,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         ctx.timings_s["total"] = time.perf_counter() - t_start
         summary = {
             "tpos_version": __version__,
-            "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
             "session": {"path": str(session.path), "name": session.meta.name, "kind": session.meta.kind,
                         "t0": session.t0_s, "duration_s": session.t_end_s, "imu_samples": int(len(session.imu.t_s))},
             "pipeline": pipe.name,
@@ -188,6 +192,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
             "counts": {**session.counts, **ctx.counts},
             "warnings": [*session.warnings, *ctx.warnings],
             "results": result.summary,
+            "quality": verdict.as_dict(),
             "outputs": outputs + ["summary.json"],
             "accuracy_note": ACCURACY_NOTE,
         }
