@@ -81,10 +81,13 @@ def drive(tmp: Path) -> None:
     wall, out = _median_wall(cmd, tmp)
     ref = statistics.median(reference_loop(n, 100) for _ in range(RUNS))
     pages = re.search(r"(\d+) PDF pages", out)
-    print(f"drive hour ({n} IMU samples): tpos report {wall:.2f} s, reference loop {ref:.2f} s, "
-          f"ratio {wall / ref:.2f} (goal <= 1.5); {pages.group(1) if pages else '?'} pages")
-    imports, _ = _median_wall([sys.executable, "-c", "import tpos_cli.cli, tpos_cli.report.pdf, tpos_cli.session, "
-                               "matplotlib.backends.backend_pdf"], tmp)
+    print(
+        f"drive hour ({n} IMU samples): tpos report {wall:.2f} s, reference loop {ref:.2f} s, "
+        f"ratio {wall / ref:.2f} (goal <= 1.5); {pages.group(1) if pages else '?'} pages"
+    )
+    imports, _ = _median_wall(
+        [sys.executable, "-c", "import tpos_cli.cli, tpos_cli.report.pdf, tpos_cli.session, matplotlib.backends.backend_pdf"], tmp
+    )
     print(f"  interpreter start and imports alone: {imports:.2f} s ({imports / ref:.2f} of the reference)")
     print("  " + _stages(run))
 
@@ -101,8 +104,10 @@ def target(tmp: Path) -> None:
     cmd = [sys.executable, "-m", "tpos_cli", "report", str(run)]
     wall, out = _median_wall(cmd, tmp)
     pages = re.search(r"(\d+) PDF pages", out)
-    print(f"target hour: tpos process {proc:.2f} s, tpos report {wall:.2f} s, ratio {wall / proc:.2f} (goal <= 2); "
-          f"{pages.group(1) if pages else '?'} pages")
+    print(
+        f"target hour: tpos process {proc:.2f} s, tpos report {wall:.2f} s, ratio {wall / proc:.2f} (goal <= 2); "
+        f"{pages.group(1) if pages else '?'} pages"
+    )
     print("  " + _stages(run))
 
 

@@ -102,13 +102,31 @@ def _target_session(tmp_path, kind="target"):
     ]
     s = synth.write_session(tmp_path / "s", kind=kind, truth=False, targets=tgts)
     rows = []
-    offsets = {("lf1", "T1"): [0.3, -0.2, 0.1], ("lf1", "T2"): [0.3, -0.2, 0.1],
-               ("fkf", "T1"): [0.3, 0.4, 0.0], ("fkf", "T2"): [0.6, 0.8, 0.0], ("fkf", "R1"): [9.0, 9.0, 9.0]}
+    offsets = {
+        ("lf1", "T1"): [0.3, -0.2, 0.1],
+        ("lf1", "T2"): [0.3, -0.2, 0.1],
+        ("fkf", "T1"): [0.3, 0.4, 0.0],
+        ("fkf", "T2"): [0.6, 0.8, 0.0],
+        ("fkf", "R1"): [9.0, 9.0, 9.0],
+    }
     lut = {n: p for n, p, _ in tgts}
     for (sol, tid), off in offsets.items():
         lla = synth.displaced(lut[tid][None, :], np.array([off]))[0]
-        rows.append(dict(id=tid, t_start=1005.0, t_end=1006.0, range_m=9.42, lat=lla[0], lon=lla[1], h=lla[2],
-                         solution=sol, sigma_n=0.2, sigma_e=0.2, sigma_u=0.3))
+        rows.append(
+            dict(
+                id=tid,
+                t_start=1005.0,
+                t_end=1006.0,
+                range_m=9.42,
+                lat=lla[0],
+                lon=lla[1],
+                h=lla[2],
+                solution=sol,
+                sigma_n=0.2,
+                sigma_e=0.2,
+                sigma_u=0.3,
+            )
+        )
     return s, pd.DataFrame(rows)
 
 
@@ -138,8 +156,9 @@ def test_gps_truth_with_lever_arm_and_withheld(tmp_path):
     gps = pd.DataFrame({"t": synth.T0 + t1, "lat": antenna[:, 0], "lon": antenna[:, 1], "h": antenna[:, 2], "fix": 2})
     gps.to_csv(s / "gps.csv", index=False)
     withheld = gps[(gps.t >= 1005.0) & (gps.t <= 1008.0)]
-    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", t1, [0.0, 0.0, 0.0]),
-                        mask_gps=[[1005.0, 1008.0]], withheld=withheld)
+    r = synth.write_run(
+        tmp_path / "r", s, synth.trajectory_rows("forward", t1, [0.0, 0.0, 0.0]), mask_gps=[[1005.0, 1008.0]], withheld=withheld
+    )
     res = make_report(r, pdf=False)
     assert res.truth.trajectory.source == "gps"
     assert "withheld" in res.truth.trajectory.description

@@ -28,13 +28,23 @@ def _pdf_page_count(data: bytes) -> int:
 def _run(tmp_path):
     s = synth.write_session(tmp_path / "s", movement=True)
     t10 = np.arange(0.0, 20.0 + 1e-9, 0.1)
-    traj = pd.concat([
-        synth.trajectory_rows("forward", t10, [3.0, 4.0, 0.0], (0.5, -0.3, 2.0), sigma=(1.0, 1.0, 1.0)),
-        synth.trajectory_rows("smoothed", t10, [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5)),
-    ])
+    traj = pd.concat(
+        [
+            synth.trajectory_rows("forward", t10, [3.0, 4.0, 0.0], (0.5, -0.3, 2.0), sigma=(1.0, 1.0, 1.0)),
+            synth.trajectory_rows("smoothed", t10, [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5)),
+        ]
+    )
     rng = np.random.default_rng(3)
-    inn = pd.DataFrame({"t": synth.T0 + np.arange(20.0), "solution": "forward", "kind": "gps_position",
-                        "nis": rng.chisquare(3, 20), "dof": 3, "accepted": True})
+    inn = pd.DataFrame(
+        {
+            "t": synth.T0 + np.arange(20.0),
+            "solution": "forward",
+            "kind": "gps_position",
+            "nis": rng.chisquare(3, 20),
+            "dof": 3,
+            "accepted": True,
+        }
+    )
     inn.loc[4, ["nis", "accepted"]] = [50.0, False]
     return synth.write_run(tmp_path / "r", s, traj, gps_outages=[[1005.0, 1012.0]], innovations=inn)
 
@@ -100,8 +110,11 @@ def test_report_without_truth_is_a_quality_control_report(tmp_path):
 def test_report_shows_the_runs_verdict(tmp_path):
     r = _run(tmp_path)
     summary = json.loads((r / "summary.json").read_text())
-    summary["quality"] = {"verdict": "suspect", "reasons": ["gps_pos NIS 9.1 above its band 2.5-3.5: GPS noise understated; set [gps] sigma"],
-                          "checks": {"nis": {"level": "suspect", "forward.gps_pos.mean": 9.1}}}
+    summary["quality"] = {
+        "verdict": "suspect",
+        "reasons": ["gps_pos NIS 9.1 above its band 2.5-3.5: GPS noise understated; set [gps] sigma"],
+        "checks": {"nis": {"level": "suspect", "forward.gps_pos.mean": 9.1}},
+    }
     (r / "summary.json").write_text(json.dumps(summary))
     from tpos_cli.report.build import build_context, make_report
     from tpos_cli.report.summary import headline_rows

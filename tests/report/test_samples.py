@@ -31,7 +31,9 @@ def _strip_truth(session):
         tg[tg["role"] != "truth"].to_csv(t, index=False)
 
 
-@pytest.fixture(scope="module", params=[(k, truth) for k in KINDS for truth in (True, False)], ids=lambda p: f"{p[0]}-{'truth' if p[1] else 'qc'}")
+@pytest.fixture(
+    scope="module", params=[(k, truth) for k in KINDS for truth in (True, False)], ids=lambda p: f"{p[0]}-{'truth' if p[1] else 'qc'}"
+)
 def run(request, tmp_path_factory):
     kind, truth = request.param
     d = tmp_path_factory.mktemp(kind)

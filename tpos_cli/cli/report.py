@@ -26,8 +26,8 @@ def report(
 
     Example: tpos report runs/drive --json
     """
-    from tpos_cli.export.files import terminate_as_interrupt
     from tpos_cli.report.build import make_report
+    from tpos_cli.report.files import terminate_as_interrupt
 
     with exit_on_error(), terminate_as_interrupt(), working(f"tpos report {run}"):
         res = make_report(run, truth, full=full)
@@ -37,8 +37,11 @@ def report(
         typer.echo(json.dumps(res.summary, indent=1))
         return
     q = res.summary.get("quality")
-    typer.echo(f"verdict: {q['verdict']}" + (f" ({len(q.get('reasons') or [])} reason(s) on page 1)" if q.get("reasons") else "")
-               if q else "verdict: no verdict recorded")
+    typer.echo(
+        f"verdict: {q['verdict']}" + (f" ({len(q.get('reasons') or [])} reason(s) on page 1)" if q.get("reasons") else "")
+        if q
+        else "verdict: no verdict recorded"
+    )
     tt = res.truth.trajectory if res.truth is not None else None
     tg = res.truth.targets if res.truth is not None else None
     typer.echo(f"truth: {tt.description if tt is not None else tg.description if tg is not None else 'none (quality-control report)'}")
@@ -50,10 +53,14 @@ def report(
     for h in res.summary["headline"]:
         if static and h["of"] == "trajectory":  # a fixed observer: its solutions are attitudes
             if "rms_yaw_deg" in h:
-                typer.echo(f"{h['solution']:>10} (attitude, n={h['n']}): RMS roll {f(h.get('rms_roll_deg'))}, pitch "
-                           f"{f(h.get('rms_pitch_deg'))}, yaw {f(h['rms_yaw_deg'])} deg")
+                typer.echo(
+                    f"{h['solution']:>10} (attitude, n={h['n']}): RMS roll {f(h.get('rms_roll_deg'))}, pitch "
+                    f"{f(h.get('rms_pitch_deg'))}, yaw {f(h['rms_yaw_deg'])} deg"
+                )
             continue
         yaw = f", yaw {f(h['rms_yaw_deg'])} deg" if "rms_yaw_deg" in h else ""
-        typer.echo(f"{h['solution']:>10} ({h['of']}, n={h['n']}): RMS 3-D {f(h['rms_pos_3d_m'])} m, "
-                   f"horizontal {f(h['rms_pos_h_m'])} m, vertical {f(h['rms_pos_v_m'])} m{yaw}")
+        typer.echo(
+            f"{h['solution']:>10} ({h['of']}, n={h['n']}): RMS 3-D {f(h['rms_pos_3d_m'])} m, "
+            f"horizontal {f(h['rms_pos_h_m'])} m, vertical {f(h['rms_pos_v_m'])} m{yaw}"
+        )
     typer.echo(f"-> {res.run_dir} ({', '.join(res.outputs)}, {len(res.pages)} PDF pages)")

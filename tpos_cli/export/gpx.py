@@ -18,8 +18,26 @@ from tpos_cli.export.meta import ExportMeta, decimals, target_summary
 NS = "http://www.topografix.com/GPX/1/1"
 NS_TPOS = "urn:tpos:gpx-extensions:1"
 SCHEMA = "http://www.topografix.com/GPX/1/1 http://www.topografix.com/GPX/1/1/gpx.xsd"
-EXT_COLUMNS = ("t", "sigma_n", "sigma_e", "sigma_u", "ell95_major_m", "ell95_minor_m", "ell95_azimuth_deg", "n_shots",
-               "shot_chi2_dof", "roll", "pitch", "yaw", "sigma_roll", "sigma_pitch", "sigma_yaw", "utm_zone", "utm_e_m", "utm_n_m")
+EXT_COLUMNS = (
+    "t",
+    "sigma_n",
+    "sigma_e",
+    "sigma_u",
+    "ell95_major_m",
+    "ell95_minor_m",
+    "ell95_azimuth_deg",
+    "n_shots",
+    "shot_chi2_dof",
+    "roll",
+    "pitch",
+    "yaw",
+    "sigma_roll",
+    "sigma_pitch",
+    "sigma_yaw",
+    "utm_zone",
+    "utm_e_m",
+    "utm_n_m",
+)
 
 ET.register_namespace("", NS)
 ET.register_namespace("tpos", NS_TPOS)
@@ -38,8 +56,10 @@ def _sub(parent, tag, text=None, ns: str = NS, **attrib):
 
 
 def _root(meta: ExportMeta):
-    root = ET.Element(_q("gpx"), {"version": "1.1", "creator": f"tpos {meta.tpos_version}",
-                                  "{http://www.w3.org/2001/XMLSchema-instance}schemaLocation": SCHEMA})
+    root = ET.Element(
+        _q("gpx"),
+        {"version": "1.1", "creator": f"tpos {meta.tpos_version}", "{http://www.w3.org/2001/XMLSchema-instance}schemaLocation": SCHEMA},
+    )
     md = _sub(root, "metadata")
     _sub(md, "name", meta.title)
     _sub(md, "desc", meta.description)
@@ -80,8 +100,9 @@ def targets(table: pd.DataFrame, meta: ExportMeta, observer: pd.DataFrame | None
             continue
         for r in rows.to_dict("records"):
             if math.isfinite(r["lat"]) and math.isfinite(r["lon"]):
-                _point(root, "wpt", r, when=r.get("time_first_utc") or None, name=str(r.get("id", "observer")), sym=sym,
-                       desc=target_summary(r))
+                _point(
+                    root, "wpt", r, when=r.get("time_first_utc") or None, name=str(r.get("id", "observer")), sym=sym, desc=target_summary(r)
+                )
     return _bytes(root)
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from tpos_cli.frames.geodetic import ecef_to_ned_dcm, lla_to_ecef
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.report import metrics
 from tpos_cli.report.qc import Series, solution_series
@@ -73,25 +74,41 @@ def _stat_row(solution, target, segment, quantity, err) -> dict:
     }
 
 
-def solution_errors(run: RunData, truth: ReportTruth, series: Series, truth_at=None) -> SolutionErrors:
-    """Errors of one trajectory solution against `truth.trajectory` at its own epochs.
+@dataclass(frozen=True)
+class TruthAt:
+    """The truth at one set of epochs, with what every solution's errors need, computed once for
+    all the solutions that share those epochs (the target chain's six solutions do)."""
 
-    `truth_at` (truth lla, truth rpy or None) at exactly `series.t` skips the interpolation when
-    several solutions share their epochs (the target chain's six solutions do).
-    """
+    t: np.ndarray
+    lla: np.ndarray
+    rpy_deg: np.ndarray | None
+    r_e: np.ndarray
+    C_ne: np.ndarray
+    C_nb: np.ndarray | None
+
+    @classmethod
+    def at(cls, tt, t: np.ndarray) -> TruthAt:
+        lla = interpolate_positions(tt.t, tt.lla, t, tt.max_gap_s)
+        rpy = interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s) if tt.rpy_deg is not None else None
+        C_nb = euler_to_dcm(*np.radians(rpy).T) if rpy is not None else None
+        return cls(t, lla, rpy, lla_to_ecef(lla), ecef_to_ned_dcm(lla[:, 0], lla[:, 1]), C_nb)
+
+
+def solution_errors(run: RunData, truth: ReportTruth, series: Series, truth_at: TruthAt | None = None) -> SolutionErrors:
+    """Errors of one trajectory solution against `truth.trajectory` at its own epochs (`truth_at`
+    when it was built for exactly these epochs)."""
     t, lla, rpy = series.t, series.lla, series.rpy_deg
     tt = truth.trajectory
-    if truth_at is None:
-        truth_at = (interpolate_positions(tt.t, tt.lla, t, tt.max_gap_s),
-                    interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s) if tt.rpy_deg is not None else None)
-    truth_lla, truth_rpy = truth_at
+    if truth_at is None or not np.array_equal(truth_at.t, t):
+        truth_at = TruthAt.at(tt, t)
+    truth_lla, truth_rpy = truth_at.lla, truth_at.rpy_deg
     offset = None
     if np.any(tt.lever_arm_b_m != 0.0):
         # truth is the GPS antenna: move the solution from the IMU point to it, r_a = r + C_nb l_b
         C_nb = euler_to_dcm(*np.radians(rpy).T)
         offset = C_nb @ tt.lever_arm_b_m
-    err = metrics.position_errors_ned(lla, truth_lla, offset)
-    att = metrics.attitude_errors_deg(rpy, truth_rpy) if truth_rpy is not None else None
+    err = metrics.position_errors_ned(lla, truth_lla, offset, truth_r_e=truth_at.r_e, truth_C_ne=truth_at.C_ne)
+    att = metrics.attitude_errors_deg(rpy, truth_rpy, truth_C_nb=truth_at.C_nb) if truth_rpy is not None else None
     idx = np.full(t.size, -1)
     for k, w in enumerate(run.outage_windows):
         idx[in_intervals(t, w[None, :])] = k  # [start, end), as timebase defines outages
@@ -170,12 +187,7 @@ def _target_rows(te: pd.DataFrame) -> list[dict]:
 
 
 def _get(table: pd.DataFrame, solution, target, segment, quantity, stat) -> float:
-    m = (
-        (table["solution"] == solution)
-        & (table["target"] == target)
-        & (table["segment"] == segment)
-        & (table["quantity"] == quantity)
-    )
+    m = (table["solution"] == solution) & (table["target"] == target) & (table["segment"] == segment) & (table["quantity"] == quantity)
     v = table.loc[m, stat]
     return float(v.iloc[0]) if len(v) else float("nan")
 
@@ -244,10 +256,11 @@ def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", se
     if truth is not None and run.trajectory is not None and truth.trajectory is not None:
         series = series if series is not None else solution_series(run.trajectory)
         gps_truth = truth.trajectory.source == "gps"
-        last_t, last_truth = None, None
+        truth_at = None
         for s in ordered_solutions(series):
-            se = solution_errors(run, truth, series[s], last_truth if last_t is not None and np.array_equal(last_t, series[s].t) else None)
-            last_t, last_truth = se.t, (se.truth_lla, se.truth_rpy_deg)
+            if truth_at is None or not np.array_equal(truth_at.t, series[s].t):
+                truth_at = TruthAt.at(truth.trajectory, series[s].t)
+            se = solution_errors(run, truth, series[s], truth_at)
             sols.append(se)
             rows += _trajectory_rows(run, se, gps_truth)
     te = target_errors(run, truth) if truth is not None else None

@@ -17,15 +17,20 @@ from tpos_cli.report.timeplots import PANEL_H, mark_time, panel_axes
 ROWS = 52
 FONT = 6.6
 PAPER_LAYOUTS = {
-    "paper000_table4": ("Target error per attitude source", "Mean and SD of the 3-D target error over all shots with surveyed truth "
-                        "(the layout of Table 4 of the target-positioning paper)."),
-    "paper002_table1": ("Horizontal error components", "Error range and variance of east (x) and north (y) and the largest and average "
-                        "horizontal error (the layout of Table 1 of the ranging paper; its axes are assumed east and north)."),
+    "paper000_table4": (
+        "Target error per attitude source",
+        "Mean and SD of the 3-D target error over all shots with surveyed truth (the layout of Table 4 of the target-positioning paper).",
+    ),
+    "paper002_table1": (
+        "Horizontal error components",
+        "Error range and variance of east (x) and north (y) and the largest and average "
+        "horizontal error (the layout of Table 1 of the ranging paper; its axes are assumed east and north).",
+    ),
 }
 
 
 def _chunks(df: pd.DataFrame, n: int = ROWS):
-    return [df.iloc[i:i + n] for i in range(0, len(df), n)]
+    return [df.iloc[i : i + n] for i in range(0, len(df), n)]
 
 
 def segment_sections(ctx: ReportContext) -> list[Section]:
@@ -33,19 +38,31 @@ def segment_sections(ctx: ReportContext) -> list[Section]:
     keep = t[t["quantity"].isin(["pos_3d_m", "pos_h_m", "pos_v_m", "roll_deg", "pitch_deg", "yaw_deg", "att_deg"]) & (t["n"] > 0)]
     out = []
     for k, part in enumerate(_chunks(keep)):
-        cols = [L.Column("solution", list(part["solution"]), align="left"), L.Column("target", [v or "-" for v in part["target"]], align="left"),
-                L.Column("segment", list(part["segment"]), align="left"), L.Column("quantity", list(part["quantity"]), align="left"),
-                L.Column("n", [str(v) for v in part["n"]])]
+        cols = [
+            L.Column("solution", list(part["solution"]), align="left"),
+            L.Column("target", [v or "-" for v in part["target"]], align="left"),
+            L.Column("segment", list(part["segment"]), align="left"),
+            L.Column("quantity", list(part["quantity"]), align="left"),
+            L.Column("n", [str(v) for v in part["n"]]),
+        ]
         cols += [L.Column(s, L.fmt_num(part[s], 4), "m or deg") for s in ("mean", "sd", "rms", "max_abs", "p95")]
 
         def draw(fig, top, bottom, cols=cols):
             L.draw_table(fig, top, cols, fontsize=FONT)
 
-        out.append(Section("appendix_segments", "Appendix: accuracy by segment" + (f" ({k + 1})" if k else ""),
-                           L.table_height(len(part), FONT) + 0.01, draw,
-                           "" if k else "Segments: all; outage / gps = inside / outside GPS outages and --mask-gps windows; outage_k = "
-                           "each window; movement = the truth's movement phase; withheld = epochs judged against withheld GPS fixes. "
-                           "Quantities ending _m are metres, _deg degrees."))
+        out.append(
+            Section(
+                "appendix_segments",
+                "Appendix: accuracy by segment" + (f" ({k + 1})" if k else ""),
+                L.table_height(len(part), FONT) + 0.01,
+                draw,
+                ""
+                if k
+                else "Segments: all; outage / gps = inside / outside GPS outages and --mask-gps windows; outage_k = "
+                "each window; movement = the truth's movement phase; withheld = epochs judged against withheld GPS fixes. "
+                "Quantities ending _m are metres, _deg degrees.",
+            )
+        )
     return out
 
 
@@ -73,8 +90,15 @@ def innovation_sections(ctx: ReportContext) -> list[Section]:
             L.style_axis(ax, f"NIS, {kind}")
             ax.set_xlabel(ctx.time_label, fontsize=8)
 
-        out.append(Section("appendix_nis", f"Appendix: innovations, {sol} {kind}", PANEL_H + 0.02, draw,
-                           f"{int((~d['accepted'].fillna(False)).sum())} of {len(d)} updates rejected (x); band: chi-square 95 %."))
+        out.append(
+            Section(
+                "appendix_nis",
+                f"Appendix: innovations, {sol} {kind}",
+                PANEL_H + 0.02,
+                draw,
+                f"{int((~d['accepted'].fillna(False)).sum())} of {len(d)} updates rejected (x); band: chi-square 95 %.",
+            )
+        )
     return out
 
 
@@ -86,17 +110,31 @@ def shot_sections(ctx: ReportContext) -> list[Section]:
     out = []
     for k, part in enumerate(_chunks(tg)):
         empty = [""] * len(part)
-        cols = [L.Column("solution", list(part["solution"].astype(str)), align="left"), L.Column("target", list(part["id"].astype(str)), align="left"),
-                L.Column("start", L.fmt_num(part["t_start"] - ctx.t_ref, 1) if "t_start" in part else empty, "s"),
-                L.Column("latitude", L.fmt_num(part["lat"], 8), "deg"), L.Column("longitude", L.fmt_num(part["lon"], 8), "deg"),
-                L.Column("height", L.fmt_num(part["h"], 3), "m")]
-        cols += [L.Column(h, L.fmt_num(part[c], dec, sc) if c in part else empty, unit) for c, h in (("sigma_n", "SD N"), ("sigma_e", "SD E"), ("sigma_u", "SD U"))]
+        cols = [
+            L.Column("solution", list(part["solution"].astype(str)), align="left"),
+            L.Column("target", list(part["id"].astype(str)), align="left"),
+            L.Column("start", L.fmt_num(part["t_start"] - ctx.t_ref, 1) if "t_start" in part else empty, "s"),
+            L.Column("latitude", L.fmt_num(part["lat"], 8), "deg"),
+            L.Column("longitude", L.fmt_num(part["lon"], 8), "deg"),
+            L.Column("height", L.fmt_num(part["h"], 3), "m"),
+        ]
+        cols += [
+            L.Column(h, L.fmt_num(part[c], dec, sc) if c in part else empty, unit)
+            for c, h in (("sigma_n", "SD N"), ("sigma_e", "SD E"), ("sigma_u", "SD U"))
+        ]
 
         def draw(fig, top, bottom, cols=cols):
             L.draw_table(fig, top, cols, fontsize=FONT)
 
-        out.append(Section("appendix_shots", "Appendix: every shot of every solution" + (f" ({k + 1})" if k else ""),
-                           L.table_height(len(part), FONT) + 0.01, draw, "" if k else "WGS-84, heights above the ellipsoid; SD = 1 sigma."))
+        out.append(
+            Section(
+                "appendix_shots",
+                "Appendix: every shot of every solution" + (f" ({k + 1})" if k else ""),
+                L.table_height(len(part), FONT) + 0.01,
+                draw,
+                "" if k else "WGS-84, heights above the ellipsoid; SD = 1 sigma.",
+            )
+        )
     return out
 
 
@@ -106,8 +144,10 @@ def layout_sections(ctx: ReportContext) -> list[Section]:
         df = ctx.acc.paper_tables.get(key)
         if df is None or not len(df):
             continue
-        cols = [L.Column(c, list(df[c].astype(str)), align="left") if df[c].dtype == object else L.Column(c, L.fmt_num(df[c], 4))
-                for c in df.columns]
+        cols = [
+            L.Column(c, list(df[c].astype(str)), align="left") if df[c].dtype == object else L.Column(c, L.fmt_num(df[c], 4))
+            for c in df.columns
+        ]
 
         def draw(fig, top, bottom, cols=cols):
             L.draw_table(fig, top, cols, fontsize=7.2)

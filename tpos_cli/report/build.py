@@ -17,13 +17,14 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.export.files import staged
-from tpos_cli.export.solutions import rank_solutions
 from tpos_cli.report import qc
 from tpos_cli.report.accuracy import Accuracy, compute_accuracy
 from tpos_cli.report.context import ReportContext, ShotWindows
+from tpos_cli.report.files import staged
 from tpos_cli.report.health import Health, filter_health
 from tpos_cli.report.rundir import RunData, load_run, session_dir_of
+from tpos_cli.report.solutions import rank_solutions
+from tpos_cli.report.targets import combined_targets
 from tpos_cli.report.truth import ReportTruth, choose_truth
 
 OUTPUTS = ("accuracy.parquet", "accuracy.json", "report.pdf")
@@ -74,7 +75,15 @@ def headline(acc: Accuracy) -> list[dict]:
                 continue
             q = dd.set_index("quantity")
             row = {"solution": sol, "of": target_kind, "n": int(q.loc["pos_3d_m", "n"])}
-            for name, stat in (("pos_3d_m", "rms"), ("pos_h_m", "rms"), ("pos_v_m", "rms"), ("pos_h_m", "p95"), ("pos_3d_m", "max"), ("pos_3d_m", "mean"), ("pos_3d_m", "sd")):
+            for name, stat in (
+                ("pos_3d_m", "rms"),
+                ("pos_h_m", "rms"),
+                ("pos_v_m", "rms"),
+                ("pos_h_m", "p95"),
+                ("pos_3d_m", "max"),
+                ("pos_3d_m", "mean"),
+                ("pos_3d_m", "sd"),
+            ):
                 row[f"{stat}_{name}"] = float(q.loc[name, stat])
             if target_kind == "targets":
                 row["cep_m"] = float(q.loc["pos_h_m", "cep"])
@@ -107,10 +116,10 @@ def check_inputs(recorded: dict | None, current: dict[str, str], run_name: str) 
         if report_only(name):
             changed.append(name)
             continue
-        what = ("is missing" if b is None else "is new" if a is None
-                else f"changed (sha256 {a[:12]}... when processed, {b[:12]}... now)")
-        raise InvalidInputError(f"{run_name}: session file {name} {what} since this run was processed; "
-                                f"reprocess it (tpos process) before reporting")
+        what = "is missing" if b is None else "is new" if a is None else f"changed (sha256 {a[:12]}... when processed, {b[:12]}... now)"
+        raise InvalidInputError(
+            f"{run_name}: session file {name} {what} since this run was processed; reprocess it (tpos process) before reporting"
+        )
     return changed
 
 
@@ -135,14 +144,20 @@ def build_summary(ctx: ReportContext) -> dict:
             "report_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "tpos_version": __version__,
             "run_tpos_version": s.get("tpos_version"),
-            "session": {"path": str(sess.path) if sess is not None else (s.get("session") or {}).get("path"),
-                        "name": sess.meta.name if sess is not None else (s.get("session") or {}).get("name"),
-                        "kind": ctx.kind, "inputs_verified": ctx.inputs_note},
+            "session": {
+                "path": str(sess.path) if sess is not None else (s.get("session") or {}).get("path"),
+                "name": sess.meta.name if sess is not None else (s.get("session") or {}).get("name"),
+                "kind": ctx.kind,
+                "inputs_verified": ctx.inputs_note,
+            },
             "pipeline": s.get("pipeline"),
             "config_sha256": s.get("config_sha256"),
             "quality": ctx.verdict,
-            "truth": None if not ctx.has_truth else {
-                "trajectory": None if truth.trajectory is None
+            "truth": None
+            if not ctx.has_truth
+            else {
+                "trajectory": None
+                if truth.trajectory is None
                 else {"source": truth.trajectory.source, "description": truth.trajectory.description},
                 "targets": None if truth.targets is None else {"ids": list(truth.targets.ids), "description": truth.targets.description},
             },
@@ -179,8 +194,11 @@ def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | No
         if not p.is_dir():
             raise InvalidInputError(f"--truth {truth_session}: not a session directory")
         session = load_session(p)
-        same = all(session.file_hashes.get(k) == v for k, v in (run.summary.get("inputs") or {}).items()
-                   if k.partition(".")[0] not in REPORT_ONLY_INPUTS)
+        same = all(
+            session.file_hashes.get(k) == v
+            for k, v in (run.summary.get("inputs") or {}).items()
+            if k.partition(".")[0] not in REPORT_ONLY_INPUTS
+        )
         if same:
             return session, "", "yes (--truth is the processed session)", notes
         notes.append(f"--truth {p.name} is not the session this run was processed from: only its truth is used")
@@ -188,8 +206,11 @@ def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | No
     sdir = session_dir_of(run.summary, run.path)
     if sdir is None:
         raw = (run.summary.get("session") or {}).get("path")
-        notes.append(f"session {raw} not found: no truth, GPS or sensor data; give it with --truth SESSION" if raw
-                     else "summary.json names no session: no truth, GPS or sensor data; give it with --truth SESSION")
+        notes.append(
+            f"session {raw} not found: no truth, GPS or sensor data; give it with --truth SESSION"
+            if raw
+            else "summary.json names no session: no truth, GPS or sensor data; give it with --truth SESSION"
+        )
         return None, "session not found", "no (session not found)", notes
     changed = check_inputs(run.summary.get("inputs"), session_file_hashes(sdir), run.path.name)
     for name in changed:
@@ -204,13 +225,19 @@ def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | No
 def build_context(run_dir: Path, truth_session: Path | None = None, *, full: bool = False) -> ReportContext:
     run = load_run(Path(run_dir))
     if (run.trajectory is None or run.trajectory.empty) and (run.targets is None or run.targets.empty):
-        raise InvalidInputError(f"{run.path.name}: nothing to report: the run has no trajectory and no targets "
-                                "(the pipeline wrote no solutions)")
+        raise InvalidInputError(
+            f"{run.path.name}: nothing to report: the run has no trajectory and no targets (the pipeline wrote no solutions)"
+        )
     session, session_note, inputs_note, notes = _load_session(run, truth_session)
     truth = None
     if session is not None:
-        truth = choose_truth(session, withheld_gps=run.withheld_gps, mask_windows=run.mask_windows,
-                             need_targets=run.targets is not None, need_trajectory=run.trajectory is not None)
+        truth = choose_truth(
+            session,
+            withheld_gps=run.withheld_gps,
+            mask_windows=run.mask_windows,
+            need_targets=run.targets is not None,
+            need_trajectory=run.trajectory is not None,
+        )
         if session_note and truth.trajectory is not None and truth.trajectory.source == "gps":
             truth = ReportTruth(None, truth.targets, truth.session_path, truth.notes)  # another session's GPS is no truth
     kind = session.meta.kind if session is not None else str((run.summary.get("session") or {}).get("kind") or "")
@@ -223,24 +250,40 @@ def build_context(run_dir: Path, truth_session: Path | None = None, *, full: boo
         t_ref = session.t0_s if session is not None else float(min(s.t[0] for s in series.values())) if series else 0.0
     targets = target_solution = None
     if run.targets is not None and len(run.targets):
-        from tpos_cli.export.build import target_export_table
-
         target_solution = rank_solutions(run.targets["solution"])[0]
         try:
-            targets, _ = target_export_table(run, target_solution)
+            targets, _ = combined_targets(run, target_solution)
         except InvalidInputError:
             targets = None
     own_session = session if not session_note else None
-    mag_ref = (run.summary.get("results") or {}).get("alignment", {}).get("mag_norm_ut") if isinstance(
-        (run.summary.get("results") or {}).get("alignment"), dict) else None
+    mag_ref = (
+        (run.summary.get("results") or {}).get("alignment", {}).get("mag_norm_ut")
+        if isinstance((run.summary.get("results") or {}).get("alignment"), dict)
+        else None
+    )
     verdict = run.summary.get("quality") if isinstance(run.summary.get("quality"), dict) else None
     return ReportContext(
-        run=run, session=session, session_note=session_note, truth=truth, acc=acc, health=health, series=series, order=order,
-        kind=kind, t_ref=t_ref, shots=_shots(run, target_solution), targets=targets, target_solution=target_solution,
-        verdict=verdict, gps=qc.gps_quality(own_session) if own_session is not None else None,
+        run=run,
+        session=session,
+        session_note=session_note,
+        truth=truth,
+        acc=acc,
+        health=health,
+        series=series,
+        order=order,
+        kind=kind,
+        t_ref=t_ref,
+        shots=_shots(run, target_solution),
+        targets=targets,
+        target_solution=target_solution,
+        verdict=verdict,
+        gps=qc.gps_quality(own_session) if own_session is not None else None,
         mag=qc.magnetic_field(own_session, mag_ref) if own_session is not None and kind == "target" else None,
         anchors=qc.anchor_visibility(own_session) if own_session is not None else None,
-        estimated=qc.estimated_accuracy(series, order), full=full, inputs_note=inputs_note, notes=tuple(notes),
+        estimated=qc.estimated_accuracy(series, order),
+        full=full,
+        inputs_note=inputs_note,
+        notes=tuple(notes),
     )
 
 

@@ -1,6 +1,8 @@
-"""Numbers for people: lengths in mm or m with fixed decimals, durations, percentages."""
+"""Numbers for people: lengths in mm or m with fixed decimals, durations, percentages, UTC stamps."""
 
 from __future__ import annotations
+
+from datetime import datetime
 
 import numpy as np
 
@@ -39,3 +41,14 @@ def fmt_duration(s) -> str:
 
 def pct(x) -> str:
     return "n/a" if x is None or not np.isfinite(x) else f"{100 * x:.1f} %"
+
+
+def utc_strings(t_s, start_utc: datetime | None, decimals: int = 3) -> np.ndarray | None:
+    """ISO-8601 UTC stamps ("...Z") of logger-clock times, millisecond resolution; None without start_utc."""
+    if start_utc is None:
+        return None
+    t = np.asarray(t_s, dtype=float)
+    base = np.datetime64(start_utc.replace(tzinfo=None), "ns")
+    stamps = base + np.round(t * 1e9).astype("int64").astype("timedelta64[ns]")
+    unit = {0: "s", 3: "ms", 6: "us"}[decimals]
+    return np.char.add(np.datetime_as_string(stamps, unit=unit), "Z")

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.collections import PolyCollection
 from matplotlib.patches import FancyArrow, Rectangle
 
 A4_IN = (8.27, 11.69)
@@ -26,6 +27,7 @@ DISTURB_COLOR = "#fdd0a2"
 GREY = "0.35"
 VERDICT_COLORS = {"ok": "#2ca02c", "suspect": "#ff7f0e", "unreliable": "#d62728", None: "0.55"}
 MARGIN_L, MARGIN_R = 0.07, 0.95
+MAX_WINDOW_LABELS = 30
 ROW_PITCH = 1.45  # table row pitch in font sizes
 
 
@@ -77,8 +79,18 @@ def table_height(n_rows: int, fontsize: float = 8.0) -> float:
     return (n_rows + 2.6) * line
 
 
-def draw_table(fig: Figure, top: float, columns: Sequence[Column], *, left: float = MARGIN_L, right: float = MARGIN_R,
-               fontsize: float = 8.0, title: str = "", highlight: Sequence[int] = (), header: bool = True) -> float:
+def draw_table(
+    fig: Figure,
+    top: float,
+    columns: Sequence[Column],
+    *,
+    left: float = MARGIN_L,
+    right: float = MARGIN_R,
+    fontsize: float = 8.0,
+    title: str = "",
+    highlight: Sequence[int] = (),
+    header: bool = True,
+) -> float:
     """Typeset `columns` from `top` down; returns the y below the table. Rows in `highlight` get a
     red mark in the margin; `header=False` draws a key/value list without header lines."""
     line = fontsize * ROW_PITCH / 72.0 / A4_IN[1]  # row pitch in figure fraction
@@ -87,17 +99,35 @@ def draw_table(fig: Figure, top: float, columns: Sequence[Column], *, left: floa
         fig.text(left, y, title, ha="left", va="top", fontsize=fontsize + 1.5, weight="bold")
         y -= line * 1.5
     n = max((len(c.cells) for c in columns), default=0)
-    # natural widths from the longest entry (DejaVu Sans averages ~0.58 em per character), shrunk
-    # to the available width when wider, never stretched: a narrow table stays narrow
+    # natural widths from the longest entry (DejaVu Sans digits are 0.64 em wide, bold headers
+    # wider still); a table wider than the page is set in a smaller font, never with columns that
+    # run into each other
     chars = np.array([max([1.1 * len(c.header), 0.9 * len(c.unit)] + [len(str(v)) for v in c.cells]) for c in columns], dtype=float)
-    natural = (chars * 0.58 * fontsize + 14.0) / 72.0 / A4_IN[0] * np.array([c.weight for c in columns])
-    widths = natural * min(1.0, (right - left) / natural.sum())
+    weights = np.array([c.weight for c in columns])
+
+    def widths_at(fs: float) -> np.ndarray:
+        return (chars * 0.62 * fs + 9.0) / 72.0 / A4_IN[0] * weights
+
+    if widths_at(fontsize).sum() > right - left:
+        fontsize = max(5.5, fontsize * (right - left) / widths_at(fontsize).sum())
+        line = fontsize * ROW_PITCH / 72.0 / A4_IN[1]
+    widths = widths_at(fontsize)
+    widths *= min(1.0, (right - left) / widths.sum())
     right = left + widths.sum()
     x0 = left + np.concatenate([[0.0], np.cumsum(widths)[:-1]])
     body_top = y - 2.2 * line if header else y - 0.2 * line
     for r in range(0, n, 2):  # zebra: every other row shaded
-        fig.add_artist(Rectangle((left, body_top - (r + 1) * line), right - left, line, transform=fig.transFigure,
-                                 facecolor="#f2f2f2", edgecolor="none", zorder=0))
+        fig.add_artist(
+            Rectangle(
+                (left, body_top - (r + 1) * line),
+                right - left,
+                line,
+                transform=fig.transFigure,
+                facecolor="#f2f2f2",
+                edgecolor="none",
+                zorder=0,
+            )
+        )
     if header:
         fig.add_artist(Rectangle((left, body_top), right - left, 0.0008, transform=fig.transFigure, facecolor="0.3", edgecolor="none"))
     pad = 0.006
@@ -112,8 +142,9 @@ def draw_table(fig: Figure, top: float, columns: Sequence[Column], *, left: floa
             if v != "":
                 fig.text(xt, body_top - r * line - 0.5 * line, str(v), ha=ha, va="center_baseline", fontsize=fontsize)
     for r in highlight:
-        fig.add_artist(Rectangle((left, body_top - (r + 1) * line), 0.004, line, transform=fig.transFigure,
-                                 facecolor="#d62728", edgecolor="none"))
+        fig.add_artist(
+            Rectangle((left, body_top - (r + 1) * line), 0.004, line, transform=fig.transFigure, facecolor="#d62728", edgecolor="none")
+        )
     return body_top - n * line - 0.01
 
 
@@ -177,15 +208,27 @@ def robust_ylim(ax, arrays, symmetric: bool = False, floor: float = 0.0, pct: fl
         return
     ax.set_ylim(-lim if symmetric else floor, lim)
     n = int(np.sum(v > lim))
-    ax.text(0.995, 0.97, f"{n} sample{'s' if n != 1 else ''} beyond this axis (max {v.max():.3g})", transform=ax.transAxes,
-            ha="right", va="top", fontsize=6.5, color="0.35", bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1})
+    ax.text(
+        0.995,
+        0.97,
+        f"{n} sample{'s' if n != 1 else ''} beyond this axis (max {v.max():.3g})",
+        transform=ax.transAxes,
+        ha="right",
+        va="top",
+        fontsize=6.5,
+        color="0.35",
+        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1},
+    )
 
 
 def shade(ax, windows, t_ref: float, scale: float, color: str, label: str | None = None, alpha: float = 0.5) -> None:
-    """Shade [t0, t1] windows (logger clock) on a time axis; one legend entry."""
-    for k, (a, b) in enumerate(np.asarray(windows, dtype=float).reshape(-1, 2)):
-        ax.axvspan((a - t_ref) / scale, (b - t_ref) / scale, color=color, alpha=alpha, lw=0, zorder=0,
-                   label=label if k == 0 else None)
+    """Shade [t0, t1] windows (logger clock) on a time axis: one artist however many windows (an
+    hour-long target log has hundreds of shots), one legend entry."""
+    w = (np.asarray(windows, dtype=float).reshape(-1, 2) - t_ref) / scale
+    if not len(w):
+        return
+    boxes = [[(a, 0.0), (a, 1.0), (b, 1.0), (b, 0.0)] for a, b in w]
+    ax.add_collection(PolyCollection(boxes, transform=ax.get_xaxis_transform(), facecolors=color, alpha=alpha, lw=0, zorder=0, label=label))
 
 
 def rug(ax, t_s, t_ref: float, scale: float, color: str, label: str | None = None) -> None:
@@ -199,10 +242,22 @@ def rug(ax, t_s, t_ref: float, scale: float, color: str, label: str | None = Non
 
 
 def label_windows(ax, windows, names, t_ref: float, scale: float) -> None:
-    """Names of shot windows written at the top of the axis, centred on each window."""
+    """Names of shot windows written at the top of the axis, centred on each window; none when
+    there are more than `MAX_WINDOW_LABELS` (names that overlap tell nothing)."""
+    if len(names) > MAX_WINDOW_LABELS:
+        return
     for (a, b), n in zip(np.asarray(windows, dtype=float).reshape(-1, 2), names):
-        ax.text(((a + b) / 2 - t_ref) / scale, 1.01, str(n), transform=ax.get_xaxis_transform(), ha="center", va="bottom",
-                fontsize=6.5, color="#08519c", clip_on=False)
+        ax.text(
+            ((a + b) / 2 - t_ref) / scale,
+            1.01,
+            str(n),
+            transform=ax.get_xaxis_transform(),
+            ha="center",
+            va="bottom",
+            fontsize=6.5,
+            color="#08519c",
+            clip_on=False,
+        )
 
 
 def legend_outside(ax, ncol: int = 6, raise_for_labels: bool = False) -> None:
@@ -210,8 +265,18 @@ def legend_outside(ax, ncol: int = 6, raise_for_labels: bool = False) -> None:
     names `label_windows` writes along the top when `raise_for_labels`."""
     h, lab = ax.get_legend_handles_labels()
     if h:
-        ax.legend(h, lab, fontsize=7, ncol=min(ncol, len(h)), loc="lower left", bbox_to_anchor=(0.0, 1.06 if raise_for_labels else 1.0),
-                  frameon=False, borderaxespad=0.2, handlelength=1.6, columnspacing=1.2)
+        ax.legend(
+            h,
+            lab,
+            fontsize=7,
+            ncol=min(ncol, len(h)),
+            loc="lower left",
+            bbox_to_anchor=(0.0, 1.06 if raise_for_labels else 1.0),
+            frameon=False,
+            borderaxespad=0.2,
+            handlelength=1.6,
+            columnspacing=1.2,
+        )
 
 
 def style_axis(ax, ylabel: str) -> None:
@@ -267,12 +332,21 @@ def scale_bar(ax, points=None, frac: float = 0.25) -> None:
             xs = x1 - 0.05 * (x1 - x0) - L
     ax.plot([xs, xs + L], [ys, ys], color="k", lw=2.5, solid_capstyle="butt", zorder=5)
     ax.plot([xs, xs + L / 2], [ys, ys], color="w", lw=1.2, solid_capstyle="butt", zorder=6)
-    ax.text(xs + L / 2, ys + 0.015 * (y1 - y0), length_label(L), ha="center", va="bottom", fontsize=7.5, zorder=6,
-            bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none", "pad": 1})
+    ax.text(
+        xs + L / 2,
+        ys + 0.015 * (y1 - y0),
+        length_label(L),
+        ha="center",
+        va="bottom",
+        fontsize=7.5,
+        zorder=6,
+        bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none", "pad": 1},
+    )
 
 
 def north_arrow(ax) -> None:
     """A north arrow in the upper right (axes coordinates; the map's y axis is true north)."""
-    ax.add_patch(FancyArrow(0.94, 0.83, 0.0, 0.09, width=0.012, head_width=0.035, head_length=0.035, transform=ax.transAxes,
-                            color="k", zorder=6))
+    ax.add_patch(
+        FancyArrow(0.94, 0.83, 0.0, 0.09, width=0.012, head_width=0.035, head_length=0.035, transform=ax.transAxes, color="k", zorder=6)
+    )
     ax.text(0.94, 0.80, "N", transform=ax.transAxes, ha="center", va="top", fontsize=9, weight="bold", zorder=6)

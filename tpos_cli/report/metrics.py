@@ -74,17 +74,20 @@ def error_stats(err) -> ErrorStats:
     )
 
 
-def position_errors_ned(sol_lla, truth_lla, truth_offset_ned_m=None):
+def position_errors_ned(sol_lla, truth_lla, truth_offset_ned_m=None, *, truth_r_e=None, truth_C_ne=None):
     """Solution-minus-truth position error, m, shape (N, 3), NED at each truth point.
 
     Exact (no flat-Earth approximation): the ECEF difference rotated by C_ne of the truth point.
     `truth_offset_ned_m` (N, 3) is added to the solution point first, e.g. `C_nb @ lever_arm` when the
     truth is a GPS antenna and the solution is the IMU point. Rows with NaN give NaN.
+    `truth_r_e` and `truth_C_ne` (the truth's ECEF position and C_ne) may be passed when several
+    solutions are compared with the same truth epochs.
     """
     sol = np.asarray(sol_lla, dtype=float).reshape(-1, 3)
     tru = np.asarray(truth_lla, dtype=float).reshape(-1, 3)
-    d_e = lla_to_ecef(sol) - lla_to_ecef(tru)
-    err = np.einsum("nij,nj->ni", ecef_to_ned_dcm(tru[:, 0], tru[:, 1]), d_e)
+    r_t = lla_to_ecef(tru) if truth_r_e is None else truth_r_e
+    C_ne = ecef_to_ned_dcm(tru[:, 0], tru[:, 1]) if truth_C_ne is None else truth_C_ne
+    err = np.einsum("nij,nj->ni", C_ne, lla_to_ecef(sol) - r_t)
     if truth_offset_ned_m is not None:
         err = err + np.asarray(truth_offset_ned_m, dtype=float).reshape(-1, 3)
     return err
@@ -110,9 +113,10 @@ def rotation_angle_deg(C) -> np.ndarray:
     return np.degrees(np.arctan2(0.5 * np.linalg.norm(v, axis=-1), 0.5 * (np.trace(C, axis1=-2, axis2=-1) - 1.0)))
 
 
-def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg) -> dict[str, np.ndarray]:
+def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg, *, truth_C_nb=None) -> dict[str, np.ndarray]:
     """Wrap-aware Euler-angle errors (solution minus truth), deg in (-180, 180], and the total
-    rotation angle of C_truth^T C_sol, deg (independent of the Euler convention near gimbal lock)."""
+    rotation angle of C_truth^T C_sol, deg (independent of the Euler convention near gimbal lock).
+    `truth_C_nb` (N, 3, 3) may be passed when several solutions share the truth epochs."""
     s = np.asarray(sol_rpy_deg, dtype=float).reshape(-1, 3)
     t = np.asarray(truth_rpy_deg, dtype=float).reshape(-1, 3)
     d = wrap_angle_deg(s - t)
@@ -120,7 +124,7 @@ def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg) -> dict[str, np.ndarray]:
     ok = np.all(np.isfinite(s), axis=1) & np.all(np.isfinite(t), axis=1)
     if ok.any():
         Cs = euler_to_dcm(*np.radians(s[ok]).T)
-        Ct = euler_to_dcm(*np.radians(t[ok]).T)
+        Ct = euler_to_dcm(*np.radians(t[ok]).T) if truth_C_nb is None else truth_C_nb[ok]
         total[ok] = rotation_angle_deg(np.einsum("nji,njk->nik", Ct, Cs))
     return {"roll_deg": d[:, 0], "pitch_deg": d[:, 1], "yaw_deg": d[:, 2], "att_deg": total}
 

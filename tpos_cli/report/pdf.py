@@ -19,13 +19,26 @@ MAX_PAGES = 8
 def section_plan(ctx: ReportContext, summary: dict) -> list[Section]:
     """The default sections of a run, page 1 first: what matters for its kind, nothing empty."""
     if ctx.static_observer:
-        body = [tables.targets_section(ctx), tables.shots_section(ctx), tables.shot_truth_section(ctx), timeplots.sensors_section(ctx),
-                timeplots.attitude_section(ctx), tables.target_truth_section(ctx)]
+        body = [
+            tables.targets_section(ctx),
+            tables.shots_section(ctx),
+            tables.shot_truth_section(ctx),
+            timeplots.sensors_section(ctx),
+            timeplots.attitude_section(ctx),
+            tables.target_truth_section(ctx),
+        ]
     elif ctx.kind == "ranging":
         body = [timeplots.accuracy_section(ctx), timeplots.anchors_section(ctx), timeplots.attitude_section(ctx)]
     else:
-        body = [timeplots.accuracy_section(ctx), timeplots.separation_section(ctx), timeplots.innovations_section(ctx),
-                timeplots.gps_section(ctx), timeplots.attitude_section(ctx), tables.targets_section(ctx), tables.shots_section(ctx)]
+        body = [
+            timeplots.accuracy_section(ctx),
+            timeplots.separation_section(ctx),
+            timeplots.innovations_section(ctx),
+            timeplots.gps_section(ctx),
+            timeplots.attitude_section(ctx),
+            tables.targets_section(ctx),
+            tables.shots_section(ctx),
+        ]
     return [summary_section(ctx, summary)] + [s for s in body if s is not None] + tables.figure_sections(ctx)
 
 
@@ -44,9 +57,15 @@ def _allan_section(ctx: ReportContext) -> Section | None:
     def draw(fig, top, bottom):
         draw_allan(fig, nf, top - 0.02, bottom)
 
-    return Section("allan", "IMU noise: Allan deviation", PAGE_TOP - PAGE_BOTTOM - 0.08, draw,
-                   f"Overlapping Allan deviation per axis (IEEE Std 952-1997 Annex C) over the longest static stretch, "
-                   f"{w0 - ctx.t_ref:.1f}-{w1 - ctx.t_ref:.1f} s after the first IMU sample.", new_page=True)
+    return Section(
+        "allan",
+        "IMU noise: Allan deviation",
+        PAGE_TOP - PAGE_BOTTOM - 0.08,
+        draw,
+        f"Overlapping Allan deviation per axis (IEEE Std 952-1997 Annex C) over the longest static stretch, "
+        f"{w0 - ctx.t_ref:.1f}-{w1 - ctx.t_ref:.1f} s after the first IMU sample.",
+        new_page=True,
+    )
 
 
 def write_pdf(path: Path, ctx: ReportContext, summary: dict) -> list[str]:
@@ -66,10 +85,19 @@ def write_pdf(path: Path, ctx: ReportContext, summary: dict) -> list[str]:
         pages += extra + compose(appendix_sections(ctx))
     n = len(pages)
     s = ctx.run.summary
-    with PdfPages(path, metadata={"Title": f"tpos report: {ctx.name}", "Creator": f"tpos {summary['tpos_version']}",
-                                  "Subject": f"config sha256 {s.get('config_sha256')}"}) as pdf:
+    with PdfPages(
+        path,
+        metadata={
+            "Title": f"tpos report: {ctx.name}",
+            "Creator": f"tpos {summary['tpos_version']}",
+            "Subject": f"config sha256 {s.get('config_sha256')}",
+        },
+    ) as pdf:
         for k, (_, fig) in enumerate(pages):
-            footer(fig, f"{ctx.name} | pipeline {s.get('pipeline')} | config {str(s.get('config_sha256'))[:12]} | "
-                        f"report {summary['report_utc']} | page {k + 1} of {n}")
+            footer(
+                fig,
+                f"{ctx.name} | pipeline {s.get('pipeline')} | config {str(s.get('config_sha256'))[:12]} | "
+                f"report {summary['report_utc']} | page {k + 1} of {n}",
+            )
             pdf.savefig(fig)
     return [name for name, _ in pages]

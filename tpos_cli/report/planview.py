@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.patches import Ellipse
 
-from tpos_cli.export.targets import horizontal_ellipse
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report import layout as L
+from tpos_cli.report.targets import horizontal_ellipse
 
 MIN_ELLIPSE_FRAC = 0.012  # an ellipse under ~1.2 % of the map width (~2 mm on paper) is enlarged
 N_TRACK_ELLIPSES = 12
@@ -39,8 +39,19 @@ def _draw_ellipses(ax, e_m, n_m, major, minor, az_deg, factor, color, label):
         if not np.all(np.isfinite([x, y, a, b, z])):
             continue
         # matplotlib's angle is counter-clockwise from +x (east); azimuth is clockwise from north
-        ax.add_patch(Ellipse((x, y), 2 * a * factor, 2 * b * factor, angle=90.0 - z, fill=False, color=color, lw=1.0,
-                             label=label if k == 0 else None, zorder=4))
+        ax.add_patch(
+            Ellipse(
+                (x, y),
+                2 * a * factor,
+                2 * b * factor,
+                angle=90.0 - z,
+                fill=False,
+                color=color,
+                lw=1.0,
+                label=label if k == 0 else None,
+                zorder=4,
+            )
+        )
 
 
 def plan_aspect(ctx) -> float:
@@ -72,7 +83,9 @@ def plan_view(ax, ctx) -> str:
     if best is not None and not static:
         origin = best.lla[np.isfinite(best.lla).all(axis=1)][0]
     elif targets is not None and np.isfinite(targets[["lat", "lon"]].to_numpy(float)).any():
-        origin = best.lla[np.isfinite(best.lla).all(axis=1)][0] if best is not None else targets[["lat", "lon", "h"]].dropna().to_numpy(float)[0]
+        origin = (
+            best.lla[np.isfinite(best.lla).all(axis=1)][0] if best is not None else targets[["lat", "lon", "h"]].dropna().to_numpy(float)[0]
+        )
     else:
         ax.text(0.5, 0.5, "no position to draw", transform=ax.transAxes, ha="center")
         return ""
@@ -87,8 +100,14 @@ def plan_view(ax, ctx) -> str:
             for a, b in ctx.run.outage_windows:
                 inside |= (best.t >= a) & (best.t < b)
             if inside.any():
-                ax.plot(np.where(inside, ned[:, 1], np.nan)[i], np.where(inside, ned[:, 0], np.nan)[i], color="#d62728", lw=2.2,
-                        label="in GPS outage", zorder=3)
+                ax.plot(
+                    np.where(inside, ned[:, 1], np.nan)[i],
+                    np.where(inside, ned[:, 0], np.nan)[i],
+                    color="#d62728",
+                    lw=2.2,
+                    label="in GPS outage",
+                    zorder=3,
+                )
         ax.plot(ned[0, 1], ned[0, 0], "^", color="k", ms=7, label="start", zorder=5)
         ax.plot(ned[-1, 1], ned[-1, 0], "s", color="k", ms=6, mfc="white", label="end", zorder=5)
         pts.append(ned[:, :2])
@@ -119,8 +138,17 @@ def plan_view(ax, ctx) -> str:
     if tgt_ned is not None and len(tgt_ned):
         t_ok = targets[np.isfinite(targets[["lat", "lon", "h"]].to_numpy(float)).all(axis=1)]
         f = _enlargement(t_ok["ell95_major_m"].to_numpy(float), extent)
-        _draw_ellipses(ax, tgt_ned[:, 1], tgt_ned[:, 0], t_ok["ell95_major_m"], t_ok["ell95_minor_m"], t_ok["ell95_azimuth_deg"], f,
-                       L.COLORS[1], "95 % ellipse" + (f" (x{f:g})" if f > 1 else ""))
+        _draw_ellipses(
+            ax,
+            tgt_ned[:, 1],
+            tgt_ned[:, 0],
+            t_ok["ell95_major_m"],
+            t_ok["ell95_minor_m"],
+            t_ok["ell95_azimuth_deg"],
+            f,
+            L.COLORS[1],
+            "95 % ellipse" + (f" (x{f:g})" if f > 1 else ""),
+        )
         caption.append("targets with their 95 % horizontal ellipses" + (f", drawn {f:g} times enlarged" if f > 1 else ""))
     elif best is not None and not static and best.has_position_sigma:
         k = np.unique(np.linspace(0, best.t.size - 1, N_TRACK_ELLIPSES).astype(int))
@@ -129,8 +157,17 @@ def plan_view(ax, ctx) -> str:
         el = horizontal_ellipse(cov)
         f = _enlargement(el.semi_major_m, extent)
         ned = lla_to_ned(best.lla[k], origin)
-        _draw_ellipses(ax, ned[:, 1], ned[:, 0], el.semi_major_m, el.semi_minor_m, el.azimuth_deg, f, "#08519c",
-                       "95 % ellipse" + (f" (x{f:g})" if f > 1 else ""))
+        _draw_ellipses(
+            ax,
+            ned[:, 1],
+            ned[:, 0],
+            el.semi_major_m,
+            el.semi_minor_m,
+            el.azimuth_deg,
+            f,
+            "#08519c",
+            "95 % ellipse" + (f" (x{f:g})" if f > 1 else ""),
+        )
         caption.append(f"95 % ellipses at {k.size} epochs" + (f", drawn {f:g} times enlarged" if f > 1 else ""))
     lo, hi = np.nanmin(allp, axis=0), np.nanmax(allp, axis=0)
     pad = 0.08 * max(extent, 1.0)
@@ -160,4 +197,3 @@ def plan_view(ax, ctx) -> str:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0.0)
     o = f"origin {origin[0]:.6f}, {origin[1]:.6f}"
     return "; ".join(caption) + f"; east/north about {o} (" + ("the observer" if static else "the start") + ")"
-

@@ -23,9 +23,9 @@ import numpy as np
 import pandas as pd
 from scipy import special
 
-from tpos_cli.export.targets import horizontal_ellipse
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report.metrics import chi2_ppf
+from tpos_cli.report.targets import horizontal_ellipse
 from tpos_cli.report.truth import covered, median_gap_limit
 
 Z95 = float(special.ndtri(0.975))  # two-sided 95 % of a Gaussian: 1.96 sigma
@@ -73,7 +73,9 @@ def solution_series(trajectory: pd.DataFrame | None) -> dict[str, Series]:
         d = trajectory.iloc[idx]
         sig_u = _col(d, "sigma_u") if "sigma_u" in d.columns else _col(d, "sigma_d")
         out[str(name)] = Series(
-            name=str(name), t=d["t"].to_numpy(float), lla=d[["lat", "lon", "h"]].to_numpy(float),
+            name=str(name),
+            t=d["t"].to_numpy(float),
+            lla=d[["lat", "lon", "h"]].to_numpy(float),
             rpy_deg=d[["roll", "pitch", "yaw"]].to_numpy(float),
             sigma_neu_m=np.column_stack([_col(d, "sigma_n"), _col(d, "sigma_e"), sig_u]),
             cov_ne_m2=np.nan_to_num(_col(d, "cov_ne_m2", 0.0)),
@@ -107,10 +109,20 @@ def estimated_accuracy(series: dict[str, Series], order) -> pd.DataFrame:
             a = a[np.isfinite(a)]
             return float(np.percentile(a, p)) if a.size else np.nan
 
-        rows.append({"solution": name, "n": int(s.t.size), "h95_median_m": q(h95, 50), "h95_p95_m": q(h95, 95),
-                     "v95_median_m": q(v95, 50), "v95_p95_m": q(v95, 95), "tilt95_median_deg": q(r95, 50),
-                     "yaw95_median_deg": q(y95, 50), "yaw95_p95_deg": q(y95, 95),
-                     "flagged_frac": float(s.flag.mean()) if s.t.size else np.nan})
+        rows.append(
+            {
+                "solution": name,
+                "n": int(s.t.size),
+                "h95_median_m": q(h95, 50),
+                "h95_p95_m": q(h95, 95),
+                "v95_median_m": q(v95, 50),
+                "v95_p95_m": q(v95, 95),
+                "tilt95_median_deg": q(r95, 50),
+                "yaw95_median_deg": q(y95, 50),
+                "yaw95_p95_deg": q(y95, 95),
+                "flagged_frac": float(s.flag.mean()) if s.t.size else np.nan,
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -142,7 +154,9 @@ def separation(a: Series, b: Series) -> Separation:
             d[ok, i] = na[ok, i] - np.interp(a.t[ok], b.t, nb[:, i])
             var[ok, i] = a.sigma_neu_m[ok, i] ** 2 + np.interp(a.t[ok], b.t, b.sigma_neu_m[:, i] ** 2)
     cne = a.cov_ne_m2 + np.interp(a.t, b.t, b.cov_ne_m2)
-    bound = horizontal_ellipse(np.stack([np.column_stack([var[:, 0], cne]), np.column_stack([cne, var[:, 1]])], axis=1), prob=0.99).semi_major_m
+    bound = horizontal_ellipse(
+        np.stack([np.column_stack([var[:, 0], cne]), np.column_stack([cne, var[:, 1]])], axis=1), prob=0.99
+    ).semi_major_m
     with np.errstate(invalid="ignore", divide="ignore"):
         nees = np.sum(d * d / var, axis=1)
     return Separation(a.name, b.name, a.t, np.hypot(d[:, 0], d[:, 1]), bound, nees, d, var)
@@ -167,8 +181,13 @@ def gps_quality(session) -> GpsQuality | None:
         return a if a is not None and np.isfinite(a).any() else None
 
     s = opt(g.sigma_neu_m)
-    return GpsQuality(np.asarray(g.t_s, float) + session.t0_s, np.asarray(g.fix, float), opt(g.nsat), opt(g.hdop),
-                      None if s is None else np.hypot(s[:, 0], s[:, 1]))
+    return GpsQuality(
+        np.asarray(g.t_s, float) + session.t0_s,
+        np.asarray(g.fix, float),
+        opt(g.nsat),
+        opt(g.hdop),
+        None if s is None else np.hypot(s[:, 0], s[:, 1]),
+    )
 
 
 def windows_from_mask(t, mask) -> np.ndarray:

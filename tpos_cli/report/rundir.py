@@ -153,7 +153,7 @@ def session_dir_of(summary: dict, run_dir: Path) -> Path | None:
     if not raw:
         return None
     p = Path(raw)
-    for cand in ([p] if p.is_absolute() else [Path.cwd() / p, Path(run_dir).parent / p, Path(run_dir) / p]):
+    for cand in [p] if p.is_absolute() else [Path.cwd() / p, Path(run_dir).parent / p, Path(run_dir) / p]:
         if cand.is_dir():
             return cand
     return None

@@ -52,7 +52,7 @@ def _heading(fig: Figure, s: Section, top: float, first: bool) -> float:
 
 def compose(sections: list[Section]) -> list[tuple[str, Figure]]:
     """Pages holding the sections: the fixed ones in order, each page filled from the top; then each
-    floating section in the first page with room below its content (else on new pages at the end).
+    floating section on the page with the most room below its content (else on a new page at the end).
     Returns (page name = its sections' names joined by "+", figure)."""
     pages: list[list] = []  # [names, figure, free y]
 
@@ -74,5 +74,8 @@ def compose(sections: list[Section]) -> list[tuple[str, Figure]]:
         last = pages[-1] if pages else None
         place(s, last if last is not None and not s.new_page and fits(s, last) else None)
     for s in (x for x in sections if x.floating):
-        place(s, next((p for p in pages[1:] if fits(s, p)), None))  # page 1 is the summary: nothing joins it
+        # the page with the most room that takes it (page 1 is the summary: nothing joins it), so
+        # that free space spreads instead of one page filling and another staying blank
+        room = [p for p in pages[1:] if fits(s, p)]
+        place(s, max(room, key=lambda p: p[2]) if room else None)
     return [("+".join(names), fig) for names, fig, _ in pages]

@@ -44,25 +44,40 @@ def _static_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     if t is not None:
         n_shots = int(t["n_shots"].sum())
         rep = ", ".join(f"{i} x{n}" for i, n in zip(t["id"], t["n_shots"]) if n > 1)
-        rows.append(("Targets", f"{len(t)} from {n_shots} shots" + (f" (repeated: {rep})" if rep else "") + f"; solution {ctx.target_solution}"))
+        rows.append(
+            ("Targets", f"{len(t)} from {n_shots} shots" + (f" (repeated: {rep})" if rep else "") + f"; solution {ctx.target_solution}")
+        )
         h = t["ell95_major_m"].to_numpy(float)
         if np.isfinite(h).any():
             j = int(np.nanargmax(h))
-            rows.append(("Target precision, 95 % horizontal", f"median {fmt_len(np.nanmedian(h))}, largest {fmt_len(h[j])} ({t['id'].iloc[j]})"))
+            rows.append(
+                ("Target precision, 95 % horizontal", f"median {fmt_len(np.nanmedian(h))}, largest {fmt_len(h[j])} ({t['id'].iloc[j]})")
+            )
             rows.append(("Target precision, 95 % vertical", f"median {fmt_len(qc.Z95 * np.nanmedian(t['sigma_u']))}"))
     else:
         rows.append(("Targets", "none: an attitude-only session (no shots)"))
     if best is not None and best.is_static and np.isfinite(best.lla[0]).all():
         p = best.lla[0]
-        rows.append(("Observer", f"{abs(p[0]):.6f} {'N' if p[0] >= 0 else 'S'}, {abs(p[1]):.6f} {'E' if p[1] >= 0 else 'W'}, h {p[2]:.3f} m (ellipsoid)"))
+        rows.append(
+            (
+                "Observer",
+                f"{abs(p[0]):.6f} {'N' if p[0] >= 0 else 'S'}, {abs(p[1]):.6f} {'E' if p[1] >= 0 else 'W'}, h {p[2]:.3f} m (ellipsoid)",
+            )
+        )
     if best is not None and np.isfinite(best.sigma_rpy_deg[:, 2]).any():
         rows.append((f"Heading, 95 % ({best.name})", f"median {qc.Z95 * np.nanmedian(best.sigma_rpy_deg[:, 2]):.3f} deg over the session"))
     if ctx.mag is not None:
         m = ctx.mag
         dist = float(np.sum(np.diff(m.disturbed, axis=1))) if len(m.disturbed) else 0.0
-        rows.append(("Magnetic field", f"within {m.threshold_ut:.1f} uT of {m.reference_ut:.1f} uT throughout" if dist == 0 else
-                     f"disturbed for {fmt_duration(dist)}, first from {m.disturbed[0, 0] - ctx.t_ref:.0f} s "
-                     f"(|B| off {m.reference_ut:.1f} uT by more than {m.threshold_ut:.1f} uT)"))
+        rows.append(
+            (
+                "Magnetic field",
+                f"within {m.threshold_ut:.1f} uT of {m.reference_ut:.1f} uT throughout"
+                if dist == 0
+                else f"disturbed for {fmt_duration(dist)}, first from {m.disturbed[0, 0] - ctx.t_ref:.0f} s "
+                f"(|B| off {m.reference_ut:.1f} uT by more than {m.threshold_ut:.1f} uT)",
+            )
+        )
     return rows
 
 
@@ -76,8 +91,12 @@ def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     rows.append(("Solution shown", f"{best.name} (best of {', '.join(ctx.order)})"))
     est = ctx.estimated.set_index("solution").loc[best.name]
     if np.isfinite(est["h95_median_m"]):
-        rows.append(("Estimated accuracy, 95 % horizontal", f"median {fmt_len(est['h95_median_m'])}, 95th percentile {fmt_len(est['h95_p95_m'])}"))
-        rows.append(("Estimated accuracy, 95 % vertical", f"median {fmt_len(est['v95_median_m'])}, 95th percentile {fmt_len(est['v95_p95_m'])}"))
+        rows.append(
+            ("Estimated accuracy, 95 % horizontal", f"median {fmt_len(est['h95_median_m'])}, 95th percentile {fmt_len(est['h95_p95_m'])}")
+        )
+        rows.append(
+            ("Estimated accuracy, 95 % vertical", f"median {fmt_len(est['v95_median_m'])}, 95th percentile {fmt_len(est['v95_p95_m'])}")
+        )
     if np.isfinite(est["yaw95_median_deg"]):
         rows.append(("Estimated yaw, 95 %", f"median {est['yaw95_median_deg']:.2f} deg, 95th percentile {est['yaw95_p95_deg']:.2f} deg"))
     return rows
@@ -96,12 +115,22 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         n_fix = int(np.sum(g.fix > 0))
         w = ctx.run.outage_windows
         longest = float(np.max(w[:, 1] - w[:, 0])) if len(w) else 0.0
-        rows.append(("GPS", f"{n_fix} fixes, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} SBAS/WAAS; "
-                            f"{len(w)} outage{'s' if len(w) != 1 else ''}" + (f", longest {fmt_duration(longest)}" if len(w) else "")))
+        rows.append(
+            (
+                "GPS",
+                f"{n_fix} fixes, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} SBAS/WAAS; "
+                f"{len(w)} outage{'s' if len(w) != 1 else ''}" + (f", longest {fmt_duration(longest)}" if len(w) else ""),
+            )
+        )
     for sep in ctx.health.separations:
         ok = np.isfinite(sep.dist_h_m) & np.isfinite(sep.bound99_h_m)
         beyond = float(np.mean(sep.dist_h_m[ok] > sep.bound99_h_m[ok])) if ok.any() else np.nan
-        rows.append(("Forward/backward agreement", f"{pct(beyond)} of epochs apart by more than their 99 % bound; largest {fmt_len(np.nanmax(sep.dist_h_m))}"))
+        rows.append(
+            (
+                "Forward/backward agreement",
+                f"{pct(beyond)} of epochs apart by more than their 99 % bound; largest {fmt_len(np.nanmax(sep.dist_h_m))}",
+            )
+        )
     sol = ctx.innovation_solution()
     if sol is not None:
         nis = ctx.health.nis[ctx.health.nis["solution"] == sol]
@@ -110,8 +139,13 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         se = ctx.errors(ctx.best, independent_only=False)
         if se is not None and np.isfinite(se.err_ned_m).any():
             h = np.hypot(se.err_ned_m[:, 0], se.err_ned_m[:, 1])
-            rows.append(("Agreement with the GPS fixes used", f"horizontal RMS {fmt_len(np.sqrt(np.nanmean(h**2)))}, vertical RMS "
-                         f"{fmt_len(np.sqrt(np.nanmean(se.err_ned_m[:, 2] ** 2)))} (the run's input: GPS noise, not accuracy)"))
+            rows.append(
+                (
+                    "Agreement with the GPS fixes used",
+                    f"horizontal RMS {fmt_len(np.sqrt(np.nanmean(h**2)))}, vertical RMS "
+                    f"{fmt_len(np.sqrt(np.nanmean(se.err_ned_m[:, 2] ** 2)))} (the run's input: GPS noise, not accuracy)",
+                )
+            )
     if not ctx.has_truth:
         rows.append(("Truth", "none: a quality-control report (the run's own accuracy estimates and consistency checks)"))
         return rows
@@ -119,32 +153,65 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         te = ctx.acc.targets[ctx.acc.targets["solution"] == ctx.target_solution]
         if len(te):
             j = int(np.argmax(te["err_3d_m"].to_numpy()))
-            rows.append(("Error against surveyed truth", f"RMS 3-D {fmt_len(float(np.sqrt(np.mean(te['err_3d_m'] ** 2))))}, "
-                                                         f"largest {fmt_len(te['err_3d_m'].iloc[j])} ({te['id'].iloc[j]}), {len(te)} shots"))
+            rows.append(
+                (
+                    "Error against surveyed truth",
+                    f"RMS 3-D {fmt_len(float(np.sqrt(np.mean(te['err_3d_m'] ** 2))))}, "
+                    f"largest {fmt_len(te['err_3d_m'].iloc[j])} ({te['id'].iloc[j]}), {len(te)} shots",
+                )
+            )
     se = ctx.errors(ctx.best) if ctx.best else None
     if se is not None and not ctx.static_observer:
         e = se.err_ned_m
         h = np.hypot(e[:, 0], e[:, 1])
         src = "truth" if ctx.truth.trajectory.source == "truth" else "withheld GPS fixes"
-        rows.append((f"Error against {src}", f"horizontal RMS {fmt_len(np.sqrt(np.nanmean(h**2)))}, 95th percentile {fmt_len(np.nanpercentile(h, 95))}; "
-                                             f"vertical RMS {fmt_len(np.sqrt(np.nanmean(e[:, 2] ** 2)))}"))
+        rows.append(
+            (
+                f"Error against {src}",
+                f"horizontal RMS {fmt_len(np.sqrt(np.nanmean(h**2)))}, 95th percentile {fmt_len(np.nanpercentile(h, 95))}; "
+                f"vertical RMS {fmt_len(np.sqrt(np.nanmean(e[:, 2] ** 2)))}",
+            )
+        )
         cons = consistency_text(ctx, ctx.best)
         if cons:
             rows.append(("Inside the stated 95 % bound", cons + " (about 95 % for honest sigmas)"))
     if se is not None and se.att_err_deg is not None:
         a = se.att_err_deg
-        rows.append((f"Attitude error ({se.solution})", "RMS roll {:.3f}, pitch {:.3f}, yaw {:.3f} deg".format(
-            *(np.sqrt(np.nanmean(a[k] ** 2)) for k in ("roll_deg", "pitch_deg", "yaw_deg")))))
+        rows.append(
+            (
+                f"Attitude error ({se.solution})",
+                "RMS roll {:.3f}, pitch {:.3f}, yaw {:.3f} deg".format(
+                    *(np.sqrt(np.nanmean(a[k] ** 2)) for k in ("roll_deg", "pitch_deg", "yaw_deg"))
+                ),
+            )
+        )
     return rows
 
 
 def _verdict_box(fig: Figure, ctx: ReportContext, top: float) -> float:
     v = ctx.verdict
     level = v.get("verdict") if v else None
-    fig.patches.append(FancyBboxPatch((L.MARGIN_L, top - 0.05), 0.19, 0.045, boxstyle="round,pad=0.004", transform=fig.transFigure,
-                                      facecolor=L.VERDICT_COLORS.get(level, L.VERDICT_COLORS[None]), edgecolor="none"))
-    fig.text(L.MARGIN_L + 0.095, top - 0.0275, level.upper() if level else "NO VERDICT", ha="center", va="center",
-             fontsize=15 if level else 12, weight="bold", color="white")
+    fig.patches.append(
+        FancyBboxPatch(
+            (L.MARGIN_L, top - 0.05),
+            0.19,
+            0.045,
+            boxstyle="round,pad=0.004",
+            transform=fig.transFigure,
+            facecolor=L.VERDICT_COLORS.get(level, L.VERDICT_COLORS[None]),
+            edgecolor="none",
+        )
+    )
+    fig.text(
+        L.MARGIN_L + 0.095,
+        top - 0.0275,
+        level.upper() if level else "NO VERDICT",
+        ha="center",
+        va="center",
+        fontsize=15 if level else 12,
+        weight="bold",
+        color="white",
+    )
     fig.text(L.MARGIN_L + 0.095, top - 0.058, "verdict of the run", ha="center", va="top", fontsize=6.8, color=L.GREY)
     if v is None:
         lines = ["No verdict recorded: the run was processed before tpos gave every run a verdict; reprocess it to get one."]
@@ -165,8 +232,11 @@ def provenance_lines(ctx: ReportContext, summary: dict) -> list[str]:
     s = ctx.run.summary
     sess = s.get("session") or {}
     files = ", ".join(f"{k} {v[:10]}" for k, v in sorted((s.get("inputs") or {}).items())) or "not recorded"
-    start = (ctx.session.meta.start_utc.strftime("%Y-%m-%d %H:%M:%S UTC") if ctx.session is not None and ctx.session.meta.start_utc
-             else "start time not given")
+    start = (
+        ctx.session.meta.start_utc.strftime("%Y-%m-%d %H:%M:%S UTC")
+        if ctx.session is not None and ctx.session.meta.start_utc
+        else "start time not given"
+    )
     truth = "none (quality control only)"
     if ctx.has_truth:
         truth = "; ".join(x.description for x in (ctx.truth.trajectory, ctx.truth.targets) if x is not None)
@@ -209,7 +279,9 @@ def _attitude_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
     x = ctx.x(s.t)
     drawn = [qc.Z95 * s.sigma_rpy_deg[:, 2]]
     if se is not None and se.att_err_deg is not None:
-        L.plot_series(ax, ctx.x(se.t), se.att_err_deg["att_deg"], color=L.COLORS[0], lw=0.8, label=f"{s.name}: attitude error (total angle)")
+        L.plot_series(
+            ax, ctx.x(se.t), se.att_err_deg["att_deg"], color=L.COLORS[0], lw=0.8, label=f"{s.name}: attitude error (total angle)"
+        )
         drawn.append(se.att_err_deg["att_deg"])
         ylabel = "attitude error, deg"
     else:
@@ -228,29 +300,42 @@ def _attitude_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
 def summary_section(ctx: ReportContext, summary: dict) -> Section:
     kind = KIND_TITLES.get(ctx.kind, ctx.kind or "session")
     subtitle = f"{kind}; pipeline {ctx.run.summary.get('pipeline')}; " + (
-        "with truth" if ctx.has_truth else "no independent truth: quality control only")
+        "with truth" if ctx.has_truth else "no independent truth: quality control only"
+    )
 
     def draw(fig: Figure, top: float, bottom: float) -> None:
         y = _verdict_box(fig, ctx, top)
         rows = headline_rows(ctx)
-        y = L.draw_table(fig, y - 0.004, [L.Column("", [r[0] for r in rows], align="left"), L.Column("", [r[1] for r in rows], align="left")],
-                         fontsize=7.8, header=False)
+        y = L.draw_table(
+            fig,
+            y - 0.004,
+            [L.Column("", [r[0] for r in rows], align="left"), L.Column("", [r[1] for r in rows], align="left")],
+            fontsize=7.8,
+            header=False,
+        )
         wrapped = [w for p in provenance_lines(ctx, summary) for w in textwrap.wrap(p, PROVENANCE_WRAP)]
         prov_h = len(wrapped) * PROVENANCE_FONT * 1.3 / 72 / L.A4_IN[1]
-        fig.text(L.MARGIN_L, bottom + prov_h, "\n".join(wrapped), ha="left", va="top", fontsize=PROVENANCE_FONT, color="0.3", linespacing=1.3)
+        fig.text(
+            L.MARGIN_L, bottom + prov_h, "\n".join(wrapped), ha="left", va="top", fontsize=PROVENANCE_FONT, color="0.3", linespacing=1.3
+        )
         low = bottom + prov_h + 0.015
         if ctx.static_observer and ctx.targets is not None:
             n = min(len(ctx.targets), 12)
             cols = [L.Column(c.header, list(c.cells)[:n], c.unit, c.align, c.weight) for c in target_columns(ctx.targets, compact=True)]
             th = L.table_height(n, 7.4) + 0.03
-            L.draw_table(fig, low + th, cols, fontsize=7.4,
-                         title="Targets" + (f" (the first {n} of {len(ctx.targets)}; all on page 2)" if n < len(ctx.targets) else ""))
+            L.draw_table(
+                fig,
+                low + th,
+                cols,
+                fontsize=7.4,
+                title="Targets" + (f" (the first {n} of {len(ctx.targets)}; all on page 2)" if n < len(ctx.targets) else ""),
+            )
             low += th + 0.01
         if ctx.static_observer and ctx.targets is None:  # an attitude-only log: no plan to draw
             if ctx.best is not None and y - 0.04 - low > 0.15:
                 _attitude_strip(fig, ctx, y - 0.04, max(low + 0.03, y - 0.04 - 0.4))
             return
-        strip = (not ctx.static_observer and ctx.best is not None and ctx.series[ctx.best].has_position_sigma)
+        strip = not ctx.static_observer and ctx.best is not None and ctx.series[ctx.best].has_position_sigma
         caption_h = 0.06  # x label, tick labels and the two-line caption under the plan
         avail = y - 0.02 - low - caption_h
         width = 0.64

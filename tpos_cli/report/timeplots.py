@@ -73,9 +73,11 @@ def accuracy_section(ctx: ReportContext) -> Section | None:
     truth = ctx.has_truth and ctx.truth.trajectory is not None and ctx.truth_is_independent
     has_yaw = any(np.isfinite(ctx.series[s].sigma_rpy_deg[:, 2]).any() for s in shown)
     n = 3 if has_yaw else 2
-    sub = ("Thick: the 95 % bound each solution states (horizontal: semi-major axis of its ellipse; vertical and yaw: 1.96 sigma). "
-           + ("Thin: its actual error against truth, which should stay inside its bound about 95 % of the time."
-              if truth else "No truth: the bounds are the run's own estimate."))
+    sub = "Thick: the 95 % bound each solution states (horizontal: semi-major axis of its ellipse; vertical and yaw: 1.96 sigma). " + (
+        "Thin: its actual error against truth, which should stay inside its bound about 95 % of the time."
+        if truth
+        else "No truth: the bounds are the run's own estimate."
+    )
     if truth and ctx.truth.trajectory.source == "gps":
         sub += " Errors only at the GPS fixes withheld from the run (--mask-gps)."
     lines = [f"{s}: inside its own 95 % bound: {consistency_text(ctx, s)}" for s in shown if truth and consistency_text(ctx, s)]
@@ -125,9 +127,14 @@ def separation_section(ctx: ReportContext) -> Section | None:
             ax.set_ylim(bottom=0)
         _finish(axes, ctx, ["separation, m"] * len(seps))
 
-    return Section("separation", "Forward and backward runs", len(seps) * PANEL_H + 0.03, draw,
-                   "Two runs of one filter over the same data should lie within the 99 % bound of their combined covariance; "
-                   "a separation beyond it shows a model or data problem there (the chain flags such epochs).")
+    return Section(
+        "separation",
+        "Forward and backward runs",
+        len(seps) * PANEL_H + 0.03,
+        draw,
+        "Two runs of one filter over the same data should lie within the 99 % bound of their combined covariance; "
+        "a separation beyond it shows a model or data problem there (the chain flags such epochs).",
+    )
 
 
 def innovations_section(ctx: ReportContext) -> Section | None:
@@ -162,9 +169,14 @@ def innovations_section(ctx: ReportContext) -> Section | None:
         _finish(axes, ctx, [f"NIS, {k}" for k in kinds])
         L.draw_table(fig, bottom + th, table, fontsize=7.2, highlight=[i for i, c in enumerate(ctx.health.nis["consistent"]) if not c])
 
-    return Section("innovations", f"Innovations of the {sol} run", len(kinds) * PANEL_H + th + 0.03, draw,
-                   "Normalised innovation squared of every update against the chi-square band of its size; rejected updates marked x. "
-                   "The table checks the mean NIS of every solution and kind against its 95 % band.")
+    return Section(
+        "innovations",
+        f"Innovations of the {sol} run",
+        len(kinds) * PANEL_H + th + 0.03,
+        draw,
+        "Normalised innovation squared of every update against the chi-square band of its size; rejected updates marked x. "
+        "The table checks the mean NIS of every solution and kind against its 95 % band.",
+    )
 
 
 def gps_section(ctx: ReportContext) -> Section | None:
@@ -172,18 +184,25 @@ def gps_section(ctx: ReportContext) -> Section | None:
     if g is None:
         return None
     panels, constants = [], []
-    for label, y, style, fmt in (("fix type", g.fix, "step", "{:.0f}"), ("satellites used", g.nsat, "step", "{:.0f}"),
-                                 ("HDOP", g.hdop, "line", "{:.1f}"), ("reported horizontal SD, m", g.sigma_h_m, "line", "{:.2f}")):
+    for label, y, style, fmt in (
+        ("fix type", g.fix, "step", "{:.0f}"),
+        ("satellites used", g.nsat, "step", "{:.0f}"),
+        ("HDOP", g.hdop, "line", "{:.1f}"),
+        ("reported horizontal SD, m", g.sigma_h_m, "line", "{:.2f}"),
+    ):
         if y is None:
             continue
         v = y[np.isfinite(y)]
         if v.size and np.ptp(v) == 0:
-            constants.append(f"{label.split(',')[0]} {FIX_NAMES.get(int(v[0]), fmt.format(v[0])) if label == 'fix type' else fmt.format(v[0])}")
+            constants.append(
+                f"{label.split(',')[0]} {FIX_NAMES.get(int(v[0]), fmt.format(v[0])) if label == 'fix type' else fmt.format(v[0])}"
+            )
         else:
             panels.append((label, y, style))
     missing = [n for n, a in (("satellites", g.nsat), ("HDOP", g.hdop), ("reported SD", g.sigma_h_m)) if a is None]
     note = ("Constant over the log: " + ", ".join(constants) + ". " if constants else "") + (
-        "Not logged: " + ", ".join(missing) + "." if missing else "")
+        "Not logged: " + ", ".join(missing) + "." if missing else ""
+    )
 
     note_h = 0.025 if note else 0.0
 
@@ -205,8 +224,13 @@ def gps_section(ctx: ReportContext) -> Section | None:
         if note:
             L.note(fig, bottom + note_h if panels else top, note)
 
-    return Section("gps", "GPS quality", len(panels) * 0.15 + (LEGEND_H + XLABEL_H if panels else 0.0) + note_h, draw,
-                   "As the receiver logged it; shaded: GPS outages and --mask-gps windows.")
+    return Section(
+        "gps",
+        "GPS quality",
+        len(panels) * 0.15 + (LEGEND_H + XLABEL_H if panels else 0.0) + note_h,
+        draw,
+        "As the receiver logged it; shaded: GPS outages and --mask-gps windows.",
+    )
 
 
 def attitude_section(ctx: ReportContext) -> Section | None:
@@ -223,9 +247,12 @@ def attitude_section(ctx: ReportContext) -> Section | None:
     if not truth and not (ctx.static_observer and others):
         return None
     title = "Attitude error against truth" if truth else f"Attitude: the solutions against {best}"
-    sub = ("Solution minus truth, wrap-aware, and the total angle of the error rotation (free of the Euler convention near "
-           "pitch +/-90 deg); band: the 95 % bound (1.96 sigma) " + best + " states." if truth else
-           f"Each solution minus {best}, wrap-aware (no truth); band: the 95 % bound (1.96 sigma) {best} states.")
+    sub = (
+        "Solution minus truth, wrap-aware, and the total angle of the error rotation (free of the Euler convention near "
+        "pitch +/-90 deg); band: the 95 % bound (1.96 sigma) " + best + " states."
+        if truth
+        else f"Each solution minus {best}, wrap-aware (no truth); band: the 95 % bound (1.96 sigma) {best} states."
+    )
     if ctx.static_observer:
         sub += " Shaded: shots and detected disturbances."
     elif len(ctx.run.outage_windows):
@@ -256,8 +283,7 @@ def attitude_section(ctx: ReportContext) -> Section | None:
                 drawn.append(y)
             L.robust_ylim(ax, drawn, symmetric=k < 3)
             mark_time(ax, ctx, legend=k == 0, label_shots=k == 0)
-        _finish(axes, ctx, [f"{n} {'error' if truth else 'difference'}, deg" for n in names],
-                raise_legend=ctx.shots is not None)
+        _finish(axes, ctx, [f"{n} {'error' if truth else 'difference'}, deg" for n in names], raise_legend=ctx.shots is not None)
 
     return Section("attitude", title, len(names) * PANEL_H + 0.05, draw, sub)
 
@@ -277,8 +303,13 @@ def sensors_section(ctx: ReportContext) -> Section | None:
         for k, (ax, p) in enumerate(zip(axes, panels)):
             if p == "mag":
                 m = ctx.mag
-                ax.axhspan(m.reference_ut - m.threshold_ut, m.reference_ut + m.threshold_ut, color="#e5f5e0", lw=0,
-                           label=f"Earth field {m.reference_ut:.1f} +/- {m.threshold_ut:.1f} uT")
+                ax.axhspan(
+                    m.reference_ut - m.threshold_ut,
+                    m.reference_ut + m.threshold_ut,
+                    color="#e5f5e0",
+                    lw=0,
+                    label=f"Earth field {m.reference_ut:.1f} +/- {m.threshold_ut:.1f} uT",
+                )
                 L.plot_series(ax, ctx.x(m.t), m.norm_ut, color=L.COLORS[0], lw=0.9, label="|B|, 1 s medians")
                 labels.append("field magnitude, uT")
             else:
@@ -292,9 +323,14 @@ def sensors_section(ctx: ReportContext) -> Section | None:
                 L.legend_outside(ax)
         _finish(axes, ctx, labels, raise_legend=True)
 
-    return Section("sensors", "Sensors during the session", len(panels) * PANEL_H + 0.04, draw,
-                   "Magnetic field magnitude against the Earth field the alignment measured (a disturbance is marked where the "
-                   "1 s median leaves the band) and the three rangefinders; shaded: shots (named) and disturbances.")
+    return Section(
+        "sensors",
+        "Sensors during the session",
+        len(panels) * PANEL_H + 0.04,
+        draw,
+        "Magnetic field magnitude against the Earth field the alignment measured (a disturbance is marked where the "
+        "1 s median leaves the band) and the three rangefinders; shaded: shots (named) and disturbances.",
+    )
 
 
 def anchors_section(ctx: ReportContext) -> Section | None:
@@ -309,8 +345,14 @@ def anchors_section(ctx: ReportContext) -> Section | None:
         axes = panel_axes(fig, 2 if has_nis else 1, top, bottom, legend_each=True)
         x = ctx.x(av.t)
         for j in range(len(av.ids)):
-            axes[0].plot(np.where(av.per_anchor[j], x, np.nan), np.full(x.size, j), "-", lw=5, color=L.COLORS[j % len(L.COLORS)],
-                         solid_capstyle="butt")
+            axes[0].plot(
+                np.where(av.per_anchor[j], x, np.nan),
+                np.full(x.size, j),
+                "-",
+                lw=5,
+                color=L.COLORS[j % len(L.COLORS)],
+                solid_capstyle="butt",
+            )
         few = qc.windows_from_mask(av.t, av.n_anchors < 3)
         L.shade(axes[0], few, ctx.t_ref, ctx.time_scale, "#fcbba1", "fewer than 3 anchors", alpha=0.7)
         axes[0].set_yticks(range(len(av.ids)), av.ids)
@@ -336,6 +378,11 @@ def anchors_section(ctx: ReportContext) -> Section | None:
             labels.append(f"NIS of ranges ({sol})")
         _finish(axes, ctx, labels)
 
-    return Section("anchors", "Anchors and ranges", (2 if has_nis else 1) * PANEL_H + 0.03, draw,
-                   "Ranges logged per anchor in 1 s bins (with fewer than 3 anchors a position has a mirror image); NIS of each "
-                   "range update against its chi-square band, rejected updates marked x.")
+    return Section(
+        "anchors",
+        "Anchors and ranges",
+        (2 if has_nis else 1) * PANEL_H + 0.03,
+        draw,
+        "Ranges logged per anchor in 1 s bins (with fewer than 3 anchors a position has a mirror image); NIS of each "
+        "range update against its chi-square band, rejected updates marked x.",
+    )
