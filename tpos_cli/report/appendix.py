@@ -4,15 +4,13 @@ whose layout it follows)."""
 
 from __future__ import annotations
 
-import numpy as np
 import pandas as pd
 
 from tpos_cli.report import layout as L
 from tpos_cli.report.context import ReportContext
 from tpos_cli.report.format import length_unit
-from tpos_cli.report.health import nis_band
 from tpos_cli.report.sections import Section
-from tpos_cli.report.timeplots import PANEL_H, mark_time, panel_axes
+from tpos_cli.report.timeplots import PANEL_H, draw_nis, panel_axes
 
 ROWS = 52
 FONT = 6.6
@@ -33,11 +31,24 @@ def _chunks(df: pd.DataFrame, n: int = ROWS):
     return [df.iloc[i : i + n] for i in range(0, len(df), n)]
 
 
+def _long_table(name: str, title: str, subtitle: str, df: pd.DataFrame, columns) -> list[Section]:
+    """A table of many rows as consecutive sections of `ROWS` rows; the subtitle on the first."""
+    out = []
+    for k, part in enumerate(_chunks(df)):
+        cols = columns(part)
+
+        def draw(fig, top, bottom, cols=cols):
+            L.draw_table(fig, top, cols, fontsize=FONT)
+
+        out.append(Section(name, title + (f" ({k + 1})" if k else ""), L.table_height(len(part), FONT) + 0.01, draw, "" if k else subtitle))
+    return out
+
+
 def segment_sections(ctx: ReportContext) -> list[Section]:
     t = ctx.acc.table
     keep = t[t["quantity"].isin(["pos_3d_m", "pos_h_m", "pos_v_m", "roll_deg", "pitch_deg", "yaw_deg", "att_deg"]) & (t["n"] > 0)]
-    out = []
-    for k, part in enumerate(_chunks(keep)):
+
+    def columns(part):
         cols = [
             L.Column("solution", list(part["solution"]), align="left"),
             L.Column("target", [v or "-" for v in part["target"]], align="left"),
@@ -45,25 +56,16 @@ def segment_sections(ctx: ReportContext) -> list[Section]:
             L.Column("quantity", list(part["quantity"]), align="left"),
             L.Column("n", [str(v) for v in part["n"]]),
         ]
-        cols += [L.Column(s, L.fmt_num(part[s], 4), "m or deg") for s in ("mean", "sd", "rms", "max_abs", "p95")]
+        return cols + [L.Column(s, L.fmt_num(part[s], 4), "m or deg") for s in ("mean", "sd", "rms", "max_abs", "p95")]
 
-        def draw(fig, top, bottom, cols=cols):
-            L.draw_table(fig, top, cols, fontsize=FONT)
-
-        out.append(
-            Section(
-                "appendix_segments",
-                "Appendix: accuracy by segment" + (f" ({k + 1})" if k else ""),
-                L.table_height(len(part), FONT) + 0.01,
-                draw,
-                ""
-                if k
-                else "Segments: all; outage / gps = inside / outside GPS outages and --mask-gps windows; outage_k = "
-                "each window; movement = the truth's movement phase; withheld = epochs judged against withheld GPS fixes. "
-                "Quantities ending _m are metres, _deg degrees.",
-            )
-        )
-    return out
+    return _long_table(
+        "appendix_segments",
+        "Appendix: accuracy by segment",
+        "Segments: all; outage / gps = inside / outside GPS outages and --mask-gps windows; outage_k = each window; movement = "
+        "the truth's movement phase; withheld = epochs judged against withheld GPS fixes. Quantities ending _m are metres, _deg degrees.",
+        keep,
+        columns,
+    )
 
 
 def innovation_sections(ctx: ReportContext) -> list[Section]:
@@ -76,17 +78,7 @@ def innovation_sections(ctx: ReportContext) -> list[Section]:
 
         def draw(fig, top, bottom, d=d, kind=kind):
             (ax,) = panel_axes(fig, 1, top, bottom)
-            x = ctx.x(d["t"].to_numpy(float))
-            nis = d["nis"].to_numpy(float)
-            acc = d["accepted"].fillna(False).to_numpy(bool)
-            dof = d["dof"].to_numpy(float)
-            if np.isfinite(dof).any():
-                lo, hi = nis_band(np.nanmedian(dof))
-                ax.axhspan(lo, hi, color="0.88", zorder=0)
-            L.scatter_points(ax, x[acc], nis[acc], marker=".", ms=2, color=L.COLORS[0])
-            ax.plot(x[~acc], nis[~acc], "x", ms=4, color="#d62728")
-            ax.set_yscale("log")
-            mark_time(ax, ctx, legend=False)
+            draw_nis(ax, ctx, d)
             L.style_axis(ax, f"NIS, {kind}")
             ax.set_xlabel(ctx.time_label, fontsize=8)
 
@@ -107,8 +99,8 @@ def shot_sections(ctx: ReportContext) -> list[Section]:
     if tg is None or not len(tg):
         return []
     unit, sc, dec = length_unit(tg["sigma_n"].to_numpy(float) if "sigma_n" in tg else [0.01])
-    out = []
-    for k, part in enumerate(_chunks(tg)):
+
+    def columns(part):
         empty = [""] * len(part)
         cols = [
             L.Column("solution", list(part["solution"].astype(str)), align="left"),
@@ -118,24 +110,12 @@ def shot_sections(ctx: ReportContext) -> list[Section]:
             L.Column("longitude", L.fmt_num(part["lon"], 8), "deg"),
             L.Column("height", L.fmt_num(part["h"], 3), "m"),
         ]
-        cols += [
-            L.Column(h, L.fmt_num(part[c], dec, sc) if c in part else empty, unit)
-            for c, h in (("sigma_n", "SD N"), ("sigma_e", "SD E"), ("sigma_u", "SD U"))
-        ]
+        sds = (("sigma_n", "SD N"), ("sigma_e", "SD E"), ("sigma_u", "SD U"))
+        return cols + [L.Column(h, L.fmt_num(part[c], dec, sc) if c in part else empty, unit) for c, h in sds]
 
-        def draw(fig, top, bottom, cols=cols):
-            L.draw_table(fig, top, cols, fontsize=FONT)
-
-        out.append(
-            Section(
-                "appendix_shots",
-                "Appendix: every shot of every solution" + (f" ({k + 1})" if k else ""),
-                L.table_height(len(part), FONT) + 0.01,
-                draw,
-                "" if k else "WGS-84, heights above the ellipsoid; SD = 1 sigma.",
-            )
-        )
-    return out
+    return _long_table(
+        "appendix_shots", "Appendix: every shot of every solution", "WGS-84, heights above the ellipsoid; SD = 1 sigma.", tg, columns
+    )
 
 
 def layout_sections(ctx: ReportContext) -> list[Section]:

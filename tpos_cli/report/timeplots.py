@@ -52,6 +52,24 @@ def mark_time(ax, ctx: ReportContext, legend: bool = True, label_shots: bool = F
     ax.set_xlim(*ctx.time_limits)
 
 
+def draw_nis(ax, ctx: ReportContext, d, color: str = L.COLORS[0], label: str = "accepted", band: bool = True) -> None:
+    """NIS of one stream of updates (innovations rows) on a log axis: accepted as dots, rejected as
+    x, the chi-square 95 % band of their size behind them."""
+    x = ctx.x(d["t"].to_numpy(float))
+    nis = d["nis"].to_numpy(float)
+    acc = d["accepted"].fillna(False).to_numpy(bool)
+    dof = d["dof"].to_numpy(float)
+    if band and np.isfinite(dof).any():
+        lo, hi = nis_band(np.nanmedian(dof))
+        ax.axhspan(lo, hi, color="0.88", zorder=0, label=f"95 % band ({np.nanmedian(dof):.0f} dof)")
+    L.scatter_points(ax, x[acc], nis[acc], marker=".", ms=2.2, color=color, label=label)
+    if (~acc).any():
+        rejected = f"rejected ({int((~acc).sum())})" if band else None
+        ax.plot(x[~acc], nis[~acc], "x", ms=4, color="#d62728" if band else color, label=rejected)
+    ax.set_yscale("log")
+    mark_time(ax, ctx, legend=False)
+
+
 def _finish(axes, ctx: ReportContext, labels, legend_axis: int = 0, raise_legend: bool = False) -> None:
     for ax, lab in zip(axes, labels):
         L.style_axis(ax, lab)
@@ -152,19 +170,7 @@ def innovations_section(ctx: ReportContext) -> Section | None:
     def draw(fig, top, bottom):
         axes = panel_axes(fig, len(kinds), top, bottom + th, legend_each=True)
         for ax, kind in zip(axes, kinds):
-            d = d_sol[d_sol["kind"].astype(str) == kind]
-            x = ctx.x(d["t"].to_numpy(float))
-            nis = d["nis"].to_numpy(float)
-            acc = d["accepted"].fillna(False).to_numpy(bool)
-            dof = d["dof"].to_numpy(float)
-            if np.isfinite(dof).any():
-                lo, hi = nis_band(np.nanmedian(dof))
-                ax.axhspan(lo, hi, color="0.88", zorder=0, label=f"95 % band ({np.nanmedian(dof):.0f} dof)")
-            L.scatter_points(ax, x[acc], nis[acc], marker=".", ms=2.2, color=L.COLORS[0], label="accepted")
-            if (~acc).any():
-                ax.plot(x[~acc], nis[~acc], "x", ms=4, color="#d62728", label=f"rejected ({int((~acc).sum())})")
-            ax.set_yscale("log")
-            mark_time(ax, ctx, legend=False)
+            draw_nis(ax, ctx, d_sol[d_sol["kind"].astype(str) == kind])
             L.legend_outside(ax)
         _finish(axes, ctx, [f"NIS, {k}" for k in kinds])
         L.draw_table(fig, bottom + th, table, fontsize=7.2, highlight=[i for i, c in enumerate(ctx.health.nis["consistent"]) if not c])
@@ -362,18 +368,8 @@ def anchors_section(ctx: ReportContext) -> Section | None:
         if has_nis:
             d = inn[(inn["solution"].astype(str) == sol) & inn["anchor"].notna()]
             ax = axes[1]
-            dof = d["dof"].to_numpy(float)
-            if np.isfinite(dof).any():
-                lo, hi = nis_band(np.nanmedian(dof))
-                ax.axhspan(lo, hi, color="0.88", zorder=0, label="95 % band")
-            for j, name in enumerate(av.ids):
-                dd = d[d["anchor"].astype(str) == name]
-                acc = dd["accepted"].fillna(False).to_numpy(bool)
-                xx, nis = ctx.x(dd["t"].to_numpy(float)), dd["nis"].to_numpy(float)
-                L.scatter_points(ax, xx[acc], nis[acc], marker=".", ms=2, color=L.COLORS[j % len(L.COLORS)], label=name)
-                ax.plot(xx[~acc], nis[~acc], "x", ms=4, color=L.COLORS[j % len(L.COLORS)])
-            ax.set_yscale("log")
-            mark_time(ax, ctx, legend=False)
+            for j, name in enumerate(av.ids):  # one colour per anchor; the band once, behind them all
+                draw_nis(ax, ctx, d[d["anchor"].astype(str) == name], color=L.COLORS[j % len(L.COLORS)], label=name, band=j == 0)
             L.legend_outside(ax)
             labels.append(f"NIS of ranges ({sol})")
         _finish(axes, ctx, labels)

@@ -101,19 +101,24 @@ def covered(t_truth, t_query, max_gap_s: float):
     return lo, hi, ok
 
 
-def interpolate_positions(t_truth, lla_truth, t_query, max_gap_s: float):
-    """Truth positions at `t_query`, (Q, 3) lla; linear in NED about the first truth point; NaN
-    where not covered. Only the bracketing truth samples are converted (hour-long 100 Hz truth)."""
-    t, lla = _clean(t_truth, np.asarray(lla_truth, dtype=float).reshape(-1, 3))
+def _brackets(t_truth, values, t_query, max_gap_s: float):
+    """Cleaned truth values (K, 3), the mask of covered queries, and for those the bracketing
+    truth indices and the weight of the later sample (0 on a truth stamp)."""
+    t, v = _clean(t_truth, np.asarray(values, dtype=float).reshape(-1, 3))
     tq = np.asarray(t_query, dtype=float)
-    out = np.full((tq.size, 3), np.nan)
     lo, hi, ok = covered(t, tq, max_gap_s)
-    if not ok.any():
-        return out
     lo, hi, q = lo[ok], hi[ok], tq[ok]
     span = t[hi] - t[lo]
-    w = np.divide(q - t[lo], span, out=np.zeros_like(q), where=span > 0)
-    res = lla[lo].copy()  # queries on a truth stamp (w = 0) need no interpolation
+    return v, ok, lo, hi, np.divide(q - t[lo], span, out=np.zeros_like(q), where=span > 0)
+
+
+def interpolate_positions(t_truth, lla_truth, t_query, max_gap_s: float):
+    """Truth positions at `t_query`, (Q, 3) lla; linear in NED about the first truth point; NaN
+    where not covered. Only the bracketing truth samples are converted (hour-long 100 Hz truth),
+    and queries on a truth stamp need no conversion at all."""
+    lla, ok, lo, hi, w = _brackets(t_truth, lla_truth, t_query, max_gap_s)
+    out = np.full((ok.size, 3), np.nan)
+    res = lla[lo].copy()
     between = w > 0
     if between.any():
         origin = lla[0]
@@ -126,21 +131,12 @@ def interpolate_positions(t_truth, lla_truth, t_query, max_gap_s: float):
 def interpolate_attitude(t_truth, rpy_deg_truth, t_query, max_gap_s: float):
     """Truth roll, pitch, yaw (deg) at `t_query` by SLERP between the bracketing truth samples,
     (Q, 3); NaN where not covered."""
-    t, rpy = _clean(t_truth, np.asarray(rpy_deg_truth, dtype=float).reshape(-1, 3))
-    tq = np.asarray(t_query, dtype=float)
-    out = np.full((tq.size, 3), np.nan)
-    lo, hi, ok = covered(t, tq, max_gap_s)
-    if not ok.any():
-        return out
-    lo, hi, q = lo[ok], hi[ok], tq[ok]
-    span = t[hi] - t[lo]
-    w = np.divide(q - t[lo], span, out=np.zeros_like(q), where=span > 0)
-    res = rpy[lo].copy()  # queries on a truth stamp (w = 0) need no interpolation
+    rpy, ok, lo, hi, w = _brackets(t_truth, rpy_deg_truth, t_query, max_gap_s)
+    out = np.full((ok.size, 3), np.nan)
+    res = rpy[lo].copy()
     between = w > 0
     if between.any():
-        from scipy.spatial.transform import (
-            Rotation,  # lazy: only for queries between truth samples
-        )
+        from scipy.spatial.transform import Rotation  # lazy: only for queries between truth samples
 
         # C_nb = Rz(yaw) Ry(pitch) Rx(roll): scipy intrinsic "ZYX" with (yaw, pitch, roll)
         r_lo = Rotation.from_euler("ZYX", rpy[lo[between]][:, ::-1], degrees=True)
