@@ -200,15 +200,23 @@ def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 
         # deg/s and increments put k near a small number: it must also be clearly above zero,
         # or an axis that barely tilts the device (k ~ 0 +- noise) would pass for either
         if holds(j, lambda kk, ss: abs(kk + 1) < 0.3 and ss < 0.2):
-            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} turns against the tilt seen by the accelerometer (gain {k[j]:+.2f} ± {sd[j]:.2f}): its sign is flipped; negate the column", fig))
+            out.append(Finding("conventions.tilt", "unreliable",
+                               f"{name}: {col} turns against the tilt seen by the accelerometer (gain {k[j]:+.2f} ± "
+                               f"{sd[j]:.2f}): its sign is flipped; negate the column", fig))
         elif holds(j, lambda kk, ss: abs(kk / deg - 1) < 0.3 and kk > 5 * ss):
-            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, not rad/s; multiply by pi/180", fig))
+            out.append(Finding("conventions.tilt", "unreliable",
+                               f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, "
+                               "not rad/s; multiply by pi/180", fig))
         elif holds(j, lambda kk, ss: abs(kk * dt - 1) < 0.3 and kk > 5 * ss):
-            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these are angle increments; divide by the interval", fig))
+            out.append(Finding("conventions.tilt", "unreliable",
+                               f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these "
+                               "are angle increments; divide by the interval", fig))
         # A generic misfit needs a log whose accelerometer sees tilt, not acceleration (r2 > 0.9):
         # a vehicle's turns tilt the specific force too (simulated drives fit r2 ~0.75 with gains ~10).
         elif r2 > 0.9 and holds(j, lambda kk, ss: abs(kk - 1) > 0.3 and ss < 0.1):
-            out.append(Finding("conventions.tilt", "suspect", f"{name}: {col} disagrees with the tilt seen by the accelerometer (gain {k[j]:.2f} ± {sd[j]:.2f}, expected 1): wrong scale or axis", fig))
+            out.append(Finding("conventions.tilt", "suspect",
+                               f"{name}: {col} disagrees with the tilt seen by the accelerometer (gain {k[j]:.2f} ± "
+                               f"{sd[j]:.2f}, expected 1): wrong scale or axis", fig))
     return out or [Finding("conventions.tilt", "ok", None, fig)]
 
 
@@ -223,7 +231,8 @@ def magnetometer_findings(mag_b, lla, when, name: str = "imu") -> list[Finding]:
     if 0.7 < ratio < 1.3:
         return [Finding("conventions.magnetometer_units", "ok", None, fig)]
     units = {1e-3: "nT", 1e-1: "mG (milligauss)", 1e2: "gauss", 1e6: "T"}
-    hint = next((f": it looks like {u} (multiply by {f:g} to get µT)" for f, u in units.items() if 0.7 < m * f / ref < 1.3), "; uncalibrated hard iron or a disturbance? try `tpos calibrate-mag`")
+    hint = next((f": it looks like {u} (multiply by {f:g} to get µT)" for f, u in units.items() if 0.7 < m * f / ref < 1.3),
+                "; uncalibrated hard iron or a disturbance? try `tpos calibrate-mag`")
     return [Finding("conventions.magnetometer_units", "suspect",
                     f"{name}: median magnetometer magnitude {m:.3g} against {ref:.1f} µT from the IGRF at the session position{hint}", fig)]
 
@@ -283,7 +292,8 @@ def session_findings(session) -> list[Finding]:
             fig = {"rest_norm_mps2": gm, "normal_gravity_mps2": g_ref}
             if abs(gm / g_ref - 1) > 0.05:
                 out.append(Finding("conventions.gravity_norm", "unreliable",
-                                   f"imu: at rest |f| = {gm:.3f} m/s^2 against normal gravity {g_ref:.3f} m/s^2 here: accelerometer scale or units are off", fig))
+                                   f"imu: at rest |f| = {gm:.3f} m/s^2 against normal gravity {g_ref:.3f} m/s^2 here: "
+                                   "accelerometer scale or units are off", fig))
             else:
                 out.append(Finding("conventions.gravity_norm", "ok", None, fig))
     if imu.mag_b_ut is not None and pos is not None:

@@ -217,7 +217,8 @@ def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> li
         t = g.t_s[g.valid]
         t_imu = session.imu.t_s
         inside = (t >= t_imu[0]) & (t <= t_imu[-1])
-        fig = {"fixes": int(t.size), "inside_imu_log": int(inside.sum()), "gps_t_s": [float(t[0] + session.t0_s), float(t[-1] + session.t0_s)],
+        fig = {"fixes": int(t.size), "inside_imu_log": int(inside.sum()),
+               "gps_t_s": [float(t[0] + session.t0_s), float(t[-1] + session.t0_s)],
                "imu_t_s": [float(t_imu[0] + session.t0_s), float(t_imu[-1] + session.t0_s)]}
         if inside.mean() < MAJORITY:
             off = float(np.median(t_imu) - np.median(t))
@@ -225,7 +226,8 @@ def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> li
             out.append(Finding("aiding.gps_time", level,
                                f"gps: {int(t.size - inside.sum())} of {t.size} fixes (t {fig['gps_t_s'][0]:.1f}-{fig['gps_t_s'][1]:.1f} s) "
                                f"fall outside the IMU log ({fig['imu_t_s'][0]:.1f}-{fig['imu_t_s'][1]:.1f} s): the GPS clock is off by "
-                               f"about {off:+.4g} s (another time scale, time zone or epoch?); fix the gps t column or set [time] gps_offset_s",
+                               f"about {off:+.4g} s (another time scale, time zone or epoch?); fix the gps t column "
+                               "or set [time] gps_offset_s",
                                {**fig, "offset_estimate_s": off}))
         else:
             out.append(Finding("aiding.gps_time", "ok", None, fig))
