@@ -167,9 +167,11 @@ def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
     finally:
         os.umask(old)
     out = tmp_path / "targets_smoothed.geojson"
-    assert stat.S_IMODE(out.stat().st_mode) == 0o644 and [p.name for p in tmp_path.iterdir()] == [out.name]
-    res = runner.invoke(app, ["export", str(run), "-f", "csv", "-o", "-"])
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644 and [p.name for p in tmp_path.iterdir()] == [out.name]  # nothing else left
+    res = runner.invoke(app, ["export", str(run), "-o", "-"])  # no --format: CSV
     assert res.exit_code == 0 and list(csv.DictReader(io.StringIO(res.stdout)))[0]["id"] == "T1"
+    res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(tmp_path / "drive.kml")])  # format from the name
+    assert res.exit_code == 0 and ET.parse(tmp_path / "drive.kml").getroot().tag == KML + "kml"
     for args, msg in (
         (["-f", "csv", "-s", "forward"], "no solution 'forward'; the run has: smoothed"),
         (["-f", "shp"], "expected one of csv, kml, geojson, gpx"),

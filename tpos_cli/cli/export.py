@@ -11,7 +11,7 @@ from tpos_cli.cli._common import exit_on_error
 
 def export(
     run: Path = typer.Argument(..., help="Run directory written by `tpos process`."),
-    format_: str = typer.Option(..., "--format", "-f", help="csv | kml | geojson | gpx."),
+    format_: str = typer.Option(None, "--format", "-f", help="csv | kml | geojson | gpx; default: from the -o file's extension, else csv."),
     solution: str = typer.Option(
         None, "--solution", "-s", help="Solution to export; default the best the run has (smoothed, fkf_cal, fkf, fatci, forward, ...)."
     ),
@@ -32,10 +32,13 @@ def export(
     Target runs: id, lat, lon, h, sigma_n/e/u, the 95 % horizontal ellipse, number of shots and UTM
     coordinates. Other runs: the chosen solution's track with sigmas. WGS-84, ellipsoidal heights.
 
-    Example: tpos export runs/wall --format kml
+    Examples: tpos export runs/wall (CSV into the run); tpos export runs/drive -o drive.kml
     """
     from tpos_cli.export.build import FORMATS, export_run
 
+    if format_ is None:
+        suffix = Path(out).suffix.lower().lstrip(".") if out not in (None, "-") else ""
+        format_ = {"json": "geojson"}.get(suffix, suffix) if suffix in FORMATS + ("json",) else "csv"
     fmt = format_.lower()
     if fmt not in FORMATS:
         raise typer.BadParameter(f"expected one of {', '.join(FORMATS)}, got {format_!r}", param_hint="--format")

@@ -29,8 +29,12 @@ def report(
     from tpos_cli.report.build import make_report
     from tpos_cli.report.files import terminate_as_interrupt
 
-    with exit_on_error(), terminate_as_interrupt(), working(f"tpos report {run}"):
-        res = make_report(run, truth, full=full)
+    try:
+        with exit_on_error(), terminate_as_interrupt(), working(f"tpos report {run}"):
+            res = make_report(run, truth, full=full)
+    except KeyboardInterrupt:
+        typer.echo("tpos report: interrupted; the run's earlier report files, if any, are unchanged", err=True)
+        raise typer.Exit(130) from None
     for n in res.notes:
         typer.echo(f"note: {n}", err=True)
     if json_:

@@ -245,9 +245,13 @@ def build_context(run_dir: Path, truth_session: Path | None = None, *, full: boo
     order = rank_solutions(series)
     acc = compute_accuracy(run, truth, kind=kind, series=series)
     health = filter_health(run.innovations, series)
-    t_ref = float((run.summary.get("session") or {}).get("t0") or np.nan)
-    if not np.isfinite(t_ref):
-        t_ref = session.t0_s if session is not None else float(min(s.t[0] for s in series.values())) if series else 0.0
+    t0 = (run.summary.get("session") or {}).get("t0")  # logger clock of the first IMU sample
+    if t0 is not None:
+        t_ref = float(t0)
+    elif session is not None:
+        t_ref = float(session.t0_s)
+    else:
+        t_ref = float(min(s.t[0] for s in series.values())) if series else 0.0
     targets = target_solution = None
     if run.targets is not None and len(run.targets):
         target_solution = rank_solutions(run.targets["solution"])[0]

@@ -413,6 +413,44 @@ def _table_section(name: str, title: str, subtitle: str, cols, font: float = FON
     return Section(name, title, _h(n, font=font), draw, subtitle, floating=True)
 
 
+def verdict_checks_section(ctx: ReportContext, only_failed: bool) -> Section | None:
+    """The checks behind the run's verdict and their figures: in the default report those that
+    were not ok (the reasons on page 1 name them), with --full every one."""
+    v = ctx.verdict
+    checks = v.get("checks") if v else None
+    if not isinstance(checks, dict) or not checks:
+        return None
+
+    def level(n):
+        return str(checks[n].get("level", "ok")) if isinstance(checks[n], dict) else ""
+
+    names = [n for n in checks if not only_failed or level(n) not in ("ok", "")][:30]
+    if not names:
+        return None
+    figures = [
+        textwrap.shorten(", ".join(_flat(checks[n])), 120, placeholder=" ...") if isinstance(checks[n], dict) else str(checks[n])
+        for n in names
+    ]
+    cols = [
+        L.Column("check", names, align="left"),
+        L.Column("level", [level(n) for n in names], align="left"),
+        L.Column("figures", figures, align="left"),
+    ]
+    sub = (
+        "The checks of the run's verdict that were not ok, and the figures behind them."
+        if only_failed
+        else ("Each check of the run's verdict and the figures behind it.")
+    )
+    return _table_section(
+        "verdict_checks",
+        "The verdict's checks",
+        sub,
+        cols,
+        font=7.0,
+        highlight=[i for i, n in enumerate(names) if level(n) not in ("ok", "")],
+    )
+
+
 def figure_sections(ctx: ReportContext) -> list[Section]:
     """The figures per solution, each its own section so that they fill the pages' free space."""
     out = []
@@ -458,35 +496,9 @@ def figure_sections(ctx: ReportContext) -> list[Section]:
                 highlight=[i for i, c in enumerate(ctx.health.nis["consistent"]) if not c],
             )
         )
-    v = ctx.verdict
-    if v and isinstance(v.get("checks"), dict) and v["checks"]:
-        checks = v["checks"]
-        names = list(checks)[:30]
-        levels = [str(checks[n].get("level", "ok")) if isinstance(checks[n], dict) else "" for n in names]
-        cols = [
-            L.Column("check", names, align="left"),
-            L.Column("level", levels, align="left"),
-            L.Column(
-                "figures",
-                [
-                    textwrap.shorten(", ".join(_flat(checks[n])), 120, placeholder=" ...")
-                    if isinstance(checks[n], dict)
-                    else str(checks[n])
-                    for n in names
-                ],
-                align="left",
-            ),
-        ]
-        out.append(
-            _table_section(
-                "verdict_checks",
-                "The verdict's checks",
-                "Each check of the run's verdict and the figures behind it.",
-                cols,
-                font=6.8,
-                highlight=[i for i, lv in enumerate(levels) if lv not in ("ok", "")],
-            )
-        )
+    checks = verdict_checks_section(ctx, only_failed=not ctx.full)
+    if checks is not None:
+        out.append(checks)
     warns = list(ctx.run.summary.get("warnings") or [])
     if warns:
         shown = warns[:12]
