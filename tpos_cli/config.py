@@ -233,9 +233,11 @@ class TargetFkfParams(Section):
     # sensor figures used when session.toml gives none
     gyro_noise_dps: Positive = 0.01
     gyro_bias_dph: NonNegative = 20.0
-    gyro_bias_rw_dph_per_rth: NonNegative = 1.0
+    gyro_bias_rw_dph_per_rth: NonNegative = 10.0
     gyro_scale_sd_ppm: NonNegative = 300.0
     acc_noise_mg: Positive = 2.0
+    acc_bias_mg: NonNegative = 10.0  # SD of the accelerometer bias (prior of the local filters' bias states)
+    acc_bias_rw_mg_per_rts: NonNegative = 0.05
     mag_noise_ut: Positive = 0.5
     range_sigma_m: Positive = 0.0015
     # alignment
@@ -256,16 +258,17 @@ class TargetFkfParams(Section):
     motion_freq_hz: NonNegative = 0.0  # > 0: correlated (damped-oscillator) hand-motion model
     motion_damping: Positive = 0.7071
     motion_step_s: Positive = 0.05
-    motion_fit: bool = True  # fit the oscillator to the log's own acceleration PSD
+    motion_fit: bool = True  # fit the oscillator (frequency, damping, displacement) to the log's own acceleration PSD
     motion_fit_band_hz: tuple[NonNegative, Positive] = (0.3, 5.0)
-    motion_corner: bool = False  # with motion_fit: also fit a corner above which the hand's acceleration falls
     smooth: bool = True  # forward-backward smoothing of each local filter (post-processing)
     gyro_err_pct: NonNegative = 0.0  # > 0: local filters estimate the gyro scale/misalignment (prior SD, %)
     gyro_err_rw_ppm_rts: NonNegative = 0.0
-    heading_recover_nis: NonNegative = 0.0  # > 0: LF1 re-opens its heading variance above this mean mag NIS
-    # LF1 gating
-    mag_norm_tol_ut: float = 4.0  # <= 0 disables the field-magnitude/dip check
+    # LF1 magnetometer: survey (body-fixed offsets removed, room disturbances masked), gating
+    mag_survey: bool = True
+    mag_norm_tol_ut: float = 4.0  # without the survey: field-magnitude test (<= 0 disables it and the dip test)
     mag_dip_tol_deg: float = 3.0
+    mag_nis_window_s: NonNegative = 1.0  # > 0: reject the field while its mean NIS over this window exceeds ...
+    mag_nis_ratio: Positive = 3.0  # ... this many times its expectation (1 dof)
     mag_lag_from_log: bool = True  # estimate the magnetometer's delay behind the gyro and remove it
     mag_lag_max_s: NonNegative = 0.05
     # LF2 gating

@@ -17,7 +17,7 @@ between targets (heights are exact ellipsoidal heights from pymap3d, not Eq. 16'
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -102,20 +102,27 @@ def beam_ned_jacobian(pitch_rad, yaw_rad, range_m):
 
 @dataclass(frozen=True)
 class Calibration:
-    """Pitch and heading offsets (rad): true = measured - offset (paper 001 Eq. 35); residual RMS m."""
+    """Pitch and heading offsets (rad): true = measured - offset (paper 001 Eq. 35); residual RMS m;
+    cov_rad2 (2,2) covariance of (dpitch, dyaw) from the reference shots' position covariances
+    (zeros when none were given)."""
 
     dpitch_rad: float
     dyaw_rad: float
     residual_rms_m: float
     n_shots: int
+    cov_rad2: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
 
 
-def calibrate_offsets(observer_lla, pitch_rad, yaw_rad, range_m, reference_lla, iterations=5) -> Calibration:
+def calibrate_offsets(observer_lla, pitch_rad, yaw_rad, range_m, reference_lla, iterations=5,
+                      cov_ned_m2=None) -> Calibration:
     """Least-squares pitch/heading offsets from shots on reference points (paper 001 Eq. 31-38).
 
     Arrays (R,) or (R,3) over R reference shots. Delta p = p_measured - p_reference (Eq. 34)
     = A (d_theta, d_psi) (Eq. 36-37); solved by Eq. 38 and iterated (Gauss-Newton) because
-    Eq. 36 is the linearization of the transcendental Eq. 34.
+    Eq. 36 is the linearization of the transcendental Eq. 34. `cov_ned_m2` (R,3,3): covariance of
+    each measured point; the offsets' covariance is then (A^T W A)^-1 A^T W Cov W A (A^T W A)^-1 with
+    the Eq. 38 weights W = I (the paper's unweighted solution), i.e. the measured points' errors
+    propagated through the least-squares solution.
     """
     obs = np.atleast_2d(np.asarray(observer_lla, dtype=float))
     ref = np.atleast_2d(np.asarray(reference_lla, dtype=float))
@@ -139,7 +146,15 @@ def calibrate_offsets(observer_lla, pitch_rad, yaw_rad, range_m, reference_lla, 
     tc, pc = th - x[0], ps - x[1]
     p_c = d[:, None] * np.stack([np.cos(tc) * np.cos(pc), np.cos(tc) * np.sin(pc), -np.sin(tc)], axis=-1)
     res = float(np.sqrt(np.mean(np.sum((p_c - p_ref) ** 2, axis=1))))
-    return Calibration(dpitch_rad=float(x[0]), dyaw_rad=float(x[1]), residual_rms_m=res, n_shots=int(R))
+    cov = np.zeros((2, 2))
+    if cov_ned_m2 is not None:
+        J = beam_ned_jacobian(tc, pc, d).reshape(-1, 2)
+        G = np.linalg.pinv(J)  # (A^T A)^-1 A^T
+        Cp = np.zeros((3 * R, 3 * R))
+        for i in range(R):
+            Cp[3 * i:3 * i + 3, 3 * i:3 * i + 3] = np.asarray(cov_ned_m2[i], dtype=float)
+        cov = G @ Cp @ G.T
+    return Calibration(dpitch_rad=float(x[0]), dyaw_rad=float(x[1]), residual_rms_m=res, n_shots=int(R), cov_rad2=cov)
 
 
 def target_pairs(ids, lla, solution: str, cov_ned_m2=None) -> pd.DataFrame:

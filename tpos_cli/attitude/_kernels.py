@@ -2,17 +2,22 @@
 
 Two models share this module:
 
-- `run_full`: error-state DCM filter valid at any roll. Nominal `C_nb` (FRD->NED) propagated by
-  Eq. 17-19 with the gyro; error state x = [phi (3, NED attitude error, C_true = exp(phi) C_hat),
-  gyro bias error (3)]; measurements are gravity (Eq. 5), magnetic heading (Eq. 8) and the exact
-  three-beam range differences (contract geometry behind Eq. 10). The same kernel runs backward in
-  time on reversed, negated gyro samples.
+- `marg_filter`: error-state DCM filter valid at any roll. Nominal `C_nb` (FRD->NED) propagated by
+  Eq. 17-19 with the gyro; error state x = [phi (3, NED attitude error, C_true = exp(phi) C_hat), gyro
+  bias (3), accelerometer bias (3), optionally the gyro's scale/misalignment matrix M (9) and the hand's
+  NED velocity and displacement (6)]; measurements are gravity (Eq. 5), the magnetic field vector (Eq. 7-8
+  as a vector model) and the exact three-beam range differences (contract geometry behind Eq. 10). The
+  same kernel runs backward in time on reversed, negated gyro samples.
 - `run_paper8`: the paper's 8-state linear DCM filter (Eq. 16, 21-22) in its own RFU/ENU frames.
 
+Inputs are a few named tuples of float64 arrays and scalars (numba compiles them as tuples); the
+documented wrapper that builds and checks them is `tpos_cli.attitude.local.run_full`.
 Kalman algebra is `tpos_cli.filters.kalman` (Joseph form); nothing here re-implements it.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -20,11 +25,139 @@ from numba import njit
 from tpos_cli.filters.kalman import predict, update
 from tpos_cli.frames._kernels import orthonormalize, rotvec_to_dcm, skew
 
-# measurement kinds, bit flags in `use`
+# measurement kinds, bit flags in `Gates.use`
 USE_ACC = 1
 USE_MAG = 2
 USE_RANGE = 4
-USE_MOTION = 8  # bounded-motion velocity/position states (hand-held device, standing observer)
+USE_MOTION = 8  # hand-motion velocity/displacement states (hand-held device, standing observer)
+
+# state offsets: phi, gyro bias and accelerometer bias always; the gyro matrix M and the hand states
+# follow when present (`state_offsets`)
+I_PHI, I_BG, I_BA, N_BASE = 0, 3, 6, 9
+
+
+class Samples(NamedTuple):
+    """t (N,) s; gyro (N,3) rad/s, acc (N,3) m/s^2 body FRD interval means over (t_{k-1}, t_k];
+    mag (N,3) uT (NaN row: none or rejected beforehand); rdiff (N,2) m d1-d2, d1-d3 (NaN: none);
+    still (N,) bool detected still samples; grav_var (N,) (m/s^2)^2 variance of a direct gravity
+    update at the sample (NaN: none; used without the hand model)."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+    mag: np.ndarray
+    rdiff: np.ndarray
+    still: np.ndarray
+    grav_var: np.ndarray
+
+
+class Frame(NamedTuple):
+    """NED vectors: Earth rate w_ie (rad/s; negated backward), gravity g (m/s^2, down), the Earth
+    magnetic field m_ref (uT), the wall's unit normal; LR2/LR3 beam origins o2, o3 (m, body FRD)."""
+
+    w_ie: np.ndarray
+    g: np.ndarray
+    m_ref: np.ndarray
+    wall_n: np.ndarray
+    o2: np.ndarray
+    o3: np.ndarray
+
+
+class Noise(NamedTuple):
+    """q_att rad^2 per sample (gyro white noise); q_sf relative variance of a sample's rotation angle
+    (scale factor); q_bg (rad/s)^2/s and q_ba (m/s^2)^2/s bias random walks; q_m per s (random walk of
+    each element of M); q_vel (m/s)^2 per sample (accelerometer white noise in the velocity); r_mag uT^2
+    per axis; r_rng (2,2) m^2."""
+
+    q_att: float
+    q_sf: float
+    q_bg: float
+    q_ba: float
+    q_m: float
+    q_vel: float
+    r_mag: float
+    r_rng: np.ndarray
+
+
+class Hand(NamedTuple):
+    """Hand-motion model (USE_MOTION). omega > 0: damped oscillator p'' = -omega^2 p - 2 zeta omega p' + w,
+    E[w w] = q delta (m^2/s^3), checked against the integrated specific force every `step` samples;
+    omega = 0: independent v = 0 +- sd_vel, p = 0 +- sd_pos pseudo-measurements every `epoch` samples.
+    zupt_sd m/s: velocity SD in detected still periods (applied every `step` samples, or with each epoch)."""
+
+    omega: float
+    zeta: float
+    q: float
+    step: int
+    epoch: int
+    sd_vel: float
+    sd_pos: float
+    zupt_sd: float
+
+
+class Gates(NamedTuple):
+    """use: USE_* flags; gyro_matrix: the gyro scale/misalignment matrix M is a state; acc_scale: the
+    accelerometer's axis scale factors s are states (f_meas = (I + diag s) f + b_a); mag_consider: the
+    magnetometer never corrects tilt, accelerometer bias or hand states (only considered); mag_norm_tol uT,
+    mag_dip_tol rad (<= 0: no test) against m_ref; mag_nis_tau_s, mag_nis_ratio: reject the field while
+    the mean NIS per dof (3) over ~tau exceeds ratio (<= 0: no test); rng_gate chi2(2) threshold (<= 0: none)."""
+
+    use: int
+    gyro_matrix: bool
+    acc_scale: bool
+    mag_consider: bool
+    mag_norm_tol: float
+    mag_dip_tol: float
+    mag_nis_tau_s: float
+    mag_nis_ratio: float
+    rng_gate: float
+
+
+class Init(NamedTuple):
+    """C0 (3,3); bias (3,) rad/s; acc_bias (3,) m/s^2; M0 (3,3); P0 (n,n) with n from `state_offsets`."""
+
+    C0: np.ndarray
+    bias: np.ndarray
+    acc_bias: np.ndarray
+    M0: np.ndarray
+    P0: np.ndarray
+
+
+class Outputs(NamedTuple):
+    """Filled per sample (the posterior after it): C (N,3,3), P_att (N,3,3) rad^2, bias (N,3) rad/s,
+    acc_bias (N,3) m/s^2, var_bias (N,6) variances of [gyro bias, acc bias], nis_acc, nis_mag, nis_rng
+    (N,) (NaN: no update made), mag_ok (N,) bool, M (N or 1, 3, 3) (written only with the M states)."""
+
+    C: np.ndarray
+    P_att: np.ndarray
+    bias: np.ndarray
+    acc_bias: np.ndarray
+    var_bias: np.ndarray
+    nis_acc: np.ndarray
+    nis_mag: np.ndarray
+    nis_rng: np.ndarray
+    mag_ok: np.ndarray
+    M: np.ndarray
+
+
+@njit(cache=True)
+def state_offsets(use, with_m, with_s):
+    """(n, i_m, i_v, i_s): state size and offsets of M, of the hand states v, p and of the
+    accelerometer scale factors (0: none)."""
+    n = N_BASE
+    i_s = 0
+    if with_s:
+        i_s = n
+        n += 3
+    i_m = 0
+    if with_m:
+        i_m = n
+        n += 9
+    i_v = 0
+    if (use & USE_MOTION) != 0:
+        i_v = n
+        n += 6
+    return n, i_m, i_v, i_s
 
 
 @njit(cache=True)
@@ -56,10 +189,11 @@ def range_diff_model(C, n_wall, o2_b, o3_b):
 
 
 @njit(cache=True)
-def _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u):
-    """Apply an error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
+def _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s):
+    """Apply the error-state estimate to the nominal (C_true = exp(phi) C_hat) and zero it."""
     Cn = rotvec_to_dcm(x[0:3]) @ C
-    b += x[3:6]
+    b += x[I_BG:I_BG + 3]
+    ba += x[I_BA:I_BA + 3]
     if i_m > 0:
         for r in range(3):
             for c in range(3):
@@ -67,124 +201,98 @@ def _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u):
     if i_v > 0:
         v += x[i_v:i_v + 3]
         p += x[i_v + 3:i_v + 6]
-    if i_u > 0:
-        u += x[i_u:i_u + 3]
+    if i_s > 0:
+        sa += x[i_s:i_s + 3]
     x[:] = 0.0
     return Cn
 
 
 @njit(cache=True)
-def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q_bias,
-             q_sf, r_grav, r_mag_ut, decl, mag_ref, mag_norm_tol, mag_dip_tol,
-             n_wall, o2_b, o3_b, r_rng, rng_gate, q_vel, motion_sd, motion_every, rec_nis, rec_tau_s,
-             still, zupt_sd, M0, gyro_err_sd, q_gyro_err, osc, osc_every,
-             out_C, out_P, out_bias, out_nis_acc, out_nis_mag, out_nis_rng, out_mag_ok, out_ll, out_M):
-    """Forward (or, on reversed inputs, backward) error-state attitude filter.
+def _consider_update(x, P, z, H, R, n_keep, keep):
+    """Kalman update whose gain is zero outside the `keep` states (Schmidt consider update, Joseph
+    form, valid for any gain): the others' uncertainty enters S but they are never corrected."""
+    n = x.shape[0]
+    nu = z - H @ x
+    PHt = P @ H.T
+    S = H @ PHt + R
+    S = 0.5 * (S + S.T)
+    K = np.linalg.solve(S, PHt.T).T
+    for i in range(n):
+        if not keep[i]:
+            K[i, :] = 0.0
+    x += K @ nu
+    I_KH = np.eye(n) - K @ H
+    Pn = I_KH @ P @ I_KH.T + K @ R @ K.T
+    P[:, :] = 0.5 * (Pn + Pn.T)
 
-    t (N,) s; gyro, acc, mag (N,3) FRD; rdiff (N,2) d1-d2, d1-d3 m (NaN = none);
-    `use` bit flags; C0 (3,3), bias0 (3,), P0 (6,6); w_ie_n, g_n (3,) NED Earth rate and
-    gravity; q_att rad^2 per sample, q_bias (rad/s)^2 per second; q_sf the relative variance of
-    the rotation angle of a sample (scale-factor and integration errors); r_grav (N,) (m/s^2)^2
-    variance of the gravity update at each sample (NaN: no update there);
-    r_mag_ut uT^2; decl rad; mag_ref (norm uT, dip rad); tolerances uT and rad
-    (mag_norm_tol <= 0 disables the check); n_wall (3,) NED unit wall normal; o2_b, o3_b (3,)
-    LR2/LR3 offsets FRD m; r_rng (2,2) m^2; rng_gate chi2(2) gate (<= 0: none).
-    USE_MOTION: the error state grows by velocity and position (12 states); the specific force
-    is integrated in NED and a hand-held device of a standing observer is held to v = 0, p = 0
-    with SDs motion_sd (2,) (m/s, m) every `motion_every` samples: linear accelerations average
-    out, a tilt error does not (g phi t^2 / 2 of position). q_vel (m/s)^2 per sample.
-    rec_nis > 0: when the mean magnetic NIS over ~rec_tau_s exceeds it, the heading variance is
-    re-opened by the innovation squared (the filter was over-confident about a wrong heading).
-    still (N,) bool: samples in a detected still period; only there is gravity measured directly
-    (and, with USE_MOTION, the velocity held to zero with SD zupt_sd m/s at each motion epoch).
-    gyro_err_sd > 0: nine more states, the gyro's scale-factor and misalignment matrix M
-    (omega_meas = (I + M) omega + b; prior SD gyro_err_sd, random walk q_gyro_err per second,
-    initial value M0 (3,3)), observable whenever the device turns; out_M (N,3,3) is written only then.
-    osc = (omega rad/s, zeta, q (m/s^2)^2/Hz) with omega > 0 replaces the independent v = 0, p = 0
-    pseudo-measurements by a correlated model of the hand's displacement about its mean position:
-    a damped oscillator p'' = -omega^2 p - 2 zeta omega p' + w, w white with PSD q (stationary SDs
-    sqrt(q / (4 zeta omega^3)) m and omega times that in m/s). Every `osc_every` samples the
-    strapdown velocity change (specific force rotated by C plus gravity) must equal the model's
-    integrated acceleration within the integral of w (variance q T): the accelerometer itself is
-    the tilt measurement in motion, with a noise that is honest about the correlation of the motion.
-    In still periods the zero-velocity update is still applied every `motion_every` samples.
-    osc[3] = omega_c > 0 makes the driving force itself a first-order Gauss-Markov process
-    (u' = -omega_c u + w, three more states): a band-pass acceleration spectrum, flat between omega and
-    omega_c and falling above, as a hand's; the integral of u over a model interval is then a state
-    (H = -T) and only its within-interval change (variance q T^3 / 3) is measurement noise.
-    Outputs are filled for each sample (the posterior after that sample; out_P is 6x6);
-    out_ll (N,2): Gaussian log-likelihood of the magnetic and the motion-model innovations of the
-    sample (NaN: none), from which noise levels are estimated by maximum likelihood.
+
+@njit(cache=True)
+def marg_filter(s, fr, nz, hand, gates, init, out):
+    """Forward (or, on reversed inputs, backward) error-state attitude filter; see the named tuples.
+
+    Accelerometer: without USE_MOTION, gravity is measured directly where `s.grav_var` is finite
+    (f_b = C^T (-g) + b_a, Eq. 5); with USE_MOTION the specific force is integrated in NED and the
+    hand model (`Hand`) is the measurement, so that linear accelerations average out and a tilt error
+    (g phi t of velocity) does not; still samples add zero-velocity updates.
+    Magnetometer: the field vector m_b = C^T m_ref (Eq. 7, the Earth field of the log's survey),
+    noise r_mag per axis. With `mag_consider` it never corrects the tilt, the accelerometer bias or the
+    hand states (Schmidt consider update: a disturbed or mis-modelled field must not tilt the solution;
+    the accelerometer owns them), only heading, gyro bias and M.
+    Samples failing the field-magnitude test, the dip test or the windowed NIS test (mean NIS per
+    dof over ~tau above `mag_nis_ratio`: a disturbance that lasts) are not used (`out.mag_ok` False).
     """
-    N = t.shape[0]
+    N = s.t.shape[0]
+    use = gates.use
     motion = (use & USE_MOTION) != 0
-    n = 6
-    i_m = 0
-    if gyro_err_sd > 0.0:
-        i_m = n
-        n += 9
-    i_v = 0
-    if motion:
-        i_v = n
-        n += 6
-    om_c = osc[3] if osc.shape[0] > 3 else 0.0
-    i_u = 0
-    if motion and osc[0] > 0.0 and om_c > 0.0:
-        i_u = n
-        n += 3
-    C = C0.copy()
-    b = bias0.copy()
+    n, i_m, i_v, i_s = state_offsets(use, gates.gyro_matrix, gates.acc_scale)
+    C = init.C0.copy()
+    b = init.bias.copy()
+    ba = init.acc_bias.copy()
+    sa = np.zeros(3)  # accelerometer scale factors (with gates.acc_scale)
+    M = init.M0.copy()
     v = np.zeros(3)
     p = np.zeros(3)
-    u = np.zeros(3)  # driving force of the band-pass hand model (m/s^2)
-    M = M0.copy()
-    P = np.zeros((n, n))
-    P[0:6, 0:6] = P0
-    for i in range(9 if i_m > 0 else 0):
-        P[i_m + i, i_m + i] = gyro_err_sd**2
-    for i in range(3):
-        if motion:
-            P[i_v + i, i_v + i] = motion_sd[0] ** 2
-            P[i_v + 3 + i, i_v + 3 + i] = motion_sd[1] ** 2
-        if i_u > 0:
-            P[i_u + i, i_u + i] = osc[2] / (2.0 * om_c)  # stationary variance of u
+    P = init.P0.copy()
     x = np.zeros(n)
     Phi = np.eye(n)
     Qd = np.zeros((n, n))
-    f_n_down = -g_n
-    nis_avg = 0.0
-    Hm = np.zeros((6, n))
-    if motion:
-        for i in range(6):
-            Hm[i, i_v + i] = 1.0
-    Rm = np.zeros((6, 6))
-    for i in range(3):
-        Rm[i, i] = motion_sd[0] ** 2
-        Rm[3 + i, 3 + i] = motion_sd[1] ** 2
-    om = osc[0]
-    use_osc = motion and om > 0.0
-    c_p = om * om
-    c_v = 2.0 * osc[1] * om
+    f_up = -fr.g
+    keep = np.ones(n, dtype=np.bool_)
+    if gates.mag_consider:
+        keep[0] = False
+        keep[1] = False
+        for i in range(3):
+            keep[I_BA + i] = False
+            if i_s > 0:
+                keep[i_s + i] = False
+        if i_v > 0:
+            for i in range(6):
+                keep[i_v + i] = False
+    m_norm = np.sqrt(fr.m_ref @ fr.m_ref)
+    m_dip = np.arctan2(fr.m_ref[2], np.sqrt(fr.m_ref[0] ** 2 + fr.m_ref[1] ** 2))
+    use_osc = motion and hand.omega > 0.0
+    c_p = hand.omega * hand.omega
+    c_v = 2.0 * hand.zeta * hand.omega
     acc_dv = np.zeros(3)  # sum of (f_n + g) dt over the current model interval
     acc_dvf = np.zeros(3)  # sum of f_n dt
-    acc_p = np.zeros(3)  # sum of p dt
-    acc_v = np.zeros(3)  # sum of v dt
+    acc_C = np.zeros((3, 3))  # sum of C dt
+    acc_Cf = np.zeros((3, 3))  # sum of C diag(f) dt
+    acc_p = np.zeros(3)
+    acc_v = np.zeros(3)
     acc_T = 0.0
     acc_k = 0
-    Ho = np.zeros((3, n))
-    Ro = np.zeros((3, 3))
+    nis_avg = 1.0
     for k in range(N):
-        wg = gyro[k] - b
-        if i_m > 0:
-            wg = wg - M @ wg  # (I + M)^-1 to first order
+        w0 = s.gyro[k] - b
+        wg = w0 - M @ w0 if i_m > 0 else w0  # (I + M)^-1 to first order
         if k > 0:
-            dt = t[k] - t[k - 1]
-            Ct = np.ascontiguousarray(C.T)
-            w = wg - Ct @ w_ie_n  # Eq. 19: omega_nb = omega_ib - C_bn omega_ie
+            dt = s.t[k] - s.t[k - 1]
+            adt = abs(dt)
+            w = wg - C.T @ fr.w_ie  # Eq. 19: omega_nb = omega_ib - C_bn omega_ie
             Phi[:, :] = 0.0
             for i in range(n):
                 Phi[i, i] = 1.0
-            Phi[0:3, 3:6] = -C * dt  # phi_dot = -C_hat (db + noise)
+            Phi[0:3, I_BG:I_BG + 3] = -C * dt  # phi_dot = -C_hat (db + noise)
             if i_m > 0:
                 for r in range(3):
                     for c in range(3):
@@ -193,161 +301,162 @@ def run_full(t, gyro, acc, mag, rdiff, use, C0, bias0, P0, w_ie_n, g_n, q_att, q
             Qd[:, :] = 0.0
             wdt2 = (w @ w) * dt * dt
             for i in range(3):
-                Qd[i, i] = q_att + q_sf * wdt2
-                Qd[3 + i, 3 + i] = q_bias * abs(dt)
-            for i in range(9 if i_m > 0 else 0):
-                Qd[i_m + i, i_m + i] = q_gyro_err * abs(dt)
-            Cm = C @ rotvec_to_dcm(0.5 * dt * w)  # mid-interval attitude of the mean sample
+                Qd[i, i] = nz.q_att + nz.q_sf * wdt2
+                Qd[I_BG + i, I_BG + i] = nz.q_bg * adt
+                Qd[I_BA + i, I_BA + i] = nz.q_ba * adt
+            if i_m > 0:
+                for i in range(9):
+                    Qd[i_m + i, i_m + i] = nz.q_m * adt
             if motion:
-                f_n = Cm @ acc[k]
-                Phi[i_v:i_v + 3, 0:3] = -skew(f_n) * dt  # dv_dot = -[f_n x] phi
+                Cm = C @ rotvec_to_dcm(0.5 * dt * w)  # mid-interval attitude of the mean sample
+                fb = s.acc[k] - ba
+                if i_s > 0:
+                    fb = fb - sa * s.acc[k]  # (I + diag s)^-1 to first order
+                f_n = Cm @ fb
+                Phi[i_v:i_v + 3, 0:3] = -skew(f_n) * dt  # dv_dot = -[f_n x] phi - C db_a - C diag(f) ds
+                Phi[i_v:i_v + 3, I_BA:I_BA + 3] = -Cm * dt
+                if i_s > 0:
+                    for i in range(3):
+                        for j in range(3):
+                            Phi[i_v + i, i_s + j] = -Cm[i, j] * s.acc[k, j] * dt
                 for i in range(3):
                     Phi[i_v + 3 + i, i_v + i] = dt
-                    Qd[i_v + i, i_v + i] = q_vel
-                p += v * dt + 0.5 * (f_n + g_n) * dt * dt
-                v += (f_n + g_n) * dt
-                if i_u > 0:
-                    eu = np.exp(-om_c * abs(dt))
-                    u *= eu
-                    for i in range(3):
-                        Phi[i_u + i, i_u + i] = eu
-                        Qd[i_u + i, i_u + i] = osc[2] / (2.0 * om_c) * (1.0 - eu * eu)
+                    Qd[i_v + i, i_v + i] = nz.q_vel
+                p += v * dt + 0.5 * (f_n + fr.g) * dt * dt
+                v += (f_n + fr.g) * dt
                 if use_osc:
-                    acc_dv += (f_n + g_n) * dt
+                    acc_dv += (f_n + fr.g) * dt
                     acc_dvf += f_n * dt
+                    acc_C += Cm * dt
+                    if i_s > 0:
+                        for i in range(3):
+                            for j in range(3):
+                                acc_Cf[i, j] += Cm[i, j] * s.acc[k, j] * dt
                     acc_p += p * dt
                     acc_v += v * dt
                     acc_T += dt
                     acc_k += 1
             predict(x, P, Phi, Qd)
             C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
-        out_nis_acc[k] = np.nan
-        out_nis_mag[k] = np.nan
-        out_nis_rng[k] = np.nan
-        out_mag_ok[k] = True
-        out_ll[k, 0] = np.nan
-        out_ll[k, 1] = np.nan
-        # gravity: f_b = C^T f_n with f_n = -g_n (Eq. 5), only while quasi-static
-        if use & USE_ACC:
-            f = acc[k]
-            if not np.isnan(r_grav[k]):
-                # an IMU row is the mean over (t_{k-1}, t_k]: compare with the mid-interval attitude
-                Cm = C
-                if k > 0:
-                    Cm = C @ rotvec_to_dcm(-0.5 * (t[k] - t[k - 1]) * wg)
-                CmT = np.ascontiguousarray(Cm.T)
-                h = CmT @ f_n_down
-                H = np.zeros((3, n))
-                H[:, 0:3] = CmT @ skew(f_n_down)
-                z = f - h
-                R = np.eye(3) * r_grav[k]
-                out_nis_acc[k] = update(x, P, z, H, R)
-                C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
-        if use_osc and acc_k >= osc_every:
-            # 0 = dv_true + int(omega^2 p + 2 zeta omega v) dt - int w dt, with the true values
-            # v = v_hat + dv, p = p_hat + dp and C f = C_hat f - [f_n x] phi (phi at the epoch)
+        out.nis_acc[k] = np.nan
+        out.nis_mag[k] = np.nan
+        out.nis_rng[k] = np.nan
+        out.mag_ok[k] = True
+        # ---- gravity (Eq. 5): f_b = C^T f_up + b_a, while quasi-static, without the hand model
+        if (use & USE_ACC) != 0 and not motion and not np.isnan(s.grav_var[k]):
+            Cm = C
+            if k > 0:
+                Cm = C @ rotvec_to_dcm(-0.5 * (s.t[k] - s.t[k - 1]) * wg)
+            CmT = np.ascontiguousarray(Cm.T)
+            H = np.zeros((3, n))
+            H[:, 0:3] = CmT @ skew(f_up)
+            for i in range(3):
+                H[i, I_BA + i] = 1.0
+            hf = CmT @ f_up
+            if i_s > 0:
+                for i in range(3):
+                    H[i, i_s + i] = hf[i]
+                hf = hf + sa * hf
+            z = s.acc[k] - (hf + ba)
+            out.nis_acc[k] = update(x, P, z, H, np.eye(3) * s.grav_var[k])
+            C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
+        # ---- hand model: the velocity change of the interval equals the model's integrated acceleration
+        if (use & USE_ACC) != 0 and use_osc and acc_k >= hand.step:
+            # 0 = dv_true + int(omega^2 p + 2 zeta omega v) dt - int w dt with the true values
+            # v = v_hat + dv, p = p_hat + dp, C (f - b_a) = C_hat (f - b_a_hat) - [f_n x] phi - C db_a
             z = -(acc_dv + c_p * acc_p + c_v * acc_v)
-            Ho[:, :] = 0.0
+            Ho = np.zeros((3, n))
             Ho[:, 0:3] = -skew(acc_dvf)
+            Ho[:, I_BA:I_BA + 3] = -acc_C
+            if i_s > 0:
+                Ho[:, i_s:i_s + 3] = -acc_Cf
+            Ro = np.zeros((3, 3))
             for i in range(3):
                 Ho[i, i_v + i] = c_v * acc_T
                 Ho[i, i_v + 3 + i] = c_p * acc_T
-                Ro[i, i] = osc[2] * acc_T + q_vel * acc_k
-            if i_u > 0:
-                # ... with the force a state: int u dt = T u(epoch) + (within-interval change)
-                z += acc_T * u
-                for i in range(3):
-                    Ho[i, i_u + i] = -acc_T
-                    Ro[i, i] = osc[2] * acc_T**3 / 3.0 + q_vel * acc_k
-            So = Ho @ P @ Ho.T + Ro
-            nis_o = update(x, P, z, Ho, Ro)
-            out_ll[k, 1] = -0.5 * (nis_o + np.log(np.linalg.det(So)) + 3.0 * np.log(2.0 * np.pi))
-            C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
+                Ro[i, i] = hand.q * acc_T + nz.q_vel * acc_k
+            out.nis_acc[k] = update(x, P, z, Ho, Ro)
+            C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
             acc_dv[:] = 0.0
             acc_dvf[:] = 0.0
+            acc_C[:, :] = 0.0
+            acc_Cf[:, :] = 0.0
             acc_p[:] = 0.0
             acc_v[:] = 0.0
             acc_T = 0.0
             acc_k = 0
-        if use_osc and still[k] and motion_every > 0 and k % motion_every == 0:
-            z3 = -v
+        if (use & USE_ACC) != 0 and use_osc and s.still[k] and k % hand.step == 0:
             Hz = np.zeros((3, n))
-            Rz = np.zeros((3, 3))
             for i in range(3):
                 Hz[i, i_v + i] = 1.0
-                Rz[i, i] = zupt_sd**2
-            update(x, P, z3, Hz, Rz)
-            C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
-        if motion and (not use_osc) and motion_every > 0 and k % motion_every == 0:
-            z = np.empty(6)
-            z[0:3] = -v
-            z[3:6] = -p
-            if still[k]:
-                for i in range(3):
-                    Rm[i, i] = zupt_sd**2
-            else:
-                for i in range(3):
-                    Rm[i, i] = motion_sd[0] ** 2
-            Sm = P[i_v:i_v + 6, i_v:i_v + 6] + Rm
-            nis_m = update(x, P, z, Hm, Rm)
-            out_ll[k, 1] = -0.5 * (nis_m + np.log(np.linalg.det(Sm)) + 6.0 * np.log(2.0 * np.pi))
-            C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
-        # magnetic heading (Eq. 8): azimuth of the levelled field is the declination
-        if use & USE_MAG:
-            m = mag[k]
-            if not np.isnan(m[0]):
+            update(x, P, -v, Hz, np.eye(3) * hand.zupt_sd**2)
+            C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
+        if (use & USE_ACC) != 0 and motion and not use_osc and k % hand.epoch == 0:
+            Hm = np.zeros((6, n))
+            Rm = np.zeros((6, 6))
+            z6 = np.empty(6)
+            for i in range(3):
+                Hm[i, i_v + i] = 1.0
+                Hm[3 + i, i_v + 3 + i] = 1.0
+                Rm[i, i] = (hand.zupt_sd if s.still[k] else hand.sd_vel) ** 2
+                Rm[3 + i, 3 + i] = hand.sd_pos**2
+                z6[i] = -v[i]
+                z6[3 + i] = -p[i]
+            update(x, P, z6, Hm, Rm)  # (6 dof: not recorded with the 3-dof accelerometer NIS)
+            C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
+        # ---- magnetic field vector (Eq. 7): m_b = C^T m_ref, tilt only considered (Schmidt)
+        if (use & USE_MAG) != 0 and not np.isnan(s.mag[k, 0]):
+            m = s.mag[k]
+            ok = True
+            if gates.mag_norm_tol > 0.0 and abs(np.sqrt(m @ m) - m_norm) > gates.mag_norm_tol:
+                ok = False
+            if gates.mag_dip_tol > 0.0:
                 vm = C @ m
-                hn2 = vm[0] * vm[0] + vm[1] * vm[1]
-                mn = np.sqrt(m @ m)
-                dip = np.arctan2(vm[2], np.sqrt(hn2))
-                ok = True
-                if mag_norm_tol > 0.0:
-                    if abs(mn - mag_ref[0]) > mag_norm_tol or abs(dip - mag_ref[1]) > mag_dip_tol:
-                        ok = False
-                out_mag_ok[k] = ok
-                if ok and hn2 > 1e-6:
-                    az = np.arctan2(vm[1], vm[0])
-                    H = np.zeros((1, n))
-                    H[0, 0] = -vm[0] * vm[2] / hn2
-                    H[0, 1] = -vm[1] * vm[2] / hn2
-                    H[0, 2] = 1.0
-                    z = np.empty(1)
-                    z[0] = _wrap(decl - az)
-                    R = np.empty((1, 1))
-                    R[0, 0] = r_mag_ut / hn2
-                    s_mag = (H @ P @ H.T)[0, 0] + R[0, 0]
-                    nis = update(x, P, z, H, R)
-                    out_nis_mag[k] = nis
-                    out_ll[k, 0] = -0.5 * (nis + np.log(s_mag) + np.log(2.0 * np.pi))
-                    C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
-                    if rec_nis > 0.0 and k > 0:
-                        a = min(1.0, (t[k] - t[k - 1]) / rec_tau_s)
-                        nis_avg += a * (nis - nis_avg)
-                        if nis_avg > rec_nis:
-                            # persistent heading inconsistency: re-open the heading variance
-                            P[2, 2] += z[0] * z[0]
-                            nis_avg = 0.0
-        # three-beam range differences (exact plane geometry)
-        if use & USE_RANGE:
-            if not (np.isnan(rdiff[k, 0]) or np.isnan(rdiff[k, 1])):
-                hr, Hr, c = range_diff_model(C, n_wall, o2_b, o3_b)
-                if c > 0.2:
-                    H = np.zeros((2, n))
-                    H[:, 0:3] = Hr
-                    z = rdiff[k] - hr
-                    Patt = np.ascontiguousarray(P[0:3, 0:3])
-                    S = Hr @ Patt @ np.ascontiguousarray(Hr.T) + r_rng
-                    nis = z @ np.linalg.solve(S, z)
-                    out_nis_rng[k] = nis
-                    if rng_gate <= 0.0 or nis < rng_gate:
-                        update(x, P, z, H, r_rng)
-                        C = _feedback(x, C, b, v, p, i_v, M, i_m, u, i_u)
+                if abs(np.arctan2(vm[2], np.sqrt(vm[0] * vm[0] + vm[1] * vm[1])) - m_dip) > gates.mag_dip_tol:
+                    ok = False
+            CT = np.ascontiguousarray(C.T)
+            H = np.zeros((3, n))
+            H[:, 0:3] = CT @ skew(fr.m_ref)  # C_true^T m = C_hat^T (I - [phi x]) m
+            z = m - CT @ fr.m_ref
+            R = np.eye(3) * nz.r_mag
+            S = H @ P @ H.T + R
+            nis = z @ np.linalg.solve(S, z)
+            if gates.mag_nis_tau_s > 0.0 and k > 0:
+                a = min(1.0, abs(s.t[k] - s.t[k - 1]) / gates.mag_nis_tau_s)
+                nis_avg += a * (min(nis / 3.0, 100.0) - nis_avg)
+                if nis_avg > gates.mag_nis_ratio:
+                    ok = False
+            out.mag_ok[k] = ok
+            if ok:
+                out.nis_mag[k] = nis  # the NIS of the updates made (a rejected field is no update)
+                if gates.mag_consider:
+                    _consider_update(x, P, z, H, R, n, keep)
+                else:
+                    update(x, P, z, H, R)
+                C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
+        # ---- three-beam range differences (exact plane geometry)
+        if (use & USE_RANGE) != 0 and not (np.isnan(s.rdiff[k, 0]) or np.isnan(s.rdiff[k, 1])):
+            hr, Hr, c = range_diff_model(C, fr.wall_n, fr.o2, fr.o3)
+            if c > 0.2:
+                H = np.zeros((2, n))
+                H[:, 0:3] = Hr
+                z = s.rdiff[k] - hr
+                Patt = np.ascontiguousarray(P[0:3, 0:3])
+                S = Hr @ Patt @ np.ascontiguousarray(Hr.T) + nz.r_rng
+                nis = z @ np.linalg.solve(S, z)
+                out.nis_rng[k] = nis
+                if gates.rng_gate <= 0.0 or nis < gates.rng_gate:
+                    update(x, P, z, H, nz.r_rng)
+                    C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         C = orthonormalize(C)
-        out_C[k] = C
-        out_P[k] = P[0:6, 0:6]
-        out_bias[k] = b
+        out.C[k] = C
+        out.P_att[k] = P[0:3, 0:3]
+        out.bias[k] = b
+        out.acc_bias[k] = ba
+        for i in range(6):
+            out.var_bias[k, i] = P[I_BG + i, I_BG + i]
         if i_m > 0:
-            out_M[k] = M
+            out.M[k] = M
 
 
 @njit(cache=True)

@@ -23,7 +23,7 @@ from scipy.stats import chi2
 from tpos_cli.attitude.local import AttitudeSolution
 from tpos_cli.attitude.master import consistency_nis
 
-NIS_DOF = {"acc": 3, "mag": 1, "range": 2, "obs": 2}
+NIS_DOF = {"acc": 3, "mag": 3, "range": 2, "obs": 2}
 
 
 @dataclass(frozen=True)

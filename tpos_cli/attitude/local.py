@@ -15,6 +15,7 @@ import numpy as np
 
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude import motion
+from tpos_cli.attitude.magfield import reference_field_ned
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import axes_to_dcm, dcm_to_euler, euler_sigmas_deg
 
@@ -26,7 +27,7 @@ C_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 @dataclass(frozen=True)
 class FilterNoise:
-    """Sensor noise in SI units: per-sample white noise SDs and the initial gyro-bias SD."""
+    """Sensor noise in SI units: per-sample white noise SDs, the initial bias SDs and their random walks."""
 
     gyro_noise_rps: float
     gyro_bias_rps: float
@@ -35,6 +36,8 @@ class FilterNoise:
     mag_noise_ut: float
     range_sigma_m: float
     gyro_scale_sd: float = 3e-4  # relative SD of a sample's rotation angle (scale factor, coning)
+    acc_bias_mps2: float = 0.0  # SD of the accelerometer bias (prior of its states; 0: no such error)
+    acc_bias_rw_mps2_rts: float = 0.0  # its random walk
 
 
 @dataclass(frozen=True)
@@ -42,9 +45,12 @@ class FilterSetup:
     """Everything a local filter needs besides the samples.
 
     lat_rad, h_m: observer position (Earth rate and gravity). C0 (3,3), bias0_rps (3,),
-    P0 (6,6) initial state (attitude error NED rad^2, gyro bias (rad/s)^2). beta: Eq. 23-24
-    information share. mag_ref = (norm uT, dip rad) of the undisturbed field; wall_n_ned (3,)
-    unit normal of the wall the beams hit; baselines in m (contract `[rangefinders]`).
+    P0 (6,6) initial state (attitude error NED rad^2, gyro bias (rad/s)^2; the accelerometer-bias
+    prior is then `noise.acc_bias_mps2` about `acc_bias0_mps2`) or (9,9) with the accelerometer bias
+    (m/s^2)^2 and its correlation with the levelling error. beta: Eq. 23-24 information share.
+    mag_ref = (norm uT, dip rad) of the Earth field (with `declination_rad` the reference vector of
+    the magnetic update); wall_n_ned (3,) unit normal of the wall the beams hit; baselines in m
+    (contract `[rangefinders]`).
     """
 
     lat_rad: float
@@ -55,8 +61,11 @@ class FilterSetup:
     noise: FilterNoise
     declination_rad: float = 0.0
     mag_ref: tuple[float, float] = (0.0, 0.0)
-    mag_norm_tol_ut: float = 0.0  # <= 0: no magnetic fault gating inside LF1
+    mag_norm_tol_ut: float = 0.0  # <= 0: no field-magnitude/dip test inside LF1
     mag_dip_tol_rad: float = np.radians(5.0)
+    mag_consider: bool = True  # the magnetometer corrects heading and gyro bias only (`_kernels.Gates`)
+    mag_nis_tau_s: float = 0.0  # > 0: reject the field while its mean NIS over ~tau exceeds ratio (per dof)
+    mag_nis_ratio: float = 3.0
     acc_static_tol_mps2: float = 0.5
     gyro_static_tol_rps: float = np.radians(90.0)
     wall_n_ned: np.ndarray = field(default_factory=lambda: np.array([1.0, 0.0, 0.0]))
@@ -71,16 +80,15 @@ class FilterSetup:
     motion_interval_s: float = 1.0
     zupt_sd_mps: float = 0.02  # velocity SD of a device in a detected still period
     # > 0: the displacement is a damped oscillator (natural frequency, damping ratio, stationary SD
-    # motion_sd_m) checked against the integrated specific force every motion_step_s (kernel `osc`)
+    # motion_sd_m) checked against the integrated specific force every motion_step_s (kernel `Hand`)
     motion_freq_hz: float = 0.0
     motion_damping: float = 0.7071
     motion_step_s: float = 0.05
-    motion_corner_hz: float = 0.0  # > 0: the oscillator's driving force is Gauss-Markov with this corner (band-pass)
-    heading_recover_nis: float = 0.0  # > 0: re-open the heading variance when the mean mag NIS exceeds it
-    heading_recover_tau_s: float = 1.0
     gyro_err_sd: float = 0.0  # > 0: scale-factor/misalignment states (I + M), prior SD of each element
     gyro_err_rw_rts: float = 0.0  # their random walk, per sqrt(s)
     gyro_M0: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    acc_bias0_mps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    acc_scale_sd: float = 0.0  # > 0: accelerometer scale-factor states (prior SD, relative)
     gravity_mps2: float | None = None  # measured |f| at rest (absorbs the accelerometer scale); None: normal gravity
 
 
@@ -89,6 +97,7 @@ class AttitudeSolution:
     """One attitude solution over the IMU samples.
 
     C_nb (N,3,3) FRD->NED; P_att (N,3,3) rad^2 NED error covariance; bias_rps (N,3) or None;
+    acc_bias_mps2 (N,3) or None; var_bias (N,6) variances of [gyro bias, acc bias] or None;
     nis: {"acc"|"mag"|"range"|"obs": (N,) NaN where no update}; mag_ok (N,) bool or None.
     """
 
@@ -100,10 +109,12 @@ class AttitudeSolution:
     nis: dict = field(default_factory=dict)
     mag_ok: np.ndarray | None = None
     gyro_M: np.ndarray | None = None  # (N,3,3) estimated gyro scale/misalignment (setup.gyro_err_sd > 0)
-    loglik: dict = field(default_factory=dict)  # {"mag"|"motion": (N,) innovation log-likelihood, NaN where none}
     mag_gated: bool = False  # True: LF1 already dropped the samples with mag_ok False
     x8: np.ndarray | None = None  # paper8 model only: the 8 DCM states (N,8) and covariance
     P8: np.ndarray | None = None
+    acc_bias_mps2: np.ndarray | None = None
+    var_bias: np.ndarray | None = None
+    fb_scale: tuple[float, float] | None = None  # smoothed only: (tilt, heading) forward/backward consistency (smoother)
 
     def euler_deg(self):
         """(N,3) roll, pitch, yaw in degrees, yaw in [0, 360)."""
@@ -143,11 +154,11 @@ def range_differences(t_imu_s, t_rng_s, range_m):
 
 
 def gravity_variance(gyro_b_rps, acc_b_mps2, still, g_mps2, r_acc, acc_tol_mps2, gyro_tol_rps):
-    """(N,) variance (m/s^2)^2 of the gravity update (Eq. 5) at each sample; NaN where none.
+    """(N,) variance (m/s^2)^2 of the direct gravity update (Eq. 5) at each sample; NaN where none.
 
     Gravity is measured only in detected still periods where | |f| - g | and |omega| are below
-    their tolerances: in motion the linear accelerations of a hand-held device are correlated over
-    seconds, and the bounded-motion model (USE_MOTION) carries that information instead.
+    their tolerances (used when the hand-motion model is off: with it, still periods are
+    zero-velocity updates of the integrated specific force instead).
     """
     fn = np.linalg.norm(acc_b_mps2, axis=1)
     w = np.linalg.norm(gyro_b_rps, axis=1)
@@ -161,36 +172,86 @@ def _nav_vectors(setup: FilterSetup):
     return np.ascontiguousarray(w_ie, dtype=float), np.ascontiguousarray(g_n, dtype=float)
 
 
+def _reverse(t, gyro, acc, mag, rd, st):
+    """Time-reversed samples: the rate of row k covers (t_{k-1}, t_k], so it moves one row (negated);
+    the specific force is an interval mean too (not negated)."""
+    g = np.zeros_like(gyro)
+    g[1:] = -gyro[::-1][:-1]
+    a = np.empty_like(acc)
+    a[1:] = acc[::-1][:-1]
+    a[0] = acc[-1]
+    return -t[::-1], g, a, mag[::-1], rd[::-1], st[::-1]
+
+
+def _hand(setup: FilterSetup, dt_mean: float, share: float) -> K.Hand:
+    """The kernel's hand model from the setup; `share` the information share (Eq. 23)."""
+    step = max(1, int(round(setup.motion_step_s / dt_mean)))
+    epoch = max(1, int(round(setup.motion_interval_s / dt_mean)))
+    zupt = setup.zupt_sd_mps / np.sqrt(share)
+    if setup.motion_freq_hz > 0.0:
+        vp1, _ = motion.displacement_var(setup.motion_freq_hz, setup.motion_damping, 1.0)
+        q = setup.motion_sd_m**2 / vp1  # stationary displacement SD -> driving-noise PSD
+        return K.Hand(2.0 * np.pi * setup.motion_freq_hz, setup.motion_damping, q / share, step, epoch,
+                      setup.motion_sd_mps / np.sqrt(share), setup.motion_sd_m / np.sqrt(share), zupt)
+    return K.Hand(0.0, 0.0, 0.0, step, epoch, setup.motion_sd_mps / np.sqrt(share), setup.motion_sd_m / np.sqrt(share), zupt)
+
+
+def initial_covariance(setup: FilterSetup, use: int) -> np.ndarray:
+    """(n,n) P0 of the kernel's state (`_kernels.state_offsets`), before the Eq. 23 division by beta."""
+    n, i_m, i_v, i_s = K.state_offsets(use, setup.gyro_err_sd > 0.0, setup.acc_scale_sd > 0.0)
+    P0 = np.zeros((n, n))
+    P0[K.I_BA:K.I_BA + 3, K.I_BA:K.I_BA + 3] = np.eye(3) * setup.noise.acc_bias_mps2**2
+    given = np.asarray(setup.P0, dtype=float)
+    P0[0:given.shape[0], 0:given.shape[0]] = given  # (6,6) [phi, gyro bias] or (9,9) with the acc bias
+    if i_m:
+        P0[i_m:i_m + 9, i_m:i_m + 9] = np.eye(9) * setup.gyro_err_sd**2
+    if i_s:
+        P0[i_s:i_s + 3, i_s:i_s + 3] = np.eye(3) * setup.acc_scale_sd**2
+    if i_v:
+        if setup.motion_freq_hz > 0.0:
+            vp1, vv1 = motion.displacement_var(setup.motion_freq_hz, setup.motion_damping, 1.0)
+            var_v, var_p = vv1 * setup.motion_sd_m**2 / vp1, setup.motion_sd_m**2
+        else:
+            var_v, var_p = setup.motion_sd_mps**2, setup.motion_sd_m**2
+        P0[i_v:i_v + 3, i_v:i_v + 3] = np.eye(3) * var_v
+        P0[i_v + 3:i_v + 6, i_v + 3:i_v + 6] = np.eye(3) * var_p
+    return P0
+
+
 def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: FilterSetup, use: int,
              backward: bool = False, still=None) -> AttitudeSolution:
-    """Run the full-attitude error-state local filter (forward, or backward in time).
+    """Run the full-attitude error-state local filter (`_kernels.marg_filter`), forward or backward.
 
-    `use` is a combination of `_kernels.USE_ACC | USE_MAG | USE_RANGE` (0: gyro only).
-    Backward: the same kernel on time-reversed samples with negated rates (the rate of row k
-    covers (t_{k-1}, t_k], so it moves one row when reversed); `setup.C0`, `bias0_rps` are then
-    the state at the LAST sample. `still` (N,) bool marks detected still periods (default: all),
-    the only samples where gravity is measured directly.
+    t_s (N,) s increasing; gyro_b_rps, acc_b_mps2 (N,3) FRD; mag_b_ut (N,3) uT or None (NaN rows:
+    not used); rdiff_m (N,2) or None (`range_differences`); `use` a combination of `_kernels.USE_*`
+    (0: gyro only). Backward: the same kernel on time-reversed samples with negated rates; `setup.C0`,
+    `bias0_rps` are then the state at the LAST sample. `still` (N,) bool marks detected still periods
+    (default: all). Raises ValueError on inconsistent shapes or a magnetic update without reference.
     """
-    n = t_s.size
+    t = np.ascontiguousarray(t_s, dtype=float)
+    n = t.size
+    gyro = np.ascontiguousarray(gyro_b_rps, dtype=float)
+    acc = np.ascontiguousarray(acc_b_mps2, dtype=float)
+    mag = np.full((n, 3), np.nan) if mag_b_ut is None else np.ascontiguousarray(mag_b_ut, dtype=float)
+    rd = np.full((n, 2), np.nan) if rdiff_m is None else np.ascontiguousarray(rdiff_m, dtype=float)
+    st = np.ones(n, dtype=np.bool_) if still is None else np.ascontiguousarray(still, dtype=np.bool_)
+    for a, shape, what in ((gyro, (n, 3), "gyro"), (acc, (n, 3), "acc"), (mag, (n, 3), "mag"), (rd, (n, 2), "rdiff"),
+                           (st, (n,), "still"), (np.asarray(setup.C0), (3, 3), "C0")):
+        if a.shape != shape:
+            raise ValueError(f"run_full: {what} has shape {a.shape}, expected {shape}")
+    if np.shape(setup.P0) not in ((6, 6), (9, 9)):
+        raise ValueError(f"run_full: P0 has shape {np.shape(setup.P0)}, expected (6, 6) or (9, 9)")
+    if n > 1 and not np.all(np.diff(t) > 0):
+        raise ValueError("run_full: t_s must increase")
+    if (use & K.USE_MAG) and setup.mag_ref[0] <= 0.0:
+        raise ValueError("run_full: the magnetic update needs setup.mag_ref (norm, dip) of the Earth field")
     noise = setup.noise
     w_ie, g_n = _nav_vectors(setup)
     if setup.gravity_mps2 is not None:
         g_n = np.array([0.0, 0.0, float(setup.gravity_mps2)])
-    mag = np.full((n, 3), np.nan) if mag_b_ut is None else np.asarray(mag_b_ut, dtype=float)
-    rd = np.full((n, 2), np.nan) if rdiff_m is None else np.asarray(rdiff_m, dtype=float)
-    gyro = np.asarray(gyro_b_rps, dtype=float)
-    acc = np.asarray(acc_b_mps2, dtype=float)
-    t = np.asarray(t_s, dtype=float)
-    st = np.ones(n, dtype=np.bool_) if still is None else np.asarray(still, dtype=np.bool_)
     bias0 = np.asarray(setup.bias0_rps, dtype=float)
     if backward:
-        t = -t[::-1]
-        g = np.zeros_like(gyro)
-        g[1:] = -gyro[::-1][:-1]  # reversed interval j covers original (t_{N-1-j}, t_{N-j}]
-        a = np.empty_like(acc)
-        a[1:] = acc[::-1][:-1]  # the specific force is an interval mean too (not negated)
-        a[0] = acc[-1]
-        gyro, acc, mag, rd, st = g, a, mag[::-1], rd[::-1], st[::-1]
+        t, gyro, acc, mag, rd, st = _reverse(t, gyro, acc, mag, rd, st)
         w_ie = -w_ie
         bias0 = -bias0
     beta = setup.beta
@@ -198,63 +259,46 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     o3 = np.array([0.0, 0.0, setup.baseline_13_m])  # LR3 below LR1 (FRD z is down)
     r_rng = noise.range_sigma_m**2 * np.array([[2.0, 1.0], [1.0, 2.0]])  # d1 shared by both
     r_acc = noise.acc_noise_mps2**2
-    motion_share = 1.0
+    share = 1.0
     if (use & K.USE_RANGE) and (use & K.USE_ACC):
         # LF2 levels with the accelerometer too (roll is unobservable from the beams alone), with
         # its information share only (R / beta), so that the accelerometer LF1 also uses is not
         # counted twice in full by the master fusion
         r_acc = r_acc / beta
-        motion_share = beta
-    else:
-        motion_share = 1.0
-    r_grav = gravity_variance(gyro - bias0, acc, st, float(np.linalg.norm(g_n)), r_acc,
-                              setup.acc_static_tol_mps2, setup.gyro_static_tol_rps)
-    out_C = np.empty((n, 3, 3))
-    out_P = np.empty((n, 6, 6))
-    out_b = np.empty((n, 3))
-    nis_a, nis_m, nis_r = np.empty(n), np.empty(n), np.empty(n)
-    mag_ok = np.empty(n, dtype=np.bool_)
-    ll = np.empty((n, 2))
-    out_M = np.zeros((n if setup.gyro_err_sd > 0 else 1, 3, 3))
-    dt_mean = float(np.median(np.diff(t_s))) if n > 1 else 0.01
-    om = 2.0 * np.pi * setup.motion_freq_hz
-    motion_sd = np.array([setup.motion_sd_mps, setup.motion_sd_m])
-    osc = np.zeros(4)
-    if om > 0.0:
-        # q from the stationary displacement SD (white force: var(p) = q / (4 zeta omega^3))
-        vp1, vv1 = motion.displacement_var(setup.motion_freq_hz, setup.motion_damping, 1.0, setup.motion_corner_hz)
-        q = setup.motion_sd_m**2 / vp1
-        osc[:] = (om, setup.motion_damping, q / motion_share, 2.0 * np.pi * setup.motion_corner_hz)
-        motion_sd = np.array([np.sqrt(vv1 * q), setup.motion_sd_m])
-    K.run_full(
-        np.ascontiguousarray(t), np.ascontiguousarray(gyro), np.ascontiguousarray(acc),
-        np.ascontiguousarray(mag), np.ascontiguousarray(rd), int(use),
-        np.ascontiguousarray(setup.C0, dtype=float), np.ascontiguousarray(bias0),
-        np.ascontiguousarray(setup.P0, dtype=float) / beta, w_ie, g_n,
-        (noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_bias_rw_rps_rts**2 / beta,
-        noise.gyro_scale_sd**2 / beta,
-        r_grav,
-        noise.mag_noise_ut**2, setup.declination_rad,
-        np.array([setup.mag_ref[0], setup.mag_ref[1]], dtype=float),
-        setup.mag_norm_tol_ut, setup.mag_dip_tol_rad,
-        np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3, r_rng, setup.range_gate_chi2,
-        (noise.acc_noise_mps2 * dt_mean) ** 2, motion_sd / np.sqrt(motion_share),
-        max(1, int(round(setup.motion_interval_s / dt_mean))), setup.heading_recover_nis, setup.heading_recover_tau_s,
-        np.ascontiguousarray(st), setup.zupt_sd_mps / np.sqrt(motion_share),
-        np.ascontiguousarray(setup.gyro_M0, dtype=float), setup.gyro_err_sd / np.sqrt(beta),
-        setup.gyro_err_rw_rts**2 / beta, osc, max(1, int(round(setup.motion_step_s / dt_mean))),
-        out_C, out_P, out_b, nis_a, nis_m, nis_r, mag_ok, ll, out_M,
-    )
+        share = beta
+    motion_on = bool(use & K.USE_MOTION)
+    grav = np.full(n, np.nan) if motion_on else gravity_variance(
+        gyro - bias0, acc, st, float(np.linalg.norm(g_n)), r_acc, setup.acc_static_tol_mps2, setup.gyro_static_tol_rps)
+    dt_mean = float(np.median(np.abs(np.diff(t)))) if n > 1 else 0.01
+    m_ref = reference_field_ned(setup.mag_ref[0], setup.mag_ref[1], setup.declination_rad)
+    samples = K.Samples(t, gyro, acc, mag, rd, st, np.ascontiguousarray(grav))
+    frame = K.Frame(w_ie, g_n, m_ref, np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3)
+    kn = K.Noise((noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_scale_sd**2 / beta,
+                 noise.gyro_bias_rw_rps_rts**2 / beta, noise.acc_bias_rw_mps2_rts**2 / beta,
+                 setup.gyro_err_rw_rts**2 / beta, (noise.acc_noise_mps2 * dt_mean) ** 2,
+                 noise.mag_noise_ut**2, r_rng)
+    gates = K.Gates(int(use), bool(setup.gyro_err_sd > 0.0), bool(setup.acc_scale_sd > 0.0), bool(setup.mag_consider),
+                    float(setup.mag_norm_tol_ut),
+                    float(setup.mag_dip_tol_rad), float(setup.mag_nis_tau_s), float(setup.mag_nis_ratio),
+                    float(setup.range_gate_chi2))
+    acc_b0 = np.asarray(setup.acc_bias0_mps2, dtype=float)
+    init = K.Init(np.ascontiguousarray(setup.C0, dtype=float), np.ascontiguousarray(bias0),
+                  np.ascontiguousarray(acc_b0), np.ascontiguousarray(setup.gyro_M0, dtype=float),
+                  initial_covariance(setup, use) / beta)
+    with_m = setup.gyro_err_sd > 0
+    out = K.Outputs(np.empty((n, 3, 3)), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 6)),
+                    np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_), np.zeros((n if with_m else 1, 3, 3)))
+    K.marg_filter(samples, frame, kn, _hand(setup, dt_mean, share), gates, init, out)
+    o = {f: getattr(out, f) for f in out._fields}
     if backward:
-        out_C, out_P, out_b = out_C[::-1], out_P[::-1], -out_b[::-1]
-        nis_a, nis_m, nis_r, mag_ok, ll = nis_a[::-1], nis_m[::-1], nis_r[::-1], mag_ok[::-1], ll[::-1]
-        out_M = out_M[::-1]
+        o = {k: v[::-1] if v.shape[0] == n else v for k, v in o.items()}
+        o["bias"] = -o["bias"]
     return AttitudeSolution(
-        name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(out_C),
-        P_att=np.ascontiguousarray(out_P[:, 0:3, 0:3]), bias_rps=out_b,
-        nis={"acc": nis_a, "mag": nis_m, "range": nis_r}, loglik={"mag": ll[:, 0], "motion": ll[:, 1]},
-        mag_ok=mag_ok if (use & K.USE_MAG) else None, gyro_M=out_M if setup.gyro_err_sd > 0 else None,
-        mag_gated=bool((use & K.USE_MAG) and setup.mag_norm_tol_ut > 0.0),
+        name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(o["C"]),
+        P_att=np.ascontiguousarray(o["P_att"]), bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
+        nis={"acc": o["nis_acc"], "mag": o["nis_mag"], "range": o["nis_rng"]},
+        mag_ok=o["mag_ok"] if (use & K.USE_MAG) else None, gyro_M=o["M"] if with_m else None,
+        mag_gated=bool((use & K.USE_MAG) and (setup.mag_norm_tol_ut > 0.0 or setup.mag_nis_tau_s > 0.0)),
     )
 
 

@@ -1,10 +1,18 @@
 """Forward-backward attitude smoothing of a local filter (tpos is a post-processor).
 
-The same kernel runs forward and, on time-reversed samples, backward (`local.run_full`); the two
-estimates are combined on SO(3) with their covariances (two-filter smoother, Fraser-Potter form),
-which is exactly the information fusion of Eq. 27 applied to the two runs (`master.fuse`).
-The backward run starts from the forward run's last attitude and bias with a wide attitude
-covariance (`back_sd_rad`), so that the two runs are practically independent.
+Two independent runs of the same kernel (`local.run_full`): forward from the alignment at the start
+of the log, and backward in time from the backward setup, which the caller aligns at the END of the
+log on its own (its own still window, its own gyro bias): nothing of the forward run enters it, so
+the two estimates are independent given the common prior and are fused on SO(3) with their
+covariances (two-filter smoother, Fraser-Potter form), which is the information fusion of Eq. 27
+applied to the two runs (`master.fuse`). Their biases are fused the same way (diagonal covariances).
+
+The two runs also measure how honest their covariances are: their difference d has covariance
+P_f + P_b when both are consistent. `fb_scale` is the mean of d^T (P_f + P_b)^-1 d per degree of
+freedom, separately for tilt (2 dof) and heading (1 dof): a covariance-matching estimate of the
+scale of the noise the model left out (room fields, unmodelled sensor errors). Scaling every noise
+of a Kalman filter by a factor leaves its gains and estimates unchanged and scales its covariance
+by that factor, so the smoothed covariance is multiplied by max(1, scale) per group.
 """
 
 from __future__ import annotations
@@ -15,22 +23,50 @@ import numpy as np
 
 from tpos_cli.attitude import master
 from tpos_cli.attitude.local import AttitudeSolution, FilterSetup, run_full
+from tpos_cli.frames.rotation import dcm_to_rotvec
+
+
+def fb_scale(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10) -> tuple[float, float]:
+    """(tilt, heading) mean of d^T (P_f + P_b)^-1 d per dof over the samples (every `stride`-th)."""
+    sl = slice(None, None, max(1, stride))
+    d = dcm_to_rotvec(fwd.C_nb[sl] @ np.swapaxes(bwd.C_nb[sl], 1, 2))
+    S = fwd.P_att[sl] + bwd.P_att[sl]
+    St = S[:, 0:2, 0:2]
+    dt = d[:, 0:2]
+    tilt = np.einsum("ni,ni->n", dt, np.linalg.solve(St, dt[..., None])[..., 0]) / 2.0
+    head = d[:, 2] ** 2 / S[:, 2, 2]
+    return float(np.mean(tilt)), float(np.mean(head))
+
+
+def scale_covariance(P_att: np.ndarray, tilt: float, heading: float) -> np.ndarray:
+    """P_att (N,3,3) with its tilt block scaled by `tilt` and heading by `heading` (D P D)."""
+    D = np.sqrt(np.array([tilt, tilt, heading]))
+    return P_att * D[None, :, None] * D[None, None, :]
+
+
+def _fuse_diag(a, va, b, vb):
+    """Inverse-variance mean of two independent estimates per element; a state that neither run
+    estimates (both variances zero) keeps the forward value."""
+    s = va + vb
+    ok = s > 0.0
+    w = np.where(ok, vb / np.where(ok, s, 1.0), 1.0)  # weight of a
+    return w * a + (1.0 - w) * b, np.where(ok, va * vb / np.where(ok, s, 1.0), 0.0)
 
 
 def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: FilterSetup, use: int,
-                back_sd_rad: float = np.radians(5.0), forward: AttitudeSolution | None = None,
-                still=None) -> AttitudeSolution:
-    """Smoothed `run_full` solution; `nis` are the forward run's, `mag_ok` is True where both runs
-    accepted the field. `forward` may pass an already computed forward run with the same setup."""
-    fwd = forward if forward is not None else run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup, use, still=still)
-    P0 = np.array(setup.P0, dtype=float)
-    P0[0:3, 0:3] = np.eye(3) * back_sd_rad**2 * setup.beta  # run_full divides P0 by beta
-    bsetup = replace(setup, C0=fwd.C_nb[-1], bias0_rps=fwd.bias_rps[-1], P0=P0)
-    if fwd.gyro_M is not None:
-        bsetup = replace(bsetup, gyro_M0=fwd.gyro_M[-1])
-    bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, bsetup, use, backward=True, still=still)
+                backward_setup: FilterSetup, still=None, forward: AttitudeSolution | None = None) -> AttitudeSolution:
+    """Smoothed `run_full` solution (module docstring). `backward_setup` holds the backward run's own
+    initial state at the last sample (C0, bias0_rps, P0); `forward` may pass an already computed forward
+    run with `setup`. `nis` are the forward run's; `mag_ok` is True where both runs accepted the field."""
+    fwd = forward if forward is not None else run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup, use,
+                                                        still=still)
+    bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, backward_setup, use, backward=True, still=still)
     s = master.fuse(name, [fwd, bwd])
+    lt, lh = fb_scale(fwd, bwd)
+    P = scale_covariance(s.P_att, max(1.0, lt), max(1.0, lh))
+    vb = np.concatenate([fwd.var_bias, bwd.var_bias], axis=1)
+    bg, vg = _fuse_diag(fwd.bias_rps, vb[:, 0:3], bwd.bias_rps, vb[:, 6:9])
+    ba, va = _fuse_diag(fwd.acc_bias_mps2, vb[:, 3:6], bwd.acc_bias_mps2, vb[:, 9:12])
     mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)
-    return AttitudeSolution(name=name, t_s=fwd.t_s, C_nb=s.C_nb, P_att=s.P_att,
-                            bias_rps=0.5 * (fwd.bias_rps + bwd.bias_rps), nis=fwd.nis, mag_ok=mag_ok,
-                            mag_gated=fwd.mag_gated)
+    return replace(fwd, C_nb=s.C_nb, P_att=P, bias_rps=bg, acc_bias_mps2=ba, var_bias=np.concatenate([vg, va], axis=1),
+                   mag_ok=mag_ok, gyro_M=None, fb_scale=(lt, lh))

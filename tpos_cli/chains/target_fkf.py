@@ -1,16 +1,19 @@
 """Chain `target_fkf`: static-observer target positioning (papers 000 and 001).
 
-Stages: initial alignment (stationary window, Eq. 6, 8/9 with declination) -> local filters
-`gyro`, `lf1` (acc/mag), `lf2` (three LRs) -> fault detection -> federated master `fkf` (Eq. 27
-with the detector's weights) and `fkf_raw` (the paper's plain fusion) -> shots (given or detected)
--> target positions for every solution (Eq. 2-4, 29) -> reference-point calibration `fkf_cal`
-(paper 001 Eq. 31-38) -> pairwise slant range / height difference (paper 001 Eq. 15-16).
+Stages (`run`): magnetometer delay -> alignment at both ends of the log (stationary windows, Eq. 6,
+8/9 with declination) -> IMU noise figures (`imu_noise`) -> magnetic survey (`attitude.magfield`:
+Earth field, body-fixed offsets removed, room disturbances masked) -> beam geometry (wall normal)
+-> local filters `gyro`, `lf1` (acc/mag), `lf2` (three LRs), each smoothed by independent forward and
+backward runs (`attitude.smoother`) -> fault detection -> federated master `fkf` (Eq. 27 with the
+detector's weights) and `fkf_raw` (the paper's plain fusion) -> shots (given or detected) -> target
+positions for every solution (Eq. 2-4, 29) -> reference-point calibration `fkf_cal` (paper 001
+Eq. 31-38) -> pairwise slant range / height difference (paper 001 Eq. 15-16).
 A target session without ranges (attitude-only MARG log) yields `gyro`, `lf1`, `fkf` only.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -19,7 +22,7 @@ from scipy.stats import chi2
 from tpos_cli import alignment as al
 from tpos_cli import magnetic, targeting
 from tpos_cli.attitude import _kernels as K
-from tpos_cli.attitude import faults, master, motion, sensor_lag
+from tpos_cli.attitude import faults, magfield, master, motion, sensor_lag
 from tpos_cli.attitude.local import (
     AttitudeSolution,
     FilterNoise,
@@ -33,14 +36,41 @@ from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import TargetFkfParams
 from tpos_cli.errors import InvalidInputError, ProcessingError
+from tpos_cli.frames import geodetic
 from tpos_cli.frames.earth import G0_MPS2
-from tpos_cli.frames.rotation import (
-    dcm_to_rotvec,
-    euler_sigmas_deg,
-    euler_to_dcm,
-    rotvec_to_dcm,
-)
+from tpos_cli.frames.rotation import dcm_to_euler, dcm_to_rotvec, euler_error_map, euler_to_dcm, rotvec_to_dcm
+from tpos_cli.imu_noise import resolve_imu_noise
 from tpos_cli.session import Session
+from tpos_cli.trajectory import trajectory_table
+
+
+@dataclass(frozen=True)
+class End:
+    """Alignment at one end of the log: the coarse alignment (`alignment.Alignment`) in its still
+    window, the gravity magnitude there (m/s^2) and the SD of the gyro bias measured in it (rad/s)."""
+
+    align: al.Alignment
+    window: al.StaticWindow
+    gravity_mps2: float
+    bias_sd_rps: float
+
+
+@dataclass(frozen=True)
+class Beams:
+    """Range differences on the IMU samples (N,2) or None, the wall's NED normal and its azimuth variance."""
+
+    rdiff: np.ndarray | None
+    wall_n: np.ndarray
+    wall_var_rad2: float
+
+
+@dataclass(frozen=True)
+class Setups:
+    """Forward and backward filter set-ups (each from its own end of the log), and the gyro-only one."""
+
+    forward: FilterSetup
+    backward: FilterSetup
+    gyro: FilterSetup
 
 
 def static_noise(imu, win) -> dict:
@@ -63,29 +93,6 @@ def static_noise(imu, win) -> dict:
     m = sd(imu.mag_b_ut) if imu.mag_b_ut is not None else None
     return {"gyro_dps": None if g is None else float(np.degrees(g)), "acc_mg": None if a is None else a / G0_MPS2 * 1e3,
             "mag_ut": m}
-
-
-def _noise(session: Session, p: TargetFkfParams, measured: dict | None = None) -> FilterNoise:
-    n = session.meta.imu_noise
-    rf = session.meta.rangefinders
-    measured = measured or {}
-
-    def pick(given, key, default):
-        if given is not None:
-            return given
-        return measured.get(key) if measured.get(key) is not None else default
-
-    gyro_dps = pick(n.gyro_noise_dps, "gyro_dps", p.gyro_noise_dps)
-    bias_dph = n.gyro_bias_dph if n.gyro_bias_dph is not None else p.gyro_bias_dph
-    acc_mg = pick(n.acc_noise_mg, "acc_mg", p.acc_noise_mg)
-    mag_ut = pick(n.mag_noise_ut, "mag_ut", p.mag_noise_ut)
-    rng_m = rf.sigma_m if (rf is not None and rf.sigma_m is not None) else p.range_sigma_m
-    return FilterNoise(
-        gyro_noise_rps=np.radians(gyro_dps), gyro_bias_rps=np.radians(max(bias_dph, 1e-3) / 3600.0),
-        gyro_bias_rw_rps_rts=np.radians(p.gyro_bias_rw_dph_per_rth / 3600.0 / 60.0),
-        acc_noise_mps2=acc_mg * 1e-3 * G0_MPS2, mag_noise_ut=mag_ut, range_sigma_m=rng_m,
-        gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6,
-    )
 
 
 def observer_position(session: Session) -> tuple[np.ndarray, str]:
@@ -161,125 +168,254 @@ def _paper8_obs(session, p, t, al_res, decl, rdiff, noise, wall_yaw):
     return o1, v1, o2, v2
 
 
-def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
+def remove_mag_lag(session: Session, p: TargetFkfParams, ctx: RunContext, summary: dict) -> Session:
+    """The session with its magnetometer read `lag` later (`attitude.sensor_lag`), when the log shows one."""
     imu = session.imu
-    t = imu.t_s
-    summary: dict = {}
-    if imu.mag_b_ut is not None and p.mag_lag_from_log:
-        with ctx.stage("magnetometer delay"):
-            lag = sensor_lag.estimate_mag_lag(t, imu.gyro_b_rps, imu.mag_b_ut, max_lag_s=p.mag_lag_max_s)
-            summary["mag_lag"] = {"lag_s": lag.lag_s, "residual_uts": lag.rms_uts, "residual_zero_lag_uts": lag.rms_zero_uts,
-                                  "turning_samples": lag.n_used, "note": lag.reason}
-            if lag.lag_s != 0.0:
-                # every consumer (alignment, LF1, paper8 observations) sees the delay-free magnetometer
-                imu = replace(imu, mag_b_ut=sensor_lag.advance(t, imu.mag_b_ut, lag.lag_s))
-                session = replace(session, imu=imu)
-    noise = _noise(session, p)
-    obs_lla, obs_src = observer_position(session)
-    lat = np.radians(obs_lla[0])
-    summary.update({"observer": {"lla": obs_lla.tolist(), "source": obs_src}, "model": p.model})
+    if imu.mag_b_ut is None or not p.mag_lag_from_log:
+        return session
+    with ctx.stage("magnetometer delay"):
+        lag = sensor_lag.estimate_mag_lag(imu.t_s, imu.gyro_b_rps, imu.mag_b_ut, max_lag_s=p.mag_lag_max_s)
+        summary["mag_lag"] = {"lag_s": lag.lag_s, "residual_uts": lag.rms_uts, "residual_zero_lag_uts": lag.rms_zero_uts,
+                              "turning_samples": lag.n_used, "note": lag.reason}
+    if lag.lag_s == 0.0:
+        return session
+    # every consumer (alignment, survey, LF1, paper8 observations) sees the delay-free magnetometer
+    return replace(session, imu=replace(imu, mag_b_ut=sensor_lag.advance(imu.t_s, imu.mag_b_ut, lag.lag_s)))
 
-    with ctx.stage("initial alignment"):
-        decl_deg = 0.0
-        if imu.mag_b_ut is not None:
-            decl_deg, src = magnetic.resolve_declination_deg(session.meta.declination_deg, obs_lla, session.meta.start_utc)
-            summary["declination"] = {"deg": decl_deg, "source": src}
-        else:
-            ctx.warn("imu: no magnetometer; yaw is initialized to 0 (relative heading only)")
-        decl = np.radians(decl_deg)
-        win = al.detect_static_window(
-            t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, min_duration_s=p.static_min_s,
-            max_duration_s=p.static_max_s, gyro_tol_rps=np.radians(p.static_gyro_tol_dps),
-            acc_sd_tol_mps2=p.static_acc_sd_tol_mps2, mag_step_tol_ut=p.align_mag_step_tol_ut)
-        if win.end_reason == "magnetic":
-            ctx.warn(f"alignment: the field magnitude changed {t[win.i1] - t[0]:.2f} s into the still window; "
-                     "the alignment stops there (magnetic disturbance)")
-        if p.noise_from_static:
-            measured = static_noise(imu, win)
-            noise = _noise(session, p, measured)
-            summary["noise_from_static_window"] = measured
-        A = al.coarse_alignment(t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, win, declination_rad=decl,
-                                lat_rad=lat, acc_noise_mps2=noise.acc_noise_mps2, mag_noise_ut=noise.mag_noise_ut)
-        summary["alignment"] = {
-            "t_start": float(t[win.i0] + session.t0_s), "t_end": float(t[win.i1 - 1] + session.t0_s),
-            "end_reason": win.end_reason, "roll_deg": np.degrees(A.roll_rad), "pitch_deg": np.degrees(A.pitch_rad),
-            "yaw_deg": float(np.degrees(A.yaw_rad) % 360.0), "sigma_rpy_deg": np.degrees(A.sigma_rpy_rad).tolist(),
-            "mag_norm_ut": A.mag_norm_ut, "mag_dip_deg": float(np.degrees(A.mag_dip_rad)),
-        }
 
-    rdiff = None
-    wall_var = 0.0
+def _carry(C, bias, t, gyro, i_from, i_to):
+    """Attitude C at sample i_from carried to sample i_to by the gyro alone (bias removed)."""
+    step = 1 if i_to >= i_from else -1
+    for k in range(i_from + step, i_to + step, step) if i_to != i_from else ():
+        kk = k if step > 0 else k + 1  # the rate of row kk covers (t_{kk-1}, t_kk]
+        w = (gyro[kk] - bias) * (t[kk] - t[kk - 1]) * step
+        C = C @ rotvec_to_dcm(w)
+    return C
+
+
+def align_end(session: Session, p: TargetFkfParams, lat: float, decl: float, noise_mps2_ut, *, at_end: bool) -> End:
+    """Coarse alignment (Eq. 6, 8) in the first (or, `at_end`, the last) still window of the log, carried
+    by the gyro to the first (last) sample when the window does not reach it. Raises ProcessingError
+    when the log has no such window."""
+    imu = session.imu
+    t, g, a, m = imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut
+    n = t.size
+    kw = dict(min_duration_s=p.static_min_s, max_duration_s=p.static_max_s, gyro_tol_rps=np.radians(p.static_gyro_tol_dps),
+              acc_sd_tol_mps2=p.static_acc_sd_tol_mps2, mag_step_tol_ut=p.align_mag_step_tol_ut)
+    if at_end:
+        w = al.detect_static_window(-t[::-1], g[::-1], a[::-1], None if m is None else m[::-1], **kw)
+        win = al.StaticWindow(n - w.i1, n - w.i0, w.end_reason)
+    else:
+        win = al.detect_static_window(t, g, a, m, **kw)
+    A = al.coarse_alignment(t, g, a, m, win, declination_rad=decl, lat_rad=lat, acc_noise_mps2=noise_mps2_ut[0],
+                            mag_noise_ut=noise_mps2_ut[1])
+    sg = float(np.sqrt(np.mean(np.var(g[win.i0:win.i1], axis=0))))
+    edge = n - 1 if at_end else 0
+    ref = win.i1 - 1 if at_end else win.i0
+    if ref != edge:
+        A = replace(A, C_nb=_carry(A.C_nb, A.gyro_bias_rps, t, g, ref, edge))
+    grav = float(np.linalg.norm(np.mean(a[win.i0:win.i1], axis=0)))
+    return End(A, win, grav, sg / np.sqrt(max(win.i1 - win.i0, 1)))
+
+
+def imu_figures(session: Session, p: TargetFkfParams, start: End, summary: dict) -> FilterNoise:
+    """Filter noise from the IMU figures (`imu_noise`: pipeline > session > measured in the still window > default)."""
+    measured = static_noise(session.imu, start.window) if p.noise_from_static else {}
+    fig = resolve_imu_noise(p, session.meta.imu_noise, measured={
+        "gyro_noise_dps": measured.get("gyro_dps"), "acc_noise_mg": measured.get("acc_mg"),
+        "mag_noise_ut": measured.get("mag_ut")}, measured_label="measured in the still window",
+        keys=("gyro_noise_dps", "acc_noise_mg", "gyro_bias_dph", "acc_bias_mg", "mag_noise_ut"))
+    summary["imu_noise"] = fig.summary()
+    rf = session.meta.rangefinders
+    return FilterNoise(
+        gyro_noise_rps=np.radians(fig["gyro_noise_dps"]), gyro_bias_rps=np.radians(max(fig["gyro_bias_dph"], 1e-3) / 3600.0),
+        gyro_bias_rw_rps_rts=np.radians(p.gyro_bias_rw_dph_per_rth / 3600.0 / 60.0),
+        acc_noise_mps2=fig["acc_noise_mg"] * 1e-3 * G0_MPS2, mag_noise_ut=fig["mag_noise_ut"],
+        range_sigma_m=rf.sigma_m if (rf is not None and rf.sigma_m is not None) else p.range_sigma_m,
+        gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6, acc_bias_mps2=fig["acc_bias_mg"] * 1e-3 * G0_MPS2,
+        acc_bias_rw_mps2_rts=p.acc_bias_rw_mg_per_rts * 1e-3 * G0_MPS2)
+
+
+def survey_field(session: Session, p: TargetFkfParams, start: End, obs_lla, ctx: RunContext, summary: dict):
+    """The log's magnetic survey (`attitude.magfield`), or None without magnetometer or with `mag_survey` off."""
+    imu = session.imu
+    if imu.mag_b_ut is None or not p.mag_survey:
+        return None
+    with ctx.stage("magnetic survey"):
+        fs = magfield.survey(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, start.align.gyro_bias_rps,
+                             prior=_igrf_norm_dip(session, obs_lla))
+    summary["magnetic_survey"] = fs.summary()
+    return fs
+
+
+def _igrf_norm_dip(session: Session, obs_lla):
+    """(norm uT, dip rad) of the IGRF field at the observer on the log's date, or None without a date."""
+    if session.meta.start_utc is None:
+        return None
+    b = magnetic.field_ned_ut(obs_lla, session.meta.start_utc)
+    return float(np.linalg.norm(b)), float(np.arctan2(b[2], np.hypot(b[0], b[1])))
+
+
+def beam_geometry(session: Session, start: End, noise: FilterNoise, yaw_var_rad2: float, ctx: RunContext,
+                  summary: dict) -> Beams:
+    """Range differences and the wall normal from the alignment window (LF2 needs three-beam returns there);
+    `yaw_var_rad2` the variance of the alignment's heading (the forward set-up's prior)."""
+    A, win = start.align, start.window
     wall_n = np.array([np.cos(A.yaw_rad), np.sin(A.yaw_rad), 0.0])
     rf = session.meta.rangefinders
-    if session.ranges is not None and rf is not None:
-        rdiff = range_differences(t, session.ranges.t_s, session.ranges.range_m)
-        in_win = rdiff[win.i0:win.i1]
-        good = np.all(np.isfinite(in_win), axis=1)
-        if good.sum() < 3:
-            ctx.warn("ranges: fewer than 3 three-beam returns during the alignment window; LF2 is not run")
-            rdiff = None
-        else:
-            wall_n = wall_normal_ned(A.C_nb, in_win[good].mean(axis=0), rf.baseline_12_m, rf.baseline_13_m)
-            # the wall azimuth inherits the alignment's yaw error plus the mean beam-difference noise
-            # (d1 - d2 over b12, K samples); LF2's heading carries it as a constant bias
-            wall_var = float(A.sigma_rpy_rad[2] ** 2 + 2.0 * noise.range_sigma_m**2 / rf.baseline_12_m**2 / good.sum())
-            summary["wall_azimuth_deg"] = float(np.degrees(np.arctan2(wall_n[1], wall_n[0])) % 360.0)
-            summary["wall_azimuth_sigma_deg"] = float(np.degrees(np.sqrt(wall_var)))
-    elif session.ranges is None:
-        ctx.warn("ranges: none in this session; LF2 needs the three rangefinders, so only gyro/lf1/fkf are produced")
+    if session.ranges is None or rf is None:
+        if session.ranges is None:
+            ctx.warn("ranges: none in this session; LF2 needs the three rangefinders, so only gyro/lf1/fkf are produced")
+        return Beams(None, wall_n, 0.0)
+    rdiff = range_differences(session.imu.t_s, session.ranges.t_s, session.ranges.range_m)
+    in_win = rdiff[win.i0:win.i1]
+    good = np.all(np.isfinite(in_win), axis=1)
+    if good.sum() < 3:
+        ctx.warn("ranges: fewer than 3 three-beam returns during the alignment window; LF2 is not run")
+        return Beams(None, wall_n, 0.0)
+    wall_n = wall_normal_ned(A.C_nb, in_win[good].mean(axis=0), rf.baseline_12_m, rf.baseline_13_m)
+    # the wall azimuth inherits the alignment's yaw error plus the mean beam-difference noise
+    # (d1 - d2 over b12, K samples); LF2's heading carries it as a constant bias
+    var = float(yaw_var_rad2 + 2.0 * noise.range_sigma_m**2 / rf.baseline_12_m**2 / good.sum())
+    summary["wall_azimuth_deg"] = float(np.degrees(np.arctan2(wall_n[1], wall_n[0])) % 360.0)
+    summary["wall_azimuth_sigma_deg"] = float(np.degrees(np.sqrt(var)))
+    return Beams(rdiff, wall_n, var)
 
-    P0 = np.diag(np.r_[np.maximum(A.sigma_rpy_rad, np.radians(0.01)) ** 2, [noise.gyro_bias_rps**2] * 3])
-    setup = FilterSetup(
-        lat_rad=lat, h_m=float(obs_lla[2]), C0=A.C_nb, bias0_rps=A.gyro_bias_rps if win.i1 - win.i0 > 0 else np.zeros(3),
-        P0=P0, noise=noise, declination_rad=decl,
-        mag_ref=(A.mag_norm_ut, A.mag_dip_rad) if np.isfinite(A.mag_norm_ut) else (0.0, 0.0),
-        mag_norm_tol_ut=p.mag_norm_tol_ut if np.isfinite(A.mag_norm_ut) else 0.0,
-        mag_dip_tol_rad=np.radians(p.mag_dip_tol_deg), acc_static_tol_mps2=p.acc_static_tol_mps2,
-        wall_n_ned=wall_n, baseline_12_m=rf.baseline_12_m if rf else 0.2,
-        baseline_13_m=rf.baseline_13_m if rf else 0.2,
+
+def _initial_covariance(end: End, noise: FilterNoise, m_ref_n, mag_w):
+    """9x9 prior of [phi, gyro bias, acc bias] at one end: the levelling error is the alignment's noise
+    and the accelerometer bias an independent prior. (The bias seen as tilt, phi_h = J b_a with
+    J = [[C_E], [-C_N]] / g, as a correlated prior is exact on paper but measured worse on the real
+    hand-held logs: BROAD mean tpos/VQF 1.36 against 0.70, so the filters learn that coupling from the
+    motion.) The heading adds the coupling of the bias through the dip and, with a survey, the field's
+    unexplained deviation from the Earth field in the window; the gyro bias is the window mean (spec
+    prior and noise / sqrt(N) combined)."""
+    A = end.align
+    C = A.C_nb
+    sb = noise.acc_bias_mps2
+    P = np.zeros((9, 9))
+    P[0:2, 0:2] = np.eye(2) * A.sigma_rpy_rad[0] ** 2
+    P[6:9, 6:9] = np.eye(3) * sb**2
+    var_yaw = A.sigma_rpy_rad[2] ** 2
+    if np.isfinite(A.mag_dip_rad):
+        var_yaw += (sb / end.gravity_mps2 * np.tan(A.mag_dip_rad)) ** 2
+    if m_ref_n is not None and mag_w is not None:
+        dv = C @ mag_w - m_ref_n
+        dv[1] = 0.0  # the east component is the heading itself
+        var_yaw += float(dv @ dv) / float(m_ref_n[0] ** 2 + m_ref_n[1] ** 2)
+    P[2, 2] = var_yaw
+    var_b = 1.0 / (1.0 / noise.gyro_bias_rps**2 + 1.0 / max(end.bias_sd_rps, 1e-12) ** 2)
+    P[3:6, 3:6] = np.eye(3) * var_b
+    return P
+
+
+def with_wall(setups: Setups, beams: Beams) -> Setups:
+    """`setups` with the wall normal of the beam geometry."""
+    return Setups(*(replace(s, wall_n_ned=beams.wall_n) for s in (setups.forward, setups.backward, setups.gyro)))
+
+
+def filter_setups(session: Session, p: TargetFkfParams, obs_lla, decl, ends, noise: FilterNoise, field) -> Setups:
+    """Forward and backward set-ups, each from its own end of the log (no estimate of one run enters the other)."""
+    rf = session.meta.rangefinders
+    start, end = ends
+    if field is not None:
+        mag_ref = (field.norm_ut, field.dip_rad)
+    elif np.isfinite(start.align.mag_norm_ut):
+        mag_ref = (start.align.mag_norm_ut, start.align.mag_dip_rad)
+    else:
+        mag_ref = (0.0, 0.0)
+    m_ref_n = magfield.reference_field_ned(*mag_ref, decl) if mag_ref[0] > 0 else None
+
+    def window_mag(e: End):
+        if field is None:
+            return None
+        mw = field.mag_b_ut[e.window.i0:e.window.i1]
+        ok = np.all(np.isfinite(mw), axis=1)
+        return mw[ok].mean(axis=0) if ok.any() else np.nanmean(session.imu.mag_b_ut[e.window.i0:e.window.i1], axis=0)
+
+    base = FilterSetup(
+        lat_rad=np.radians(obs_lla[0]), h_m=float(obs_lla[2]), C0=start.align.C_nb, bias0_rps=start.align.gyro_bias_rps,
+        P0=_initial_covariance(start, noise, m_ref_n, window_mag(start)), noise=noise, declination_rad=decl,
+        mag_ref=mag_ref, mag_norm_tol_ut=0.0 if (field is not None or mag_ref[0] <= 0) else p.mag_norm_tol_ut,
+        mag_dip_tol_rad=np.radians(p.mag_dip_tol_deg), mag_nis_tau_s=p.mag_nis_window_s, mag_nis_ratio=p.mag_nis_ratio,
+        acc_static_tol_mps2=p.acc_static_tol_mps2,
+        baseline_12_m=rf.baseline_12_m if rf else 0.2, baseline_13_m=rf.baseline_13_m if rf else 0.2,
         range_gate_chi2=float(chi2.ppf(p.range_gate_probability, 2)), beta=p.beta,
-        gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps,
-        motion_sd_m=p.motion_sd_m, motion_interval_s=p.motion_interval_s, motion_freq_hz=p.motion_freq_hz,
-        motion_damping=p.motion_damping, motion_step_s=p.motion_step_s,
-        heading_recover_nis=p.heading_recover_nis,
-        gyro_err_sd=p.gyro_err_pct * 1e-2, gyro_err_rw_rts=p.gyro_err_rw_ppm_rts * 1e-6,
-        gravity_mps2=float(np.linalg.norm(np.mean(imu.acc_b_mps2[win.i0:win.i1], axis=0))) if p.gravity_from_static else None,
-    )
-    # the bias estimated in the window already removes the window's mean rate
-    setup_gyro = FilterSetup(**{**setup.__dict__, "beta": 1.0, "gyro_err_sd": 0.0})
+        gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps, motion_sd_m=p.motion_sd_m,
+        motion_interval_s=p.motion_interval_s, motion_freq_hz=p.motion_freq_hz, motion_damping=p.motion_damping,
+        motion_step_s=p.motion_step_s, gyro_err_sd=p.gyro_err_pct * 1e-2, gyro_err_rw_rts=p.gyro_err_rw_ppm_rts * 1e-6,
+        gravity_mps2=start.gravity_mps2 if p.gravity_from_static else None)
+    back = replace(base, C0=end.align.C_nb, bias0_rps=end.align.gyro_bias_rps,
+                   P0=_initial_covariance(end, noise, m_ref_n, window_mag(end)))
+    gyro = replace(base, beta=1.0, gyro_err_sd=0.0)
+    return Setups(base, back, gyro)
 
+
+def _fit_motion(setups: Setups, p: TargetFkfParams, t, gyro_sol: AttitudeSolution, acc_b, still, summary, ctx) -> Setups:
+    """`setups` with the hand-motion oscillator fitted to the log (attitude.motion); unchanged, with a
+    warning, when the log cannot support a fit. The gyro-only attitude suffices: its slow tilt drift
+    only reaches frequencies below the fitted band."""
+    acc_n = np.einsum("nij,nj->ni", gyro_sol.C_nb, acc_b)
+    try:
+        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz))
+    except ProcessingError as e:
+        ctx.warn(f"{e}; using the fixed bounded-motion epochs (motion_sd_mps, motion_sd_m)")
+        return setups
+    summary["motion_fit"] = {"freq_hz": fit.freq_hz, "damping": fit.damping, "sd_m": fit.sd_m, "q_m2ps3": fit.q_m2ps3,
+                             "moving_fraction": fit.moving_fraction}
+    kw = dict(motion_freq_hz=fit.freq_hz, motion_sd_m=fit.sd_m, motion_damping=fit.damping)
+    return replace(setups, forward=replace(setups.forward, **kw), backward=replace(setups.backward, **kw))
+
+
+def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, beams: Beams, ends, noise, decl,
+                  ctx: RunContext, summary: dict) -> dict:
+    """gyro, lf1 and (with beams) lf2, each smoothed by independent forward and backward runs."""
+    imu = session.imu
+    t = imu.t_s
     with ctx.stage("local filters"):
-        sols: dict[str, AttitudeSolution] = {}
-        sols["gyro"] = run_full("gyro", t, imu.gyro_b_rps, imu.acc_b_mps2, None, None, setup_gyro, 0)
+        sols = {"gyro": run_full("gyro", t, imu.gyro_b_rps, imu.acc_b_mps2, None, None, setups.gyro, 0)}
+        mag = field.mag_b_ut if field is not None else imu.mag_b_ut
+        if beams.rdiff is None:
+            # LF1 alone holds all the information (Eq. 23-24: the shares sum to one over the local filters)
+            setups = replace(setups, forward=replace(setups.forward, beta=1.0), backward=replace(setups.backward, beta=1.0))
         if p.model == "full":
-            run = smooth_full if p.smooth else run_full
             mot = K.USE_MOTION if p.motion_model else 0
             still = al.static_mask(t, imu.gyro_b_rps, imu.acc_b_mps2, gyro_tol_rps=np.radians(p.static_gyro_tol_dps),
                                    acc_sd_tol_mps2=p.static_acc_sd_tol_mps2)
             ctx.count("still_samples", int(still.sum()))
             if p.motion_model and p.motion_fit:
-                setup = _fit_motion(setup, p, t, sols["gyro"], imu.acc_b_mps2, still, summary, ctx)
-            use1 = K.USE_ACC | mot | (K.USE_MAG if imu.mag_b_ut is not None else 0)
-            sols["lf1"] = run("lf1", t, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, None, setup, use1, still=still)
-            if rdiff is not None:
-                sols["lf2"] = add_heading_variance(
-                    run("lf2", t, imu.gyro_b_rps, imu.acc_b_mps2, None, rdiff, setup, K.USE_RANGE | K.USE_ACC | mot,
-                        still=still), wall_var)
+                setups = _fit_motion(setups, p, t, sols["gyro"], imu.acc_b_mps2, still, summary, ctx)
+
+            def run(name, mag_, rd, use):
+                if p.smooth:
+                    return smooth_full(name, t, imu.gyro_b_rps, imu.acc_b_mps2, mag_, rd, setups.forward, use,
+                                       setups.backward, still=still)
+                return run_full(name, t, imu.gyro_b_rps, imu.acc_b_mps2, mag_, rd, setups.forward, use, still=still)
+
+            sols["lf1"] = run("lf1", mag, None, K.USE_ACC | mot | (K.USE_MAG if mag is not None else 0))
+            if beams.rdiff is not None:
+                sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot), beams.wall_var_rad2)
+            summary["forward_backward_consistency"] = {
+                k: {"tilt": round(s.fb_scale[0], 3), "heading": round(s.fb_scale[1], 3)}
+                for k, s in sols.items() if s.fb_scale is not None}
         else:
-            wall_yaw = float(np.arctan2(wall_n[1], wall_n[0]))
-            o1, v1, o2, v2 = _paper8_obs(session, p, t, A, decl, rdiff, noise, wall_yaw)
-            sols["lf1"] = run_paper8("lf1", t, imu.gyro_b_rps, o1, v1, setup)
-            if rdiff is not None:
-                sols["lf2"] = run_paper8("lf2", t, imu.gyro_b_rps, o2, v2, setup)
+            wall_yaw = float(np.arctan2(beams.wall_n[1], beams.wall_n[0]))
+            o1, v1, o2, v2 = _paper8_obs(session, p, t, ends[0].align, decl, beams.rdiff, noise, wall_yaw)
+            sols["lf1"] = run_paper8("lf1", t, imu.gyro_b_rps, o1, v1, replace(setups.forward, P0=setups.forward.P0[0:6, 0:6]))
+            if beams.rdiff is not None:
+                sols["lf2"] = run_paper8("lf2", t, imu.gyro_b_rps, o2, v2, replace(setups.forward, P0=setups.forward.P0[0:6, 0:6]))
         for k, s in sols.items():
             ctx.count(f"updates_{k}", int(sum(np.isfinite(v).sum() for v in s.nis.values())))
+    return sols
 
+
+def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContext, summary: dict) -> dict:
+    """`fkf` (Eq. 27 with the fault detector's weights) and `fkf_raw` (the paper's plain fusion)."""
     with ctx.stage("federated fusion"):
         locals_ = [sols[k] for k in ("lf1", "lf2") if k in sols]
         if len(locals_) == 2:
-            fr = faults.detect(locals_, p.fault, setup.range_gate_chi2)
-            w = fr.weights() if p.fault_tolerant else None
-            sols["fkf"] = master.fuse("fkf", locals_, w)
+            fr = faults.detect(locals_, p.fault, gate_chi2)
+            sols["fkf"] = master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None)
             sols["fkf_raw"] = master.fuse("fkf_raw", locals_, None)
             summary["faults"] = {
                 name: {"excluded_fraction": float(1.0 - fr.ok[i].mean()),
@@ -292,61 +428,111 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
             sols["fkf"] = AttitudeSolution("fkf", s1.t_s, s1.C_nb, s1.P_att)
         if sols["lf1"].mag_ok is not None:
             ctx.count("mag_samples_rejected", int((~sols["lf1"].mag_ok).sum()))
+    return sols
 
+
+def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, start: End, noise: FilterNoise,
+                     ctx: RunContext, summary: dict):
+    """Target rows of every solution for every shot, `fkf_cal` from reference shots, and the target pairs."""
+    t = session.imu.t_s
+    rows, pairs = [], []
     with ctx.stage("targeting"):
-        shots = _shots(session, p, t, win)
-        tg_rows, pair_tables = [], []
-        cal_info = None
-        if shots is not None and session.ranges is not None:
-            d1 = _d1_on_imu(session, t)
-            fixes = {}
-            for name, sol in sols.items():
-                fixes[name] = _geolocate_shots(sol, shots, t, d1, obs_lla, noise.range_sigma_m)
-            cal = _calibrate(session, shots, fixes.get("fkf"), obs_lla)
-            if cal is not None:
-                cal_info = {"dpitch_deg": np.degrees(cal.dpitch_rad), "dyaw_deg": np.degrees(cal.dyaw_rad),
-                            "residual_rms_m": cal.residual_rms_m, "shots": cal.n_shots}
-                sols["fkf_cal"] = _apply_offsets(sols["fkf"], cal)
-                fixes["fkf_cal"] = _geolocate_shots(sols["fkf_cal"], shots, t, d1, obs_lla, noise.range_sigma_m)
-            for name, fx in fixes.items():
-                if fx is None:
-                    continue
-                df, lla, cov = fx
-                tg_rows.append(df.assign(t_start=df.t_start + session.t0_s, t_end=df.t_end + session.t0_s))
-                ok = np.isfinite(lla[:, 0])
-                if ok.sum() >= 2:
-                    pair_tables.append(targeting.target_pairs(list(df.id[ok]), lla[ok], name, cov[ok]))
-            ctx.count("shots", len(shots[0]))
-        elif session.ranges is not None:
-            ctx.warn("shots: none given and none detected; no target positions")
-        if cal_info is not None:
-            summary["calibration"] = cal_info
+        shots = _shots(session, p, t, start.window)
+        if shots is None or session.ranges is None:
+            if session.ranges is not None:
+                ctx.warn("shots: none given and none detected; no target positions")
+            return None, {}
+        d1 = _d1_on_imu(session, t)
+        fixes = {name: _geolocate_shots(sol, shots, t, d1, obs_lla, noise.range_sigma_m) for name, sol in sols.items()}
+        cal = _calibrate(session, shots, fixes.get("fkf"), obs_lla)
+        if cal is not None:
+            summary["calibration"] = {"dpitch_deg": np.degrees(cal.dpitch_rad), "dyaw_deg": np.degrees(cal.dyaw_rad),
+                                      "sigma_deg": np.degrees(np.sqrt(np.diag(cal.cov_rad2))).tolist(),
+                                      "residual_rms_m": cal.residual_rms_m, "shots": cal.n_shots}
+            sols["fkf_cal"] = _apply_offsets(sols["fkf"], cal)
+            fixes["fkf_cal"] = _geolocate_shots(sols["fkf_cal"], shots, t, d1, obs_lla, noise.range_sigma_m)
+        for name, (df, lla, cov) in fixes.items():
+            rows.append(df.assign(t_start=df.t_start + session.t0_s, t_end=df.t_end + session.t0_s))
+            ok = np.isfinite(lla[:, 0])
+            if ok.sum() >= 2:
+                pairs.append(targeting.target_pairs(list(df.id[ok]), lla[ok], name, cov[ok]))
+        ctx.count("shots", len(shots[0]))
+    return pd.concat(rows, ignore_index=True), ({"targets_pairs": pd.concat(pairs, ignore_index=True)} if pairs else {})
 
-    traj = _trajectory(sols, t + session.t0_s, obs_lla)
-    targets = pd.concat(tg_rows, ignore_index=True) if tg_rows else None
-    tables = {}
-    if pair_tables:
-        tables["targets_pairs"] = pd.concat(pair_tables, ignore_index=True)
+
+def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
+    summary: dict = {"model": p.model}
+    session = remove_mag_lag(session, p, ctx, summary)
+    obs_lla, obs_src = observer_position(session)
+    summary["observer"] = {"lla": obs_lla.tolist(), "source": obs_src}
+    decl = _declination(session, obs_lla, ctx, summary)
+    with ctx.stage("initial alignment"):
+        coarse = _coarse_noise(session, p)
+        start = align_end(session, p, np.radians(obs_lla[0]), decl, coarse, at_end=False)
+        noise = imu_figures(session, p, start, summary)
+        start = align_end(session, p, np.radians(obs_lla[0]), decl, (noise.acc_noise_mps2, noise.mag_noise_ut), at_end=False)
+        summary["alignment"] = _alignment_summary(session, start)
+    field = survey_field(session, p, start, obs_lla, ctx, summary)
+    with ctx.stage("initial alignment"):
+        end = _align_at_end(session, p, np.radians(obs_lla[0]), decl, noise, start, field, ctx)
+    setups = filter_setups(session, p, obs_lla, decl, (start, end), noise, field)
+    beams = beam_geometry(session, start, noise, float(setups.forward.P0[2, 2]), ctx, summary)
+    setups = with_wall(setups, beams)
+    sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary)
+    sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
+    targets, tables = position_targets(session, p, sols, obs_lla, start, noise, ctx, summary)
+    traj = _trajectory(sols, session.imu.t_s + session.t0_s, obs_lla)
     summary["solutions"] = list(sols)
-    return ChainOutput(trajectory=traj, targets=targets, tables=tables,
-                       summary=summary)
+    return ChainOutput(trajectory=traj, targets=targets, tables=tables, summary=summary)
 
 
-def _fit_motion(setup: FilterSetup, p: TargetFkfParams, t, gyro_sol: AttitudeSolution, acc_b, still, summary, ctx):
-    """`setup` with the hand-motion oscillator fitted to the log (attitude.motion); unchanged, with a
-    warning, when the log cannot support a fit. The gyro-only attitude suffices: its slow tilt drift
-    only reaches frequencies below the fitted band."""
-    acc_n = np.einsum("nij,nj->ni", gyro_sol.C_nb, acc_b)
+def _declination(session: Session, obs_lla, ctx: RunContext, summary: dict) -> float:
+    if session.imu.mag_b_ut is None:
+        ctx.warn("imu: no magnetometer; yaw is initialized to 0 (relative heading only)")
+        return 0.0
+    deg, src = magnetic.resolve_declination_deg(session.meta.declination_deg, obs_lla, session.meta.start_utc)
+    summary["declination"] = {"deg": deg, "source": src}
+    return float(np.radians(deg))
+
+
+def _coarse_noise(session: Session, p: TargetFkfParams):
+    """(acc m/s^2, mag uT) white noise for the first alignment, before the figures are resolved."""
+    n = session.meta.imu_noise
+    acc = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
+    mag = n.mag_noise_ut if n.mag_noise_ut is not None else p.mag_noise_ut
+    return acc * 1e-3 * G0_MPS2, mag
+
+
+def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: FilterNoise, start: End, field,
+                  ctx: RunContext) -> End:
+    """The backward run's own alignment at the end of the log; without a still window there, or when the
+    survey marked most of that window's field as disturbed, the start alignment carried to the end by the
+    gyro (its heading and tilt then grow by the bias SD times the log)."""
     try:
-        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz), damping=p.motion_damping,
-                                    corner=p.motion_corner)
-    except ProcessingError as e:
-        ctx.warn(f"{e}; using the fixed bounded-motion epochs (motion_sd_mps, motion_sd_m)")
-        return setup
-    summary["motion_fit"] = {"freq_hz": fit.freq_hz, "sd_m": fit.sd_m, "q_m2ps3": fit.q_m2ps3,
-                             "moving_fraction": fit.moving_fraction, "corner_hz": fit.corner_hz}
-    return replace(setup, motion_freq_hz=fit.freq_hz, motion_sd_m=fit.sd_m, motion_damping=fit.damping,
-                   motion_corner_hz=fit.corner_hz)
+        end = align_end(session, p, lat, decl, (noise.acc_noise_mps2, noise.mag_noise_ut), at_end=True)
+        if field is None or np.mean(field.disturbed[end.window.i0:end.window.i1]) <= 0.5:
+            return end
+        ctx.warn("alignment: the magnetic field is disturbed at the end of the log; the backward run starts from "
+                 "the gyro-carried start alignment with its drift as uncertainty")
+    except ProcessingError:
+        ctx.warn("alignment: no still window at the end of the log; the backward run starts from the gyro-carried "
+                 "start alignment with its drift as uncertainty")
+    imu = session.imu
+    n = imu.t_s.size
+    A = start.align
+    C = _carry(A.C_nb, A.gyro_bias_rps, imu.t_s, imu.gyro_b_rps, start.window.i0, n - 1)
+    grow = noise.gyro_bias_rps * (imu.t_s[-1] - imu.t_s[start.window.i0])
+    A = replace(A, C_nb=C, sigma_rpy_rad=np.hypot(A.sigma_rpy_rad, grow))
+    return End(A, start.window, start.gravity_mps2, noise.gyro_bias_rps)
+
+
+def _alignment_summary(session: Session, start: End) -> dict:
+    A, win, t = start.align, start.window, session.imu.t_s
+    return {"t_start": float(t[win.i0] + session.t0_s), "t_end": float(t[win.i1 - 1] + session.t0_s),
+            "end_reason": win.end_reason, "roll_deg": float(np.degrees(A.roll_rad)), "pitch_deg": float(np.degrees(A.pitch_rad)),
+            "yaw_deg": float(np.degrees(A.yaw_rad) % 360.0), "sigma_rpy_deg": np.degrees(A.sigma_rpy_rad).tolist(),
+            "mag_norm_ut": A.mag_norm_ut, "mag_dip_deg": float(np.degrees(A.mag_dip_rad)),
+            "gyro_bias_dph": (np.degrees(A.gyro_bias_rps) * 3600.0).tolist()}
 
 
 def _d1_on_imu(session: Session, t):
@@ -405,37 +591,29 @@ def _calibrate(session: Session, shots, fkf_fix, obs_lla):
     if tg is None or fkf_fix is None:
         return None
     ref = {i: tg.lla[k] for k, i in enumerate(tg.ids) if tg.role[k] == "reference"}
-    df, lla, _ = fkf_fix
+    df, lla, cov = fkf_fix
     sel = [k for k, i in enumerate(df.id) if i in ref and np.isfinite(lla[k, 0])]
     if not sel:
         return None
-    from tpos_cli.frames import geodetic
     ned = geodetic.lla_to_ned(lla[sel], obs_lla)
     d = np.linalg.norm(ned, axis=1)
     pitch = np.arcsin(-ned[:, 2] / d)
     yaw = np.arctan2(ned[:, 1], ned[:, 0])
-    return targeting.calibrate_offsets(obs_lla, pitch, yaw, d, np.array([ref[df.id[k]] for k in sel]))
+    return targeting.calibrate_offsets(obs_lla, pitch, yaw, d, np.array([ref[df.id[k]] for k in sel]), cov_ned_m2=cov[sel])
 
 
 def _apply_offsets(sol: AttitudeSolution, cal) -> AttitudeSolution:
-    """Subtract the pitch/heading offsets (paper 001 Eq. 35) from every attitude of `sol`."""
-    from tpos_cli.frames.rotation import dcm_to_euler
+    """Subtract the pitch/heading offsets (paper 001 Eq. 35) from every attitude of `sol`; the offsets'
+    own uncertainty (`Calibration.cov_rad2`, from the reference shots' covariances) is added to the
+    attitude covariance (their errors are treated as independent of the target shot's)."""
     r, pch, y = dcm_to_euler(sol.C_nb)
     C = euler_to_dcm(r, pch - cal.dpitch_rad, y - cal.dyaw_rad)
-    return AttitudeSolution("fkf_cal", sol.t_s, C, sol.P_att)
+    Pe = np.zeros((3, 3))
+    Pe[1:, 1:] = cal.cov_rad2
+    Mx = euler_error_map(C)
+    return AttitudeSolution("fkf_cal", sol.t_s, C, sol.P_att + Mx @ Pe @ np.swapaxes(Mx, 1, 2))
 
 
 def _trajectory(sols: dict, t_logger, obs_lla) -> pd.DataFrame:
-    frames = []
-    n = t_logger.size
-    for name, s in sols.items():
-        e = s.euler_deg()
-        sg = euler_sigmas_deg(s.C_nb, s.P_att)
-        frames.append(pd.DataFrame({
-            "t": t_logger, "lat": np.full(n, obs_lla[0]), "lon": np.full(n, obs_lla[1]), "h": np.full(n, obs_lla[2]),
-            "vn": np.zeros(n), "ve": np.zeros(n), "vd": np.zeros(n),
-            "roll": e[:, 0], "pitch": e[:, 1], "yaw": e[:, 2], "solution": name,
-            "sigma_roll": sg[:, 0], "sigma_pitch": sg[:, 1], "sigma_yaw": sg[:, 2],
-        }))
-    return pd.concat(frames, ignore_index=True)
-
+    return pd.concat([trajectory_table(name, t_logger, obs_lla, None, s.C_nb, P_att_rad2=s.P_att)
+                      for name, s in sols.items()], ignore_index=True)

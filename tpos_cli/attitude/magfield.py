@@ -1,0 +1,181 @@
+"""The magnetic field a log saw: the Earth field, disturbances that move with the sensor, and room disturbances.
+
+A magnetometer measures m_b = C^T m_n + b + noise, with m_n the local field (NED) and b an offset fixed in
+the body (hard iron: a magnet or a phone attached to the device). Over a short window the gyro alone gives
+the relative rotation R_k (from the window's first sample) to a fraction of a degree, so two models can be
+fitted to the window's samples by linear least squares:
+
+- room-fixed: m_b,k = R_k^T m0 (3 unknowns: the field in the window's first body frame);
+- body-fixed offset: m_b,k = R_k^T m0 + b (6 unknowns), separable only when the window turns.
+
+A disturbance that moves with the sensor is a constant b: the offset model then removes most of the
+residual (its variance at least halves) and b is well determined. A disturbance that stays in the room
+(a magnet on the table, steel in a wall) is neither: the device moves through it, and its field changes
+with position, not with orientation, so the offset explains little. That is the test of `survey`;
+`apply` removes the body offsets (carrying one to a neighbouring window that does not turn when it
+brings that window's field magnitude closer to the Earth field), takes the Earth field's magnitude and
+dip as medians over the windows (robust to the disturbed minority), and marks as disturbed the samples
+whose field magnitude (0.5 s mean) stays off that reference by more than three robust SDs of the
+window magnitudes: those are left to the gyro.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tpos_cli.frames.rotation import rotvec_to_dcm
+
+#: samples of neighbouring rows are correlated (resampled, filtered magnetometers): the LSQ covariance
+#: of a window fit is scaled by the number of rows per 0.1 s so that b's SD is not over-confident
+_CORR_S = 0.1
+
+
+@dataclass(frozen=True)
+class FieldWindow:
+    """One survey window: rows [i0, i1), residual RMS (uT) of the room-fixed and body-offset fits, the
+    fitted offset b (uT, body), its SD, whether the offset model was adopted, and the Earth field's
+    magnitude (uT) and dip (rad, positive down) of the adopted model."""
+
+    i0: int
+    i1: int
+    rms_room_ut: float
+    rms_body_ut: float
+    offset_ut: np.ndarray
+    offset_sd_ut: float
+    body_fixed: bool
+    norm_ut: float
+    dip_rad: float
+
+
+@dataclass(frozen=True)
+class FieldSurvey:
+    """The magnetometer with the body-fixed offsets removed (N,3) uT, NaN where disturbed; the Earth
+    field magnitude (uT) and dip (rad); the tolerance of the magnitude test (uT); the windows."""
+
+    mag_b_ut: np.ndarray
+    norm_ut: float
+    dip_rad: float
+    norm_tol_ut: float
+    disturbed: np.ndarray
+    windows: tuple[FieldWindow, ...]
+
+    def summary(self) -> dict:
+        body = [w for w in self.windows if w.body_fixed]
+        return {"earth_field_ut": round(self.norm_ut, 3), "dip_deg": round(float(np.degrees(self.dip_rad)), 3),
+                "norm_tol_ut": round(self.norm_tol_ut, 3), "windows": len(self.windows),
+                "body_fixed_windows": len(body), "disturbed_fraction": round(float(self.disturbed.mean()), 4),
+                "offsets_ut": [[round(float(x), 2) for x in w.offset_ut] for w in body[:20]]}
+
+
+def _relative_rotations(t_s, gyro_b_rps, bias_rps, i0, i1):
+    R = np.empty((i1 - i0, 3, 3))
+    C = np.eye(3)
+    for j, k in enumerate(range(i0, i1)):
+        if j > 0:
+            C = C @ rotvec_to_dcm((gyro_b_rps[k] - bias_rps) * (t_s[k] - t_s[k - 1]))
+        R[j] = C
+    return R
+
+
+def fit_window(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, i0, i1, *, var_ratio=0.5, max_offset_sd_ut=1.0) -> FieldWindow:
+    """Room-fixed and body-offset fits of rows [i0, i1) (module docstring). The offset model is adopted
+    when it leaves at most `var_ratio` of the room-fixed residual variance and its offset SD is below
+    `max_offset_sd_ut` (the window turned enough to separate it)."""
+    R = _relative_rotations(t_s, gyro_b_rps, bias_rps, i0, i1)
+    Rt = np.swapaxes(R, 1, 2)
+    m = np.asarray(mag_b_ut[i0:i1], dtype=float)
+    ok = np.all(np.isfinite(m), axis=1)
+    y = m[ok].reshape(-1)
+    A1 = Rt[ok].reshape(-1, 3)
+    x1 = np.linalg.lstsq(A1, y, rcond=None)[0]
+    r1 = float(np.sqrt(np.mean((y - A1 @ x1) ** 2)))
+    A2 = np.concatenate([Rt[ok], np.broadcast_to(np.eye(3), (int(ok.sum()), 3, 3))], axis=2).reshape(-1, 6)
+    x2 = np.linalg.lstsq(A2, y, rcond=None)[0]
+    r2 = float(np.sqrt(np.mean((y - A2 @ x2) ** 2)))
+    dt = float(np.median(np.diff(t_s[i0:i1])))
+    rows_corr = max(1.0, _CORR_S / dt)
+    cov = np.linalg.pinv(A2.T @ A2) * r2**2 * rows_corr
+    sd_b = float(np.sqrt(np.max(np.diag(cov)[3:])))
+    body = bool(r2**2 <= var_ratio * r1**2 and sd_b < max_offset_sd_ut)
+    m0 = x2[:3] if body else x1
+    up = np.einsum("nij,nj->ni", R[ok], np.asarray(acc_b_mps2[i0:i1], dtype=float)[ok]).mean(axis=0)
+    up = up / np.linalg.norm(up)  # specific force at rest points up
+    nrm = float(np.linalg.norm(m0))
+    return FieldWindow(int(i0), int(i1), r1, r2, x2[3:] if body else np.zeros(3), sd_b, body, nrm,
+                       float(np.arcsin(np.clip(-(m0 @ up) / nrm, -1.0, 1.0))))
+
+
+def _reference(wins, prior, cluster_ut=3.0, cluster_dip_rad=0.05236, min_share=0.1):
+    """(norm, dip, member windows) of the Earth field: the median over the windows. With a `prior` (norm uT, dip rad;
+    the IGRF at the log's place and date), the median over the cluster of windows (field within
+    `cluster_ut` and `cluster_dip_rad` (3 deg) of one another, at least `min_share` of the windows) nearest
+    the prior: a disturbance that covers most of the log must not become the reference."""
+    nw = np.array([w.norm_ut for w in wins])
+    dw = np.array([w.dip_rad for w in wins])
+    every = np.ones(nw.size, dtype=bool)
+    if prior is None or nw.size < 3:
+        return float(np.median(nw)), float(np.median(dw)), every
+    members = (np.abs(nw[:, None] - nw[None, :]) <= cluster_ut) & (np.abs(dw[:, None] - dw[None, :]) <= cluster_dip_rad)
+    support = members.sum(axis=1)
+    cand = np.flatnonzero(support >= max(2, min_share * nw.size))
+    if cand.size == 0:
+        return float(np.median(nw)), float(np.median(dw)), every
+    dist = np.hypot((nw[cand] - prior[0]) / cluster_ut, (dw[cand] - prior[1]) / cluster_dip_rad)
+    m = members[cand[int(np.argmin(dist))]]
+    return float(np.median(nw[m])), float(np.median(dw[m])), m
+
+
+def survey(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, *, window_s=4.0, var_ratio=0.5,
+           max_offset_sd_ut=1.0, lowpass_s=0.5, tol_sds=3.0, prior=None) -> FieldSurvey:
+    """Survey the whole log in windows of `window_s` (module docstring) and return the cleaned field;
+    `prior` (norm uT, dip rad) of the Earth field picks the reference among clusters (`_reference`)."""
+    t = np.asarray(t_s, dtype=float)
+    mag = np.asarray(mag_b_ut, dtype=float)
+    n = t.size
+    dt = float(np.median(np.diff(t)))
+    L = max(10, int(round(window_s / dt)))
+    starts = list(range(0, max(n - L, 0) + 1, L)) or [0]
+    if starts[-1] + L < n:
+        starts.append(n - L)
+    wins = [fit_window(t, gyro_b_rps, acc_b_mps2, mag, bias_rps, i0, min(i0 + L, n), var_ratio=var_ratio,
+                       max_offset_sd_ut=max_offset_sd_ut) for i0 in starts]
+    norm_ref, dip_ref, ref_wins = _reference(wins, prior)
+    out = mag.copy()
+    fitted = [i for i, w in enumerate(wins) if w.body_fixed]
+    done = np.zeros(n, dtype=bool)
+    for i, w in enumerate(wins):
+        sl = slice(w.i0, w.i1)
+        b = w.offset_ut if w.body_fixed else None
+        if b is None and fitted:
+            # a window that does not turn keeps the nearest window's offset if that explains its magnitude better
+            j = min(fitted, key=lambda j: abs(j - i))
+            raw = abs(np.nanmean(np.linalg.norm(mag[sl], axis=1)) - norm_ref)
+            cor = abs(np.nanmean(np.linalg.norm(mag[sl] - wins[j].offset_ut, axis=1)) - norm_ref)
+            if cor < raw:
+                b = wins[j].offset_ut
+        keep = ~done[sl]  # overlapping last window: rows already corrected stay as they are
+        if b is not None:
+            out[sl][keep] = mag[sl][keep] - b
+        done[sl] = True
+    nw = np.array([np.nanmean(np.linalg.norm(out[w.i0:w.i1], axis=1)) for w in wins])
+    k = max(3, int(round(lowpass_s / dt)))
+    nrm = np.linalg.norm(out, axis=1)
+    # the spread of the reference windows' magnitudes, at least the sensor noise of a `lowpass_s` mean
+    dn = np.diff(nrm[np.isfinite(nrm)])
+    sd_lp = 1.4826 * float(np.median(np.abs(dn - np.median(dn)))) / np.sqrt(2.0 * k) if dn.size else 0.0
+    tol = tol_sds * max(1.4826 * float(np.median(np.abs(nw[ref_wins] - norm_ref))), sd_lp)
+    c = np.concatenate([[0.0], np.cumsum(np.nan_to_num(nrm, nan=norm_ref))])
+    i = np.arange(n)
+    lo, hi = np.clip(i - k // 2, 0, n), np.clip(i - k // 2 + k, 0, n)
+    lp = (c[hi] - c[lo]) / (hi - lo)
+    disturbed = np.abs(lp - norm_ref) > tol
+    out[disturbed] = np.nan
+    return FieldSurvey(out, norm_ref, dip_ref, tol, disturbed, tuple(wins))
+
+
+def reference_field_ned(norm_ut: float, dip_rad: float, declination_rad: float) -> np.ndarray:
+    """The Earth field (NED, uT) of magnitude `norm_ut`, dip `dip_rad` (positive down) and declination."""
+    h = norm_ut * np.cos(dip_rad)
+    return np.array([h * np.cos(declination_rad), h * np.sin(declination_rad), norm_ut * np.sin(dip_rad)])
