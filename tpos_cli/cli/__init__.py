@@ -13,6 +13,7 @@ import typer
 
 from tpos_cli.cli import batch as _batch
 from tpos_cli.cli import calibrate_mag as _calibrate_mag
+from tpos_cli.cli import export as _export
 from tpos_cli.cli import import_ as _import
 from tpos_cli.cli import inspect as _inspect
 from tpos_cli.cli import noise as _noise
@@ -55,6 +56,7 @@ app.command("validate")(_validate.validate)
 app.command("inspect")(_inspect.inspect)
 app.command("process")(_process.process)
 app.command("report")(_report.report)
+app.command("export")(_export.export)
 app.command("pipelines")(_pipelines.pipelines)
 app.command("simulate")(_simulate.simulate)
 app.command("batch")(_batch.batch)

@@ -114,6 +114,19 @@ def load_run(run_dir: Path) -> RunData:
     return RunData(run_dir, summary, traj, tgts, withheld, innov, merge_windows(outages, mask), mask)
 
 
+def session_dir_of(summary: dict, run_dir: Path) -> Path | None:
+    """The run's session directory from summary.json `session.path` (absolute, or relative to the
+    current directory, the run directory's parent or the run directory), or None if not found."""
+    raw = (summary.get("session") or {}).get("path")
+    if not raw:
+        return None
+    p = Path(raw)
+    for cand in ([p] if p.is_absolute() else [Path.cwd() / p, Path(run_dir).parent / p, Path(run_dir) / p]):
+        if cand.is_dir():
+            return cand
+    return None
+
+
 def ordered_solutions(names) -> list[str]:
     """Solution names, known ones in paper order first, the rest in order of appearance."""
     seen = list(dict.fromkeys(str(n) for n in names))

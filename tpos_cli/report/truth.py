@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
+from tpos_cli.report.rundir import session_dir_of
 
 GAP_FACTOR = 2.5  # a gap is > 2.5 median intervals: one missed sample plus clock jitter is not a gap
 
@@ -161,11 +162,10 @@ def resolve_session_path(summary: dict, run_dir: Path, override: Path | None) ->
     raw = (summary.get("session") or {}).get("path")
     if not raw:
         raise InvalidInputError(f"{run_dir.name}/summary.json: no session.path; give the session with --truth SESSION")
-    p = Path(raw)
-    for cand in ([p] if p.is_absolute() else [Path.cwd() / p, run_dir.parent / p, run_dir / p]):
-        if cand.is_dir():
-            return cand
-    raise InvalidInputError(f"{run_dir.name}/summary.json: session {raw} not found; give it with --truth SESSION")
+    found = session_dir_of(summary, run_dir)
+    if found is None:
+        raise InvalidInputError(f"{run_dir.name}/summary.json: session {raw} not found; give it with --truth SESSION")
+    return found
 
 
 def _truth_from_reference(session) -> TrajectoryTruth | None:

@@ -1,0 +1,169 @@
+"""`tpos export` end to end on simulated sessions (`tpos simulate` target and drive): every format
+opens with a standard parser, one row per target, coordinates match the exact truth within the
+sigmas the export states."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import stat
+import xml.etree.ElementTree as ET
+
+import gpxpy
+import numpy as np
+import pytest
+from scipy import stats
+from typer.testing import CliRunner
+
+from tpos_cli.cli import app
+from tpos_cli.frames.geodetic import lla_to_ned
+from tpos_cli.pipeline import process_session
+from tpos_cli.report.truth import interpolate_positions
+from tpos_cli.sim.drive import simulate_drive
+from tpos_cli.sim.target import simulate_target
+from tpos_cli.sim.writer import write_session
+
+runner = CliRunner()
+KML = "{http://www.opengis.net/kml/2.2}"
+NEES3_999 = stats.chi2.ppf(0.999, 3)  # 1 in 1000 per target: a wrong sigma fails, chance does not
+
+
+@pytest.fixture(scope="module")
+def target_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("target")
+    sim = simulate_target(90.0, seed=11)
+    s = write_session(sim, d / "s")
+    run = process_session(s, "target-fkf", d / "run").run_dir
+    truth = {i: p for i, p, r in zip(sim.targets.ids, sim.targets.lla, sim.targets.role) if r == "truth"}
+    return run, truth
+
+
+@pytest.fixture(scope="module")
+def drive_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("drive")
+    sim = simulate_drive(120.0, seed=3, outages=((60.0, 20.0),), shots=4, shot_range_m=40.0)
+    s = sim.write(d / "s")
+    run = process_session(s, "drive-smooth", d / "run").run_dir
+    return run, sim
+
+
+def _export(run, *args):
+    res = runner.invoke(app, ["export", str(run), *args])
+    assert res.exit_code == 0, res.output
+    return res
+
+
+def _rows_csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _check_against_truth(rows, truth):
+    """rows: dicts with id, lat, lon, h, sigma_n/e/u (strings or floats); NEES of each truth target."""
+    seen = 0
+    for r in rows:
+        if r["id"] not in truth:
+            continue
+        seen += 1
+        e = lla_to_ned(np.array([float(r["lat"]), float(r["lon"]), float(r["h"])]), truth[r["id"]])
+        e[2] = -e[2]  # north, east, up
+        sd = np.array([float(r["sigma_n"]), float(r["sigma_e"]), float(r["sigma_u"])])
+        nees = float(np.sum((e / sd) ** 2))  # the run writes no cross covariances for targets
+        assert nees < NEES3_999, (r["id"], e, sd)
+    assert seen == len(truth)
+
+
+def test_target_session_all_formats(target_run):
+    run, truth = target_run
+    for fmt in ("csv", "kml", "geojson", "gpx"):
+        res = _export(run, "--format", fmt)
+        assert f"targets (fkf_cal, 5 targets, UTM 18N) -> {run}/targets_fkf_cal.{fmt}" in res.output
+    rows = _rows_csv(run / "targets_fkf_cal.csv")
+    ids = [r["id"] for r in rows]
+    assert sorted(ids) == sorted(set(ids)) == ["REF", "T1", "T2", "T3", "T4"]  # one row per target
+    assert {r["n_shots"] for r in rows if r["id"] in ("REF", "T1")} == {"2"}  # both shot twice in the scenario
+    assert all("e" not in r["sigma_u"].lower() for r in rows)  # fixed decimals, no scientific notation
+    _check_against_truth(rows, truth)
+
+    # KML 2.2: one Point placemark per target plus the observer, lon,lat[,h] coordinates
+    kml = ET.parse(run / "targets_fkf_cal.kml").getroot()
+    assert kml.tag == KML + "kml"
+    marks = kml.findall(f".//{KML}Placemark")
+    assert sorted(m.findtext(KML + "name") for m in marks) == sorted(ids + ["observer"])
+    for m in marks:
+        data = {d.get("name"): d.findtext(KML + "value") for d in m.iter(KML + "Data")}
+        lon, lat, _ = map(float, m.findtext(f"{KML}Point/{KML}coordinates").split(","))
+        if m.findtext(KML + "name") in truth:
+            assert (lat, lon) == pytest.approx((float(data["lat"]), float(data["lon"])), abs=1e-9)
+
+    # GeoJSON RFC 7946: FeatureCollection, [lon, lat, h], WGS-84 (no crs member)
+    gj = json.loads((run / "targets_fkf_cal.geojson").read_text())
+    assert gj["type"] == "FeatureCollection" and "crs" not in gj
+    feats = [f for f in gj["features"] if f["properties"]["role"] == "target"]
+    rows_gj = [{"id": f["properties"]["id"], "lon": f["geometry"]["coordinates"][0], "lat": f["geometry"]["coordinates"][1],
+                "h": f["geometry"]["coordinates"][2], **{k: f["properties"][k] for k in ("sigma_n", "sigma_e", "sigma_u")}} for f in feats]
+    assert len(rows_gj) == 5
+    _check_against_truth(rows_gj, truth)
+
+    # GPX 1.1 through gpxpy: one waypoint per target plus the observer, UTC times from start_utc
+    g = gpxpy.parse((run / "targets_fkf_cal.gpx").read_text())
+    assert g.version == "1.1" and len(g.waypoints) == 6
+    wp = {w.name: w for w in g.waypoints}
+    for r in rows:
+        assert (wp[r["id"]].latitude, wp[r["id"]].longitude, wp[r["id"]].elevation) == pytest.approx(
+            (float(r["lat"]), float(r["lon"]), float(r["h"])), abs=1e-4)
+        assert wp[r["id"]].time is not None and wp[r["id"]].time.year == 2015
+
+
+def test_drive_targets_and_trajectory(drive_run):
+    run, sim = drive_run
+    _export(run, "-f", "csv")
+    rows = _rows_csv(run / "targets_smoothed.csv")
+    assert [r["id"] for r in rows] == ["T1", "T2", "T3", "T4"]
+    _check_against_truth(rows, dict(zip(sim.targets.ids, sim.targets.lla)))
+    res = _export(run, "-f", "gpx", "--trajectory")
+    assert "121 epochs at 1 Hz" in res.output  # 120 s at 1 Hz, both ends kept
+    g = gpxpy.parse((run / "trajectory_smoothed.gpx").read_text())
+    (seg,) = g.tracks[0].segments
+    lla = np.array([[p.latitude, p.longitude, p.elevation] for p in seg.points])
+    tt = run / "trajectory_smoothed.csv"
+    _export(run, "-f", "csv", "--trajectory", "--rate", "1")
+    tab = _rows_csv(tt)
+    t = np.array([float(r["t"]) for r in tab])
+    sd = np.array([[float(r["sigma_n"]), float(r["sigma_e"]), float(r["sigma_u"])] for r in tab])
+    np.testing.assert_allclose(lla, [[float(r["lat"]), float(r["lon"]), float(r["h"])] for r in tab], atol=1e-4)
+    truth_lla = interpolate_positions(sim.truth.t_s + sim.t0_s, sim.truth.lla, t, 0.05)  # exported epochs are IMU samples
+    e = np.array([lla_to_ned(a[None, :], b)[0] for a, b in zip(lla, truth_lla)])
+    e[:, 2] = -e[:, 2]
+    # 5 SD per component: 6e-7 per value, so a consistent run fails 1 in ~5000 times over these 363 values
+    assert np.max(np.abs(e / sd)) < 5.0, np.max(np.abs(e / sd), axis=0)
+    # and the KML track has as many vertices, the GeoJSON a LineString plus one point per epoch
+    _export(run, "-f", "kml", "--trajectory")
+    kml = ET.parse(run / "trajectory_smoothed.kml").getroot()
+    line = kml.find(f".//{KML}LineString/{KML}coordinates").text.split()
+    assert len(line) == len(tab)
+    _export(run, "-f", "geojson", "--trajectory")
+    gj = json.loads((run / "trajectory_smoothed.geojson").read_text())
+    assert gj["features"][0]["geometry"]["type"] == "LineString" and len(gj["features"]) == 1 + len(tab)
+    assert gj["features"][0]["geometry"]["coordinates"][0][:2] == pytest.approx([lla[0, 1], lla[0, 0]], abs=1e-8)
+
+
+def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
+    run, _ = drive_run
+    old = os.umask(0o022)
+    try:
+        _export(run, "-f", "geojson", "-o", str(tmp_path))
+    finally:
+        os.umask(old)
+    out = tmp_path / "targets_smoothed.geojson"
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644 and [p.name for p in tmp_path.iterdir()] == [out.name]
+    res = runner.invoke(app, ["export", str(run), "-f", "csv", "-o", "-"])
+    assert res.exit_code == 0 and list(csv.DictReader(io.StringIO(res.stdout)))[0]["id"] == "T1"
+    for args, msg in ((["-f", "csv", "-s", "forward"], "no solution 'forward'; the run has: smoothed"),
+                      (["-f", "shp"], "expected one of csv, kml, geojson, gpx"),
+                      (["-f", "csv", "--trajectory", "--rate", "0"], "must be a positive number"),
+                      (["-f", "csv", "-o", str(tmp_path / "nope" / "x.csv")], "does not exist")):
+        res = runner.invoke(app, ["export", str(run), *args])
+        assert res.exit_code == 2 and msg in res.output, res.output

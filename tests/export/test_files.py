@@ -1,0 +1,76 @@
+"""Output files: readable by others (the umask decides), atomic, no temporaries left behind."""
+
+from __future__ import annotations
+
+import os
+import stat
+import subprocess
+import sys
+
+import pytest
+
+from tpos_cli.export.files import remove_stale_temporaries, staged, write_atomic
+
+
+@pytest.fixture
+def umask022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def test_mode_follows_the_umask(tmp_path, umask022):
+    p = tmp_path / "report.pdf"
+    write_atomic(p, lambda t: t.write_bytes(b"x"))
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644
+    os.umask(0o077)
+    write_atomic(p, lambda t: t.write_bytes(b"y"))
+    assert stat.S_IMODE(p.stat().st_mode) == 0o600 and p.read_bytes() == b"y"
+
+
+def test_failure_leaves_old_files_and_no_temporaries(tmp_path):
+    a, b = tmp_path / "a.json", tmp_path / "b.pdf"
+    a.write_text("old")
+
+    with pytest.raises(RuntimeError), staged([a, b]) as tmps:
+        tmps[a].write_text("new")
+        raise RuntimeError("boom")
+    assert a.read_text() == "old" and not b.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def test_stale_temporaries_of_dead_writers_are_removed(tmp_path):
+    # a killed writer's temporary (its PID gone), an old-version mkstemp name, a live writer's file
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    pid = int(dead.stdout)
+    stale = tmp_path / f".report.pdf.{pid}-0a1b2c3d.tmp"
+    old_style = tmp_path / ".accuracy.json.k3j_x9a2.tmp"
+    live = tmp_path / f".report.pdf.{os.getppid()}-deadbeef.tmp"
+    other = tmp_path / ".notes.txt.123-abcd.tmp"
+    for p in (stale, old_style, live, other):
+        p.write_text("")
+    removed = remove_stale_temporaries(tmp_path, ["report.pdf", "accuracy.json"])
+    assert sorted(p.name for p in removed) == sorted([stale.name, old_style.name])
+    assert live.exists() and other.exists()
+
+
+def test_sigterm_mid_write_leaves_nothing(tmp_path):
+    # a real process writing through `staged` is killed with SIGTERM: the CLI's handler turns it
+    # into KeyboardInterrupt, the temporary is removed, the old output stays
+    (tmp_path / "out.bin").write_text("old")
+    code = (
+        "import sys, time; from pathlib import Path\n"
+        "from tpos_cli.export.files import staged, terminate_as_interrupt\n"
+        f"p = Path({str(tmp_path / 'out.bin')!r})\n"
+        "with terminate_as_interrupt():\n"
+        "    try:\n"
+        "        with staged([p]) as t:\n"
+        "            t[p].write_text('partial'); print('ready', flush=True); time.sleep(30)\n"
+        "    except KeyboardInterrupt:\n"
+        "        sys.exit(130)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    proc.terminate()
+    assert proc.wait(timeout=20) == 130
+    assert [p.name for p in tmp_path.iterdir()] == ["out.bin"] and (tmp_path / "out.bin").read_text() == "old"

@@ -1,0 +1,107 @@
+"""Writing deliverables: whole files or nothing, readable by colleagues, no temporaries left behind.
+
+Each output is written to a hidden sibling `.NAME.PID-RANDOM.tmp` created with mode 0666 less the
+process umask (what `open()` gives any new file, so 0644 under umask 022; `tempfile.mkstemp` would
+force 0600), then renamed over NAME. A Python-level interruption (Ctrl-C, SIGTERM through
+`terminate_as_interrupt`, an error) removes the temporary; one left by a killed process is removed
+by the next write into that directory once its PID is gone, as are the `.NAME.*.tmp` files of
+earlier tpos versions (which carried no PID).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import secrets
+import signal
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+_TMP = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>\d+)-[0-9a-f]+|[A-Za-z0-9_]+)\.tmp$")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's live process
+        return True
+    return True
+
+
+def remove_stale_temporaries(directory: Path, names: Iterable[str]) -> list[Path]:
+    """Delete `.NAME.*.tmp` siblings of the given output names whose writer is gone; returns them."""
+    names = set(names)
+    removed = []
+    for p in Path(directory).glob(".*.tmp"):
+        m = _TMP.match(p.name)
+        if not m or m["name"] not in names:
+            continue
+        pid = m["pid"]
+        if pid is not None and _pid_alive(int(pid)):
+            continue  # a concurrent writer's file
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+            removed.append(p)
+    return removed
+
+
+def _new_temporary(path: Path) -> Path:
+    tmp = path.parent / f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
+    os.close(fd)
+    return tmp
+
+
+@contextlib.contextmanager
+def staged(paths: Iterable[Path]):
+    """Temporaries for several outputs, all renamed into place only when the block succeeds.
+
+    Yields {final path: temporary path}; the caller writes each temporary. On any exception (or
+    KeyboardInterrupt) every temporary is removed and no final file is touched.
+    """
+    paths = [Path(p) for p in paths]
+    for d in {p.parent for p in paths}:
+        remove_stale_temporaries(d, [p.name for p in paths if p.parent == d])
+    tmps: dict[Path, Path] = {}
+    try:
+        for p in paths:
+            tmps[p] = _new_temporary(p)
+        yield tmps
+        for p, tmp in tmps.items():
+            os.replace(tmp, p)
+    finally:
+        for tmp in tmps.values():
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+
+
+def write_atomic(path: Path, write: Callable[[Path], object]) -> None:
+    """`write(tmp_path)` then rename over `path` (see module docstring)."""
+    with staged([path]) as tmps:
+        write(tmps[Path(path)])
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt():
+    """Turn SIGTERM into KeyboardInterrupt inside the block, so `kill PID` cleans up like Ctrl-C.
+
+    Only in the main thread (signal handlers can only be set there); elsewhere a no-op.
+    """
+    try:
+        previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
