@@ -24,6 +24,7 @@ import numpy as np
 from tpos_cli.alignment import static_mask
 from tpos_cli.frames.earth import OMEGA_IE_RPS, normal_gravity_mps2
 from tpos_cli.frames.rotation import axes_to_dcm
+from tpos_cli.quality import Finding
 
 STILL_GYRO_MAX_RPS = 0.05  # ~3 deg/s: above any MEMS turn-on bias, far below deg/s read as rad/s
 UP_ANGLE_MAX_DEG = 45.0  # the body up axis within 45 deg of vertical at rest (vehicles, hand-held starts)
@@ -71,36 +72,48 @@ def _suggest_axes(axes: str, sensor_up: int, up_positive: bool) -> str:
     return best or axes
 
 
-def check_gravity(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[str]:
-    """At rest: +g on the up axis named by `axes`, gyro norm near Earth rate + bias."""
-    out: list[str] = []
+def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[Finding]:
+    """+g on the up axis named by `axes` (at rest, else averaged over the whole log: a vehicle's or a
+    hand's accelerations average out over minutes), and a gyro norm at rest near Earth rate + bias."""
+    out: list[Finding] = []
     still = _still(t, gyro_b, acc_b)
-    if still.sum() < 50:
-        return out
-    f = acc_b[still].mean(axis=0)
-    up_b = np.array([0.0, 0.0, -1.0])  # FRD: up is -z
-    ang = np.degrees(np.arccos(np.clip(f @ up_b / np.linalg.norm(f), -1, 1)))
-    if ang > UP_ANGLE_MAX_DEG:
-        C_bs = axes_to_dcm(axes)
-        f_s = C_bs.T @ f  # back in the logged sensor axes
-        i = int(np.argmax(np.abs(f_s)))
-        sugg = _suggest_axes(axes, i, f_s[i] > 0)
-        kind = "a flipped sign or U/D swapped" if ang > 135 else "swapped axes"
-        out.append(
-            f"{name}: at rest ({still.sum()} samples) the specific force is {ang:.0f} deg from the up axis that "
-            f"axes = \"{axes}\" names; logged axis {'xyz'[i]} reads {f_s[i]:+.2f} m/s^2 (it points "
-            f"{'up' if f_s[i] > 0 else 'down'}): likely {kind}; check [imu] axes (e.g. \"{sugg}\") or the column signs"
-        )
+    at_rest = still.sum() >= 50
+    long_enough = t.size >= 50 and t[-1] - t[0] >= 10.0
+    if at_rest or long_enough:
+        f = acc_b[still].mean(axis=0) if at_rest else acc_b.mean(axis=0)
+        where = (f"at rest or moving steadily ({still.sum()} samples)" if at_rest
+                 else f"averaged over the whole log ({t.size} samples, moving)")
+        up_b = np.array([0.0, 0.0, -1.0])  # FRD: up is -z
+        ang = float(np.degrees(np.arccos(np.clip(f @ up_b / np.linalg.norm(f), -1, 1))))
+        fig = {"up_angle_deg": ang, "at_rest": bool(at_rest)}
+        if ang > UP_ANGLE_MAX_DEG:
+            C_bs = axes_to_dcm(axes)
+            f_s = C_bs.T @ f  # back in the logged sensor axes
+            i = int(np.argmax(np.abs(f_s)))
+            sugg = _suggest_axes(axes, i, f_s[i] > 0)
+            kind = "a flipped sign or U/D swapped" if ang > 135 else "swapped axes"
+            out.append(Finding("conventions.axes", "unreliable",
+                f"{name}: {where} the specific force is {ang:.0f} deg from the up axis that "
+                f"axes = \"{axes}\" names; logged axis {'xyz'[i]} reads {f_s[i]:+.2f} m/s^2 (it points "
+                f"{'up' if f_s[i] > 0 else 'down'}): likely {kind}; check [imu] axes (e.g. \"{sugg}\") or the column signs",
+                {**fig, "suggested_axes": sugg}))
+        else:
+            out.append(Finding("conventions.axes", "ok", None, fig))
     # The quietest rest period decides: a constant-rate turn can look still to the accelerometer,
     # but a log in deg/s reads high in every rest period.
     w = _quietest_rest_rate(t, gyro_b, _still(t, gyro_b, acc_b, ACC_STILL_SD_MPS2))
     if w > STILL_GYRO_MAX_RPS:
-        hint = " (it is deg/s logged as rad/s: multiply by pi/180)" if w * np.pi / 180 < STILL_GYRO_MAX_RPS else ""
-        out.append(
+        deg = w * np.pi / 180 < STILL_GYRO_MAX_RPS
+        hint = " (it is deg/s logged as rad/s: multiply by pi/180)" if deg else ""
+        out.append(Finding("conventions.gyro_rest", "unreliable" if deg else "suspect",
             f"{name}: at rest the mean gyro rate is {w:.3f} rad/s, far above the Earth rate "
-            f"({OMEGA_IE_RPS:.1e} rad/s) plus a MEMS bias (< {STILL_GYRO_MAX_RPS} rad/s){hint}"
-        )
+            f"({OMEGA_IE_RPS:.1e} rad/s) plus a MEMS bias (< {STILL_GYRO_MAX_RPS} rad/s){hint}", {"rest_rate_rps": w}))
     return out
+
+
+def check_gravity(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[str]:
+    """`gravity_findings` as warning lines."""
+    return [f.reason for f in gravity_findings(t, gyro_b, acc_b, axes, name) if f.reason]
 
 
 def tilt_gains(t, gyro_b, acc_b, smooth_s: float = 0.3):
@@ -110,28 +123,39 @@ def tilt_gains(t, gyro_b, acc_b, smooth_s: float = 0.3):
     t = np.asarray(t, float)
     dt = float(np.median(np.diff(t)))
     n = max(1, int(round(smooth_s / dt)))
-    f = _lowpass(acc_b, n)
+    # low-passed over n samples, the series keep nothing above ~1/smooth_s: every (n // 4)-th sample suffices
+    step = max(1, n // 4)
+    f = _lowpass(acc_b, n)[::step]
     u = f / np.linalg.norm(f, axis=1, keepdims=True)
-    w = _lowpass(gyro_b, n)
+    w = _lowpass(gyro_b, n)[::step]
+    t = t[::step]
+    n = max(1, n // step)
+    if t.size < 10:
+        return None
     dudt = np.gradient(u, t, axis=0)
-    # columns: u × (e_j ω_j) for j = x, y, z
-    cols = [np.cross(u, np.eye(3)[j] * w[:, j : j + 1]) for j in range(3)]
-    A = np.stack([c.reshape(-1) for c in cols], axis=1)
-    y = dudt.reshape(-1)
-    ok = np.isfinite(A).all(axis=1) & np.isfinite(y)
-    A, y = A[ok], y[ok]
-    AtA = A.T @ A
+    ok = np.isfinite(u).all(axis=1) & np.isfinite(w).all(axis=1) & np.isfinite(dudt).all(axis=1)
+    u, w, dudt = u[ok], w[ok], dudt[ok]
+    # Least squares over the stacked rows of u × (e_j ω_j) (3 rows per sample) in closed form:
+    # (u × e_j)·(u × e_l) = δ_jl - u_j u_l for a unit u, and (u × e_j)·y = ((y × u))_j
+    AtA = np.einsum("nj,nl->jl", w, w) * np.eye(3) - np.einsum("nj,nl,nj,nl->jl", w, w, u, u)
     if np.linalg.cond(AtA) > 1e8:
         return None
-    k = np.linalg.solve(AtA, A.T @ y)
-    res = y - A @ k
-    r2 = 1.0 - (res @ res) / max(y @ y, 1e-30)
+    Aty = np.einsum("nj,nj->j", w, np.cross(dudt, u))
+    yty = float(np.sum(dudt * dudt))
+    k = np.linalg.solve(AtA, Aty)
+    rss = max(yty - 2.0 * float(k @ Aty) + float(k @ AtA @ k), 0.0)
+    r2 = 1.0 - rss / max(yty, 1e-30)
     # samples are correlated over the smoothing window: inflate the SD by sqrt(n)
-    cov = np.linalg.inv(AtA) * (res @ res) / max(y.size - 3, 1) * n
+    cov = np.linalg.inv(AtA) * rss / max(3 * u.shape[0] - 3, 1) * n
     return k, np.sqrt(np.diag(cov)), r2
 
 
 def check_tilt_consistency(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 8) -> list[str]:
+    """`tilt_findings` as warning lines."""
+    return [f.reason for f in tilt_findings(t, gyro_b, acc_b, axes, name, blocks) if f.reason]
+
+
+def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 8) -> list[Finding]:
     """Gyro against the rotation of gravity seen by the accelerometer (see the module docstring).
 
     A finding must hold in most time blocks of the log, not only in the fit over all of it: a long
@@ -144,17 +168,19 @@ def check_tilt_consistency(t, gyro_b, acc_b, axes: str, name: str = "imu", block
     k, sd, r2 = res
     if r2 < 0.3:
         return []  # too little tilting, or too much linear acceleration, to judge
+    fig = {"gains": k.tolist(), "sd": sd.tolist(), "r2": float(r2)}
     if (k < -0.5).all():
-        return [f"{name}: the gyro turns the opposite way to the tilt seen by the accelerometer on all three "
-                f"axes (gains {np.array2string(k, precision=2)}): the logged frame is mirrored; two axes are "
-                "swapped or one axis sign is flipped in both gyro and accelerometer; check [imu] axes"]
+        return [Finding("conventions.tilt", "unreliable",
+                        f"{name}: the gyro turns the opposite way to the tilt seen by the accelerometer on all three "
+                        f"axes (gains {np.array2string(k, precision=2)}): the logged frame is mirrored; two axes are "
+                        "swapped or one axis sign is flipped in both gyro and accelerometer; check [imu] axes", fig)]
     dt = float(np.median(np.diff(t)))
     C_bs = axes_to_dcm(axes)
     edges = np.linspace(0, len(t), blocks + 1).astype(int)
     per_block = [tilt_gains(t[a:b], gyro_b[a:b], acc_b[a:b]) for a, b in zip(edges[:-1], edges[1:]) if b - a > 100]
     per_block = [r for r in per_block if r is not None and r[2] >= 0.3]
     if not per_block:
-        return []
+        return [Finding("conventions.tilt", "ok", None, fig)]
 
     def holds(j, test) -> bool:
         """The test holds for the whole-log fit and in at least 3/4 of the usable blocks."""
@@ -162,7 +188,7 @@ def check_tilt_consistency(t, gyro_b, acc_b, axes: str, name: str = "imu", block
         return bool(test(k[j], sd[j])) and n_ok >= max(1, int(np.ceil(0.75 * len(per_block))))
 
     deg = np.pi / 180.0
-    out: list[str] = []
+    out: list[Finding] = []
     for j in range(3):
         if sd[j] > 0.2:
             continue
@@ -171,42 +197,76 @@ def check_tilt_consistency(t, gyro_b, acc_b, axes: str, name: str = "imu", block
         # deg/s and increments put k near a small number: it must also be clearly above zero,
         # or an axis that barely tilts the device (k ~ 0 +- noise) would pass for either
         if holds(j, lambda kk, ss: abs(kk + 1) < 0.3 and ss < 0.2):
-            out.append(f"{name}: {col} turns against the tilt seen by the accelerometer (gain {k[j]:+.2f} ± {sd[j]:.2f}): its sign is flipped; negate the column")
+            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} turns against the tilt seen by the accelerometer (gain {k[j]:+.2f} ± {sd[j]:.2f}): its sign is flipped; negate the column", fig))
         elif holds(j, lambda kk, ss: abs(kk / deg - 1) < 0.3 and kk > 5 * ss):
-            out.append(f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, not rad/s; multiply by pi/180")
+            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, not rad/s; multiply by pi/180", fig))
         elif holds(j, lambda kk, ss: abs(kk * dt - 1) < 0.3 and kk > 5 * ss):
-            out.append(f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these are angle increments; divide by the interval")
+            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these are angle increments; divide by the interval", fig))
         # A generic misfit needs a log whose accelerometer sees tilt, not acceleration (r2 > 0.9):
         # a vehicle's turns tilt the specific force too (simulated drives fit r2 ~0.75 with gains ~10).
         elif r2 > 0.9 and holds(j, lambda kk, ss: abs(kk - 1) > 0.3 and ss < 0.1):
-            out.append(f"{name}: {col} disagrees with the tilt seen by the accelerometer (gain {k[j]:.2f} ± {sd[j]:.2f}, expected 1): wrong scale or axis")
-    return out
+            out.append(Finding("conventions.tilt", "suspect", f"{name}: {col} disagrees with the tilt seen by the accelerometer (gain {k[j]:.2f} ± {sd[j]:.2f}, expected 1): wrong scale or axis", fig))
+    return out or [Finding("conventions.tilt", "ok", None, fig)]
 
 
-def check_magnetometer(mag_b, lla, when, name: str = "imu") -> list[str]:
+def magnetometer_findings(mag_b, lla, when, name: str = "imu") -> list[Finding]:
     """Median field magnitude against the IGRF total field at `lla` (3,) and `when`."""
     from tpos_cli.magnetic import field_ned_ut
 
-    m = np.nanmedian(np.linalg.norm(mag_b, axis=1))
+    m = float(np.nanmedian(np.linalg.norm(mag_b, axis=1)))
     ref = float(np.linalg.norm(field_ned_ut(lla, when)))
     ratio = m / ref
+    fig = {"median_ut": m, "igrf_ut": ref, "ratio": ratio}
     if 0.7 < ratio < 1.3:
-        return []
+        return [Finding("conventions.magnetometer_units", "ok", None, fig)]
     units = {1e-3: "nT", 1e-1: "mG (milligauss)", 1e2: "gauss", 1e6: "T"}
     hint = next((f": it looks like {u} (multiply by {f:g} to get µT)" for f, u in units.items() if 0.7 < m * f / ref < 1.3), "; uncalibrated hard iron or a disturbance? try `tpos calibrate-mag`")
-    return [f"{name}: median magnetometer magnitude {m:.3g} against {ref:.1f} µT from the IGRF at the session position{hint}"]
+    return [Finding("conventions.magnetometer_units", "suspect",
+                    f"{name}: median magnetometer magnitude {m:.3g} against {ref:.1f} µT from the IGRF at the session position{hint}", fig)]
 
 
-def check_conventions(session, *, clock: bool = True) -> list[str]:
-    """All convention checks on a loaded Session; a list of warnings (empty when nothing looks wrong).
+def check_magnetometer(mag_b, lla, when, name: str = "imu") -> list[str]:
+    """`magnetometer_findings` as warning lines."""
+    return [f.reason for f in magnetometer_findings(mag_b, lla, when, name) if f.reason]
 
-    `clock=False` skips the IMU-GPS time-offset estimate (the slowest check, and a measurement of the
-    log rather than a convention error)."""
+
+COURSE_GAIN_TOL = 0.3  # |gain - 1| of a sound vertical gyro axis (simulated drives: 1.02; real drives 0.87-1.02)
+
+
+def course_findings(session) -> list[Finding]:
+    """The gyro's rotation about the vertical against the GPS course (`timeoffset.course_gain`):
+    deg/s and a flipped vertical axis found from motion, on logs without a rest period."""
+    from tpos_cli.timeoffset import session_course_gain
+
+    cg = session_course_gain(session)
+    if cg is None:
+        return []
+    fig = {"gain": cg.gain, "sd": cg.sigma, "r2": cg.r2, "windows": cg.n_windows}
+    clear = np.isfinite(cg.sigma) and cg.sigma < COURSE_GAIN_TOL / 3 and cg.r2 > 0.5
+    if clear and abs(cg.gain * 180.0 / np.pi - 1.0) < COURSE_GAIN_TOL:
+        return [Finding("conventions.course_gain", "unreliable",
+                        f"imu: the GPS course turns {cg.gain:.4f} ± {cg.sigma:.4f} times as fast as the gyro says "
+                        f"({cg.n_windows} windows while moving): the gyro is in deg/s, not rad/s; multiply by pi/180", fig)]
+    if clear and abs(cg.gain + 1.0) < COURSE_GAIN_TOL:
+        return [Finding("conventions.course_gain", "unreliable",
+                        f"imu: the gyro's rotation about the vertical is opposite to the GPS course (gain {cg.gain:.2f} ± "
+                        f"{cg.sigma:.2f}): the logged frame is mirrored or a gyro axis sign is flipped; check [imu] axes", fig)]
+    if clear and abs(cg.gain - 1.0) > COURSE_GAIN_TOL and abs(cg.gain - 1.0) > 5 * cg.sigma:
+        return [Finding("conventions.course_gain", "suspect",
+                        f"imu: the GPS course turns {cg.gain:.2f} ± {cg.sigma:.2f} times as fast as the gyro says "
+                        "(expected 1): wrong gyro scale or axes", fig)]
+    return [Finding("conventions.course_gain", "ok", None, fig)]
+
+
+def session_findings(session) -> list[Finding]:
+    """The convention checks on a loaded Session that cost little on hours of data: gravity
+    direction and magnitude, gyro at rest, tilt against gyro, course against gyro, magnetometer."""
     imu = session.imu
     t, gyro, acc = imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2
     axes = session.meta.axes
-    out = check_gravity(t, gyro, acc, axes)
-    out += check_tilt_consistency(t, gyro, acc, axes)
+    out = gravity_findings(t, gyro, acc, axes)
+    out += tilt_findings(t, gyro, acc, axes)
+    out += course_findings(session)
     pos = None
     if session.gps is not None and session.gps.valid.any():
         pos = session.gps.lla[session.gps.valid][0]
@@ -217,40 +277,147 @@ def check_conventions(session, *, clock: bool = True) -> list[str]:
         still = _still(t, gyro, acc)
         if still.sum() > 50:
             gm = float(np.linalg.norm(acc[still].mean(axis=0)))
+            fig = {"rest_norm_mps2": gm, "normal_gravity_mps2": g_ref}
             if abs(gm / g_ref - 1) > 0.05:
-                out.append(f"imu: at rest |f| = {gm:.3f} m/s^2 against normal gravity {g_ref:.3f} m/s^2 here: accelerometer scale or units are off")
+                out.append(Finding("conventions.gravity_norm", "unreliable",
+                                   f"imu: at rest |f| = {gm:.3f} m/s^2 against normal gravity {g_ref:.3f} m/s^2 here: accelerometer scale or units are off", fig))
+            else:
+                out.append(Finding("conventions.gravity_norm", "ok", None, fig))
     if imu.mag_b_ut is not None and pos is not None:
         from datetime import datetime
 
         when = session.meta.start_utc or datetime(2020, 1, 1)  # the field drifts ~0.1 %/year: close enough
-        out += check_magnetometer(imu.mag_b_ut, pos, when)
+        out += magnetometer_findings(imu.mag_b_ut, pos, when)
+    return out
+
+
+def check_conventions(session, *, clock: bool = True) -> list[str]:
+    """All convention checks on a loaded Session; a list of warnings (empty when nothing looks wrong).
+
+    `clock=False` skips the IMU-GPS time-offset estimate (the slowest check, and a measurement of the
+    log rather than a convention error)."""
+    out = [f.reason for f in session_findings(session) if f.reason]
     if clock and session.gps is not None:
         out += check_gps_clock(session)
     return out
 
 
-def check_gps_clock(session, *, max_abs_s: float = 0.05) -> list[str]:
-    """Estimate the IMU-GPS offset; warn (with the `[time] gps_offset_s` to use) when it is significant.
+CLOCK_MIN_S = 0.05  # offsets below this are not reported: below the 4-20 Hz GPS intervals' resolution
 
-    Silent when the log has too little motion to tell, when the estimate's SD exceeds `max_abs_s`,
-    or when it sits at the edge of the search range.
-    """
+
+def gps_clock_estimate(session, *, max_span_s: float | None = None, max_offset_s: float = 1.0):
+    """The IMU-GPS offset (`timeoffset.TimeOffset`) or None when the log cannot tell; with
+    `max_span_s`, estimated on the span of the log with the most turning and speed change."""
     from tpos_cli.errors import TposError
     from tpos_cli.timeoffset import estimate_session_offset
 
-    max_offset_s = 1.0
     try:
-        off = estimate_session_offset(session, max_offset_s=max_offset_s)
+        return estimate_session_offset(session, max_offset_s=max_offset_s, max_span_s=max_span_s)
     except TposError:
+        return None
+
+
+def clock_finding(off, current_s: float = 0.0, max_offset_s: float = 1.0) -> Finding | None:
+    """The raw-data clock estimate as a candidate (level ok: it becomes advice only once
+    reprocessing confirms it, `advice.py`); None when there is nothing to try."""
+    if off is None:
+        return None
+    fig = {"offset_s": off.offset_s, "sd_s": off.sigma_s, "channels": list(off.channels), "windows": off.n_used,
+           "gain_course": off.gain, "gain_along": off.gain_along}
+    significant = (off.sigma_s <= CLOCK_MIN_S and abs(off.offset_s) <= max_offset_s - 0.05
+                   and abs(off.offset_s) > max(CLOCK_MIN_S, 3 * off.sigma_s))
+    return Finding("clock.raw", "ok", None, {**fig, "candidate": bool(significant), "suggest_gps_offset_s": current_s + off.offset_s})
+
+
+def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
+    """The IMU-GPS offset measured from the raw log, as a warning line when it is significant.
+
+    A measurement, not advice: `tpos process` tries it by reprocessing and suggests it only when
+    the filter then fits the GPS better (`advice.py`)."""
+    off = gps_clock_estimate(session)
+    if off is None:
         return []
     if "course" in off.channels and off.gain < -0.5:
         return [f"gps/imu: the gyro yaw rate is opposite to the GPS course rate (gain {off.gain:.2f}): "
                 "the vertical gyro axis sign or [imu] axes U/D is wrong"]
-    if off.sigma_s > max_abs_s or abs(off.offset_s) > max_offset_s - 0.05:
+    f = clock_finding(off, _current_gps_offset(session))
+    if f is None or not f.figures["candidate"]:
         return []
-    if abs(off.offset_s) > max(max_abs_s, 3 * off.sigma_s):
-        cur = float(session.meta.time_offsets_s.get("gps_offset_s", 0.0)) if isinstance(session.meta.time_offsets_s, dict) else 0.0
-        late = "late" if off.offset_s < 0 else "early"
-        return [f"gps/imu: GPS velocity changes are time-stamped {abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s {late} against the IMU "
-                f"({' and '.join(off.channels)} from {off.n_used} GPS windows): set [time] gps_offset_s = {cur + off.offset_s:.3f}"]
-    return []
+    late = "late" if off.offset_s < 0 else "early"
+    return [f"gps/imu: GPS velocity changes are time-stamped {abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s {late} against the IMU "
+            f"({' and '.join(off.channels)} from {off.n_used} GPS windows): a GPS clock offset? `tpos process` tries "
+            f"[time] gps_offset_s = {f.figures['suggest_gps_offset_s']:.3f} and suggests it if the GPS then fits better"]
+
+
+def _current_gps_offset(session) -> float:
+    offs = session.meta.time_offsets_s
+    return float(offs.get("gps_offset_s", 0.0)) if isinstance(offs, dict) else 0.0
+
+
+def rangefinder_baselines(t_range_s, range_m, t_att_s, roll_rad, pitch_rad, yaw_rad) -> dict:
+    """The rangefinder baselines the ranges and an attitude solution imply (log-format.md geometry).
+
+    With a flat wall hit by all three beams, d1 - d3 = b13 tan(θ - θ0) and (d1 - d2) cos θ =
+    b12 tan(ψ - ψw) (exact at zero roll; the target paper's Eq. 10), θ0 and ψw the wall's
+    normal. An attitude that does not use the ranges (the gyro-only solution) gives θ and ψ, so
+    b12, b13 (and θ0, ψw) follow by robust nonlinear least squares (soft-L1 loss against beams that
+    miss the wall). SDs from the Jacobian, the residual scale and the AR(1) effective number of
+    epochs (`consistency.effective_sample_size`). Returns {"baseline_12_m": (b, sd, n), ...} for the
+    baselines the attitude moved enough to tell (at least 2 deg of that angle)."""
+    from scipy.optimize import least_squares
+
+    from tpos_cli.consistency import effective_sample_size
+
+    d = np.asarray(range_m, dtype=float)
+    t = np.asarray(t_range_s, dtype=float)
+    ok = np.isfinite(d).all(axis=1) & (t >= t_att_s[0]) & (t <= t_att_s[-1])
+    if ok.sum() < 20:
+        return {}
+    t, d = t[ok], d[ok]
+    th = np.interp(t, t_att_s, pitch_rad)
+    ps = np.interp(t, t_att_s, np.unwrap(yaw_rad))
+    out = {}
+    for key, x, y in (("baseline_13_m", th, d[:, 0] - d[:, 2]), ("baseline_12_m", ps, (d[:, 0] - d[:, 1]) * np.cos(th))):
+        if np.ptp(x) < np.radians(2.0):
+            continue
+        x0 = float(np.median(x - np.arctan(y / 0.2)))
+
+        def res(p, x=x, y=y):
+            return p[0] * np.tan(x - p[1]) - y
+
+        scale = max(1.4826 * float(np.median(np.abs(y - np.median(y)))) * 0.05, 1e-4)
+        fit = least_squares(res, [0.2, x0], loss="soft_l1", f_scale=scale)
+        r = fit.fun
+        s2 = float(np.median(r * r)) / 0.455  # median of chi2(1) is 0.455: a robust residual variance
+        J = fit.jac
+        try:
+            cov = np.linalg.inv(J.T @ J) * s2
+        except np.linalg.LinAlgError:
+            continue
+        n_eff = effective_sample_size(r)
+        sd = float(np.sqrt(cov[0, 0] * r.size / n_eff))
+        out[key] = (float(fit.x[0]), sd, int(r.size))
+    return out
+
+
+BASELINE_Z = 3.29  # two-sided 99.9 %
+
+
+def baseline_findings(session, trajectory, solution: str = "gyro") -> list[Finding]:
+    """Declared rangefinder baselines against those the ranges and the gyro-only attitude imply."""
+    rf = session.meta.rangefinders
+    if rf is None or session.ranges is None or trajectory is None or "solution" not in trajectory:
+        return []
+    tr = trajectory[trajectory["solution"] == solution]
+    if len(tr) < 10:
+        return []
+    t_att = tr["t"].to_numpy(float) - session.t0_s
+    est = rangefinder_baselines(session.ranges.t_s, session.ranges.range_m, t_att,
+                                *(np.radians(tr[c].to_numpy(float)) for c in ("roll", "pitch", "yaw")))
+    out = []
+    for key, (b, sd, n) in est.items():
+        given = float(getattr(rf, key))
+        z = abs(b - given) / sd if sd > 0 else float("inf")
+        fig = {"given_m": given, "estimate_m": b, "sd_m": sd, "epochs": n, "z": z, "candidate": bool(z > BASELINE_Z)}
+        out.append(Finding(f"conventions.{key}", "ok", None, fig))
+    return out

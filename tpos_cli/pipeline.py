@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli import __version__, timebase
+from tpos_cli.advice import review
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
@@ -144,6 +145,9 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         raise ProcessingError(f"{pipe.name} failed on {session.meta.name}: {type(exc).__name__}: {exc}") from exc
 
     result.summary.pop("config", None)  # the chain's own echo of its parameters: cfg.resolved is the record
+    with ctx.stage("quality"):  # the verdict (tpos_cli.quality); candidate fixes re-run the chain on a window
+        verdict = review(session, result, chain=pipe.chain, config=cfg.resolved, params=cfg.params, run=run,
+                         counts={**session.counts, **ctx.counts})
     resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -188,6 +192,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
             "counts": {**session.counts, **ctx.counts},
             "warnings": [*session.warnings, *ctx.warnings],
             "results": result.summary,
+            "quality": verdict.as_dict(),
             "outputs": outputs + ["summary.json"],
             "accuracy_note": ACCURACY_NOTE,
         }

@@ -166,11 +166,17 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
             return grid[i] + (0.5 * (grid[1] - grid[0]) * (J[i - 1] - J[i + 1]) / den if den > 0 else 0.0), sse
         return grid[i], sse
 
+    # coarse to fine: the cost varies over the window length (0.5 s), so a 0.05 s grid finds its
+    # basin, and 0.01 s grids (with a parabola through the best three) refine it
     step = 0.01
-    grid = np.arange(-max_offset_s, max_offset_s + step / 2, step)
+    grid = np.arange(-max_offset_s, max_offset_s + 0.025, 0.05)
     wts = dict(base_w)
     scale = np.ones(len(channels))
     best, sse = scan(grid, wts, scale)
+
+    def near(x, half_s):
+        return x + np.arange(-half_s, half_s + step / 2, step)
+
     # channel noise levels at their own best; channels that explain too little are dropped
     n_c = np.array([wts[c].sum() for c in channels])
     ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
@@ -192,13 +198,13 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
             wts[c] = base_w[c] * np.minimum(1.0, 1.0 / np.maximum(u, 1e-12))
         f = fit(best, wts)
         scale = np.array([f[c][0] / max(wts[c].sum() - f[c][1].size, 1.0) for c in channels])
-        best, _ = scan(grid, wts, scale)
+        best, _ = scan(near(best, 0.1), wts, scale)
 
     f = fit(best, wts)
     # delete-one-block jackknife over contiguous blocks of the usable windows
     idx = np.flatnonzero(inside)
     blocks = [b for b in np.array_split(idx, n_blocks) if b.size]
-    local = best + np.arange(-0.3, 0.3 + step / 2, step)
+    local = near(best, 0.1)
     reps = []
     for b in blocks:
         wb = {c: wts[c].copy() for c in channels}
@@ -213,13 +219,94 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels, r2_all)
 
 
-def estimate_session_offset(session, **kw) -> TimeOffset:
-    """`estimate_gps_time_offset` on a loaded Session (GPS times already include `[time]` offsets)."""
+def estimate_session_offset(session, *, max_span_s: float | None = None, **kw) -> TimeOffset:
+    """`estimate_gps_time_offset` on a loaded Session (GPS times already include `[time]` offsets);
+    with `max_span_s`, on the span of the log where GPS course and speed change most (`busiest_span`)."""
     g = session.gps
     if g is None:
         raise ProcessingError("time offset: the session has no GPS")
     ok = g.valid
     if ok.sum() < 3:
         raise ProcessingError("time offset: fewer than 3 GPS fixes")
+    t_g, vel = g.t_s[ok], gps_velocity(g.t_s[ok], g.lla[ok], g.vel_ned_mps[ok])
+    t, gyro, acc = session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2
+    if max_span_s is not None and t[-1] - t[0] > max_span_s:
+        a, b = busiest_span(t_g, vel, max_span_s)
+        pad = kw.get("max_offset_s", 1.0) + 1.0
+        mi = (t >= a - pad) & (t <= b + pad)
+        mg = (t_g >= a) & (t_g <= b)
+        t, gyro, acc, t_g, vel = t[mi], gyro[mi], acc[mi], t_g[mg], vel[mg]
+    return estimate_gps_time_offset(t, gyro, acc, t_g, vel, **kw)
+
+
+def busiest_span(t_gps_s, vel_ned_mps, span_s: float, min_speed_mps: float = 0.5) -> tuple[float, float]:
+    """[a, b] of length `span_s` holding the largest sum of squared GPS horizontal velocity changes
+    while moving (turns and speed changes: what times the clock)."""
+    t = np.asarray(t_gps_s, float)
+    v = np.asarray(vel_ned_mps, float)[:, :2]
+    dv = np.diff(v, axis=0)
+    e = np.where(np.isfinite(dv).all(axis=1) & (np.linalg.norm(v[1:], axis=1) > min_speed_mps), np.sum(dv * dv, axis=1), 0.0)
+    c = np.concatenate([[0.0], np.cumsum(e)])
+    j = np.searchsorted(t, t[:-1] + span_s, side="right") - 1  # last fix inside [t_i, t_i + span]
+    j = np.clip(j, 0, t.size - 1)
+    gain = c[j] - c[np.arange(t.size - 1)]
+    i = int(np.argmax(gain)) if gain.size else 0
+    a = float(t[i])
+    return a, a + span_s
+
+
+@dataclass(frozen=True)
+class CourseGain:
+    """GPS course change against the gyro's rotation about the local vertical, over the same windows."""
+
+    gain: float  # 1 for a consistent log; pi/180 for deg/s logged as rad/s; -1 for a flipped vertical axis
+    sigma: float  # block-jackknife SD
+    r2: float  # share of the course-change variance explained
+    n_windows: int
+
+
+def course_gain(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, *, min_speed_mps: float = 1.0,
+                window_s: float = 1.0, n_blocks: int = 10) -> CourseGain | None:
+    """Gain k of  s̄ Δψ_gps = k s̄ ∫ r dt  at zero time offset (module docstring, course channel, not
+    high-passed: a gyro bias of a few deg/h adds far less than a turn); None without turns while moving.
+
+    Cheap (one fit): it tells deg/s from rad/s and a flipped vertical axis on logs without rest.
+    """
+    t = np.asarray(t_imu_s, float)
+    r = vertical_rate_rps(t, gyro_b_rps, acc_b_mps2)
+    integ = np.concatenate([[0.0], np.cumsum(r[1:] * np.diff(t))])
+    vel = np.asarray(vel_ned_mps, float)
+    ok = np.isfinite(vel[:, :2]).all(axis=1)
+    if ok.sum() < 10:
+        return None
+    w = _gps_windows(np.asarray(t_gps_s, float)[ok], vel[ok], window_s, min_speed_mps)
+    use = w.ok & (w.ta > t[0]) & (w.tb < t[-1]) & (np.abs(w.d_course) < np.pi / 2)
+    if use.sum() < 20:
+        return None
+    x = w.s_mean[use] * (np.interp(w.tb[use], t, integ) - np.interp(w.ta[use], t, integ))
+    y = w.s_mean[use] * w.d_course[use]
+    if float(x @ x) <= 0 or float(y @ y) <= 0:
+        return None
+    k = float(x @ y / (x @ x))
+    res = y - k * x
+    r2 = 1.0 - float(res @ res) / float(y @ y)
+    blocks = [b for b in np.array_split(np.arange(x.size), n_blocks) if b.size]
+    reps = []
+    for b in blocks:
+        m = np.ones(x.size, bool)
+        m[b] = False
+        if float(x[m] @ x[m]) > 0:
+            reps.append(float(x[m] @ y[m] / (x[m] @ x[m])))
+    reps = np.asarray(reps)
+    sd = float(np.sqrt((reps.size - 1) / reps.size * np.sum((reps - reps.mean()) ** 2))) if reps.size > 2 else float("inf")
+    return CourseGain(k, sd, r2, int(use.sum()))
+
+
+def session_course_gain(session, **kw) -> CourseGain | None:
+    """`course_gain` on a loaded Session (None without GPS)."""
+    g = session.gps
+    if g is None or g.valid.sum() < 10:
+        return None
+    ok = g.valid
     vel = gps_velocity(g.t_s[ok], g.lla[ok], g.vel_ned_mps[ok])
-    return estimate_gps_time_offset(session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2, g.t_s[ok], vel, **kw)
+    return course_gain(session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2, g.t_s[ok], vel, **kw)

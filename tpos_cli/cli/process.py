@@ -29,14 +29,19 @@ def process(
     out: Path = typer.Option(None, "--out", "-o", help="Run directory; default runs/<session>-<pipeline>."),
     mask_gps: list[str] = typer.Option([], "--mask-gps", help="Withhold GPS in T0:T1 (logger-clock seconds); repeatable. The withheld fixes go to RUN/withheld_gps.parquet for `tpos report`."),
     set_: list[str] = typer.Option([], "--set", help="Override a pipeline parameter: section.key=value (TOML value); repeatable."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, only the final line."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars, only the final line (and the verdict when it is not ok)."),
+    strict: bool = typer.Option(False, "--strict", help="Exit 1 when the verdict is \"unreliable\" (the run directory is still written)."),
 ) -> None:
     """Process SESSION with a pipeline and write trajectory.parquet, targets.parquet (when aimed shots exist)
     and summary.json into the run directory.
 
     Outputs appear only when the run completes (written to a temporary directory, then renamed).
-    Exit code 0 means processing completed; it is NOT a claim of accuracy: read the warnings and
-    filter-health figures in summary.json and use `tpos report` against truth.
+    Every run gets a verdict, `quality` in summary.json: "ok", "suspect" or "unreliable", with a
+    reason per finding (likely cause and fix) and the figures behind it; it is printed when not ok.
+    A fix is suggested only after re-processing part of the log with it fitted the data better.
+    Exit code 0 means processing completed; it is NOT a claim of accuracy (with --strict an
+    "unreliable" verdict exits 1, and the run directory is still written). Use `tpos report`
+    against truth.
 
     Example: tpos process sample_logs/drive_outage -o runs/drive --mask-gps 50:80
     """
@@ -53,3 +58,11 @@ def process(
             typer.echo(f"warning: {w}")
     typer.echo(f"{s['session']['name']}: {s['pipeline']} -> {res.run_dir} ({', '.join(s['outputs'])}) "
                f"in {s['timings_s'].get('total', 0):.2f} s")
+    q = s.get("quality") or {}
+    verdict = q.get("verdict", "ok")
+    if verdict != "ok":
+        typer.echo(f"verdict: {verdict}", err=True)
+        for r in q.get("reasons", []):
+            typer.echo(f"  - {r}", err=True)
+    if strict and verdict == "unreliable":
+        raise typer.Exit(1)

@@ -1,0 +1,168 @@
+"""The verdict (`summary.json["quality"]`) on clean simulations, planted mistakes and the shared real logs.
+
+    python benchmarks/verdict.py                    # everything: clean + planted (3 seeds), real logs
+    python benchmarks/verdict.py --only real        # or: clean, planted
+    python benchmarks/verdict.py --seeds 601 602    # other seeds
+
+Prints one row per run: the session, the mistake planted (if any), the verdict, whether a reason
+names the planted mistake (a keyword of its cause), the time the verdict took, and the first
+reason. A planted mistake counts as caught when the run is refused with a one-line error (exit 2)
+or finishes "suspect"/"unreliable" with a reason naming it. Seeds are not those of the tests.
+
+For real logs where the verdict suggests a fix (a GPS clock offset, a lever arm), the log is
+processed again with the fix and both runs are scored with `tpos report` against the session's
+truth: the advice must not make the smoothed horizontal RMS worse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared" / "data" / "real"
+sys.path.insert(0, str(REPO))
+
+from tests.helpers import mistakes as M  # noqa: E402
+from tpos_cli.errors import TposError  # noqa: E402
+from tpos_cli.pipeline import process_session  # noqa: E402
+from tpos_cli.sim import SCENARIOS  # noqa: E402
+from tpos_cli.sim.writer import write_session  # noqa: E402
+
+LEVER_M = (1.0, 0.0, -1.5)  # antenna 1 m ahead of and 1.5 m above the IMU (FRD)
+# (kind, planter, keyword a reason must contain, simulation overrides)
+PLANTED = [
+    ("drive", M.gyro_degps, "deg/s", {}),
+    ("drive", M.acc_g, "g units", {}),
+    ("drive", M.axes("FLU"), "axes", {}),
+    ("drive", M.gps_late(0.3), "gps_offset_s", {"duration_s": 300.0, "outages": ((150.0, 30.0),)}),
+    ("drive", M.gps_late(1e6), "GPS clock", {}),
+    ("drive", M.antenna_offset(LEVER_M, LEVER_M), None, {"duration_s": 300.0, "gps_sigma_h_m": 0.3, "gps_sigma_v_m": 0.5}),
+    ("drive", M.antenna_offset(LEVER_M, [-v for v in LEVER_M]), "lever_arm", {"duration_s": 300.0, "gps_sigma_h_m": 0.3, "gps_sigma_v_m": 0.5}),
+    ("target", M.axes("RBD"), "axes", {}),
+    ("target", M.baseline("baseline_12_m", 0.25), "baseline_12_m", {}),
+    ("target", M.baseline("baseline_13_m", 0.16), "baseline_13_m", {}),
+    ("target", M.mag_disturbance(50.0, 0.5), "magnetometer", {}),
+    ("ranging", M.anchor_moved("A2", 0.0, 1.0), "A2", {}),
+    ("ranging", M.anchor_moved("A4", 0.0, -1.0), "A4", {}),
+]
+
+
+def verdict_of(session: Path, run_dir: Path) -> dict:
+    t0 = time.perf_counter()
+    try:
+        r = process_session(session, None, run_dir)
+    except TposError as exc:
+        return {"verdict": f"refused (exit {exc.exit_code})", "reasons": [str(exc)], "t_quality_s": 0.0,
+                "t_total_s": time.perf_counter() - t0}
+    q = r.summary["quality"]
+    return {"verdict": q["verdict"], "reasons": q["reasons"], "checks": q["checks"],
+            "t_quality_s": r.summary["timings_s"].get("quality", 0.0), "t_total_s": time.perf_counter() - t0}
+
+
+def row(name: str, mistake: str, v: dict, keyword: str | None) -> str:
+    named = "-"
+    if keyword is not None:
+        hit = any(keyword.lower() in x.lower() for x in v["reasons"])
+        caught = hit and (v["verdict"] in ("suspect", "unreliable") or v["verdict"].startswith("refused"))
+        named = "yes" if caught else "NO"
+    first = next((x for x in v["reasons"] if keyword and keyword.lower() in x.lower()), v["reasons"][0] if v["reasons"] else "")
+    return (f"{name:40s} {mistake:24s} {v['verdict']:15s} {named:5s} {v['t_quality_s']:6.2f} s  "
+            f"{first[:160]}")
+
+
+def simulate(kind: str, seed: int, out: Path, **kw) -> Path:
+    sim = SCENARIOS[kind](seed=seed, **kw)
+    write_session(sim, out, fmt="parquet")
+    return out
+
+
+def bench_clean_and_planted(tmp: Path, seeds, planted: bool, clean: bool) -> None:
+    print(f"{'session':40s} {'mistake':24s} {'verdict':15s} {'named':5s} {'verdict time':>8s}  first reason")
+    for seed in seeds:
+        base = {}
+        for kind in ("drive", "target", "ranging"):
+            base[kind] = simulate(kind, seed, tmp / f"{kind}_{seed}")
+            if clean:
+                v = verdict_of(base[kind], tmp / "runs" / f"{kind}_{seed}")
+                print(row(f"{kind} seed {seed}", "(clean)", v, None) + ("" if v["verdict"] == "ok" else "   <- clean run not ok"))
+        if not planted:
+            continue
+        for kind, planter, keyword, sim_kw in PLANTED:
+            src = base[kind]
+            if sim_kw:
+                key = (kind, repr(sorted(sim_kw.items())))
+                if key not in base:
+                    base[key] = simulate(kind, seed, tmp / f"{kind}_{seed}_variant{len(base)}", **sim_kw)
+                src = base[key]
+            d = M.plant(src, tmp / f"{kind}_{seed}_{planter.__name__}", planter)
+            v = verdict_of(d, tmp / "runs" / d.name)
+            print(row(f"{kind} seed {seed}" + (" (300 s)" if sim_kw.get("duration_s") else ""), planter.__name__, v, keyword))
+
+
+def _report_h_rms(run_dir: Path) -> float | None:
+    p = subprocess.run([sys.executable, "-m", "tpos_cli", "report", str(run_dir), "--json"], capture_output=True, text=True)
+    if p.returncode != 0:
+        return None
+    d = json.loads(p.stdout)
+    return next((h["rms_pos_h_m"] for h in d["headline"] if h["solution"] == "smoothed"), None)
+
+
+def bench_real(tmp: Path) -> None:
+    if not SHARED.exists():
+        print(f"no shared real logs at {SHARED}")
+        return
+    print(f"{'real log':40s} {'':24s} {'verdict':15s} {'':5s} {'verdict time':>8s}  reasons")
+    for d in sorted(p for p in SHARED.iterdir() if (p / "session.toml").exists()):
+        run = tmp / "runs" / d.name
+        v = verdict_of(d, run)
+        print(row(d.name, "", v, None))
+        for x in v["reasons"][1:]:
+            print(f"{'':93s}{x[:160]}")
+        fix = _suggested_fix(v)
+        if fix is None:
+            continue
+        section, key, value = fix
+        fixed = tmp / f"{d.name}_fixed"
+        shutil.rmtree(fixed, ignore_errors=True)
+        shutil.copytree(d, fixed)
+        M.set_toml(fixed, section, key, value)
+        process_session(fixed, None, tmp / "runs" / fixed.name)
+        before, after = _report_h_rms(run), _report_h_rms(tmp / "runs" / fixed.name)
+        print(f"{'':93s}advice [{section}] {key} = {value}: smoothed horizontal RMS against truth {before} -> {after} m"
+              + ("   <- WORSE" if before is not None and after is not None and after > before else ""))
+
+
+def _suggested_fix(v: dict):
+    for x in v["reasons"]:
+        m = re.search(r"set \[time\] gps_offset_s = (-?[0-9.]+)", x)
+        if m:
+            return "time", "gps_offset_s", m.group(1)
+        m = re.search(r"set \[gps\] lever_arm_m = (\[[^\]]*\])", x)
+        if m:
+            return "gps", "lever_arm_m", m.group(1)
+    return None
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=["clean", "planted", "real"])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[501, 502, 503])
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="tpos-verdict-") as t:
+        tmp = Path(t)
+        if a.only in (None, "clean", "planted"):
+            bench_clean_and_planted(tmp, a.seeds, planted=a.only in (None, "planted"), clean=a.only in (None, "clean"))
+        if a.only in (None, "real"):
+            bench_real(tmp)
+
+
+if __name__ == "__main__":
+    main()

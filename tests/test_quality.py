@@ -1,0 +1,270 @@
+"""The verdict: its statistics against exact distributions, and planted mistakes end to end.
+
+Oracles: chi-square and binomial distributions (scipy), numerical integration of the truncated
+chi-square, seeded Monte Carlo for the tests' false-alarm rates (tolerances from the Monte Carlo
+SD), and simulated sessions with one user mistake planted (`tests/helpers/mistakes.py`): clean
+sessions must get "ok", each planted mistake must be refused with a one-line error or end
+"suspect"/"unreliable" with a reason naming it. Seeds 41-43 are used by no other test.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import integrate, stats
+
+from tests.helpers import mistakes as M
+from tpos_cli import consistency, quality
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.pipeline import process_session
+from tpos_cli.sim import SCENARIOS
+from tpos_cli.sim.writer import write_session
+
+# ---------------------------------------------------------------------------- consistency
+
+
+def test_mean_nis_band_is_the_chi_square_band_without_a_gate():
+    dof = np.full(50, 3.0)
+    exp, lo, hi = consistency.mean_nis_band(dof, None, prob=0.95)
+    assert exp == pytest.approx(3.0)
+    assert lo == pytest.approx(stats.chi2.ppf(0.025, 150) / 50, rel=1e-9)
+    assert hi == pytest.approx(stats.chi2.ppf(0.975, 150) / 50, rel=1e-9)
+
+
+@pytest.mark.parametrize("dof,gate", [(1, 0.99), (2, 0.999), (3, 0.9)])
+def test_truncated_chi2_moments_match_integration(dof, gate):
+    c = stats.chi2.ppf(gate, dof)
+    m1 = integrate.quad(lambda x: x * stats.chi2.pdf(x, dof), 0, c)[0] / gate
+    m2 = integrate.quad(lambda x: x * x * stats.chi2.pdf(x, dof), 0, c)[0] / gate
+    mean, var = consistency.truncated_chi2_moments(dof, gate)
+    assert mean == pytest.approx(m1, rel=1e-6)
+    assert var == pytest.approx(m2 - m1 * m1, rel=1e-6)
+
+
+def test_gated_band_holds_its_false_alarm_rate():
+    # 2000 seeded runs of 200 gated 1-dof updates: the 95 % band is left about 5 % of the time
+    # (Monte Carlo SD of that rate: sqrt(0.05 * 0.95 / 2000) = 0.5 %)
+    rng = np.random.default_rng(0)
+    gate = 0.99
+    c = stats.chi2.ppf(gate, 1)
+    x = rng.chisquare(1, size=(2000, 400))
+    means = np.array([row[row <= c][:200].mean() for row in x])
+    _, lo, hi = consistency.mean_nis_band(np.ones(200), gate, prob=0.95)
+    assert np.mean((means < lo) | (means > hi)) == pytest.approx(0.05, abs=0.02)
+
+
+def test_rate_lower_bound_is_clopper_pearson():
+    ci = stats.binomtest(30, 200).proportion_ci(confidence_level=0.998, method="exact")
+    assert consistency.rate_lower_bound(30, 200, prob=0.999) == pytest.approx(ci.low, rel=1e-9)
+    assert consistency.rate_lower_bound(0, 200) == 0.0
+
+
+def test_effective_sample_size_of_ar1():
+    rng = np.random.default_rng(1)
+    rho, n = 0.8, 40000
+    e = rng.standard_normal(n)
+    x = np.empty(n)
+    x[0] = e[0]
+    for i in range(1, n):
+        x[i] = rho * x[i - 1] + e[i]
+    # lag-1 estimate SD ~ sqrt((1 - rho^2) / n) = 0.003: 5 % on (1 - rho) / (1 + rho)
+    assert consistency.effective_sample_size(x) == pytest.approx(n * (1 - rho) / (1 + rho), rel=0.05)
+    assert consistency.effective_sample_size(rng.standard_normal(5000)) == pytest.approx(5000, rel=0.1)
+
+
+def test_block_log_ratio_z_is_standard_normal_under_no_difference():
+    # two runs whose per-fix squared errors are exchangeable (serially correlated chi-square)
+    rng = np.random.default_rng(2)
+    z = []
+    for _ in range(400):
+        common = np.repeat(rng.chisquare(3, 30), 5)  # what both runs share, correlated over 5 fixes
+        b = common + rng.chisquare(1, 150)
+        c = common + rng.chisquare(1, 150)
+        z.append(consistency.block_log_ratio_z(b, c))
+    z = np.array(z)
+    # 400 draws: mean SD 0.05, SD of the SD 0.035
+    assert abs(z.mean()) < 0.2 and z.std() == pytest.approx(1.0, abs=0.15)
+    assert np.mean(z > 3.0) < 0.01
+    # a real improvement of a third is found
+    b = rng.chisquare(3, 150) + 1.0
+    assert consistency.block_log_ratio_z(b, b * 0.67) > 3.0
+
+
+# ---------------------------------------------------------------------------- quality.assess
+
+
+class _Sess:
+    """The few session attributes assess reads."""
+
+    def __init__(self, n=1000):
+        self.imu = type("I", (), {"t_s": np.arange(n) / 100.0, "mag_b_ut": None})()
+        self.gps = None
+        self.t0_s = 0.0
+
+
+def _innovations(scale: float, n: int = 300, reject_frac: float = 0.0, seed: int = 3) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    nis = scale * rng.chisquare(3, n)
+    acc = rng.random(n) >= reject_frac
+    return pd.DataFrame({"t": np.arange(n, dtype=float), "solution": "forward", "kind": "gps_pos", "nis": nis,
+                         "dof": 3, "accepted": acc})
+
+
+@pytest.mark.parametrize("scale,verdict", [(1.0, "ok"), (1.6, "suspect"), (25.0, "unreliable"), (0.5, "suspect")])
+def test_nis_levels(scale, verdict):
+    q = quality.assess(_Sess(), chain="none", tables={"innovations": _innovations(scale)})
+    assert q.verdict == verdict
+    if verdict != "ok":
+        assert any("mean NIS" in r and "forward gps_pos" in r for r in q.reasons)
+    d = q.as_dict()
+    assert set(d) == {"verdict", "reasons", "checks"} and "nis.forward.gps_pos" in d["checks"]
+
+
+def test_rejections_beyond_outliers():
+    cfg = {"drive_smooth": {"gate_probability": 0.9999}}
+    inn = _innovations(1.0, reject_frac=0.6)
+    q = quality.assess(_Sess(), chain="drive_smooth", config=cfg, tables={"innovations": inn})
+    assert q.verdict == "unreliable" and any("rejected by the gate" in r for r in q.reasons)
+    ok = quality.assess(_Sess(), chain="drive_smooth", config=cfg, tables={"innovations": _innovations(1.0, reject_frac=0.05)})
+    assert not any("rejected" in r for r in ok.reasons)
+
+
+def test_flags_use_the_effective_sample_size():
+    cfg = {"drive_smooth": {"flag_probability": 0.999}}
+    t = pd.DataFrame({"solution": "forward", "flag": np.r_[np.zeros(990, bool), np.ones(10, bool)]})
+    # ten flagged epochs in one stretch: one event, not ten independent ones
+    tables = {"innovations": _innovations(1.0)}
+    assert quality.assess(_Sess(), chain="drive_smooth", config=cfg, trajectory=t, tables=tables).verdict == "ok"
+    t["flag"] = np.tile(np.r_[np.ones(6, bool), np.zeros(4, bool)], 100)
+    q = quality.assess(_Sess(), chain="drive_smooth", config=cfg, trajectory=t, tables=tables)
+    assert q.verdict == "unreliable" and any("disagree beyond their covariances" in r for r in q.reasons)
+
+
+def test_finding_levels_are_checked():
+    with pytest.raises(ValueError):
+        quality.Finding("x", "bad")
+    q = quality.combine([quality.Finding("a", "suspect", "A"), quality.Finding("b", "unreliable", "B"), quality.Finding("c")])
+    assert q.verdict == "unreliable" and q.reasons == ("B", "A")
+
+
+# ---------------------------------------------------------------------------- planted mistakes, end to end
+
+
+@pytest.fixture(scope="module")
+def sims(tmp_path_factory):
+    root = tmp_path_factory.mktemp("verdict")
+    made = {}
+
+    def get(kind, **kw):
+        key = (kind, tuple(sorted(kw.items())))
+        if key not in made:
+            seed = {"drive": 41, "target": 42, "ranging": 43}[kind]
+            d = root / f"{kind}_{len(made)}"
+            write_session(SCENARIOS[kind](seed=seed, **kw), d, fmt="parquet")
+            made[key] = d
+        return made[key]
+
+    return get, root
+
+
+def _run(src, root, *planters):
+    d = M.plant(src, root / ("_".join(p.__name__ for p in planters) or "clean") / src.name, *planters)
+    return process_session(d, None, d.parent / f"run_{src.name}").summary["quality"]
+
+
+def _named(q, *words):
+    return q["verdict"] in ("suspect", "unreliable") and any(all(w in r for w in words) for r in q["reasons"])
+
+
+@pytest.mark.parametrize("kind", ["drive", "target"])
+def test_clean_sessions_are_ok(sims, kind):
+    get, root = sims
+    q = _run(get(kind), root)
+    assert q["verdict"] == "ok", q["reasons"]
+
+
+@pytest.mark.xfail(strict=True, reason="the ranging chain's tc/lc filters are overconfident on clean simulations "
+                                       "(range NIS ~1.1x its band, lc fix NIS above band): the ranging filter's to fix (issue 12)")
+def test_clean_ranging_session_is_ok(sims):
+    get, root = sims
+    q = _run(get("ranging"), root)
+    assert q["verdict"] == "ok", q["reasons"]
+
+
+def test_gyro_in_deg_per_s(sims):
+    get, root = sims
+    q = _run(get("drive"), root, M.gyro_degps)
+    assert q["verdict"] == "unreliable" and _named(q, "deg/s")
+
+
+def test_accelerometer_in_g_is_refused(sims):
+    get, root = sims
+    with pytest.raises(InvalidInputError, match="g units"):
+        _run(get("drive"), root, M.acc_g)
+
+
+def test_flu_on_an_frd_drive(sims):
+    get, root = sims
+    q = _run(get("drive"), root, M.axes("FLU"))
+    assert _named(q, "axes", "FRD")
+
+
+def test_flu_on_an_frd_drive_found_while_moving(sims):
+    # no rest period: the drive starts moving; gravity comes from steady driving
+    get, root = sims
+    q = _run(get("drive", static_s=0.0), root, M.axes("FLU"))
+    assert _named(q, "axes", "FRD")
+
+
+def test_upside_down_axes_on_an_observer(sims):
+    get, root = sims
+    q = _run(get("target"), root, M.axes("RBD"))
+    assert _named(q, "axes")
+
+
+def test_gps_clock_0p3_s_late(sims):
+    get, root = sims
+    q = _run(get("drive", duration_s=300.0, outages=((150.0, 30.0),)), root, M.gps_late(0.3))
+    assert _named(q, "gps_offset_s = -0.")
+    v = q["checks"]["clock"]["suggested_gps_offset_s"]
+    assert v == pytest.approx(-0.3, abs=0.05)
+
+
+def test_gps_clock_1e6_s_off(sims):
+    get, root = sims
+    q = _run(get("drive"), root, M.gps_late(1e6))
+    assert q["verdict"] == "unreliable" and _named(q, "GPS clock")
+
+
+LEVER = (1.0, 0.0, -1.5)
+
+
+def test_lever_arm_sign_flipped(sims):
+    get, root = sims
+    src = get("drive", duration_s=300.0, gps_sigma_h_m=0.3, gps_sigma_v_m=0.5)
+    assert _run(src, root / "ok", M.antenna_offset(LEVER, LEVER))["verdict"] == "ok"
+    q = _run(src, root, M.antenna_offset(LEVER, [-v for v in LEVER]))
+    assert _named(q, "lever_arm_m = [1, 0, -1.5]")
+
+
+def test_anchor_moved(sims):
+    get, root = sims
+    q = _run(get("ranging"), root, M.anchor_moved("A2", 0.0, 1.0))
+    assert _named(q, "A2", "anchors.csv")
+    est = q["checks"]["anchors"]["estimate_ne_m"]
+    assert est[1] == pytest.approx(-6.0, abs=0.5)  # back towards the true east -6 m (listed -5 m)
+
+
+@pytest.mark.parametrize("key,value", [("baseline_12_m", 0.25), ("baseline_13_m", 0.16)])
+def test_wrong_rangefinder_baseline(sims, key, value):
+    get, root = sims
+    q = _run(get("target"), root, M.baseline(key, value))
+    assert _named(q, key, "0.2")
+    assert q["checks"][f"conventions.{key}"]["estimate_m"] == pytest.approx(0.2, abs=0.005)
+
+
+def test_disturbed_magnetometer(sims):
+    get, root = sims
+    q = _run(get("target"), root, M.mag_disturbance(50.0, 0.5))
+    assert _named(q, "magnetometer", "disturbed")

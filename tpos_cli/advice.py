@@ -1,0 +1,522 @@
+"""Advice checked by reprocessing, and the verdict of a run (`review`, called by `pipeline`).
+
+A suspected mistake with a concrete fix (gyro units, a GPS clock offset, a lever arm's sign, an
+anchor's coordinates, a rangefinder baseline) is suggested only after the chain, re-run with the
+fix on a window of the log, predicts the aiding data better than the same chain re-run without it,
+by a margin that chance explains with probability below 0.135 % (z > 3, one-sided). The
+comparison is the prediction-error criterion (Ljung 1999, ch. 7): the filter's one-step
+innovations, squared (the NIS where a table has no residuals), normalized per solution and
+measurement kind by the unchanged run's mean square and summed per fix; the two runs' per-fix
+series are compared by batch means of their log ratio (`consistency.block_log_ratio_z`).
+Reprocessing runs only when a raw-data or innovation check names a candidate, and on the
+`WINDOW_S` of the log where GPS course and speed change most.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from tpos_cli import consistency, conventions, quality, timebase
+from tpos_cli.errors import TposError
+from tpos_cli.quality import Finding, Quality
+
+WINDOW_S = 300.0  # the part of a long log that is re-run for a candidate fix
+MARGIN_S = 20.0  # extra log before the window: the re-run's start-up (alignment, heading search)
+Z_ACCEPT = float(stats.norm.isf(1.0 - 0.99865))  # 3.0: one-sided 0.135 %
+LEVER_MATERIAL_SIGMAS = 3.0  # a lever-arm flip is suggested only when it moves the antenna by more
+# than this many of the solution's own horizontal position sigmas
+
+ChainRun = Callable[[object, object, object], object]  # the chain's run(session, params model, ctx) -> ChainOutput
+
+
+def crop_session(session, a_s: float, b_s: float):
+    """The session between a_s and b_s (s from its first IMU sample), re-based to start at a_s."""
+    imu = session.imu
+    m = (imu.t_s >= a_s) & (imu.t_s <= b_s)
+    i0 = int(np.argmax(m))
+    t_new0 = float(imu.t_s[i0])
+
+    def sub(obj, mask, fields):
+        return dataclasses.replace(obj, **{f: (getattr(obj, f)[mask] if getattr(obj, f) is not None else None) for f in fields})
+
+    imu2 = sub(imu, m, ("t_s", "gyro_b_rps", "acc_b_mps2", "mag_b_ut"))
+    imu2 = dataclasses.replace(imu2, t_s=imu2.t_s - t_new0)
+    rep = {"imu": imu2, "t0_s": session.t0_s + t_new0, "truth": None}
+    t_end = float(imu2.t_s[-1])
+    if session.gps is not None:
+        g = session.gps
+        mg = (g.t_s >= t_new0) & (g.t_s <= t_new0 + t_end)
+        g2 = sub(g, mg, ("t_s", "lla", "fix", "nsat", "hdop", "vel_ned_mps", "sigma_neu_m"))
+        g2 = dataclasses.replace(g2, t_s=g2.t_s - t_new0)
+        rep["gps"] = g2
+        rep["gps_outages_s"] = timebase.gps_outages(g2.t_s[g2.valid], 0.0, t_end)
+    if session.ranges is not None:
+        r = session.ranges
+        mr = (r.t_s >= t_new0) & (r.t_s <= t_new0 + t_end)
+        rep["ranges"] = dataclasses.replace(r, t_s=r.t_s[mr] - t_new0, range_m=r.range_m[mr])
+    if session.anchor_ranges is not None:
+        r = session.anchor_ranges
+        mr = (r.t_s >= t_new0) & (r.t_s <= t_new0 + t_end)
+        rep["anchor_ranges"] = dataclasses.replace(r, t_s=r.t_s[mr] - t_new0, anchor=r.anchor[mr], range_m=r.range_m[mr])
+    if session.shots is not None:
+        s = session.shots
+        ms = (s.t_start_s >= t_new0) & (s.t_end_s <= t_new0 + t_end)
+        rep["shots"] = dataclasses.replace(s, ids=tuple(np.asarray(s.ids, dtype=object)[ms]), t_start_s=s.t_start_s[ms] - t_new0,
+                                           t_end_s=s.t_end_s[ms] - t_new0)
+    gaps = np.asarray(session.imu_gaps_s, dtype=float).reshape(-1, 2)
+    rep["imu_gaps_s"] = gaps[(gaps[:, 0] >= t_new0) & (gaps[:, 1] <= t_new0 + t_end)] - t_new0
+    return dataclasses.replace(session, **rep)
+
+
+def shift_gps(session, delta_s: float):
+    """The session with its GPS times plus delta_s (as `[time] gps_offset_s` += delta_s would)."""
+    g = session.gps
+    g2 = dataclasses.replace(g, t_s=g.t_s + delta_s)
+    return dataclasses.replace(session, gps=g2, gps_outages_s=timebase.gps_outages(g2.t_s[g2.valid], 0.0, session.t_end_s))
+
+
+def with_lever_arm(session, lever_b_m):
+    """The session with another GPS lever arm (body FRD, as `SessionMeta.lever_arm_b_m`)."""
+    meta = dataclasses.replace(session.meta, lever_arm_b_m=np.asarray(lever_b_m, dtype=float))
+    return dataclasses.replace(session, meta=meta)
+
+
+@dataclasses.dataclass(frozen=True)
+class Comparison:
+    """A candidate run against the unchanged run on the same fixes."""
+
+    n_fixes: int
+    ratio: float  # candidate's summed normalized squared innovations / the unchanged run's (1 = no change)
+    z: float  # improvement in SEs (> 0: the candidate predicts the data better)
+
+    @property
+    def better(self) -> bool:
+        return bool(self.z > Z_ACCEPT and self.ratio < 1.0)
+
+
+def _per_fix(innovations: pd.DataFrame, kinds, t_shift_s: float = 0.0) -> dict:
+    """{(solution, kind): Series of squared innovation norms (the NIS where the table has no
+    residual columns) indexed by fix time in ms (shift undone) and anchor, if any}."""
+    out = {}
+    inn = innovations[innovations["kind"].isin(kinds)]
+    cols = [c for c in inn.columns if c.startswith("nu_")]
+    for key, g in inn.groupby(["solution", "kind"], sort=False):
+        e = np.nansum(g[cols].to_numpy(float) ** 2, axis=1) if cols else g["nis"].to_numpy(float)
+        t = np.round((g["t"].to_numpy(float) - t_shift_s) * 1000.0).astype(np.int64)
+        idx = pd.MultiIndex.from_arrays([t, g["anchor"].astype(str).to_numpy()]) if "anchor" in g else pd.Index(t)
+        ser = pd.Series(e, index=idx)
+        out[key] = ser[np.isfinite(ser.to_numpy())].groupby(level=list(range(idx.nlevels))).first()
+    return out
+
+
+def compare(base: pd.DataFrame, cand: pd.DataFrame, kinds=("gps_pos", "gps_vel"), cand_shift_s: float = 0.0) -> Comparison:
+    """Prediction-error comparison of two runs' innovation tables (module docstring)."""
+    eb, ec = _per_fix(base, kinds), _per_fix(cand, kinds, cand_shift_s)
+    tot_b, tot_c = None, None
+    for key in eb:
+        if key not in ec:
+            continue
+        j = eb[key].index.intersection(ec[key].index)
+        if j.size < 3:
+            continue
+        scale = float(np.mean(eb[key].loc[j])) or 1.0
+        b, c = eb[key].loc[j] / scale, ec[key].loc[j] / scale
+        tot_b = b if tot_b is None else tot_b.add(b, fill_value=0.0)
+        tot_c = c if tot_c is None else tot_c.add(c, fill_value=0.0)
+    if tot_b is None:
+        return Comparison(0, float("nan"), float("nan"))
+    j = tot_b.index.intersection(tot_c.index).sort_values()  # time order
+    b, c = tot_b.loc[j].to_numpy(), tot_c.loc[j].to_numpy()
+    return Comparison(int(j.size), float(c.sum() / b.sum()) if b.sum() > 0 else float("nan"),
+                      consistency.block_log_ratio_z(b, c))
+
+
+def _window(session) -> tuple[float, float] | None:
+    """(a, b) of the re-run window, or None when the whole log is short enough to re-run: the
+    busiest GPS span of a long drive, else the start of the log (where alignment happens)."""
+    if session.t_end_s <= WINDOW_S + MARGIN_S:
+        return None
+    g = session.gps
+    if g is None or g.valid.sum() < 10:
+        return 0.0, WINDOW_S + MARGIN_S
+    ok = g.valid
+    from tpos_cli.timeoffset import busiest_span, gps_velocity
+
+    a, b = busiest_span(g.t_s[ok], gps_velocity(g.t_s[ok], g.lla[ok], g.vel_ned_mps[ok]), WINDOW_S)
+    return max(0.0, a - MARGIN_S), min(session.t_end_s, b)
+
+
+class _Runner:
+    """Runs the chain on the advice window, caching the unchanged run."""
+
+    def __init__(self, session, output, run: ChainRun, params):
+        self.win = _window(session)
+        self.session = session if self.win is None else crop_session(session, *self.win)
+        self._run = run
+        self._params = params  # the chain's validated (frozen pydantic) parameters
+        self._base = output if self.win is None else None
+
+    def base_output(self):
+        if self._base is None:
+            self._base = self.output(self.session)
+        return self._base
+
+    def base(self) -> pd.DataFrame | None:
+        out = self.base_output()
+        return None if out is None else out.tables.get("innovations")
+
+    def output(self, session, overrides: Mapping | None = None):
+        """The chain's output on `session` with parameter `overrides` ({key: value}), None if it fails."""
+        from tpos_cli.chains.context import RunContext
+
+        params = self._params.model_copy(update=dict(overrides)) if overrides else self._params
+        try:
+            return self._run(session, params, RunContext())
+        except (TposError, np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError):
+            return None
+
+    def innovations(self, session) -> pd.DataFrame | None:
+        out = self.output(session)
+        return None if out is None else out.tables.get("innovations")
+
+    @property
+    def label(self) -> str:
+        if self.win is None:
+            return "the whole log"
+        return f"{self.win[0]:.0f}-{self.win[1]:.0f} s of the log"
+
+
+def clock_advice(session, runner: _Runner, off) -> list[Finding]:
+    """The raw-data clock estimate `off` (conventions.gps_clock_estimate) tried by reprocessing."""
+    cur = conventions._current_gps_offset(session)
+    f = conventions.clock_finding(off, cur)
+    if f is None:
+        return []
+    fig = dict(f.figures)
+    if not fig["candidate"]:
+        return [Finding("clock", "ok", None, fig)]
+    base = runner.base()
+    if base is None:
+        return [Finding("clock", "ok", None, fig)]
+    tried = []
+    best = None
+    for frac in (1.0, 0.5):
+        d = frac * off.offset_s
+        inn = runner.innovations(shift_gps(runner.session, d))
+        if inn is None:
+            continue
+        c = compare(base, inn, cand_shift_s=d)
+        tried.append({"gps_offset_s": cur + d, "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes})
+        if c.better and (best is None or c.ratio < best[1].ratio):
+            best = (d, c)
+    fig["tried"] = tried
+    fig["window"] = runner.label
+    if best is None:
+        return [Finding("clock", "ok", None, fig)]
+    d, c = best
+    late = "late" if d < 0 else "early"
+    fig["suggested_gps_offset_s"] = cur + d
+    return [Finding("clock", "suspect",
+                    f"gps/imu: the GPS is time-stamped about {abs(d):.3f} s {late} against the IMU (raw data: "
+                    f"{abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s); re-processing {runner.label} with it cuts the GPS "
+                    f"prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set [time] gps_offset_s = {cur + d:.3f} "
+                    "in session.toml", fig)]
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    z = np.zeros(w.shape[:-1] + (3, 3))
+    z[..., 0, 1], z[..., 0, 2], z[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    return z - np.swapaxes(z, -1, -2)
+
+
+def lever_arm_signature(session, output) -> dict | None:
+    """GPS velocity innovations regressed on the lever-arm velocity C_nb (ω × δl): an antenna offset
+    δl (body) missing from the model leaves this signature wherever the platform turns. Per run:
+    the correction δl = l_true - l_used (3,) it fits, with its chi-square (3 dof; large when a lever
+    arm is wrong, or when the model misfits in step with the rotation, e.g. a walker's gait). The
+    filter absorbs part of an error into its attitude and velocity: δl is shrunk towards zero."""
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    inn = output.tables.get("innovations") if output is not None else None
+    tr = output.trajectory if output is not None else None
+    if inn is None or tr is None or "gps_vel" not in set(inn["kind"]):
+        return None
+    out = {}
+    t_imu = session.imu.t_s + session.t0_s
+    for sol in ("forward", "backward"):
+        g = inn[(inn["solution"] == sol) & (inn["kind"] == "gps_vel")]
+        f = tr[tr["solution"] == sol].sort_values("t")
+        if len(g) < 10 or len(f) < 2:
+            continue
+        t = g["t"].to_numpy(float)
+        ang = [np.interp(t, f["t"], np.unwrap(np.radians(f[c].to_numpy(float)))) for c in ("roll", "pitch", "yaw")]
+        C = euler_to_dcm(*ang)
+        w = np.column_stack([np.interp(t, t_imu, session.imu.gyro_b_rps[:, j]) for j in range(3)])
+        A = C @ _skew(w)
+        nu = g[["nu_0", "nu_1", "nu_2"]].to_numpy(float)
+        ok = np.isfinite(nu).all(axis=1)
+        if ok.sum() < 10:
+            ok = np.isfinite(nu[:, :2]).all(axis=1)
+            A, nu = A[:, :2, :], nu[:, :2]
+        # the innovation is INS minus GPS (fusion.nav_errors): nu = C (w x (l_used - l_true)), so the
+        # fitted coefficient is minus the correction l_true - l_used
+        A, y = A[ok].reshape(-1, 3), -nu[ok].reshape(-1)
+        AtA = A.T @ A
+        if np.linalg.cond(AtA) > 1e10:
+            continue
+        x = np.linalg.solve(AtA, A.T @ y)
+        r = y - A @ x
+        cov = np.linalg.inv(AtA) * float(r @ r) / max(y.size - 3, 1)
+        chi = float(x @ np.linalg.solve(cov, x))
+        out[sol] = {"correction_m": x.tolist(), "sd_m": np.sqrt(np.diag(cov)).tolist(), "chi2": chi}
+    return out or None
+
+
+def _position_sigma_m(trajectory: pd.DataFrame | None) -> float:
+    """Median horizontal position sigma of the run's best solution (smoothed, else forward)."""
+    if trajectory is None or "sigma_n" not in trajectory:
+        return float("nan")
+    for sol in ("smoothed", "forward"):
+        t = trajectory[trajectory["solution"] == sol]
+        if len(t):
+            return float(np.nanmedian(np.hypot(t["sigma_n"], t["sigma_e"]) / np.sqrt(2.0)))
+    return float("nan")
+
+
+def lever_arm_advice(session, output, runner: _Runner) -> list[Finding]:
+    """A flipped lever-arm sign, looked for when the velocity innovations carry its signature."""
+    sig = lever_arm_signature(session, output)
+    if sig is None:
+        return []
+    lever = np.asarray(session.meta.lever_arm_b_m, dtype=float)
+    thr = float(stats.chi2.isf(1.0 - 0.999, 3))
+    flip = -2.0 * lever  # the correction a flipped sign needs
+    # fired: significant in a run, and pointing the way a flipped sign would (a positive share of -2 l)
+    fired = [s for s, v in sig.items() if v["chi2"] > thr and float(np.dot(v["correction_m"], flip)) > 0]
+    sigma_h = _position_sigma_m(output.trajectory)
+    fig = {"signature": sig, "chi2_limit": thr, "lever_arm_m": lever.tolist(), "position_sigma_m": sigma_h}
+    # a flip that moves the antenna by less than 3 sigmas of the solution cannot be told from noise
+    # in what the user gets, so it is not worth an edit (nor a re-run)
+    if not fired or not np.linalg.norm(flip) > LEVER_MATERIAL_SIGMAS * sigma_h:
+        return [Finding("lever_arm", "ok", None, fig)]
+    base = runner.base()
+    inn = runner.innovations(with_lever_arm(runner.session, -lever)) if base is not None else None
+    if inn is None:
+        return [Finding("lever_arm", "ok", None, fig)]
+    c = compare(base, inn)
+    fig["tried"] = [{"lever_arm_m": (-lever).tolist(), "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes}]
+    fig["window"] = runner.label
+    if not c.better:
+        return [Finding("lever_arm", "ok", None, fig)]
+    logged = session.meta.raw.get("gps", {}).get("lever_arm_m") if isinstance(session.meta.raw, Mapping) else None
+    shown = 0.0 - (np.asarray(logged, dtype=float) if logged is not None else lever)  # 0.0 - : no "-0"
+    fig["suggested_lever_arm_m"] = shown.tolist()
+    return [Finding("lever_arm", "suspect",
+                    f"gps: the lever arm's sign looks flipped (the GPS velocities carry an antenna-offset signature, chi2 "
+                    f"{max(v['chi2'] for v in sig.values()):.0f} > {thr:.0f}); re-processing {runner.label} with it negated "
+                    f"cuts the GPS prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set [gps] lever_arm_m = "
+                    f"[{', '.join(f'{v:g}' for v in shown)}] (antenna minus IMU, in the IMU's logged axes)", fig)]
+
+
+def _lf2_excluded(output) -> float:
+    faults = (getattr(output, "summary", None) or {}).get("faults") or {}
+    return float((faults.get("lf2") or {}).get("excluded_fraction", float("nan")))
+
+
+def baseline_advice(session, output, runner: _Runner) -> list[Finding]:
+    """Rangefinder baselines estimated from the ranges and the gyro-only attitude
+    (`conventions.baseline_findings`), suggested when re-processing with them ends the federated
+    filter's exclusion of LF2 (the fault detector's verdict that LF2 disagrees with LF1)."""
+    fs = conventions.baseline_findings(session, getattr(output, "trajectory", None))
+    cands = {f.check.split(".")[-1]: f.figures["estimate_m"] for f in fs if f.figures.get("candidate")}
+    if not cands:
+        return fs
+    before = _lf2_excluded(runner.base_output())
+    rf = dataclasses.replace(session.meta.rangefinders, **cands)
+    trial = runner.output(dataclasses.replace(runner.session, meta=dataclasses.replace(runner.session.meta, rangefinders=rf)))
+    after = _lf2_excluded(trial)
+    fig = {"candidates_m": cands, "lf2_excluded_before": before, "lf2_excluded_after": after, "window": runner.label}
+    if not (before > quality.DISTURBED_ALLOWANCE and after <= quality.DISTURBED_ALLOWANCE):
+        return [*fs, Finding("baseline", "ok", None, fig)]
+    given = {k: float(getattr(session.meta.rangefinders, k)) for k in cands}
+    est = {f.check.split(".")[-1]: f.figures for f in fs}
+    what = "; ".join(f"{k} = {given[k]:g} but the ranges and the gyro say {v:.4f} ± {est[k]['sd_m']:.4f}" for k, v in cands.items())
+    sets = ", ".join(f"{k} = {v:.3f}" for k, v in cands.items())
+    return [*fs, Finding("baseline", "suspect",
+                         f"rangefinders: {what}: a wrong baseline in session.toml; re-processing {runner.label} with it "
+                         f"ends the fusion's exclusion of LF2 ({100 * before:.0f} % -> {100 * after:.0f} % of the log): "
+                         f"set [rangefinders] {sets}", fig)]
+
+
+RANGE_KINDS = ("range",)
+
+
+def _range_score(innovations: pd.DataFrame | None) -> float:
+    """Median NIS of the scalar range updates over the median of chi-square(1) (0.455): 1 when
+    consistent, robust to the NLOS spikes the gate rejects."""
+    if innovations is None:
+        return float("inf")
+    r = innovations[innovations["kind"].isin(RANGE_KINDS)]["nis"].to_numpy(float)
+    r = r[np.isfinite(r)]
+    return float(np.median(r) / stats.chi2.median(1)) if r.size else float("inf")
+
+
+def _without_anchor(session, i: int):
+    ar = session.anchor_ranges
+    keep = ar.anchor != i
+    return dataclasses.replace(session, anchor_ranges=dataclasses.replace(ar, t_s=ar.t_s[keep], anchor=ar.anchor[keep],
+                                                                          range_m=ar.range_m[keep]))
+
+
+def _with_anchor_at(session, i: int, ned_m):
+    from tpos_cli.frames.geodetic import ned_to_lla
+
+    a = session.anchors
+    ned = a.ned_m.copy()
+    ned[i] = ned_m
+    lla = a.lla.copy()
+    lla[i] = ned_to_lla(np.asarray(ned_m, dtype=float), a.origin_lla)
+    return dataclasses.replace(session, anchors=dataclasses.replace(a, ned_m=ned, lla=lla))
+
+
+def locate_anchor(session, output, i: int, model: Mapping | None):
+    """Anchor i's north/east (its height as given) from a run that did not use it: robust least
+    squares of its ranges (corrected by the range model, measured = f true + c) against the run's
+    positions at the range times. Returns (ned (3,), sd_ne (2,), n) or None."""
+    from scipy.optimize import least_squares
+
+    from tpos_cli.frames.geodetic import lla_to_ned
+
+    tr = getattr(output, "trajectory", None)
+    if tr is None:
+        return None
+    sols = [s for s in ("smoothed", "fatci", "tc", "lc") if (tr["solution"] == s).any()]
+    if not sols:
+        return None
+    f = tr[tr["solution"] == sols[0]].sort_values("t")
+    ar = session.anchor_ranges
+    m = (ar.anchor == i) & np.isfinite(ar.range_m)
+    t = ar.t_s[m] + session.t0_s
+    inside = (t >= f["t"].iloc[0]) & (t <= f["t"].iloc[-1])
+    if inside.sum() < 20:
+        return None
+    t, r = t[inside], ar.range_m[m][inside]
+    aid = session.anchors.ids[i]
+    coef = ((model or {}).get("anchors") or {}).get(aid) or {}
+    r = (r - float(coef.get("c_m", 0.0))) / float(coef.get("f", 1.0))
+    ned = lla_to_ned(f[["lat", "lon", "h"]].to_numpy(float), session.anchors.origin_lla)
+    p = np.column_stack([np.interp(t, f["t"], ned[:, j]) for j in range(3)])
+    a0 = session.anchors.ned_m[i].astype(float)
+
+    def res(x):
+        return np.linalg.norm(p - np.array([x[0], x[1], a0[2]]), axis=1) - r
+
+    scale = max(1.4826 * float(np.median(np.abs(res(a0[:2]) - np.median(res(a0[:2]))))), 0.01)
+    fit = least_squares(res, a0[:2], loss="soft_l1", f_scale=scale)
+    s2 = float(np.median(fit.fun**2)) / stats.chi2.median(1)
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * s2 * r.size / consistency.effective_sample_size(fit.fun)
+    except np.linalg.LinAlgError:
+        return None
+    return np.array([fit.x[0], fit.x[1], a0[2]]), np.sqrt(np.diag(cov)), int(r.size)
+
+
+def anchor_advice(session, output, runner: _Runner, gate_probability: float | None) -> list[Finding]:
+    """A moved anchor: when the range updates fail their NIS or rejection checks, each anchor is
+    left out in turn (re-processing); the one whose absence makes the rest most consistent is
+    located from that run, and its new coordinates are suggested when re-processing with them
+    predicts the ranges better than the coordinates given (`compare` on the range NIS)."""
+    inn = output.tables.get("innovations") if output is not None else None
+    if inn is None or session.anchors is None or session.anchor_ranges is None:
+        return []
+    fired = [f for f in quality.nis_findings(inn, gate_probability) if f.level != "ok" and f.check in ("nis", "rejections")]
+    score_all = _range_score(inn)
+    fig: dict = {"range_score": score_all}
+    if not fired or len(session.anchors.ids) < 4:
+        return [Finding("anchors", "ok", None, fig)]
+    base = runner.base_output()
+    scores = {}
+    runs = {}
+    for i, aid in enumerate(session.anchors.ids):
+        # three anchors still give a horizontal fix (the floor height is known)
+        out = runner.output(_without_anchor(runner.session, i), {"lc_min_anchors": 3})
+        runs[i] = out
+        scores[aid] = _range_score(None if out is None else out.tables.get("innovations"))
+    fig["range_score_without"] = scores
+    i_best = int(np.argmin([scores[a] for a in session.anchors.ids]))
+    aid = session.anchors.ids[i_best]
+    if not scores[aid] < score_all or runs[i_best] is None:
+        return [Finding("anchors", "ok", None, fig)]
+    loc = locate_anchor(runner.session, runs[i_best], i_best, (output.summary or {}).get("range_model"))
+    if loc is None:
+        return [Finding("anchors", "ok", None, fig)]
+    ned, sd, n = loc
+    trial = runner.output(_with_anchor_at(runner.session, i_best, ned))
+    c = compare(base.tables.get("innovations"), None if trial is None else trial.tables.get("innovations"),
+                kinds=RANGE_KINDS) if trial is not None else Comparison(0, float("nan"), float("nan"))
+    given = session.anchors.ned_m[i_best]
+    fig.update({"anchor": aid, "given_ne_m": [float(given[0]), float(given[1])], "estimate_ne_m": [float(ned[0]), float(ned[1])],
+                "sd_ne_m": sd.tolist(), "ranges": n, "ratio": c.ratio, "z": c.z, "window": runner.label})
+    if not c.better:
+        return [Finding("anchors", "ok", None, fig)]
+    moved = float(np.hypot(*(ned[:2] - given[:2])))
+    return [Finding("anchors", "suspect",
+                    f"anchors: {aid}'s ranges disagree with the other anchors (leaving it out brings the range NIS from "
+                    f"{score_all:.1f}x to {scores[aid]:.1f}x its expectation); they put it {moved:.2f} m from its listed "
+                    f"position, at e = {ned[1]:.2f}, n = {ned[0]:.2f} m (± {max(sd):.2f}); re-processing with that cuts the "
+                    f"range NIS by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): re-survey {aid} or correct anchors.csv", fig)]
+
+
+def with_gyro_scale(session, factor: float):
+    """The session with its gyro samples times `factor` (deg/s read as rad/s: factor pi/180)."""
+    imu = dataclasses.replace(session.imu, gyro_b_rps=session.imu.gyro_b_rps * factor)
+    return dataclasses.replace(session, imu=imu)
+
+
+def units_advice(session, output, runner: _Runner, gate_probability: float | None) -> list[Finding]:
+    """Gyro units: when the filter's errors dwarf its sigmas (an unreliable NIS), the log is re-run
+    with the gyro read as deg/s; the named cause is given when that predicts the GPS far better."""
+    inn = output.tables.get("innovations") if output is not None else None
+    if inn is None:
+        return []
+    bad = [f for f in quality.nis_findings(inn, gate_probability) if f.check == "nis" and f.level == "unreliable"]
+    if not bad:
+        return []
+    base = runner.base()
+    trial = runner.innovations(with_gyro_scale(runner.session, np.pi / 180.0)) if base is not None else None
+    if trial is None:
+        return []
+    c = compare(base, trial)
+    fig = {"tried": [{"gyro_scale": np.pi / 180.0, "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes}], "window": runner.label}
+    if not c.better:
+        return [Finding("units", "ok", None, fig)]
+    return [Finding("units", "unreliable",
+                    f"imu: the gyro is in deg/s, not rad/s: re-processing {runner.label} with it times pi/180 cuts the GPS "
+                    f"prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): convert gyro_x/y/z to rad/s", fig)]
+
+
+def review(session, output, *, chain: str, config: Mapping | None, params, run: ChainRun,
+           counts: Mapping | None = None) -> Quality:
+    """The verdict of a run: convention checks on the session, the chain's own statistics
+    (`quality.assess`), and candidate fixes tried by re-running the chain's `run` with `params`."""
+    findings = list(conventions.session_findings(session))
+    if chain == "drive_smooth" and session.gps is not None and output is not None:
+        runner = _Runner(session, output, run, params)
+        off = conventions.gps_clock_estimate(session, max_span_s=WINDOW_S)
+        gate = ((config or {}).get(chain) or {}).get("gate_probability")
+        findings += units_advice(session, output, runner, gate)
+        findings += clock_advice(session, runner, off)
+        findings += lever_arm_advice(session, output, runner)
+    if chain == "ranging_fatci" and output is not None:
+        gate = ((config or {}).get(chain) or {}).get("gate_probability")
+        findings += anchor_advice(session, output, _Runner(session, output, run, params), gate)
+    if chain == "target_fkf" and output is not None:
+        findings += baseline_advice(session, output, _Runner(session, output, run, params))
+    return quality.assess(session, chain=chain, config=config, trajectory=getattr(output, "trajectory", None),
+                          tables=getattr(output, "tables", None), results=getattr(output, "summary", None),
+                          counts=counts, findings=findings)

@@ -1,0 +1,300 @@
+"""The verdict on a run: "ok", "suspect" or "unreliable", with one-line reasons and the figures behind them.
+
+Pure: the chain's tables and summary (and the session they came from) in, a frozen `Quality` out;
+`Quality.as_dict()` is `summary.json["quality"]`. Every test asks whether a figure is plausible
+for a consistent filter on sound data (`consistency`), at a false-alarm probability of 0.1 % per
+test, never against values seen on particular logs:
+
+- `nis`: the mean NIS of each solution's updates of each kind against its band for that number of
+  updates and the chain's gate (`consistency.mean_nis_band`). Outside: suspect. Unreliable when the
+  mean is also more than 9 times its expectation: the errors are then over 3 times the sigmas, so
+  the written sigmas (and anything computed from them) are meaningless.
+- `rejections`: rejected updates against Binomial(n, 1 - gate). Real environments have outliers
+  (multipath, NLOS ranges): suspect only when the rate is, at 99.9 % confidence (Clopper-Pearson),
+  above `OUTLIER_ALLOWANCE` on top of the gate's own rate; unreliable when more than half of the
+  updates are rejected: the filter no longer follows its aiding.
+- `mounting`: the chain's course-against-yaw check while moving (a sideways or reversed IMU).
+- `fusion`: a local filter the federated fusion left out for more than `DISTURBED_ALLOWANCE`.
+- `flags`: epochs where the forward and backward runs disagree beyond their covariances (the
+  chain's `flag` column, tested at its `flag_probability`), counted with the AR(1) effective
+  sample size of the flag series: suspect when significantly more than the flag rate;
+  unreliable when more than half of the epochs are flagged.
+- `aiding`: a chain that needs GPS, anchor ranges or rangefinders but used none (e.g. a GPS clock
+  1e6 s off puts every fix outside the IMU log): unreliable.
+- `magnetometer`: the share of magnetometer samples the attitude filter rejected as disturbed.
+- convention findings (`conventions.session_findings`: units, axes, clock, magnetometer, baselines)
+  and verified advice (`advice`) arrive as `Finding`s and are merged as they are.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli import consistency
+
+LEVELS = ("ok", "suspect", "unreliable")
+UNRELIABLE_NIS_RATIO = 9.0  # mean NIS / expected: errors 3x their sigmas
+OUTLIER_ALLOWANCE = 0.25  # share of updates a field log may lose to outliers (multipath, NLOS): an
+# update built from several measurements is an outlier if any of them is (a fix from 4 ranges with
+# 3 % NLOS each: 11 %); more than a quarter rejected is a filter that disagrees with its data
+DISTURBED_ALLOWANCE = 0.05  # share of samples a sound, calibrated magnetometer (or a sound local
+# filter of the federated fusion) may fall outside the filter's own tolerances
+MAJORITY = 0.5
+# d.o.f. of innovation kinds whose table has no `dof` column (ranging: scalar ranges, north-east fixes)
+KIND_DOF = {"range": 1, "fix": 2}
+# chain -> (parameter holding the gate probability, parameter holding the flag probability)
+_GATES = {"drive_smooth": ("gate_probability", "flag_probability"),
+          "ranging_fatci": ("gate_probability", None),
+          "target_fkf": ("range_gate_probability", None)}
+# chain -> what aiding it needs, as the innovation kinds that show it was used
+_AIDING = {"drive_smooth": ("gps", ("gps_pos", "gps_vel")), "ranging_fatci": ("anchor ranges", ("range", "fix"))}
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One check's outcome: its level, a one-line reason (cause and fix) when not ok, its figures."""
+
+    check: str
+    level: str = "ok"
+    reason: str | None = None
+    figures: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.level not in LEVELS:
+            raise ValueError(f"level {self.level!r} is not one of {LEVELS}")
+
+
+@dataclass(frozen=True)
+class Quality:
+    verdict: str
+    reasons: tuple[str, ...]
+    checks: Mapping[str, dict]
+    findings: tuple[Finding, ...] = ()
+
+    def as_dict(self) -> dict:
+        """`summary.json["quality"]` (numpy values are converted where the summary is written)."""
+        return {"verdict": self.verdict, "reasons": list(self.reasons), "checks": {k: dict(v) for k, v in self.checks.items()}}
+
+
+def combine(findings: Iterable[Finding]) -> Quality:
+    """The worst level decides; reasons listed worst first; figures grouped by check name."""
+    fs = list(findings)
+    worst = max((LEVELS.index(f.level) for f in fs), default=0)
+    reasons = []
+    for lvl in reversed(LEVELS[1:]):
+        for f in fs:
+            if f.level == lvl and f.reason and f.reason not in reasons:
+                reasons.append(f.reason)
+    checks: dict = {}
+    for f in fs:
+        entry = checks.setdefault(f.check, {})
+        if f.figures:
+            entry.update(f.figures)
+        if f.level != "ok":
+            entry["level"] = max(entry.get("level", "ok"), f.level, key=LEVELS.index)
+    return Quality(LEVELS[worst], tuple(reasons), checks, tuple(fs))
+
+
+def _param(config: Mapping | None, chain: str, key: str | None, default=None):
+    if not key or not config:
+        return default
+    sec = config.get(chain) or {}
+    return sec.get(key, default)
+
+
+def nis_findings(innovations: pd.DataFrame | None, gate_probability: float | None) -> list[Finding]:
+    """Mean NIS and rejections per solution and kind (module docstring); one reason line per kind
+    of failure, naming every solution and measurement kind it concerns."""
+    if innovations is None or innovations.empty or "nis" not in innovations:
+        return []
+    inn = innovations.reset_index(drop=True)
+    dof_all = inn["dof"].to_numpy(float) if "dof" in inn else inn["kind"].map(KIND_DOF).to_numpy(float)
+    out = []
+    high, low, rej = [], [], []
+    p_rej = 1.0 - gate_probability if gate_probability is not None else 0.0
+    for (sol, kind), idx in inn.groupby(["solution", "kind"], sort=False).groups.items():
+        i = np.asarray(idx, dtype=np.int64)
+        nis = inn["nis"].to_numpy(float)[i]
+        dof = dof_all[i]
+        acc = inn["accepted"].fillna(False).to_numpy(bool)[i] if "accepted" in inn else np.ones(i.size, bool)
+        ok = np.isfinite(nis) & np.isfinite(dof) & (dof > 0)
+        n, a = int(ok.sum()), ok & acc
+        if n == 0:
+            continue
+        name = f"{sol} {kind}"
+        m = consistency.mean_chi2(nis[a], dof[a], gate_probability=gate_probability)
+        fig = {"n": n, "n_accepted": int(a.sum()), "dof": float(np.median(dof[ok])), "mean_nis": m.mean,
+               "expected": m.expected, "band": [m.lo, m.hi], "ratio": m.ratio}
+        level = "ok"
+        if a.sum() and not m.inside:
+            if m.ratio > 1:
+                level = "unreliable" if m.ratio > UNRELIABLE_NIS_RATIO else "suspect"
+                high.append((level, f"{name} {m.mean:.3g} (band {m.lo:.2f}-{m.hi:.2f}, {int(a.sum())} updates: errors "
+                                    f"~{np.sqrt(m.ratio):.1f}x the sigmas)"))
+            else:
+                level = "suspect"
+                low.append((level, f"{name} {m.mean:.3g} (band {m.lo:.2f}-{m.hi:.2f}, {int(a.sum())} updates)"))
+        out.append(Finding(f"nis.{sol}.{kind}", level, None, fig))
+        k = int((ok & ~acc).sum())
+        lb = consistency.rate_lower_bound(k, n)
+        pval = consistency.binomial_excess(k, n, p_rej)
+        rfig = {"n": n, "rejected": k, "fraction": k / n, "expected": p_rej, "lower_bound": lb, "p_value": pval}
+        level = "ok"
+        if pval < 1.0 - consistency.SUSPECT_PROB and lb > p_rej + OUTLIER_ALLOWANCE:
+            level = "unreliable" if lb > MAJORITY else "suspect"
+            rej.append((level, f"{name} {k} of {n} ({100 * k / n:.0f} %, at least {100 * lb:.0f} % at 99.9 % confidence)"))
+        out.append(Finding(f"rejections.{sol}.{kind}", level, None, rfig))
+
+    def group(items, check, text):
+        if items:
+            worst = max((lv for lv, _ in items), key=LEVELS.index)
+            out.append(Finding(check, worst, text.format("; ".join(x for _, x in items))))
+
+    group(high, "nis", "mean NIS above its band: {}: the filter's sigmas understate its errors")
+    group(low, "nis", "mean NIS below its band: {}: the filter's measurement or process noise is set too large "
+                      "(pessimistic sigmas)")
+    group(rej, "rejections", "updates rejected by the gate beyond the outliers a field log has: {} (the gate "
+                             f"alone rejects {100 * p_rej:.2g} %): the filter and its data disagree")
+    return out
+
+
+def mounting_findings(results: Mapping | None) -> list[Finding]:
+    """The chain's mounting check (course over ground against yaw while moving)."""
+    m = (results or {}).get("mounting_check")
+    if not isinstance(m, Mapping) or "warning" not in m:
+        return []
+    fig = {k: v for k, v in m.items() if k != "message"}
+    if not m["warning"]:
+        return [Finding("mounting", "ok", None, fig)]
+    off = float(m.get("course_minus_yaw_median_deg", float("nan")))
+    return [Finding("mounting", "suspect",
+                    f"mounting: while moving, course over ground minus yaw is {off:+.0f} deg (spread "
+                    f"{float(m.get('spread_deg', float('nan'))):.0f} deg): the IMU's forward axis is turned about {-off:+.0f} deg "
+                    "from the direction of travel, so the attitude is the IMU's, not the vehicle's; check [imu] axes or "
+                    "set [imu] mounting_rpy_deg (a car has little sideslip; a walker or hand-held unit may point elsewhere)", fig)]
+
+
+def flag_findings(trajectory: pd.DataFrame | None, flag_probability: float | None) -> list[Finding]:
+    """Forward/backward disagreement flags (the chain's `flag` column) against the flag rate."""
+    if trajectory is None or "flag" not in trajectory or flag_probability is None:
+        return []
+    sol = "forward" if "solution" in trajectory and (trajectory["solution"] == "forward").any() else None
+    f = trajectory.loc[trajectory["solution"] == sol, "flag"] if sol else trajectory["flag"]
+    flag = f.fillna(False).to_numpy(bool)
+    n = flag.size
+    if n == 0:
+        return []
+    k = int(flag.sum())
+    n_eff = consistency.effective_sample_size(flag.astype(float)) if 0 < k < n else float(n)
+    if k == n:
+        n_eff = 1.0
+    frac = k / n
+    k_eff = int(round(frac * n_eff))
+    p0 = 1.0 - flag_probability
+    pval = consistency.binomial_excess(k_eff, max(int(round(n_eff)), 1), p0)
+    lb = consistency.rate_lower_bound(k_eff, max(int(round(n_eff)), 1))
+    fig = {"epochs": n, "flagged": k, "fraction": frac, "expected": p0, "effective_epochs": n_eff, "p_value": pval,
+           "lower_bound": lb}
+    level, reason = "ok", None
+    if pval < 1.0 - consistency.SUSPECT_PROB:
+        level = "unreliable" if lb > MAJORITY else "suspect"
+        reason = (f"forward and backward runs disagree beyond their covariances at {100 * frac:.0f} % of epochs "
+                  f"(expected {100 * p0:.2g} %): the filter's sigmas are too small for this log, so positions may be "
+                  "off by more than their sigmas")
+    return [Finding("flags", level, reason, fig)]
+
+
+def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> list[Finding]:
+    """A chain that needs aiding but used none; GPS fixes outside the IMU log."""
+    out = []
+    g = getattr(session, "gps", None)
+    if g is not None and g.valid.any():
+        t = g.t_s[g.valid]
+        t_imu = session.imu.t_s
+        inside = (t >= t_imu[0]) & (t <= t_imu[-1])
+        fig = {"fixes": int(t.size), "inside_imu_log": int(inside.sum()), "gps_t_s": [float(t[0] + session.t0_s), float(t[-1] + session.t0_s)],
+               "imu_t_s": [float(t_imu[0] + session.t0_s), float(t_imu[-1] + session.t0_s)]}
+        if inside.mean() < MAJORITY:
+            off = float(np.median(t_imu) - np.median(t))
+            level = "unreliable" if chain == "drive_smooth" else "suspect"
+            out.append(Finding("aiding.gps_time", level,
+                               f"gps: {int(t.size - inside.sum())} of {t.size} fixes (t {fig['gps_t_s'][0]:.1f}-{fig['gps_t_s'][1]:.1f} s) "
+                               f"fall outside the IMU log ({fig['imu_t_s'][0]:.1f}-{fig['imu_t_s'][1]:.1f} s): the GPS clock is off by "
+                               f"about {off:+.4g} s (another time scale, time zone or epoch?); fix the gps t column or set [time] gps_offset_s",
+                               {**fig, "offset_estimate_s": off}))
+        else:
+            out.append(Finding("aiding.gps_time", "ok", None, fig))
+    if chain in _AIDING:
+        what, kinds = _AIDING[chain]
+        used = 0
+        if innovations is not None and not innovations.empty and "kind" in innovations:
+            m = innovations["kind"].isin(kinds)
+            if "accepted" in innovations:
+                m &= innovations["accepted"].fillna(False).astype(bool)
+            used = int(m.sum())
+        level = "ok" if used else "unreliable"
+        out.append(Finding("aiding.used", level,
+                           None if used else f"no {what} measurement was used: the solution is dead reckoning from the IMU alone "
+                           "(see the other reasons; check the aiding files and their time column)", {"updates_accepted": used}))
+    return out
+
+
+def magnetometer_findings(counts: Mapping | None, imu_samples: int, has_mag: bool) -> list[Finding]:
+    """The attitude filter's magnetometer rejections (samples outside its field-norm/dip tolerance)."""
+    if not has_mag or not counts or "mag_samples_rejected" not in counts or imu_samples <= 0:
+        return []
+    k = int(counts["mag_samples_rejected"])
+    frac = k / imu_samples
+    fig = {"rejected": k, "samples": imu_samples, "fraction": frac}
+    if frac > DISTURBED_ALLOWANCE:
+        return [Finding("magnetometer.rejected", "suspect",
+                        f"magnetometer: the attitude filter rejected {100 * frac:.0f} % of its samples as disturbed (field "
+                        "norm or dip off): a magnet, steel or electronics near the sensor; heading there rests on the gyro "
+                        "(and LF2); keep magnets away, or run `tpos calibrate-mag` if the disturbance moves with the device",
+                        fig)]
+    return [Finding("magnetometer.rejected", "ok", None, fig)]
+
+
+def fusion_findings(results: Mapping | None) -> list[Finding]:
+    """The federated filter's fault exclusions: a local filter left out of the fusion for more than
+    the outlier allowance disagrees with the other (target chain, `attitude.faults`)."""
+    faults = (results or {}).get("faults")
+    if not isinstance(faults, Mapping):
+        return []
+    fig = {k: dict(v) for k, v in faults.items() if isinstance(v, Mapping)}
+    bad = {k: v.get("excluded_fraction", 0.0) for k, v in fig.items() if v.get("excluded_fraction", 0.0) > DISTURBED_ALLOWANCE}
+    if not bad:
+        return [Finding("fusion", "ok", None, fig)]
+    what = ", ".join(f"{k.upper()} for {100 * v:.0f} %" for k, v in bad.items())
+    return [Finding("fusion", "suspect",
+                    f"fusion: the fault detector left out {what} of the log (the local filters disagree): a disturbed "
+                    "magnetometer, a wrong rangefinder baseline, or beams off the wall; the fused attitude there rests on "
+                    "the other filter", fig)]
+
+
+def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd.DataFrame | None = None,
+           tables: Mapping | None = None, results: Mapping | None = None, counts: Mapping | None = None,
+           findings: Iterable[Finding] = ()) -> Quality:
+    """The verdict of one run of `chain` on `session` (module docstring).
+
+    `config` is the resolved pipeline configuration ({section: {key: value}}), `tables` the chain's
+    extra tables (its `innovations` table above all), `results` its summary, `counts` the run's
+    counts, `findings` those made elsewhere (convention checks, verified advice).
+    """
+    gate_key, flag_key = _GATES.get(chain, (None, None))
+    gate = _param(config, chain, gate_key)
+    flag_p = _param(config, chain, flag_key)
+    innovations = (tables or {}).get("innovations")
+    fs = list(findings)
+    fs += nis_findings(innovations, gate)
+    fs += flag_findings(trajectory, flag_p)
+    fs += mounting_findings(results)
+    fs += fusion_findings(results)
+    fs += aiding_findings(session, innovations, chain)
+    imu = session.imu
+    fs += magnetometer_findings(counts, int(imu.t_s.size), imu.mag_b_ut is not None)
+    return combine(fs)
