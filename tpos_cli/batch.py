@@ -541,6 +541,10 @@ def _init_worker() -> None:
         pass  # each task then fails with the import error as its message; the pool must survive
 
 
+def _worker_ready() -> bool:
+    return True
+
+
 def _kill_workers(ex: ProcessPoolExecutor) -> None:
     procs = list((getattr(ex, "_processes", None) or {}).values())  # before shutdown drops them
     ex.shutdown(wait=False, cancel_futures=True)
@@ -593,6 +597,7 @@ def _run_pool(
         with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_init_worker) as ex:
             try:
                 with _single_threaded_children():
+                    ex.submit(_worker_ready).result()  # the limit counts the session, not the worker's start-up
                     fut = ex.submit(fn, tasks[i])
                 emit(i, _processed_in_this_batch(fut.result(timeout=limit), t_start))
             except BrokenProcessPool:
