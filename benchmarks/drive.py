@@ -107,7 +107,6 @@ def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
         subprocess.run(cmd, check=True, env=env, cwd=tmp)  # warm the numba cache
         best = None
         for _ in range(2):
-            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
             t1 = time.perf_counter()
             subprocess.run(cmd, check=True, env=env, cwd=tmp)
             wall = time.perf_counter() - t1
@@ -227,7 +226,8 @@ def real_logs() -> None:
 
     print("\nreal logs, default drive-smooth pipeline, GPS withheld in three 30 s windows while moving")
     print("in 2sig: fraction of the masked epochs with |error| < 2 sigma per horizontal axis (0.95 when consistent)")
-    print(f"{'session':26s} {'solution':9s} {'in RMS m':>9s} {'in max m':>9s} {'in 2sig':>8s} {'out RMS m':>10s} {'yaw RMS deg':>12s} {'yaw median':>10s}  heading")
+    print(f"{'session':26s} {'solution':9s} {'in RMS m':>9s} {'in max m':>9s} {'in 2sig':>8s} {'out RMS m':>10s} "
+          f"{'yaw RMS deg':>12s} {'yaw median':>10s}  heading")
     for name in ("navego_canada_enav", "rtklibexplorer_walk_0827", "comma2k19_seg40"):
         sdir = REAL / name
         if not sdir.exists():

@@ -3,12 +3,12 @@ with a one-line message naming the file, table and key, before any session data 
 
 import re
 import shutil
-from pathlib import Path
 
 import pytest
 from pydantic import BaseModel
 from typer.testing import CliRunner
 
+from tests.helpers.paths import REPO
 from tpos_cli.cli import app
 from tpos_cli.config import (
     SECTIONS,
@@ -18,7 +18,6 @@ from tpos_cli.config import (
     resolve_config,
 )
 from tpos_cli.errors import InvalidInputError
-from tests.helpers.paths import REPO
 
 SAMPLE_LOGS = REPO / "sample_logs"
 
@@ -28,21 +27,32 @@ TARGET = pipelines_dir() / "target-fkf.toml"
 
 BAD = [
     # (pipeline, override, the message's end)
-    (DRIVE, {"drive_smooth.gate_probability": 2}, "[drive_smooth] gate_probability (--set drive_smooth.gate_probability=2): Input should be less than 1"),
-    (DRIVE, {"drive_smooth.output_rate_hz": float("nan")}, "[drive_smooth] output_rate_hz (--set drive_smooth.output_rate_hz=nan): Input should be a finite number"),
-    (DRIVE, {"drive_smooth.init_sigma_pos_m": -1.0}, "init_sigma_pos_m (--set drive_smooth.init_sigma_pos_m=-1.0): Input should be greater than 0"),
-    (DRIVE, {"drive_smooth.gyro_bias_dph": -0.5}, "gyro_bias_dph (--set drive_smooth.gyro_bias_dph=-0.5): Input should be greater than or equal to 0"),
-    (DRIVE, {"drive_smooth.smoother": "kalman"}, "smoother (--set drive_smooth.smoother='kalman'): Input should be 'rts', 'two_filter' or 'simplified'"),
+    (DRIVE, {"drive_smooth.gate_probability": 2},
+     "[drive_smooth] gate_probability (--set drive_smooth.gate_probability=2): Input should be less than 1"),
+    (DRIVE, {"drive_smooth.output_rate_hz": float("nan")},
+     "[drive_smooth] output_rate_hz (--set drive_smooth.output_rate_hz=nan): Input should be a finite number"),
+    (DRIVE, {"drive_smooth.init_sigma_pos_m": -1.0},
+     "init_sigma_pos_m (--set drive_smooth.init_sigma_pos_m=-1.0): Input should be greater than 0"),
+    (DRIVE, {"drive_smooth.gyro_bias_dph": -0.5},
+     "gyro_bias_dph (--set drive_smooth.gyro_bias_dph=-0.5): Input should be greater than or equal to 0"),
+    (DRIVE, {"drive_smooth.smoother": "kalman"},
+     "smoother (--set drive_smooth.smoother='kalman'): Input should be 'rts', 'two_filter' or 'simplified'"),
     (DRIVE, {"drive_smooth.cov_step_s": "0.1"}, "cov_step_s (--set drive_smooth.cov_step_s='0.1'): Input should be a valid number"),
-    (DRIVE, {"drive_smooth.heading_hypotheses": True}, "heading_hypotheses (--set drive_smooth.heading_hypotheses=True): Input should be a valid integer"),
-    (DRIVE, {"drive_smooth.gate_probabilty": 0.9}, "gate_probabilty (--set drive_smooth.gate_probabilty=0.9): unknown key (did you mean 'gate_probability'?)"),
+    (DRIVE, {"drive_smooth.heading_hypotheses": True},
+     "heading_hypotheses (--set drive_smooth.heading_hypotheses=True): Input should be a valid integer"),
+    (DRIVE, {"drive_smooth.gate_probabilty": 0.9},
+     "gate_probabilty (--set drive_smooth.gate_probabilty=0.9): unknown key (did you mean 'gate_probability'?)"),
     (RANGING, {"ranging_fatci.smooth_source": "lc", "ranging_fatci.solutions": ["tc"]}, "smooth_source 'lc' is not among solutions ['tc']"),
-    (RANGING, {"ranging_fatci.solutions": ["lc", "ekf"]}, "[ranging_fatci] solutions.1 (--set ranging_fatci.solutions=['lc', 'ekf']): Input should be 'lc', 'tc' or 'fatci'"),
+    (RANGING, {"ranging_fatci.solutions": ["lc", "ekf"]},
+     "[ranging_fatci] solutions.1 (--set ranging_fatci.solutions=['lc', 'ekf']): Input should be 'lc', 'tc' or 'fatci'"),
     (RANGING, {"ranging_fatci.fuzzy.input_sets": {"LE": [0.0, 0.5, 1.0]}}, "[ranging_fatci] fuzzy (--set ranging_fatci.fuzzy.input_sets="),
-    (RANGING, {"ranging_fatci.lc_min_anchors": 2}, "lc_min_anchors (--set ranging_fatci.lc_min_anchors=2): Input should be greater than or equal to 3"),
+    (RANGING, {"ranging_fatci.lc_min_anchors": 2},
+     "lc_min_anchors (--set ranging_fatci.lc_min_anchors=2): Input should be greater than or equal to 3"),
     (TARGET, {"target_fkf.beta": 0.0}, "[target_fkf] beta (--set target_fkf.beta=0.0): Input should be greater than 0"),
-    (TARGET, {"target_fkf.fault.nis_probability": 1.5}, "[target_fkf] fault.nis_probability (--set target_fkf.fault.nis_probability=1.5): Input should be less than 1"),
-    (TARGET, {"target_fkf.fault.no_such": 1}, "[target_fkf] fault.no_such (--set target_fkf.fault.no_such=1): unknown key (known: consistency_probability, "),
+    (TARGET, {"target_fkf.fault.nis_probability": 1.5},
+     "[target_fkf] fault.nis_probability (--set target_fkf.fault.nis_probability=1.5): Input should be less than 1"),
+    (TARGET, {"target_fkf.fault.no_such": 1},
+     "[target_fkf] fault.no_such (--set target_fkf.fault.no_such=1): unknown key (known: consistency_probability, "),
 ]
 
 
@@ -77,11 +87,13 @@ def test_defaults_live_in_the_models_and_are_recorded():
     assert cfg.params == DriveSmoothParams(**load_pipeline_file(DRIVE).params["drive_smooth"])
     assert cfg.resolved["drive_smooth"] == cfg.params.model_dump(mode="json")
     assert cfg.resolved["drive_smooth"]["bias_tau_s"] == DriveSmoothParams.model_fields["bias_tau_s"].default
-    # the hash follows the resolved values, not their spelling in the file
-    same = resolve_config(load_pipeline_file(DRIVE), {"drive_smooth.bias_tau_s": 300})
-    assert same.sha256 == cfg.sha256
+    # the hash follows the resolved values, not their spelling, and which keys were set (a set IMU
+    # figure outranks the session's: tpos_cli.imu_noise)
+    int_tau = resolve_config(load_pipeline_file(DRIVE), {"drive_smooth.bias_tau_s": 300})
+    float_tau = resolve_config(load_pipeline_file(DRIVE), {"drive_smooth.bias_tau_s": 300.0})
+    assert int_tau.sha256 == float_tau.sha256 != cfg.sha256
     other = resolve_config(load_pipeline_file(DRIVE), {"drive_smooth.bias_tau_s": 301.0})
-    assert other.sha256 != cfg.sha256
+    assert other.sha256 != float_tau.sha256
     with pytest.raises(Exception, match="frozen"):
         cfg.params.bias_tau_s = 1.0  # type: ignore[misc]
 

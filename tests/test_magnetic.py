@@ -1,4 +1,4 @@
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ from tpos_cli.errors import InvalidInputError
 def test_igrf_declination_montreal_2015():
     # NOAA's calculator gives about -14.6 deg at ETS Montreal in June 2015 (paper 000's site);
     # 0.3 deg covers model differences (IGRF vs WMM) and crustal fields are not modelled by either
-    d = magnetic.declination_deg([45.4946, -73.5622, 40.0], datetime(2015, 6, 11, tzinfo=timezone.utc))
+    d = magnetic.declination_deg([45.4946, -73.5622, 40.0], datetime(2015, 6, 11, tzinfo=UTC))
     assert abs(d - (-14.6)) < 0.3
 
 

@@ -98,7 +98,8 @@ def test_smoothed_nees_inside_outages_is_consistent(tmp_path):
     so the mean over n drives is judged as a mean of n chi-square(9) values: SD sqrt(18 / n),
     95% band 9 +- 1.96 sqrt(18 / n) (conservative: rows are not fully correlated).
     """
-    from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
+    from tpos_cli.chains.drive_smooth import process_drive
+    from tpos_cli.config import DriveSmoothParams
     from tpos_cli.frames.geodetic import lla_to_ned
     from tpos_cli.frames.rotation import dcm_to_rotvec
     from tpos_cli.session import load_session

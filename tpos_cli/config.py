@@ -93,10 +93,12 @@ class DriveSmoothParams(Section):
     init_sigma_vel_mps: Positive = 1.0
     init_sigma_level_deg: Positive = 1.0
     init_sigma_yaw_deg: Positive = 3.0
-    gyro_noise_dps: Positive | None = None  # white noise SD per sample
-    acc_noise_mg: Positive | None = None
-    gyro_bias_dph: NonNegative | None = None  # initial bias SD
-    acc_bias_mg: NonNegative | None = None
+    # IMU figures (`tpos_cli.imu_noise`): a key set here wins, then the session's [imu], then (white
+    # noise) the log's own sample scatter if larger than these defaults, then these defaults
+    gyro_noise_dps: Positive = 0.01  # white noise SD per sample
+    acc_noise_mg: Positive = 2.0
+    gyro_bias_dph: NonNegative = 20.0  # initial bias SD
+    acc_bias_mg: NonNegative = 10.0
     gyro_bias_inrun_dph: NonNegative = 10.0  # Gauss-Markov in-run bias SD
     acc_bias_inrun_mg: NonNegative = 2.0
     bias_tau_s: Positive = 300.0
@@ -393,7 +395,8 @@ def resolve_config(pipe: PipelineFile, overrides: Mapping[str, object] | None = 
         raise InvalidInputError(f"{pipe.path.name}: [{section}] must be a table")
     parsed = _validate(model, table, pipe.path.name, section, overrides)
     resolved = {section: parsed.model_dump(mode="json")}
-    sha = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved})
+    # the keys set explicitly count too: a set key outranks the session's figure (`tpos_cli.imu_noise`)
+    sha = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved, "set": sorted(parsed.model_fields_set)})
     return ResolvedConfig(pipeline=pipe, params=parsed, resolved=resolved, sha256=sha)
 
 

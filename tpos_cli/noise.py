@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.alignment import static_mask
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.earth import G0_MPS2
 
@@ -96,8 +97,6 @@ MIN_STATIC_S = 100.0  # shortest static stretch worth an Allan analysis (τ up t
 
 def longest_static_window(t_s, gyro_b_rps, acc_b_mps2) -> tuple[int, int]:
     """Sample indices [i0, i1) of the longest contiguous stretch at rest (`alignment.static_mask`)."""
-    from tpos_cli.alignment import static_mask
-
     still = static_mask(np.asarray(t_s, float), gyro_b_rps, acc_b_mps2)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
     if edges.size == 0:
@@ -117,10 +116,3 @@ def session_noise(session) -> tuple[NoiseFigures, tuple[float, float]] | None:
     sl = slice(i0, i1)
     nf = identify_noise(imu.t_s[sl], imu.gyro_b_rps[sl], imu.acc_b_mps2[sl])
     return nf, (float(imu.t_s[i0] + session.t0_s), float(imu.t_s[i1 - 1] + session.t0_s))
-
-
-def plot_allan(fig_path, nf: NoiseFigures) -> None:
-    """Log-log Allan deviation plot of the six axes (PNG); the same figure as the report's page."""
-    from tpos_cli.report.figures import allan_page
-
-    allan_page(nf).savefig(fig_path, dpi=120)

@@ -16,7 +16,7 @@ import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -24,8 +24,8 @@ import pandas as pd
 
 from tpos_cli import __version__, timebase
 from tpos_cli.advice import review
-from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
+from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.run_dir import (
@@ -179,7 +179,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         ctx.timings_s["total"] = time.perf_counter() - t_start
         summary = {
             "tpos_version": __version__,
-            "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
             "session": {"path": str(session.path), "name": session.meta.name, "kind": session.meta.kind,
                         "t0": session.t0_s, "duration_s": session.t_end_s, "imu_samples": int(len(session.imu.t_s))},
             "pipeline": pipe.name,

@@ -24,8 +24,6 @@ forward and backward navigation states disagree beyond the chi-square bound (9 d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numba import njit
 
@@ -33,19 +31,9 @@ from tpos_cli.filters.gating import (
     chi2_threshold,  # scipy.special: scipy.stats costs 0.3 s to import
 )
 from tpos_cli.frames._kernels import dcm_to_rotvec, radii_m
+from tpos_cli.fusion.engine import FilterRun, epoch_of
 from tpos_cli.fusion.nav_errors import apply_feedback
-
-
-@dataclass(frozen=True)
-class Solution:
-    """A navigation solution at sample indices `idx` (K,): nav (K,6) [lat_rad, lon_rad, h_m, vn,
-    ve, vd], C_nb (K,3,3), P9 (K,9,9) covariance of [pos NED m, vel NED m/s, phi rad]."""
-
-    name: str
-    idx: np.ndarray
-    nav: np.ndarray
-    C_nb: np.ndarray
-    P9: np.ndarray
+from tpos_cli.trajectory import Solution
 
 
 @njit(cache=True)
@@ -72,7 +60,16 @@ def rts_closed_loop(Phi, Ppred, Pfilt, dx):
 
 
 @njit(cache=True)
-def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps, o_nav, o_C, o_P9):
+def _corrected_into(nav, C, bias, x, o_nav, o_C, o_bias):
+    """The nominal (nav, C, bias) corrected by the error estimate x, written to o_* (inputs kept)."""
+    o_nav[:] = nav
+    o_C[:, :] = C
+    o_bias[:] = bias
+    apply_feedback(o_nav, o_C, o_bias, x)
+
+
+@njit(cache=True)
+def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps, o_nav, o_C, o_bias, o_P9):
     e = 0
     E = ep_idx.shape[0]
     for k in range(out_idx.shape[0]):
@@ -84,25 +81,23 @@ def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps, o_na
         else:
             a = (t[j] - ep_t[e]) / (ep_t[e + 1] - ep_t[e])
             xs = (1.0 - a) * xs_post[e] + a * xs_pre[e + 1]
-        n6 = nav[j].copy()
-        Cj = C[j].copy()
-        b = bias[j].copy()
-        apply_feedback(n6, Cj, b, xs)
-        o_nav[k] = n6
-        o_C[k] = Cj
+        _corrected_into(nav[j], C[j], bias[j], xs, o_nav[k], o_C[k], o_bias[k])
         o_P9[k] = Ps[e, :9, :9]
 
 
-def rts(run, t_s, out_idx) -> Solution:
-    """RTS-smoothed forward run (needs a forward `FilterRun` stored with `store_rts`)."""
+def rts(run: FilterRun, out_idx) -> Solution:
+    """RTS-smoothed forward run (needs a forward `FilterRun` stored with `store_rts`) at the
+    run-local sample indices `out_idx`; `Solution.bias` holds the smoothed IMU biases and extra states."""
     if run.ep_Phi is None:
         raise ValueError("`run` holds no RTS history (run the forward filter with store_rts=True)")
     xs_post, xs_pre, Ps = rts_closed_loop(run.ep_Phi, run.ep_Ppred, run.ep_P, run.ep_dx)
     K = out_idx.size
     o_nav, o_C, o_P9 = np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, 9, 9))
+    o_bias = np.empty((K, run.bias.shape[1]))
+    t_s = run.t_s
     _rts_apply(out_idx, run.ep_idx, t_s[run.ep_idx], t_s, run.nav, run.C_nb, run.bias, xs_post, xs_pre, Ps,
-               o_nav, o_C, o_P9)
-    return Solution("rts", out_idx, o_nav, o_C, o_P9)
+               o_nav, o_C, o_bias, o_P9)
+    return Solution("rts", out_idx, o_nav, o_C, o_P9, o_bias)
 
 
 @njit(cache=True)
@@ -124,6 +119,19 @@ def state_difference(nav_f, C_f, bias_f, nav_b, C_b, bias_b, d):
         d[9 + i] = bias_f[i] - bias_b[i]
     for i in range(d.shape[0] - 15):
         d[15 + i] = bias_f[6 + i] - bias_b[6 + i]
+
+
+@njit(cache=True)
+def _quadratic_form(d, A):
+    """d[:m]^T A d[:m] for A (m, m), by loops (no temporary, any memory layout)."""
+    m = A.shape[0]
+    v = 0.0
+    for i in range(m):
+        a = 0.0
+        for j in range(m):
+            a += A[i, j] * d[j]
+        v += d[i] * a
+    return v
 
 
 @njit(cache=True)
@@ -160,8 +168,7 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
             last_f = ef
             last_b = eb
         state_difference(f_nav[j], f_C[j], f_bias[j], b_nav[j], b_C[j], b_bias[j], d)
-        d9 = d[:9]
-        nis = d9 @ S9i @ d9
+        nis = _quadratic_form(d, S9i)
         o_nis[k] = nis
         o_flag[k] = nis > flag_thr
         if mode == 2:  # flag only
@@ -183,19 +190,15 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
                 xs[i] = wi * d[i]
                 if i < 9:
                     o_P9[k, i, i] = var
-        n6 = f_nav[j].copy()
-        Cj = f_C[j].copy()
-        bj = f_bias[j].copy()
-        apply_feedback(n6, Cj, bj, xs)
-        o_nav[k] = n6
-        o_C[k] = Cj
+        _corrected_into(f_nav[j], f_C[j], f_bias[j], xs, o_nav[k], o_C[k], np.empty(f_bias.shape[1]))
 
 
-def _run_combine(fwd, bwd, t_s, out_idx, outages_s, flag_probability, mode):
+def _run_combine(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, flag_probability, mode):
     Kn = out_idx.size
     o_nav, o_C, o_P9 = np.empty((Kn, 6)), np.empty((Kn, 3, 3)), np.empty((Kn, 9, 9))
     o_flag = np.zeros(Kn, dtype=np.bool_)
     o_nis = np.empty(Kn)
+    t_s = fwd.t_s
     w = outage_weight(t_s[out_idx], outages_s)
     _combine(out_idx, t_s, fwd.nav, fwd.C_nb, fwd.bias, fwd.ep_idx, fwd.ep_P, bwd.nav, bwd.C_nb, bwd.bias,
              bwd.ep_idx, bwd.ep_P, w, float(chi2_threshold(flag_probability, 9)[9]), o_nav, o_C, o_P9, o_flag, o_nis, mode)
@@ -211,29 +214,25 @@ def outage_weight(t_s, outages_s) -> np.ndarray:
     return w
 
 
-def two_filter(fwd, bwd, t_s, out_idx, *, flag_probability=0.999):
+def two_filter(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,))."""
-    nav, C, P9, flag, nis = _run_combine(fwd, bwd, t_s, out_idx, np.zeros((0, 2)), flag_probability, 0)
+    nav, C, P9, flag, nis = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), flag_probability, 0)
     return Solution("two_filter", out_idx, nav, C, P9), flag, nis
 
 
-def disagreement(fwd, bwd, t_s, out_idx, *, flag_probability=0.999):
+def disagreement(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """(flag (K,), nis (K,)): forward/backward NIS of the 9 navigation states against chi-square."""
-    _, _, _, flag, nis = _run_combine(fwd, bwd, t_s, out_idx, np.zeros((0, 2)), flag_probability, 2)
+    _, _, _, flag, nis = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), flag_probability, 2)
     return flag, nis
 
 
-def simplified(fwd, bwd, t_s, out_idx, outages_s) -> Solution:
+def simplified(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s) -> Solution:
     """Paper 003's simplified two-filter smoother (graded weights in outages, variance weights elsewhere)."""
-    nav, C, P9, _, _ = _run_combine(fwd, bwd, t_s, out_idx, outages_s, 0.999, 1)
+    nav, C, P9, _, _ = _run_combine(fwd, bwd, out_idx, outages_s, 0.999, 1)
     return Solution("simplified", out_idx, nav, C, P9)
 
 
-def filter_solution(run, out_idx, name) -> Solution:
+def filter_solution(run: FilterRun, out_idx, name) -> Solution:
     """A filter run itself as a `Solution` (covariance of the nearest epoch on the data side)."""
-    ep = run.ep_idx
-    if run.backward:
-        e = np.minimum(np.searchsorted(ep, out_idx, side="left"), ep.size - 1)
-    else:
-        e = np.maximum(np.searchsorted(ep, out_idx, side="right") - 1, 0)
+    e = epoch_of(run, out_idx)
     return Solution(name, out_idx, run.nav[out_idx], run.C_nb[out_idx], run.ep_P[e, :9, :9])

@@ -6,11 +6,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from tests.helpers.paths import SHARED_DATA
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.pipeline import process_session
 from tpos_cli.sim.drive import simulate_drive
-from tests.helpers.paths import SHARED_DATA
 
 SIGMA_COLS = ["sigma_n", "sigma_e", "sigma_d", "sigma_vn", "sigma_ve", "sigma_vd", "sigma_roll", "sigma_pitch", "sigma_yaw"]
 
@@ -71,7 +71,8 @@ def test_targets_from_the_moving_platform(session_dir):
     """Shots on roadside targets while the vehicle stands (static start) and while it drives."""
     import dataclasses
 
-    from tpos_cli.chains.drive_smooth import DriveSmoothParams, geolocate_shots, process_drive, range_epochs
+    from tpos_cli.chains.drive_smooth import geolocate_shots, process_drive, range_epochs
+    from tpos_cli.config import DriveSmoothParams
     from tpos_cli.session import RangeData, Shots, load_session
     from tpos_cli.targeting import geolocate
 

@@ -121,7 +121,7 @@ def test_nees_of_all_solutions_over_monte_carlo_runs(tmp_path):
             P = np.stack([np.column_stack([g.sigma_n**2, g.cov_ne_m2]), np.column_stack([g.cov_ne_m2, g.sigma_e**2])], axis=1)
             nees[sol].append(np.einsum("ki,kij,kj->k", e[:, :2], np.linalg.inv(P), e[:, :2]))
     lo, hi = chi2.ppf(0.025, 2 * n_runs) / n_runs, chi2.ppf(0.975, 2 * n_runs) / n_runs
-    for sol, v in nees.items():
+    for v in nees.values():
         m = np.mean(np.array(v), axis=0)
         # a consistent 2-dof NEES averages 2; measured 2.43 (lc), 1.75 (tc), 1.86 (fatci), 2.10
         # (smoothed) once the floor height and calibration errors are states (lc: through the

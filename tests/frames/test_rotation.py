@@ -9,7 +9,8 @@ from tpos_cli.frames import _kernels as k
 from tpos_cli.frames import rotation as r
 
 
-def test_euler_matches_scipy_intrinsic_zyx(rng=np.random.default_rng(1)):
+def test_euler_matches_scipy_intrinsic_zyx():
+    rng = np.random.default_rng(1)
     rpy = rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], size=(50, 3))
     C = r.euler_to_dcm(rpy[:, 0], rpy[:, 1], rpy[:, 2])
     ref = Rotation.from_euler("ZYX", rpy[:, ::-1]).as_matrix()
@@ -21,7 +22,8 @@ def test_euler_matches_scipy_intrinsic_zyx(rng=np.random.default_rng(1)):
         assert_allclose(k.dcm_to_euler(C[i]), rpy[i], atol=1e-12)
 
 
-def test_rotvec_and_quaternion_round_trips(rng=np.random.default_rng(2)):
+def test_rotvec_and_quaternion_round_trips():
+    rng = np.random.default_rng(2)
     rv = rng.normal(size=(20, 3))
     rv *= (rng.uniform(0, 3.0, 20) / np.linalg.norm(rv, axis=1))[:, None]
     C = r.rotvec_to_dcm(rv)

@@ -6,8 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
+from tpos_cli.chains.drive_smooth import process_drive
+from tpos_cli.config import DriveSmoothParams
 from tpos_cli.frames.geodetic import lla_to_ned
+from tpos_cli.fusion.engine import epoch_of
 from tpos_cli.session import load_session
 from tpos_cli.sim.drive import simulate_drive
 
@@ -72,7 +74,7 @@ def correlated_runs():
 
 
 def test_error_states_are_fitted_on_correlated_gps(correlated_runs):
-    for sim, runs in correlated_runs:
+    for _sim, runs in correlated_runs:
         ge = runs["gauss_markov"].info["gps_error_states"]
         # ML over ten correlation times of one drive: the SD is known to a factor of about 2 (the
         # innovations pin the drift rate sigma^2 / tau better than sigma or tau alone)
@@ -93,10 +95,7 @@ def test_error_states_are_consistent_forward_and_backward(correlated_runs):
         # after each run's first minute (heading search, convergence): forward from the start,
         # backward from the end of the log
         for run, m in ((r.forward, t > 60.0), (r.backward, t < sim.truth.t_s[-1] - 60.0)):
-            if run.backward:  # the covariance of the nearest epoch on the data side
-                e = np.minimum(np.searchsorted(run.ep_idx, k[m]), run.ep_idx.size - 1)
-            else:
-                e = np.searchsorted(run.ep_idx, k[m], side="right") - 1
+            e = epoch_of(run, k[m])  # the covariance of the nearest epoch on the data side
             sd = np.sqrt(np.diagonal(run.ep_P[e][:, 15:17, 15:17], axis1=1, axis2=2))
             z = (run.bias[k[m], 6:8] - b_true[m, :2]) / sd
             assert np.mean(np.abs(z) < 2.0) > 0.6  # one run is ~10 correlation times: a loose floor

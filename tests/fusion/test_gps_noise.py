@@ -5,7 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
+from tpos_cli.chains.drive_smooth import process_drive
+from tpos_cli.config import DriveSmoothParams
 from tpos_cli.fusion.gps_noise import normalized_square, scaled_fixes, solve_scale
 from tpos_cli.fusion.insgps import GpsFixes
 from tpos_cli.ins.mechanization import decimate_imu, integrate
@@ -86,7 +87,8 @@ def test_estimated_sigmas_recover_the_simulated_receiver(quiet_gps):
     assert g["sigma_pos_v_m"] == pytest.approx(0.8, rel=0.2)
     assert g["sigma_vel_h_mps"] == pytest.approx(0.05, rel=0.15)
     # and the main forward run's NIS lands in the band of a mean of M chi-square(3) values
-    a = res.forward.nis[res.forward.accepted[:, 0], 0]
+    gi = res.innovations()
+    a = gi.nis[gi.accepted[:, 0], 0]
     assert abs(np.mean(a) - 3.0) < 3 * np.sqrt(6.0 / a.size) + 0.3  # 3 SD plus the 10% stopping rule
 
 
@@ -96,7 +98,8 @@ def test_given_noise_is_kept(quiet_gps):
     g = res.info["gps_noise"]
     assert g["sigma_pos_h_m"] == 1.5 and g["sigma_pos_v_m"] == 2.5
     # the 3x too large SDs make the NIS about 9x too small: the problem the estimate solves
-    a = res.forward.nis[res.forward.accepted[:, 0], 0]
+    gi = res.innovations()
+    a = gi.nis[gi.accepted[:, 0], 0]
     assert np.mean(a) < 1.0
 
 

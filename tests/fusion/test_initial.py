@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from tpos_cli.chains.drive_smooth import DriveSmoothParams, decimate_times, fixes_from_session, process_drive
+from tpos_cli.chains.drive_smooth import decimate_times, fixes_from_session, process_drive
+from tpos_cli.config import DriveSmoothParams
 from tpos_cli.frames.rotation import dcm_to_euler, wrap_angle_rad
-from tpos_cli.fusion.initial import _gps_heading, search_yaw, with_yaw
+from tpos_cli.fusion.initial import _gps_heading, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes
 from tpos_cli.session import load_session
 from tpos_cli.sim.drive import simulate_drive
@@ -87,8 +88,9 @@ def test_horizontal_velocity_without_vd_is_a_2_dof_update(session):
     assert np.isfinite(fx.vel_ned_mps[:, :2]).all() and np.isnan(fx.vel_ned_mps[:, 2]).all()
     # the simulated receiver's velocity SD (0.05 m/s) is the filter's
     res = process_drive(s2, DriveSmoothParams(heading_hypotheses=0, gps_sigma_vel_mps=0.05), None, names=("forward",))
-    nu = res.forward.innovation
-    ok = np.isfinite(res.forward.nis[:, 1])
+    gi = res.innovations()
+    nu = gi.innovation
+    ok = np.isfinite(gi.nis[:, 1])
     assert ok.sum() > 100 and np.isfinite(nu[ok, 3:5]).all() and np.isnan(nu[ok, 5]).all()
     # chi2(2) mean 2: 4 SD of the mean of ~110 draws is 0.54
-    assert abs(np.mean(res.forward.nis[ok, 1][20:]) - 2.0) < 0.6
+    assert abs(np.mean(gi.nis[ok, 1][20:]) - 2.0) < 0.6

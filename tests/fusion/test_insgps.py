@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from tpos_cli.chains.drive_smooth import DriveSmoothParams, process_drive
+from tpos_cli.chains.drive_smooth import process_drive
+from tpos_cli.config import DriveSmoothParams
 from tpos_cli.session import load_session
 from tpos_cli.sim.drive import simulate_drive
 
@@ -84,14 +85,15 @@ def test_backward_run_on_reversed_log(drive):
 def test_flags_and_rejections_quiet_on_clean_data(drive):
     _, res = drive
     assert res.flag.mean() < 0.01  # forward and backward agree on a clean simulated drive
-    acc, nis = res.forward.accepted, res.forward.nis
+    gi = res.innovations()
+    acc, nis = gi.accepted, gi.nis
     assert (~acc & np.isfinite(nis)).sum() <= 2  # 0.9999 gate on ~210 fixes x (position, velocity)
 
 
 def test_nis_per_kind_is_chi2_with_3_dof(drive):
     """Position and velocity NIS, each 3 d.o.f., average about 3 on white simulated GPS."""
     _, res = drive
-    nis = res.forward.nis
+    nis = res.innovations().nis
     for j in range(2):
         a = nis[np.isfinite(nis[:, j]) & (np.arange(nis.shape[0]) > 30), j]
         # mean of ~180 chi2(3) draws: SD sqrt(6/180) = 0.18; 4 SD, plus the slightly cautious

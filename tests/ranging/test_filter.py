@@ -6,10 +6,19 @@ import pytest
 
 from tests.ranging.corridor import ANCHORS_NED, NODE_DOWN_M, ORIGIN_LLA, corridor, noisy_imu, ranges
 from tpos_cli.frames import geodetic
+from tpos_cli.fusion.engine import FilterConfig, Measurements
+from tpos_cli.fusion.measurements import Kind
 from tpos_cli.ranging.filter import (
-    EV_RANGE, Events, FilterConfig, InitialState, coasting_intervals, down_events, range_events, run_filter,
+    coasting_intervals,
+    down_events,
+    initial_state,
+    output_indices,
+    range_events,
+    ranging_layout,
+    run_ranging,
     zupt_events,
 )
+from tpos_cli.smoothing import filter_solution
 
 G_MG = 9.80665e-3
 
@@ -22,21 +31,34 @@ def scene():
     return c, gyro, acc
 
 
+SD0 = np.concatenate([np.full(3, 0.3), np.full(3, 0.05), np.radians([1.0, 1.0, 5.0]),
+                      np.full(3, 3 * G_MG), np.full(3, np.radians(20 / 3600))])
+
+
 def _cfg():
     dt = 0.01
-    sd0 = np.concatenate([np.full(3, 0.3), np.full(3, 0.05), np.radians([1.0, 1.0, 5.0]),
-                          np.full(3, 3 * G_MG), np.full(3, np.radians(20 / 3600)), [0.02]])
     q = np.array([(2 * G_MG) ** 2 * dt, np.radians(0.02) ** 2 * dt, 0.0, 0.0])  # the noisy_imu figures
-    return FilterConfig(q=q, tau_acc_s=0.0, tau_gyro_s=0.0, q_range_bias_m2ps=1e-6, sd0=sd0,
-                        gate_probability=0.999, max_consecutive_rejects=20, output_every=10)
+    return FilterConfig(q=q, tau_acc_s=0.0, tau_gyro_s=0.0, gate_probability=0.999, max_consecutive_rejections=20,
+                        layout=ranging_layout(len(ANCHORS_NED), 0.02, 1e-6))
+
+
+class _Rows:
+    """The run at every 10th sample: t_s, position error rows, NED position SDs."""
+
+    def __init__(self, run):
+        sol = filter_solution(run, output_indices(run.t_s.size, 10), "test")
+        self.t_s = run.t_s[sol.idx]
+        self.lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
+        self.sd_ned_m = np.sqrt(np.diagonal(sol.P9, axis1=1, axis2=2)[:, :3])
 
 
 def _run(c, gyro, acc, ev):
-    init = InitialState(0, c.lla[0], np.zeros(3), c.rpy_rad[0] + np.radians([0.3, -0.3, 3.0]))
+    init = initial_state(0, c.lla[0], np.zeros(3), c.rpy_rad[0] + np.radians([0.3, -0.3, 3.0]), SD0)
     floor = down_events(np.arange(0.0, c.t_s[-1], 0.1), NODE_DOWN_M, 0.05)
-    run = run_filter(c.t_s, gyro, acc, init, Events.merge(ev, floor), ANCHORS_NED, ORIGIN_LLA, _cfg())
-    err = geodetic.lla_to_ned(run.lla, ORIGIN_LLA) - c.ned_m[::10][: run.t_s.size]
-    return run, err
+    run = run_ranging(c.t_s, gyro, acc, init, Measurements.merge(ev, floor), ANCHORS_NED, ORIGIN_LLA, _cfg())
+    rows = _Rows(run)
+    err = geodetic.lla_to_ned(rows.lla, ORIGIN_LLA) - c.ned_m[::10][: rows.t_s.size]
+    return run, rows, err
 
 
 def test_two_anchors_still_bound_the_error(scene):
@@ -49,14 +71,14 @@ def test_two_anchors_still_bound_the_error(scene):
     c, gyro, acc = scene
     rng = np.random.default_rng(1)
     t, a, r, d = ranges(c, rng, anchors=(0, 1))
-    run, err = _run(c, gyro, acc, range_events(t, a, r, (0.05 + 0.01 * d) ** 2))
-    _, err_free = _run(c, gyro, acc, range_events(t[:0], a[:0], r[:0], d[:0]))  # INS + floor only
+    run, rows, err = _run(c, gyro, acc, range_events(t, a, r, (0.05 + 0.01 * d) ** 2))
+    _, _, err_free = _run(c, gyro, acc, range_events(t[:0], a[:0], r[:0], d[:0]))  # INS + floor only
     eh = np.hypot(err[:, 0], err[:, 1])
     eh_free = np.hypot(err_free[:, 0], err_free[:, 1])
     assert eh_free[-1] > 5.0  # 2 mg / 10 deg/h biases: the free INS is metres off after 40 s
     assert np.sqrt(np.mean(eh**2)) < 0.3  # two anchors: ~0.2 m RMS measured, cross-track weakest
     # the reported SDs are consistent with the errors (house-style fast tier: RMS of err/sd < 1.5)
-    assert np.all(np.sqrt(np.mean((err[:, :2] / run.sd_ned_m[:, :2]) ** 2, axis=0)) < 1.5)
+    assert np.all(np.sqrt(np.mean((err[:, :2] / rows.sd_ned_m[:, :2]) ** 2, axis=0)) < 1.5)
 
 
 def test_gating_rejects_injected_nlos_spikes(scene):
@@ -66,12 +88,12 @@ def test_gating_rejects_injected_nlos_spikes(scene):
     spike = rng.random(t.size) < 0.03
     spike[t < 3.0] = False  # let the filter converge on its initial yaw error first
     r_nlos = r + spike * rng.uniform(1.0, 3.0, t.size)
-    run, err = _run(c, gyro, acc, range_events(t, a, r_nlos, (0.05 + 0.01 * d) ** 2))
-    rejected = ~run.ev_accepted[run.events.kind == EV_RANGE]
+    run, _, err = _run(c, gyro, acc, range_events(t, a, r_nlos, (0.05 + 0.01 * d) ** 2))
+    rejected = ~run.ev_accepted[run.measurements.kind == Kind.RANGE]
     # events keep their order within one time stamp (stable merge), so index i is range i
     assert rejected[spike].mean() >= 0.95  # spikes >= 1 m are >= 6 SD of a <= 0.16 m range SD
     assert rejected[~spike].mean() < 0.01  # gate at P = 0.999: 0.1 % false rejections expected
-    _, err_clean = _run(c, gyro, acc, range_events(t, a, r, (0.05 + 0.01 * d) ** 2))
+    _, _, err_clean = _run(c, gyro, acc, range_events(t, a, r, (0.05 + 0.01 * d) ** 2))
     rms = np.sqrt(np.mean(np.hypot(err[:, 0], err[:, 1]) ** 2))
     rms_clean = np.sqrt(np.mean(np.hypot(err_clean[:, 0], err_clean[:, 1]) ** 2))
     assert rms < 1.2 * rms_clean  # gating leaves the solution as good as without spikes (measured ~1.0x)
@@ -83,7 +105,7 @@ def test_coasting_is_reported_when_all_anchors_drop(scene):
     rng = np.random.default_rng(4)
     t, a, r, d = ranges(c, rng)
     keep = (t < 20.0) | (t >= 25.0)
-    run, _ = _run(c, gyro, acc, range_events(t[keep], a[keep], r[keep], (0.05 + 0.01 * d[keep]) ** 2))
+    run, _, _ = _run(c, gyro, acc, range_events(t[keep], a[keep], r[keep], (0.05 + 0.01 * d[keep]) ** 2))
     coast = coasting_intervals(run, 0.5)
     assert len(coast) == 1
     assert coast[0][0] == pytest.approx(19.9, abs=1e-9) and coast[0][1] == pytest.approx(25.0, abs=1e-9)
@@ -100,16 +122,16 @@ def test_one_anchor_bridges_a_dropout_of_three(scene):
         runs = {}
         for name, keep in (("one", ~out | (a == 3)), ("none", ~out)):
             ev = range_events(t[keep], a[keep], r[keep], (0.05 + 0.01 * d[keep]) ** 2)
-            runs[name] = _run(c, gyro, acc, Events.merge(ev, still))
-        run, err = runs["one"]
-        w = (run.t_s >= 22.0) & (run.t_s < 30.0)
-        rng_ev = (run.events.kind == EV_RANGE) & (run.events.t_s > 0.0)
+            runs[name] = _run(c, gyro, acc, Measurements.merge(ev, still))
+        run, rows, err = runs["one"]
+        w = (rows.t_s >= 22.0) & (rows.t_s < 30.0)
+        rng_ev = (run.measurements.kind == Kind.RANGE) & (run.measurements.t_s > 0.0)
         # clean ranges: only the gate's false alarms (P = 0.999) are rejected, no lock-out
         assert np.mean(~run.ev_accepted[rng_ev]) < 0.01
         rms.append(np.sqrt(np.mean(err[w, 0] ** 2 + err[w, 1] ** 2)))
-        e_free = runs["none"][1][w]
+        e_free = runs["none"][2][w]
         rms_free.append(np.sqrt(np.mean(e_free[:, 0] ** 2 + e_free[:, 1] ** 2)))
-        nees.append(np.mean((err[w, 0] / run.sd_ned_m[w, 0]) ** 2 + (err[w, 1] / run.sd_ned_m[w, 1]) ** 2))
+        nees.append(np.mean((err[w, 0] / rows.sd_ned_m[w, 0]) ** 2 + (err[w, 1] / rows.sd_ned_m[w, 1]) ** 2))
     # measured: 0.13 m against 0.39 m coasting (mean over 10 seeds)
     assert np.mean(rms) < 0.5 * np.mean(rms_free)
     # consistent in the mean (2 for 2 dof; measured 1.7): the one-anchor SDs are not overconfident

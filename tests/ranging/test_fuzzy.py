@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-
 from pydantic import ValidationError
 
 from tpos_cli.config import FuzzyParams

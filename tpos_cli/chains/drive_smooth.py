@@ -1,15 +1,17 @@
 """The `drive_smooth` chain (issue 4, paper 003): INS/GPS forward and backward filters and smoothers.
 
-Stages: alignment (levelling + GPS heading), GPS noise (covariance matching on decimated
-passes, `fusion.gps_noise`), forward 15-state closed-loop filter, the same
-filter backward in reversed time (initialized from the forward end state with the initial
-SDs, so that the two runs stay nearly independent), smoothing (`rts`, `two_filter`,
-`simplified`), and the trajectory table with sigma, `outage` and `flag` columns; a mounting
-check (course over ground against the smoothed yaw, `fusion.mounting`) warns in the summary.
+Stages: alignment (levelling + GPS heading, yaw search), GPS noise (covariance matching on
+decimated passes, `fusion.gps_noise`; GPS error states, `fusion.gps_error`), the forward 15-state
+closed-loop filter, the same filter backward in reversed time (`fusion.engine.backward_start`:
+from the forward end state with the initial SDs, so that the two runs stay nearly independent),
+smoothing (`rts`, `two_filter`, `simplified`), targets of LR1 shots, and the trajectory table
+with sigma, `outage` and `flag` columns (`tpos_cli.trajectory`); a mounting check (course over
+ground against the smoothed yaw, `fusion.mounting`) warns in the summary.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from dataclasses import dataclass
 
@@ -19,50 +21,51 @@ import pandas as pd
 from tpos_cli import smoothing
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import DriveSmoothParams
-from tpos_cli.errors import InvalidInputError, ProcessingError
+from tpos_cli.errors import ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
-from tpos_cli.frames.rotation import dcm_to_euler, euler_sigmas_deg
+from tpos_cli.frames.rotation import dcm_to_euler
+from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, backward_start
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
-from tpos_cli.fusion.initial import (
-    InitialSigmas,
-    align_vehicle,
-    initial_covariance,
-    measured_white_noise,
-    search_yaw,
-    with_yaw,
-)
-from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
+from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
+from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
+from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
+from tpos_cli.trajectory import Solution, solution_table
 
 DEG = np.pi / 180.0
 SMOOTHERS = ("rts", "two_filter", "simplified")
+GPS_KINDS = ("gps_pos", "gps_vel")  # `innovations.parquet` kind of the position and velocity parts
 
 
-_DEFAULT_NOISE = {"gyro_noise_dps": 0.01, "acc_noise_mg": 2.0, "gyro_bias_dph": 20.0, "acc_bias_mg": 10.0}
+def drive_imu_noise(p: DriveSmoothParams, session: Session) -> ImuNoiseFigures:
+    """IMU figures (`tpos_cli.imu_noise`); the white noise measured from the log counts only where
+    larger than the default: real platforms vibrate far above data-sheet noise."""
+    default = {k: DriveSmoothParams.model_fields[k].default for k in ("gyro_noise_dps", "acc_noise_mg")}
+    measured = {"gyro_noise_dps": max(default["gyro_noise_dps"], float(np.degrees(measured_white_noise(session.imu.gyro_b_rps)))),
+                "acc_noise_mg": max(default["acc_noise_mg"], float(measured_white_noise(session.imu.acc_b_mps2) / (1e-3 * G0_MPS2)))}
+    return resolve_imu_noise(p, session.meta.imu_noise, measured=measured,
+                             measured_label="measured from the log (or default, the larger)")
 
 
-def _noise(p: DriveSmoothParams, session: Session) -> tuple[dict, dict]:
-    """Noise figures (contract units) and where each came from: pipeline, session, or, for the
-    white noise when neither gives it, the larger of the MEMS default and the log's own
-    sample-to-sample scatter (real platforms vibrate far above data-sheet noise)."""
-    out, src = {}, {}
-    measured = {"gyro_noise_dps": np.degrees(measured_white_noise(session.imu.gyro_b_rps)),
-                "acc_noise_mg": measured_white_noise(session.imu.acc_b_mps2) / (1e-3 * G0_MPS2)}
-    for key, default in _DEFAULT_NOISE.items():
-        v, where = getattr(p, key), "pipeline"
-        if v is None:
-            v, where = getattr(session.meta.imu_noise, key, None), "session"
-        if v is None and key in measured:
-            v, where = max(default, float(measured[key])), "measured from the log (or default, the larger)"
-        if v is None:
-            v, where = default, "default"
-        out[key] = float(v)
-        src[key] = where
-    return out, src
+def initial_sigmas(p: DriveSmoothParams, nz: ImuNoiseFigures) -> InitialSigmas:
+    return InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps, p.init_sigma_level_deg * DEG, p.init_sigma_yaw_deg * DEG,
+                         nz["acc_bias_mg"] * 1e-3 * G0_MPS2, nz["gyro_bias_dph"] * DEG / 3600)
+
+
+def filter_config(p: DriveSmoothParams, nz: ImuNoiseFigures, lever_b_m, rate_hz: float) -> FilterConfig:
+    """SI filter settings: white-noise PSDs from the per-sample SDs (sigma^2 / rate), Gauss-Markov
+    bias drive 2 sigma^2 / tau, covariance step in samples."""
+    sb_a = p.acc_bias_inrun_mg * 1e-3 * G0_MPS2
+    sb_g = p.gyro_bias_inrun_dph * DEG / 3600
+    q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate_hz, (nz["gyro_noise_dps"] * DEG) ** 2 / rate_hz,
+                  2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
+    return FilterConfig(q, p.bias_tau_s, p.bias_tau_s, max(1, int(round(p.cov_step_s * rate_hz))), p.gate_probability,
+                        p.max_consecutive_rejections, np.asarray(lever_b_m, dtype=float), p.outage_min_s)
 
 
 def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
@@ -113,23 +116,9 @@ def fix_outages(t_fix, t_end_s, min_gap_s) -> np.ndarray:
     return np.array(out, dtype=float).reshape(-1, 2)
 
 
-def solution_frame(sol: smoothing.Solution, t0_s, t_s, outage, flag) -> pd.DataFrame:
+def solution_rows(sol: Solution, t_s, t0_s: float, outage, flag) -> pd.DataFrame:
     """Contract trajectory rows of one solution, with sigma, outage and flag columns."""
-    r, p, y = dcm_to_euler(sol.C_nb)
-    sd = np.sqrt(np.clip(np.diagonal(sol.P9, axis1=1, axis2=2), 0.0, None))
-    se = euler_sigmas_deg(sol.C_nb, sol.P9[:, 6:9, 6:9])
-    n = sol.idx.size
-    return pd.DataFrame({
-        "t": t_s[sol.idx] + t0_s,
-        "lat": np.degrees(sol.nav[:, 0]), "lon": np.degrees(sol.nav[:, 1]), "h": sol.nav[:, 2],
-        "vn": sol.nav[:, 3], "ve": sol.nav[:, 4], "vd": sol.nav[:, 5],
-        "roll": np.degrees(r), "pitch": np.degrees(p), "yaw": np.degrees(y),
-        "solution": np.full(n, sol.name, dtype=object),
-        "sigma_n": sd[:, 0], "sigma_e": sd[:, 1], "sigma_d": sd[:, 2],
-        "sigma_vn": sd[:, 3], "sigma_ve": sd[:, 4], "sigma_vd": sd[:, 5],
-        "sigma_roll": se[:, 0], "sigma_pitch": se[:, 1], "sigma_yaw": se[:, 2],
-        "outage": outage, "flag": flag,
-    })
+    return solution_table(sol, t_s, t0_s, extra={"outage": outage, "flag": flag})
 
 
 @dataclass(frozen=True)
@@ -138,8 +127,8 @@ class DriveResult:
 
     t_s: np.ndarray
     out_idx: np.ndarray
-    forward: object
-    backward: object
+    forward: FilterRun
+    backward: FilterRun
     solutions: dict
     flag: np.ndarray
     nis_fb: np.ndarray
@@ -147,6 +136,118 @@ class DriveResult:
     fixes: GpsFixes
     info: dict
     mounting: dict | None = None  # course - yaw check of the first solution in `names` after forward
+
+    def innovations(self, run: str = "forward") -> GpsInnovations:
+        """Per-fix results of the forward or backward run."""
+        return gps_innovations(self.forward if run == "forward" else self.backward, self.fixes.t_s.size)
+
+
+@dataclass(frozen=True)
+class _Imu:
+    t: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+
+    @property
+    def rate_hz(self) -> float:
+        return (self.t.size - 1) / (self.t[-1] - self.t[0])
+
+
+def align(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, cfg: FilterConfig,
+          sig: InitialSigmas, nz: ImuNoiseFigures) -> tuple[InitialState, dict]:
+    """Initial state (`fusion.initial.align_vehicle`) and, with `heading_hypotheses`, the yaw search."""
+    init, info = align_vehicle(imu.t, imu.gyro, imu.acc, session.imu.mag_b_ut, fixes, cfg.lever_arm_b_m, sig,
+                               min_speed_mps=p.heading_min_speed_mps,
+                               declination_rad=(session.meta.declination_deg or 0.0) * DEG)
+    info["imu_noise"] = nz.summary()
+    if p.heading_hypotheses > 0:
+        ys = search_yaw(imu.t, imu.gyro, imu.acc, fixes, init, cfg, n_hypotheses=p.heading_hypotheses,
+                        motion_s=p.heading_search_s)
+        init = with_yaw(init, ys.yaw_rad, ys.sigma_yaw_rad)
+        if not ys.chose_prior:
+            info["heading"] = (f"yaw search: {np.degrees(ys.yaw_rad):.0f} deg +- {np.degrees(ys.sigma_yaw_rad):.0f}, "
+                               f"best of {ys.scores.size} hypotheses (the prior, {info['heading']}, lost)")
+        else:
+            info["heading"] += f"; confirmed against {ys.scores.size - 1} other yaws"
+        info["yaw_search"] = {"t_s": list(ys.window_s), "yaw_deg": np.degrees(ys.hypotheses_rad).round(1).tolist(),
+                              "score": [round(float(v), 1) for v in ys.scores]}
+    return init, info
+
+
+def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
+             t0_s: float) -> tuple[GpsFixes, FilterConfig]:
+    """GPS noise (covariance matching, `fusion.gps_noise`) and GPS error states (`fusion.gps_error`);
+    records what was found in `info`. Returns the fixes with their SDs scaled and the settings."""
+    after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
+    gn = None
+    if p.gps_noise == "estimate":
+        gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+        fixes = scaled_fixes(fixes, gn.scale)
+        info["gps_noise"] = {"method": "covariance matching on decimated filter passes (fusion.gps_noise)", **gn.summary()}
+        info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + t0_s, 2) for v in gn.window_s]
+    else:
+        info["gps_noise"] = {"method": "given (log SDs or pipeline defaults)",
+                             **{k: (None if not np.isfinite(v) else round(float(v), 4)) for k, v in zip(
+                                 ("sigma_pos_h_m", "sigma_pos_v_m", "sigma_vel_h_mps", "sigma_vel_v_mps"),
+                                 median_sigmas(fixes))}}
+    if p.gps_error_model != "gauss_markov":
+        return fixes, cfg
+    if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
+        taus = (p.gps_gm_tau_s,) if p.gps_gm_tau_s is not None else TAU_GRID_S
+        fit = fit_gps_error(imu.t, imu.gyro, imu.acc, fixes, init, cfg, taus_s=taus, after_s=after, span_s=p.gps_noise_span_s)
+        sd, tau = fit.sigma_gm_ned_m.copy(), fit.tau_s
+        info["gps_error_states"] = fit.summary()
+    else:
+        sd, tau = np.zeros(3), p.gps_gm_tau_s or 30.0
+        info["gps_error_states"] = {"method": "set by the pipeline", "tau_s": tau}
+    if p.gps_gm_sigma_h_m is not None:
+        sd[:2] = p.gps_gm_sigma_h_m
+    if p.gps_gm_sigma_v_m is not None:
+        sd[2] = p.gps_gm_sigma_v_m
+    info["gps_error_states"].update(sigma_h_m=round(float(sd[0]), 4), sigma_v_m=round(float(sd[2]), 4))
+    cfg = dataclasses.replace(cfg, layout=gps_error_layout(sd, tau))
+    if gn is not None and cfg.n_states > 15:
+        # the white part again, with the error states on: they now carry the share of the
+        # fix-to-fix scatter that the wander makes
+        fixes = scaled_fixes(fixes, 1.0 / gn.scale)
+        gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+        fixes = scaled_fixes(fixes, gn.scale)
+        info["gps_noise"].update(gn.summary())
+    return fixes, cfg
+
+
+def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothParams, names, sols: dict):
+    """The requested solutions from the forward and backward runs (`sols` may hold `rts` already);
+    returns (solutions, flag, forward/backward NIS) at out_idx."""
+    wanted = set(names) | ({p.smoother} if "smoothed" in names else set())
+    if "two_filter" in wanted:
+        sols["two_filter"], flag, nis = smoothing.two_filter(fwd, bwd, out_idx, flag_probability=p.flag_probability)
+    else:
+        flag, nis = smoothing.disagreement(fwd, bwd, out_idx, flag_probability=p.flag_probability)
+    if "forward" in wanted:
+        sols["forward"] = smoothing.filter_solution(fwd, out_idx, "forward")
+    if "backward" in wanted:
+        sols["backward"] = smoothing.filter_solution(bwd, out_idx, "backward")
+    if "simplified" in wanted:
+        sols["simplified"] = smoothing.simplified(fwd, bwd, out_idx, outages_s)
+    if "smoothed" in wanted:
+        sols["smoothed"] = sols[p.smoother].renamed("smoothed")
+    return {k: v for k, v in sols.items() if k in names}, flag, nis
+
+
+def mounting_check(sols: dict, t_s, p: DriveSmoothParams) -> dict | None:
+    """Course over ground minus yaw of the best solution while moving (`fusion.mounting`)."""
+    best = next((n for n in ("smoothed", "rts", "two_filter", "forward") if n in sols), None)
+    if p.mounting_check_deg <= 0 or best is None:
+        return None
+    s = sols[best]
+    chk = course_minus_yaw(t_s[s.idx], s.nav[:, 3:6], dcm_to_euler(s.C_nb)[2], p.mounting_min_speed_mps)
+    warn = mounting_warning(chk, p.mounting_check_deg)
+    out = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn is not None,
+           **(chk.summary() if chk is not None else {"moving_s": 0.0})}
+    if warn is not None:
+        out["message"] = warn
+    return out
 
 
 def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None = None,
@@ -156,131 +257,34 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     Solutions are evaluated at the output rate plus the IMU sample indices `extra_idx` (e.g.
     range epochs for targeting); `DriveResult.out_idx` lists them all, sorted.
     """
-    stage = ctx.stage if ctx is not None else _nostage
-    imu = session.imu
-    t = np.ascontiguousarray(imu.t_s, dtype=float)
-    gyro = np.ascontiguousarray(imu.gyro_b_rps, dtype=float)
-    acc = np.ascontiguousarray(imu.acc_b_mps2, dtype=float)
-    rate = (t.size - 1) / (t[-1] - t[0])
-    nz, nz_src = _noise(p, session)
-    lever = np.asarray(session.meta.lever_arm_b_m, dtype=float)
+    stage = ctx.stage if ctx is not None else (lambda name: contextlib.nullcontext())
+    imu = _Imu(*(np.ascontiguousarray(a, dtype=float) for a in (session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2)))
+    nz = drive_imu_noise(p, session)
+    sig = initial_sigmas(p, nz)
     fixes = fixes_from_session(session, p)
-    sig = InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps, p.init_sigma_level_deg * DEG,
-                        p.init_sigma_yaw_deg * DEG, nz["acc_bias_mg"] * 1e-3 * G0_MPS2, nz["gyro_bias_dph"] * DEG / 3600)
+    cfg = filter_config(p, nz, session.meta.lever_arm_b_m, imu.rate_hz)
     with stage("alignment"):
-        init, info = align_vehicle(t, gyro, acc, imu.mag_b_ut, fixes, lever, sig, min_speed_mps=p.heading_min_speed_mps,
-                                   declination_rad=(session.meta.declination_deg or 0.0) * DEG)
-    sb_a = p.acc_bias_inrun_mg * 1e-3 * G0_MPS2
-    sb_g = p.gyro_bias_inrun_dph * DEG / 3600
-    q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate, (nz["gyro_noise_dps"] * DEG) ** 2 / rate,
-                  2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
-    cfg = FilterConfig(q, p.bias_tau_s, p.bias_tau_s, lever, max(1, int(round(p.cov_step_s * rate))), p.gate_probability,
-                       p.max_consecutive_rejections, p.outage_min_s)
-    with stage("alignment"):
-        info["imu_noise"] = {k: {"value": round(v, 6), "source": nz_src[k]} for k, v in nz.items()}
-        if p.heading_hypotheses > 0:
-            ys = search_yaw(t, gyro, acc, fixes, init, cfg, n_hypotheses=p.heading_hypotheses, motion_s=p.heading_search_s)
-            init = with_yaw(init, ys.yaw_rad, ys.sigma_yaw_rad)
-            if not ys.chose_prior:
-                info["heading"] = (f"yaw search: {np.degrees(ys.yaw_rad):.0f} deg +- {np.degrees(ys.sigma_yaw_rad):.0f}, "
-                                   f"best of {ys.scores.size} hypotheses (the prior, {info['heading']}, lost)")
-            else:
-                info["heading"] += f"; confirmed against {ys.scores.size - 1} other yaws"
-            info["yaw_search"] = {"t_s": list(ys.window_s), "yaw_deg": np.degrees(ys.hypotheses_rad).round(1).tolist(),
-                                  "score": [round(float(v), 1) for v in ys.scores]}
+        init, info = align(imu, session, p, fixes, cfg, sig, nz)
     with stage("gps_noise"):
-        if p.gps_noise == "estimate":
-            after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
-            gn = estimate_gps_noise(t, gyro, acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
-            fixes = scaled_fixes(fixes, gn.scale)
-            info["gps_noise"] = {"method": "covariance matching on decimated filter passes (fusion.gps_noise)",
-                                 **gn.summary()}
-            info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + session.t0_s, 2) for v in gn.window_s]
-        else:
-            info["gps_noise"] = {"method": "given (log SDs or pipeline defaults)",
-                                 **{k: (None if not np.isfinite(v) else round(float(v), 4)) for k, v in zip(
-                                     ("sigma_pos_h_m", "sigma_pos_v_m", "sigma_vel_h_mps", "sigma_vel_v_mps"),
-                                     median_sigmas(fixes))}}
-    with stage("gps_noise"):
-        if p.gps_error_model == "gauss_markov":
-            after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
-            if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
-                taus = (p.gps_gm_tau_s,) if p.gps_gm_tau_s is not None else TAU_GRID_S
-                fit = fit_gps_error(t, gyro, acc, fixes, init, cfg, taus_s=taus, after_s=after,
-                                    span_s=p.gps_noise_span_s)
-                sd, tau = fit.sigma_gm_ned_m.copy(), fit.tau_s
-                info["gps_error_states"] = fit.summary()
-            else:
-                sd, tau = np.zeros(3), p.gps_gm_tau_s or 30.0
-                info["gps_error_states"] = {"method": "set by the pipeline", "tau_s": tau}
-            if p.gps_gm_sigma_h_m is not None:
-                sd[:2] = p.gps_gm_sigma_h_m
-            if p.gps_gm_sigma_v_m is not None:
-                sd[2] = p.gps_gm_sigma_v_m
-            info["gps_error_states"].update(sigma_h_m=round(float(sd[0]), 4), sigma_v_m=round(float(sd[2]), 4))
-            cfg = dataclasses.replace(cfg, gps_gm_sigma_ned_m=sd, gps_gm_tau_s=tau)
-            if p.gps_noise == "estimate" and cfg.n_states > 15:
-                # the white part again, with the error states on: they now carry the share of
-                # the fix-to-fix scatter that the wander makes
-                fixes = scaled_fixes(fixes, 1.0 / gn.scale)
-                gn = estimate_gps_noise(t, gyro, acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
-                fixes = scaled_fixes(fixes, gn.scale)
-                info["gps_noise"].update(gn.summary())
-    need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
-    step = 1 if p.output_rate_hz <= 0 else max(1, int(round(rate / p.output_rate_hz)))
-    out_idx = np.arange(0, t.size, step)
-    if out_idx[-1] != t.size - 1:
-        out_idx = np.append(out_idx, t.size - 1)
+        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s)
+    out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))
     if extra_idx is not None and len(extra_idx):
         out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
+    need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     sols = {}
     with stage("forward"):
-        fwd = run_insgps(t, gyro, acc, fixes, init, cfg, store_rts=need_rts)
+        fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=need_rts)
     if need_rts:
         with stage("smoothing_rts"):
-            sols["rts"] = smoothing.rts(fwd, t, out_idx)
+            sols["rts"] = smoothing.rts(fwd, out_idx)
             # drop the RTS history before the backward run: it is the largest array of the run
             fwd = dataclasses.replace(fwd, ep_Phi=None, ep_Ppred=None)
     with stage("backward"):
-        # backward starts from the forward end state but with the initial SDs (not the forward
-        # covariance): the two runs then share no information beyond that rough start
-        init_b = InitialState(fwd.nav[-1].copy(), fwd.C_nb[-1].copy(), fwd.bias[-1, :6].copy(),
-                              initial_covariance(InitialSigmas(p.init_sigma_pos_m, p.init_sigma_vel_mps,
-                                                               sig.level_rad, sig.yaw_rad, sig.acc_bias_mps2,
-                                                               sig.gyro_bias_rps)))
-        bwd = run_insgps(t, gyro, acc, fixes, init_b, cfg, backward=True)
+        bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg, backward=True)
     with stage("smoothing"):
-        outages = fix_outages(fixes.t_s, t[-1], p.outage_min_s)
-        wanted = set(names)
-        if "smoothed" in wanted:
-            wanted.add(p.smoother)
-        if "two_filter" in wanted:
-            sols["two_filter"], flag, nis = smoothing.two_filter(fwd, bwd, t, out_idx, flag_probability=p.flag_probability)
-        else:
-            flag, nis = smoothing.disagreement(fwd, bwd, t, out_idx, flag_probability=p.flag_probability)
-        for name in wanted:
-            if name == "forward":
-                sols[name] = smoothing.filter_solution(fwd, out_idx, "forward")
-            elif name == "backward":
-                sols[name] = smoothing.filter_solution(bwd, out_idx, "backward")
-            elif name == "simplified":
-                sols[name] = smoothing.simplified(fwd, bwd, t, out_idx, outages)
-        if "smoothed" in wanted:
-            s = sols[p.smoother]
-            sols["smoothed"] = smoothing.Solution("smoothed", s.idx, s.nav, s.C_nb, s.P9)
-        sols = {k: v for k, v in sols.items() if k in names}
-    mounting = None
-    if p.mounting_check_deg > 0:
-        best = next((n for n in ("smoothed", "rts", "two_filter", "forward") if n in sols), None)
-        if best is not None:
-            s = sols[best]
-            chk = course_minus_yaw(t[s.idx], s.nav[:, 3:6], dcm_to_euler(s.C_nb)[2], p.mounting_min_speed_mps)
-            warn = mounting_warning(chk, p.mounting_check_deg)
-            mounting = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn is not None,
-                        **(chk.summary() if chk is not None else {"moving_s": 0.0})}
-            if warn is not None:
-                mounting["message"] = warn
-    return DriveResult(t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info, mounting)
+        outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
+        sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
+    return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info, mounting_check(sols, imu.t, p))
 
 
 def nis_band(nis, innovation) -> dict | None:
@@ -315,7 +319,7 @@ def range_epochs(session: Session):
     return np.concatenate(idx), np.concatenate(rng), np.concatenate(shot)
 
 
-def geolocate_shots(session: Session, sol: smoothing.Solution, epochs, sigma_range_m: float) -> pd.DataFrame:
+def geolocate_shots(session: Session, sol: Solution, epochs, sigma_range_m: float) -> pd.DataFrame:
     """Targets of the shots from a solution at the range epochs (paper 001 with `targeting.geolocate`).
 
     Each range epoch is geolocated with the solution's position and attitude covariances; a
@@ -347,33 +351,74 @@ def innovations_table(res: DriveResult, t0_s: float) -> pd.DataFrame:
     """`innovations.parquet`: one row per fix, run and kind: t, solution (forward | backward), kind
     (gps_pos | gps_vel), nis, dof, accepted, and the residual components nu_0..nu_2 (NED m or m/s)."""
     frames = []
-    for run_name, r in (("forward", res.forward), ("backward", res.backward)):
-        for j, kind in enumerate(("gps_pos", "gps_vel")):
-            m = np.isfinite(r.nis[:, j])
-            nu = r.innovation[m, 3 * j: 3 * j + 3]
+    for run_name in ("forward", "backward"):
+        gi = res.innovations(run_name)
+        for j, kind in enumerate(GPS_KINDS):
+            m = np.isfinite(gi.nis[:, j])
+            nu = gi.innovation[m, 3 * j: 3 * j + 3]
             frames.append(pd.DataFrame({
-                "t": res.fixes.t_s[m] + t0_s, "solution": run_name, "kind": kind, "nis": r.nis[m, j],
-                "dof": np.isfinite(nu).sum(axis=1).astype(np.int64), "accepted": r.accepted[m, j],
+                "t": res.fixes.t_s[m] + t0_s, "solution": run_name, "kind": kind, "nis": gi.nis[m, j],
+                "dof": np.isfinite(nu).sum(axis=1).astype(np.int64), "accepted": gi.accepted[m, j],
                 "nu_0": nu[:, 0], "nu_1": nu[:, 1], "nu_2": nu[:, 2]}))
     return pd.concat(frames, ignore_index=True).sort_values(["solution", "kind", "t"], kind="stable", ignore_index=True)
 
 
-class _nostage:
-    def __init__(self, name):
-        pass
+def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ctx: RunContext) -> dict:
+    """`summary.json` results: alignment, fixes and rejections, forward NIS against its band,
+    outages, flagged fraction, mounting check; counts and the mounting warning go to ctx."""
+    ctx.count("gps_fixes_used", int(res.fixes.t_s.size))
+    rejected = {}
+    for run_name in ("forward", "backward"):
+        gi = res.innovations(run_name)
+        for j, kind in enumerate(GPS_KINDS):
+            n_rej = int(np.sum(~gi.accepted[:, j] & np.isfinite(gi.nis[:, j])))
+            rejected[f"{run_name}_{kind}"] = n_rej
+            ctx.count(f"{kind}_rejected_{run_name}", n_rej)
+    ctx.count("flagged_rows", int(res.flag.sum()))
+    mounting = dict(res.mounting) if res.mounting is not None else None
+    if mounting is not None and "message" in mounting:
+        ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
+    gi = res.innovations("forward")
+    mean_nis, nis_check = {}, {}
+    for j, kind in enumerate(GPS_KINDS):
+        a = gi.nis[gi.accepted[:, j], j]
+        mean_nis[kind] = float(np.mean(a)) if a.size else None
+        nis_check[kind] = nis_band(a, gi.innovation[gi.accepted[:, j], 3 * j: 3 * j + 3])
+    return {
+        "alignment": res.info,
+        "smoothed_method": p.smoother,
+        "solutions": list(names),
+        "gps_fixes": int(res.fixes.t_s.size),
+        "gps_rejected": rejected,
+        "forward_mean_nis": mean_nis,  # 3 d.o.f. each (2 for speed/course velocity): about that when R fits
+        "forward_nis_check": nis_check,
+        "outages_s": (res.outages_s + t0_s).tolist(),
+        "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
+        "mounting_check": mounting,
+    }
 
-    def __enter__(self):
-        return self
 
-    def __exit__(self, *a):
-        return False
+def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, names, with_shots: bool) -> pd.DataFrame:
+    """`trajectory.parquet` of the solutions `names` at the output rate (the extra rows of range
+    epochs for targeting dropped), with `outage` and `flag`."""
+    t = res.t_s
+    keep = np.ones(res.out_idx.size, dtype=bool)
+    if with_shots:
+        step = 1 if p.output_rate_hz <= 0 else max(1, int(round((t.size - 1) / (t[-1] - t[0]) / p.output_rate_hz)))
+        keep = (res.out_idx % step == 0) | (res.out_idx == t.size - 1)
+    tt = t[res.out_idx[keep]]
+    outage = np.zeros(tt.size, dtype=bool)
+    for a, b in res.outages_s:
+        outage |= (tt >= a) & (tt < b)
+    flag = res.flag[keep]
+    return pd.concat([solution_rows(res.solutions[n].rows(keep), t, session.t0_s, outage, flag) for n in names],
+                     ignore_index=True)
 
 
 def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:
     names = ["forward", "backward", "smoothed"] + (list(SMOOTHERS) if p.compare else [])
     epochs = range_epochs(session)
     res = process_drive(session, p, ctx, names, extra_idx=None if epochs is None else epochs[0])
-    t = res.t_s
     targets = None
     if epochs is not None:
         with ctx.stage("targeting"):
@@ -382,47 +427,7 @@ def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:
             targets = geolocate_shots(session, res.solutions["smoothed"], epochs, sig_r)
         ctx.count("targets", len(targets))
     with ctx.stage("outputs"):
-        step = 1 if p.output_rate_hz <= 0 else max(1, int(round((t.size - 1) / (t[-1] - t[0]) / p.output_rate_hz)))
-        keep = (res.out_idx % step == 0) | (res.out_idx == t.size - 1)
-        if epochs is not None:
-            res = dataclasses.replace(res, out_idx=res.out_idx[keep], flag=res.flag[keep], solutions={
-                k: smoothing.Solution(v.name, v.idx[keep], v.nav[keep], v.C_nb[keep], v.P9[keep])
-                for k, v in res.solutions.items()})
-        tt = t[res.out_idx]
-        outage = np.zeros(tt.size, dtype=bool)
-        for a, b in res.outages_s:
-            outage |= (tt >= a) & (tt < b)
-        frames = [solution_frame(res.solutions[n], session.t0_s, t, outage, res.flag) for n in names]
-        traj = pd.concat(frames, ignore_index=True)
+        traj = trajectory_rows(res, session, p, names, with_shots=epochs is not None)
         innov = innovations_table(res, session.t0_s)
-    n_fix = int(res.fixes.t_s.size)
-    ctx.count("gps_fixes_used", n_fix)
-    rejected = {}
-    for run_name, r in (("forward", res.forward), ("backward", res.backward)):
-        for j, kind in enumerate(("gps_pos", "gps_vel")):
-            n_rej = int(np.sum(~r.accepted[:, j] & np.isfinite(r.nis[:, j])))
-            rejected[f"{run_name}_{kind}"] = n_rej
-            ctx.count(f"{kind}_rejected_{run_name}", n_rej)
-    ctx.count("flagged_rows", int(res.flag.sum()))
-    mounting = dict(res.mounting) if res.mounting is not None else None
-    if mounting is not None and "message" in mounting:
-        ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
-    mean_nis = {}
-    nis_check = {}
-    for j, kind in enumerate(("gps_pos", "gps_vel")):
-        a = res.forward.nis[res.forward.accepted[:, j], j]
-        mean_nis[kind] = float(np.mean(a)) if a.size else None
-        nis_check[kind] = nis_band(a, res.forward.innovation[res.forward.accepted[:, j], 3 * j: 3 * j + 3])
-    summary = {
-        "alignment": res.info,
-        "smoothed_method": p.smoother,
-        "solutions": names,
-        "gps_fixes": n_fix,
-        "gps_rejected": rejected,
-        "forward_mean_nis": mean_nis,  # 3 d.o.f. each (2 for speed/course velocity): about that when R fits
-        "forward_nis_check": nis_check,
-        "outages_s": (res.outages_s + session.t0_s).tolist(),
-        "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
-        "mounting_check": mounting,
-    }
-    return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov}, summary=summary)
+    return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov},
+                       summary=drive_summary(res, p, names, session.t0_s, ctx))

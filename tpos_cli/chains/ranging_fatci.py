@@ -2,15 +2,17 @@
 
 Stages: range error model (Eq. 13-16) from `range_calibration`; floor height, stationary intervals
 (IMU confirmed by the fixes) and initial state from least-squares fixes; forward INS/range filters
-(`tpos_cli.ranging.filter`) with innovation gating, zero-velocity updates and coasting report;
-then the `smoothed` solution: the `smooth_source` filter (default `fatci`) smoothed with
-`tpos_cli.smoothing` (RTS on its forward run, or the two-filter combination with a backward run,
-as the INS/GPS pipeline). The ranging node is assumed at the IMU (zero lever arm).
+(`tpos_cli.ranging.filter` rows for the one filter of `fusion.engine`) with innovation gating,
+zero-velocity updates and coasting report; then the `smoothed` solution: the `smooth_source`
+filter (default `fatci`) smoothed with `tpos_cli.smoothing` (RTS on its forward run, or the
+two-filter combination with a backward run, as the INS/GPS pipeline); the trajectory table
+(`tpos_cli.trajectory`). The ranging node is assumed at the IMU (zero lever arm).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -22,53 +24,257 @@ from tpos_cli.config import RangingParams
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.earth import G0_MPS2
-from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
-from tpos_cli.ranging.calibration import fit_range_model, identity_model
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
+from tpos_cli.fusion.layout import Block
+from tpos_cli.fusion.measurements import Kind
+from tpos_cli.imu_noise import ImuNoiseFigures, resolve_imu_noise
+from tpos_cli.ranging.calibration import RangeModel, fit_range_model, identity_model
 from tpos_cli.ranging.filter import (
-    BIAS,
-    EV_FIX_NE,
-    EV_RANGE,
-    Events,
-    FilterConfig,
-    FilterRun,
-    InitialState,
+    anchor_of,
     coasting_intervals,
     down_events,
-    end_state,
     fix_events,
     fuzzy_range_variance,
+    initial_state,
+    output_indices,
     range_events,
-    run_filter,
+    ranging_layout,
+    run_ranging,
     zupt_events,
 )
 from tpos_cli.ranging.fuzzy import fuzzy_system
 from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
 from tpos_cli.ranging.stillness import stationary_intervals
 from tpos_cli.session import Session
+from tpos_cli.trajectory import Solution, solution_table
 
 
-def _filter_config(session: Session, p: RangingParams, imu_dt_s: float, output_every: int, cov_step: int) -> FilterConfig:
-    n = session.meta.imu_noise
-    gyro_noise = n.gyro_noise_dps if n.gyro_noise_dps is not None else p.gyro_noise_dps
-    acc_noise = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
-    gyro_bias = n.gyro_bias_dph if n.gyro_bias_dph is not None else p.gyro_bias_dph
-    acc_bias = n.acc_bias_mg if n.acc_bias_mg is not None else p.acc_bias_mg
-    gb = np.radians(gyro_bias / 3600.0)
-    ab = acc_bias * 1e-3 * G0_MPS2
+@dataclass(frozen=True)
+class Ranges:
+    """Corrected anchor ranges, time sorted: t_s, anchor, range_m (Eq. 14 inverted), sd_fit_m (the
+    model's SD at that distance), and the range model."""
+
+    t_s: np.ndarray
+    anchor: np.ndarray
+    range_m: np.ndarray
+    sd_fit_m: np.ndarray
+    model: RangeModel
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where the filters start: init, the settings, the LS fixes, the stationary intervals, the
+    floor height, and the end of a static start window whose aiding is in the start already."""
+
+    init: InitialState
+    cfg: FilterConfig
+    fixes: Measurements
+    still: list
+    floor_down_m: float
+    t_used_s: float
+
+
+def imu_figures(session: Session, p: RangingParams) -> ImuNoiseFigures:
+    return resolve_imu_noise(p, session.meta.imu_noise)
+
+
+def filter_config(nz: ImuNoiseFigures, p: RangingParams, imu_dt_s: float, cov_step: int, n_anchors: int) -> tuple[FilterConfig, np.ndarray]:
+    """SI settings (white PSDs sigma^2 dt; biases that may wander by their own size over
+    bias_drift_time_s) and the initial SDs (15,) of the navigation errors."""
+    gb = np.radians(nz["gyro_bias_dph"] / 3600.0)
+    ab = nz["acc_bias_mg"] * 1e-3 * G0_MPS2
     q = np.array([
-        (acc_noise * 1e-3 * G0_MPS2) ** 2 * imu_dt_s,  # per-sample SD -> PSD: sigma^2 dt
-        np.radians(gyro_noise) ** 2 * imu_dt_s,
-        ab**2 / p.bias_drift_time_s,  # bias may wander by its own size over bias_drift_time_s
+        (nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 * imu_dt_s,  # per-sample SD -> PSD: sigma^2 dt
+        np.radians(nz["gyro_noise_dps"]) ** 2 * imu_dt_s,
+        ab**2 / p.bias_drift_time_s,
         gb**2 / p.bias_drift_time_s,
     ])
     sd0 = np.concatenate([
         np.full(3, p.initial_position_sd_m), np.full(3, p.initial_velocity_sd_mps),
         np.radians([p.initial_level_sd_deg, p.initial_level_sd_deg, p.initial_yaw_sd_deg]),
-        np.full(3, max(ab, 1e-6)), np.full(3, max(gb, 1e-9)), [p.range_bias_sd_m],
+        np.full(3, max(ab, 1e-6)), np.full(3, max(gb, 1e-9)),
     ])
-    return FilterConfig(q=q, tau_acc_s=0.0, tau_gyro_s=0.0, q_range_bias_m2ps=p.range_bias_rw_m_per_sqrt_s**2,
-                        sd0=sd0, gate_probability=p.gate_probability,
-                        max_consecutive_rejects=p.gate_max_consecutive, output_every=output_every, cov_step=cov_step)
+    lay = ranging_layout(n_anchors, p.range_bias_sd_m, p.range_bias_rw_m_per_sqrt_s**2)
+    return FilterConfig(q=q, tau_acc_s=0.0, tau_gyro_s=0.0, cov_step=cov_step, gate_probability=p.gate_probability,
+                        max_consecutive_rejections=p.gate_max_consecutive, layout=lay), sd0
+
+
+def corrected_ranges(session: Session, p: RangingParams, ctx: RunContext, results: dict) -> Ranges:
+    """Stage `range_model`: fit Eq. 13-16 on the calibration table (or none) and correct the ranges."""
+    anchors, ar = session.anchors, session.anchor_ranges
+    A = len(anchors.ids)
+    if session.range_calibration is not None:
+        rc = session.range_calibration
+        model = fit_range_model(rc.anchor, rc.true_m, rc.measured_m, A, scale=p.calibration_scale,
+                                reject_sigma=p.calibration_reject_sigma, sd_poly_degree=p.sd_poly_degree)
+    else:
+        model = identity_model(A, p.range_sd_m)
+        ctx.warn(f"ranging: no range_calibration table; ranges used uncorrected (f = 1, c = 0) with "
+                 f"a constant SD of {p.range_sd_m} m")
+    results["range_model"] = model.summary(anchors.ids)
+    ok = np.isfinite(ar.range_m)
+    order = np.argsort(ar.t_s[ok], kind="stable")
+    t = ar.t_s[ok][order]
+    a = ar.anchor[ok][order].astype(np.int64)
+    r = model.correct(a, ar.range_m[ok][order])  # Eq. 14 inverted
+    ctx.count("anchor_ranges_used", int(t.size))
+    few = few_anchor_intervals(t, a, p.epoch_window_s, min_s=p.coast_gap_s)
+    if few:
+        # With one or two anchors the node is known only up to a mirror image about them: a
+        # straight, steady leg cannot tell the two apart, and the filter may lock onto the wrong one.
+        total = sum(b - a_ for a_, b in few)
+        ctx.warn(f"ranging: {len(few)} stretch(es), {total:.1f} s in all, with fewer than 3 anchors answering: "
+                 "there the position is ambiguous up to a mirror image about the anchors; check those stretches")
+        results["few_anchor_intervals"] = [[a_ + session.t0_s, b + session.t0_s] for a_, b in few]
+    return Ranges(t, a, r, model.range_sd_m(r), model)
+
+
+def start(session: Session, p: RangingParams, rg: Ranges, ctx: RunContext, results: dict) -> Start:
+    """Stage `initial_alignment`: floor height, LS fixes, stationary intervals, initial state and settings."""
+    imu = session.imu
+    anchors_ned = np.asarray(session.anchors.ned_m, dtype=float)
+    origin = np.asarray(session.anchors.origin_lla, dtype=float)
+    imu_dt = float(np.median(np.diff(imu.t_s)))
+    cfg, sd0 = filter_config(imu_figures(session, p), p, imu_dt, max(1, int(round(p.cov_step_s / imu_dt))), len(session.anchors.ids))
+    floor_d, floor_se = _floor_down(anchors_ned, rg.t_s, rg.anchor, rg.range_m, rg.sd_fit_m, p, ctx)
+    fixes, n_nofix = fix_events(rg.t_s, rg.anchor, rg.range_m, rg.sd_fit_m, anchors_ned, floor_d, p.lc_min_anchors,
+                                p.epoch_window_s, p.gate_probability)
+    still = stationary_intervals(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, rg.t_s, rg.anchor, rg.range_m,
+                                 min_duration_s=p.zupt_min_duration_s, acc_step_mps2=p.zupt_acc_step_mps2,
+                                 max_speed_mps=p.zupt_max_speed_mps)
+    k0, vel0, rpy0 = _heading(session, fixes, still, p)
+    # robust start: median of the fixes over the first second, or over the whole stationary
+    # interval when the node starts at rest (the cross-corridor SD of one fix is ~0.4 m)
+    rest = [b for a_, b in still if a_ <= fixes.t_s[0] + 0.5 and b > fixes.t_s[0]]
+    zw = fixes.z[fixes.t_s <= (rest[0] if rest else fixes.t_s[0] + 1.0), :2]
+    z0 = np.median(zw, axis=0)
+    # At rest the start is the mean of the window's fixes (within 3 MAD-SDs of their median,
+    # against NLOS fixes) with the SD of that mean, and the filters skip the window's
+    # ranges and fixes: they are in the start already (processing them again double counted
+    # them: static-start NEES ~4). Moving, the median is only a linearization point: it
+    # carries one fix's SD and the ranges are processed.
+    sd_fix = 1.4826 * np.median(np.abs(zw - z0), axis=0)
+    sd_start = np.maximum(sd_fix, 0.02)
+    if rest:  # mean of the fixes within 3 SD of the median: NLOS-robust, as efficient as a mean
+        inl = np.all(np.abs(zw - z0) <= 3.0 * np.maximum(sd_fix, 1e-6), axis=1)
+        z0 = zw[inl].mean(axis=0)
+        sd_start = np.maximum(zw[inl].std(axis=0, ddof=1) / np.sqrt(inl.sum()), 0.02)
+    t_used = rest[0] if rest else -np.inf
+    sd0[:2] = np.minimum(sd_start, p.initial_position_sd_m)
+    # beyond the paper: the floor height and the calibration are constant errors, estimated
+    # as states rather than treated as white noise (their neglect raised the NEES)
+    cfg = dataclasses.replace(cfg, layout=ranging_layout(len(session.anchors.ids), p.range_bias_sd_m,
+                                                         p.range_bias_rw_m_per_sqrt_s**2, floor_se, rg.model.bias_cov_m2))
+    lla0 = geodetic.ned_to_lla(np.array([z0[0], z0[1], floor_d]), origin)
+    init = initial_state(k0, lla0, vel0, rpy0, sd0)
+    results.update({
+        "floor_down_m": floor_d, "floor_height_sd_m": floor_se,
+        "start_window_end": float(t_used + session.t0_s) if rest else None,
+        "initial_state": {"t": float(imu.t_s[k0] + session.t0_s), "lla": [float(v) for v in lla0],
+                          "rpy_deg": [float(v) for v in np.degrees(rpy0)]},
+        "lc_fixes": int(fixes.t_s.size), "lc_epochs_without_fix": int(n_nofix),
+        "stationary_intervals": [[a_ + session.t0_s, b + session.t0_s] for a_, b in still]})
+    return Start(init, cfg, fixes, still, floor_d, t_used)
+
+
+def common_events(rg: Ranges, st: Start, p: RangingParams, ctx: RunContext) -> Measurements:
+    """The rows every filter takes: the floor constraint at each range epoch, zero-velocity updates."""
+    common = [down_events(np.unique(rg.t_s), st.floor_down_m, p.floor_sd_m)]
+    if p.zupt and st.still:
+        step = 1.0 / p.zupt_rate_hz
+        tz = np.concatenate([np.arange(a_, b + 1e-9, step) for a_, b in st.still])
+        common.append(zupt_events(tz, p.zupt_sd_mps))
+        ctx.count("zero_velocity_updates", int(tz.size))
+    return Measurements.merge(*common)
+
+
+def solution_events(name: str, rg: Ranges, st: Start, p: RangingParams) -> tuple[Measurements, dict]:
+    """The aiding of one solution: `lc` the LS fixes, `tc` the ranges with a constant R, `fatci`
+    with the fuzzy R of Eq. 31; only those after a static start window."""
+    extra: dict = {}
+    if name == "lc":
+        ev = st.fixes
+    elif name == "tc":
+        sd_tc = rg.model.pooled_sd_m if p.tc_range_sd_m is None else p.tc_range_sd_m  # constant R: pooled residual SD
+        ev = range_events(rg.t_s, rg.anchor, rg.range_m, np.full(rg.t_s.size, sd_tc**2))
+        extra["range_sd_m"] = float(sd_tc)
+    else:
+        R, S = fuzzy_range_variance(fuzzy_system(p.fuzzy), rg.sd_fit_m, rg.model.pooled_sd_m, p.fuzzy_exponent_b)
+        ev = range_events(rg.t_s, rg.anchor, rg.range_m, R)
+        extra["fuzzy_S"] = {"min": float(S.min()), "median": float(np.median(S)), "max": float(S.max())}
+    return ev.select(ev.t_s > st.t_used_s), extra
+
+
+def smoothed(session: Session, src: FilterRun, st: Start, p: RangingParams, out_idx, per_sol: dict) -> pd.DataFrame:
+    """Stage `smoothing`: the smooth_source run RTS-smoothed, or combined with a backward run
+    (from the forward end state with the initial SDs, as the INS/GPS chain)."""
+    if p.smoother == "rts":
+        sol = smoothing.rts(src, out_idx)
+        per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "rts"}
+        rb = sol.bias[:, 6 + src.layout.offset(Block.RANGE_BIAS) - 15]
+    else:
+        anchors = session.anchors
+        bwd = run_ranging(session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2,
+                          backward_start(src, st.init.P0), src.measurements, anchors.ned_m, anchors.origin_lla,
+                          st.cfg, backward=True)
+        sol, flag, _ = smoothing.two_filter(_nav15(src), _nav15(bwd), out_idx)
+        per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "two_filter",
+                               "forward_backward_disagreements": int(flag.sum()),
+                               "backward": _report(bwd, "backward", anchors.ids, session.t0_s, p, None, st.t_used_s)}
+        rb = _combined_range_bias(src, bwd, out_idx)
+    return _rows(sol.renamed("smoothed"), src, session.t0_s, rb)
+
+
+def run(session: Session, p: RangingParams, ctx: RunContext) -> ChainOutput:
+    if session.anchors is None or session.anchor_ranges is None:
+        raise InvalidInputError(f"{session.path}: the ranging_fatci pipeline needs anchors.csv and anchor_ranges")
+    imu, ids, results = session.imu, session.anchors.ids, {}
+    with ctx.stage("range_model"):
+        rg = corrected_ranges(session, p, ctx, results)
+    with ctx.stage("initial_alignment"):
+        st = start(session, p, rg, ctx, results)
+    common = common_events(rg, st, p, ctx)
+    out_idx = output_indices(imu.t_s.size - st.init.k0, max(1, int(round(1.0 / (p.output_rate_hz * float(np.median(np.diff(imu.t_s))))))))
+    trajs, innov, per_sol, runs = [], [], {}, {}
+    for name in p.solutions:
+        with ctx.stage(f"filter_{name}"):
+            ev, extra = solution_events(name, rg, st, p)
+            store = p.smoothed and name == p.smooth_source and p.smoother == "rts"
+            runs[name] = run_ranging(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, st.init, Measurements.merge(ev, common),
+                                     session.anchors.ned_m, session.anchors.origin_lla, st.cfg, store_rts=store)
+        rb = runs[name].extra(Block.RANGE_BIAS)[out_idx, 0]
+        trajs.append(_rows(smoothing.filter_solution(runs[name], out_idx, name), runs[name], session.t0_s, rb))
+        per_sol[name] = _report(runs[name], name, ids, session.t0_s, p, ctx, st.t_used_s) | extra
+        innov.append(_innovations(runs[name], name, ids, session.t0_s))
+    if p.smoothed:
+        with ctx.stage("smoothing"):
+            trajs.append(smoothed(session, runs[p.smooth_source], st, p, out_idx, per_sol))
+    results["solutions"] = per_sol
+    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
+                       summary=results)
+
+
+def _rows(sol: Solution, run: FilterRun, t0_s: float, range_bias_m) -> pd.DataFrame:
+    """Trajectory rows of a ranging solution: contract columns (vertical SD as `sigma_u`), the range
+    bias eps_d and the north-east position covariance."""
+    return solution_table(sol, run.t_s, t0_s, vertical_sigma="sigma_u",
+                          extra={"range_bias_m": range_bias_m, "cov_ne_m2": sol.P9[:, 0, 1]})
+
+
+def _combined_range_bias(src: FilterRun, bwd: FilterRun, out_idx) -> np.ndarray:
+    """eps_d of the two-filter rows: the forward and backward estimates weighted by their inverse
+    variances (the marginal Fraser-Potter combination; cross-covariances with the navigation
+    states not used)."""
+    o = src.layout.offset(Block.RANGE_BIAS)
+    vf = src.ep_P[epoch_of(src, out_idx), o, o]
+    vb = bwd.ep_P[epoch_of(bwd, out_idx), o, o]
+    return (src.extra(Block.RANGE_BIAS)[out_idx, 0] * vb + bwd.extra(Block.RANGE_BIAS)[out_idx, 0] * vf) / (vf + vb)
+
+
+def _nav15(run: FilterRun) -> FilterRun:
+    """The run with its covariances reduced to the 15 navigation states (the two-filter smoother's layout)."""
+    return dataclasses.replace(run, ep_P=np.ascontiguousarray(run.ep_P[:, :15, :15]))
 
 
 _FLOOR_UNKNOWN_SD_M = 1.0  # floor taken at the anchors' height: its error is metres, the ranges refine it
@@ -102,10 +308,11 @@ def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> 
     return med, float(p.floor_height_sd_m) if p.floor_height_sd_m is not None else se
 
 
-def _initial_state(session: Session, fixes: Events, still, p: RangingParams) -> InitialState:
+def _heading(session: Session, fixes: Measurements, still, p: RangingParams) -> tuple[int, np.ndarray, np.ndarray]:
     """Position from the first fix; at rest (inside a stationary interval: v = 0, level over that
     interval) or moving (velocity from a line through 1 s of fixes, level over level_window_s);
-    yaw from the track of the fixes once the node has moved align_distance_m."""
+    yaw from the track of the fixes once the node has moved align_distance_m. Returns (k0, NED
+    velocity, roll/pitch/yaw rad)."""
     if fixes.t_s.size < 2:
         raise InvalidInputError("anchor_ranges: no epoch has enough anchors for a first position fix")
     t_imu = session.imu.t_s
@@ -146,203 +353,7 @@ def _initial_state(session: Session, fixes: Events, still, p: RangingParams) -> 
         u = u if u @ d >= 0 else -u
         moving = dist[: j + 1] > 0.2 * p.align_distance_m  # where the track direction is the heading
         yaw = float(np.arctan2(u[1], u[0]) - np.mean(psi_fix[: j + 1][moving]))
-    return InitialState(k0=k0, lla=np.zeros(3), vel_ned_mps=np.array([vel_ne[0], vel_ne[1], 0.0]),
-                        rpy_rad=np.array([roll, pitch, yaw]))
-
-
-def _epoch_of(run: FilterRun, idx) -> np.ndarray:
-    """Covariance epoch of each run-local sample index (the nearest on the data side, as `run_filter`)."""
-    if run.backward:
-        return np.minimum(np.searchsorted(run.ep_idx, idx, side="left"), run.ep_idx.size - 1)
-    return np.maximum(np.searchsorted(run.ep_idx, idx, side="right") - 1, 0)
-
-
-def _smoothed_range_bias(src: FilterRun, bwd: FilterRun | None) -> np.ndarray:
-    """eps_d (Eq. 17-18) of the `smoothed` rows at src.out_idx.
-
-    RTS: the smoothed error of the BIAS state (the same recursion as `smoothing.rts`, which keeps
-    the navigation states only), interpolated between epochs as there. Two-filter: the forward
-    and backward estimates weighted by their inverse variances (the marginal Fraser-Potter
-    combination; the cross-covariances with the navigation states are not used).
-    """
-    j = src.out_idx
-    if bwd is None:
-        xs_post, xs_pre, _ = smoothing.rts_closed_loop(src.ep_Phi, src.ep_Ppred, src.ep_P, src.ep_dx)
-        ep_t = src.t_run_s[src.ep_idx]
-        e = _epoch_of(src, j)
-        nxt = np.minimum(e + 1, src.ep_idx.size - 1)
-        at = (src.ep_idx[e] == j) | (nxt == e)
-        a = np.where(at, 0.0, (src.t_run_s[j] - ep_t[e]) / np.where(at, 1.0, ep_t[nxt] - ep_t[e]))
-        xs = (1.0 - a) * xs_post[e, BIAS] + a * np.where(at, 0.0, xs_pre[nxt, BIAS])
-        return src.range_bias_all_m[j] - xs  # error = estimate - truth
-    vf = src.ep_P[_epoch_of(src, j), BIAS, BIAS]
-    vb = bwd.ep_P[_epoch_of(bwd, j), BIAS, BIAS]
-    return (src.range_bias_all_m[j] * vb + bwd.range_bias_all_m[j] * vf) / (vf + vb)
-
-
-def _solution_frame(sol: smoothing.Solution, name: str, t_run_s, t0_s: float, range_bias_m) -> pd.DataFrame:
-    """Trajectory rows of a smoothed `Solution` (attitude SDs: of the nav-frame error phi, as the filters)."""
-    r, pt, y = dcm_to_euler(sol.C_nb)
-    sd = np.sqrt(np.clip(np.diagonal(sol.P9, axis1=1, axis2=2), 0.0, None))
-    return pd.DataFrame({
-        "t": t_run_s[sol.idx] + t0_s, "lat": np.degrees(sol.nav[:, 0]), "lon": np.degrees(sol.nav[:, 1]),
-        "h": sol.nav[:, 2], "vn": sol.nav[:, 3], "ve": sol.nav[:, 4], "vd": sol.nav[:, 5],
-        "roll": np.degrees(r), "pitch": np.degrees(pt), "yaw": np.degrees(y), "solution": name,
-        "sigma_n": sd[:, 0], "sigma_e": sd[:, 1], "sigma_u": sd[:, 2],
-        "sigma_vn": sd[:, 3], "sigma_ve": sd[:, 4], "sigma_vd": sd[:, 5],
-        "sigma_roll": np.degrees(sd[:, 6]), "sigma_pitch": np.degrees(sd[:, 7]), "sigma_yaw": np.degrees(sd[:, 8]),
-        "range_bias_m": range_bias_m, "cov_ne_m2": sol.P9[:, 0, 1],
-    })
-
-
-def _trajectory(run: FilterRun, name: str, t0_s: float) -> pd.DataFrame:
-    return pd.DataFrame({
-        "t": run.t_s + t0_s, "lat": run.lla[:, 0], "lon": run.lla[:, 1], "h": run.lla[:, 2],
-        "vn": run.vel_ned_mps[:, 0], "ve": run.vel_ned_mps[:, 1], "vd": run.vel_ned_mps[:, 2],
-        "roll": run.rpy_deg[:, 0], "pitch": run.rpy_deg[:, 1], "yaw": run.rpy_deg[:, 2],
-        "solution": name,
-        "sigma_n": run.sd_ned_m[:, 0], "sigma_e": run.sd_ned_m[:, 1], "sigma_u": run.sd_ned_m[:, 2],
-        "sigma_vn": run.sd_vel_mps[:, 0], "sigma_ve": run.sd_vel_mps[:, 1], "sigma_vd": run.sd_vel_mps[:, 2],
-        "sigma_roll": run.sd_att_deg[:, 0], "sigma_pitch": run.sd_att_deg[:, 1], "sigma_yaw": run.sd_att_deg[:, 2],
-        "range_bias_m": run.range_bias_m, "cov_ne_m2": run.cov_ne_m2,
-    })
-
-
-def run(session: Session, p: RangingParams, ctx: RunContext) -> ChainOutput:
-    fis = fuzzy_system(p.fuzzy) if "fatci" in p.solutions else None
-    if session.anchors is None or session.anchor_ranges is None:
-        raise InvalidInputError(f"{session.path}: the ranging_fatci pipeline needs anchors.csv and anchor_ranges")
-    anchors = session.anchors
-    ar = session.anchor_ranges
-    A = len(anchors.ids)
-    anchors_ned = np.asarray(anchors.ned_m, dtype=float)
-    origin = np.asarray(anchors.origin_lla, dtype=float)
-    results: dict = {}
-
-    with ctx.stage("range_model"):
-        if session.range_calibration is not None:
-            rc = session.range_calibration
-            model = fit_range_model(rc.anchor, rc.true_m, rc.measured_m, A, scale=p.calibration_scale,
-                                    reject_sigma=p.calibration_reject_sigma, sd_poly_degree=p.sd_poly_degree)
-        else:
-            model = identity_model(A, p.range_sd_m)
-            ctx.warn(f"ranging: no range_calibration table; ranges used uncorrected (f = 1, c = 0) with "
-                     f"a constant SD of {p.range_sd_m} m")
-        results["range_model"] = model.summary(anchors.ids)
-        ok = np.isfinite(ar.range_m)
-        order = np.argsort(ar.t_s[ok], kind="stable")
-        t = ar.t_s[ok][order]
-        a = ar.anchor[ok][order].astype(np.int64)
-        r = model.correct(a, ar.range_m[ok][order])  # Eq. 14 inverted
-        sd_fit = model.range_sd_m(r)
-        ctx.count("anchor_ranges_used", int(t.size))
-        few = few_anchor_intervals(t, a, p.epoch_window_s, min_s=p.coast_gap_s)
-        if few:
-            # With one or two anchors the node is known only up to a mirror image about them: a
-            # straight, steady leg cannot tell the two apart, and the filter may lock onto the wrong one.
-            total = sum(b - a_ for a_, b in few)
-            ctx.warn(f"ranging: {len(few)} stretch(es), {total:.1f} s in all, with fewer than 3 anchors answering: "
-                     "there the position is ambiguous up to a mirror image about the anchors; check those stretches")
-            results["few_anchor_intervals"] = [[a_ + session.t0_s, b + session.t0_s] for a_, b in few]
-
-    imu = session.imu
-    imu_dt = float(np.median(np.diff(imu.t_s)))
-    out_every = max(1, int(round(1.0 / (p.output_rate_hz * imu_dt))))
-    cfg = _filter_config(session, p, imu_dt, out_every, max(1, int(round(p.cov_step_s / imu_dt))))
-
-    with ctx.stage("initial_alignment"):
-        floor_d, floor_se = _floor_down(anchors_ned, t, a, r, sd_fit, p, ctx)
-        fixes, n_nofix = fix_events(t, a, r, sd_fit, anchors_ned, floor_d, p.lc_min_anchors, p.epoch_window_s,
-                                    p.gate_probability)
-        still = stationary_intervals(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, t, a, r,
-                                      min_duration_s=p.zupt_min_duration_s, acc_step_mps2=p.zupt_acc_step_mps2,
-                                      max_speed_mps=p.zupt_max_speed_mps)
-        init = _initial_state(session, fixes, still, p)
-        # robust start: median of the fixes over the first second, or over the whole stationary
-        # interval when the node starts at rest (the cross-corridor SD of one fix is ~0.4 m)
-        rest = [b for a_, b in still if a_ <= fixes.t_s[0] + 0.5 and b > fixes.t_s[0]]
-        zw = fixes.z[fixes.t_s <= (rest[0] if rest else fixes.t_s[0] + 1.0), :2]
-        z0 = np.median(zw, axis=0)
-        # At rest the start is the mean of the window's fixes (within 3 MAD-SDs of their median,
-        # against NLOS fixes) with the SD of that mean, and the filters skip the window's
-        # ranges and fixes: they are in the start already (processing them again double counted
-        # them: static-start NEES ~4). Moving, the median is only a linearization point: it
-        # carries one fix's SD and the ranges are processed.
-        sd_fix = 1.4826 * np.median(np.abs(zw - z0), axis=0)
-        sd_start = np.maximum(sd_fix, 0.02)
-        if rest:  # mean of the fixes within 3 SD of the median: NLOS-robust, as efficient as a mean
-            inl = np.all(np.abs(zw - z0) <= 3.0 * np.maximum(sd_fix, 1e-6), axis=1)
-            z0 = zw[inl].mean(axis=0)
-            sd_start = np.maximum(zw[inl].std(axis=0, ddof=1) / np.sqrt(inl.sum()), 0.02)
-        t_used = rest[0] if rest else -np.inf
-        sd0 = cfg.sd0.copy()
-        sd0[:2] = np.minimum(sd_start, p.initial_position_sd_m)
-        # beyond the paper: the floor height and the calibration are constant errors, estimated
-        # as states rather than treated as white noise (their neglect raised the NEES)
-        cfg = replace(cfg, sd0=sd0, floor_sd_m=floor_se, cal_cov_m2=model.bias_cov_m2)
-        p0 = np.array([z0[0], z0[1], floor_d])
-        init = InitialState(init.k0, geodetic.ned_to_lla(p0, origin), init.vel_ned_mps, init.rpy_rad)
-        results["floor_down_m"] = floor_d
-        results["floor_height_sd_m"] = floor_se
-        results["start_window_end"] = float(t_used + session.t0_s) if rest else None
-        results["initial_state"] = {"t": float(imu.t_s[init.k0] + session.t0_s),
-                                    "lla": [float(v) for v in init.lla],
-                                    "rpy_deg": [float(v) for v in np.degrees(init.rpy_rad)]}
-        results["lc_fixes"] = int(fixes.t_s.size)
-        results["lc_epochs_without_fix"] = int(n_nofix)
-        results["stationary_intervals"] = [[a_ + session.t0_s, b + session.t0_s] for a_, b in still]
-
-    common = [down_events(np.unique(t), floor_d, p.floor_sd_m)]
-    if p.zupt and still:
-        step = 1.0 / p.zupt_rate_hz
-        tz = np.concatenate([np.arange(a_, b + 1e-9, step) for a_, b in still])
-        common.append(zupt_events(tz, p.zupt_sd_mps))
-        ctx.count("zero_velocity_updates", int(tz.size))
-    pooled = model.pooled_sd_m
-    trajs, innov, per_sol, runs = [], [], {}, {}
-    for name in p.solutions:
-        with ctx.stage(f"filter_{name}"):
-            extra: dict = {}
-            if name == "lc":
-                ev = fixes
-            elif name == "tc":
-                sd_tc = pooled if p.tc_range_sd_m is None else p.tc_range_sd_m  # constant R: pooled residual SD
-                ev = range_events(t, a, r, np.full(t.size, sd_tc**2))
-                extra["range_sd_m"] = float(sd_tc)
-            else:
-                R, S = fuzzy_range_variance(fis, sd_fit, pooled, p.fuzzy_exponent_b)
-                ev = range_events(t, a, r, R)
-                extra["fuzzy_S"] = {"min": float(S.min()), "median": float(np.median(S)), "max": float(S.max())}
-            store = p.smoothed and name == p.smooth_source and p.smoother == "rts"
-            ev = _after(ev, t_used)
-            runf = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, init, Events.merge(ev, *common),
-                              anchors_ned, origin, cfg, store_rts=store)
-        runs[name] = runf
-        trajs.append(_trajectory(runf, name, session.t0_s))
-        per_sol[name] = _report(runf, name, anchors.ids, session.t0_s, p, ctx, t_used) | extra
-        innov.append(_innovations(runf, name, anchors.ids, session.t0_s))
-    if p.smoothed:
-        src = runs[p.smooth_source]
-        with ctx.stage("smoothing"):
-            bwd = None
-            if p.smoother == "rts":
-                sol = smoothing.rts(src, src.t_run_s, src.out_idx)
-                per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "rts"}
-            else:
-                # backward from the forward end state with the initial SDs (as the INS/GPS chain),
-                # so that the two runs share nothing but that rough start
-                bwd = run_filter(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, end_state(src), src.events, anchors_ned,
-                                 origin, cfg, backward=True)
-                fwd15 = _nav15(src)
-                sol, flag, _ = smoothing.two_filter(fwd15, _nav15(bwd), src.t_run_s, src.out_idx)
-                per_sol["smoothed"] = {"source": p.smooth_source, "smoother": "two_filter",
-                                       "forward_backward_disagreements": int(flag.sum())}
-                per_sol["smoothed"]["backward"] = _report(bwd, "backward", anchors.ids, session.t0_s, p, None, t_used)
-            rb = _smoothed_range_bias(src, bwd)
-        trajs.append(_solution_frame(sol, "smoothed", src.t_run_s, session.t0_s, rb))
-    results["solutions"] = per_sol
-    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
-                       summary=results)
+    return k0, np.array([vel_ne[0], vel_ne[1], 0.0]), np.array([roll, pitch, yaw])
 
 
 def few_anchor_intervals(t_s: np.ndarray, anchor: np.ndarray, window_s: float, min_s: float) -> list[tuple[float, float]]:
@@ -359,26 +370,16 @@ def few_anchor_intervals(t_s: np.ndarray, anchor: np.ndarray, window_s: float, m
     return out
 
 
-def _after(ev: Events, t_s: float) -> Events:
-    """The events after t_s."""
-    return ev.select(ev.t_s > t_s)
-
-
-def _nav15(run: FilterRun) -> FilterRun:
-    """The run with its covariances reduced to the 15 navigation states (the smoothers' layout)."""
-    return replace(run, ep_P=np.ascontiguousarray(run.ep_P[:, :15, :15]))
-
-
 def _report(runf: FilterRun, name: str, ids, t0_s: float, p: RangingParams, ctx: RunContext | None,
             t_from_s: float = -np.inf) -> dict:
     """Summary of one filter run: aiding events, gating rejections, coasting; counts and warnings to ctx."""
-    evs = runf.events
-    aid = (evs.kind == EV_RANGE) | (evs.kind == EV_FIX_NE)
-    rej = aid & ~runf.ev_accepted & (runf.ev_nis >= 0)
+    evs = runf.measurements
+    aid = (evs.kind == Kind.RANGE) | (evs.kind == Kind.FIX_NE)
+    rej = aid & ~runf.ev_accepted & np.isfinite(runf.ev_nis)
     if name == "lc":
         rejections = {"fix": int(rej.sum())}
     else:
-        rejections = {ids[i]: int(np.sum(rej & (evs.anchor == i) & (evs.kind == EV_RANGE))) for i in range(len(ids))}
+        rejections = {ids[i]: int(np.sum(rej & (anchor_of(evs) == i))) for i in range(len(ids))}
     coast = coasting_intervals(runf, p.coast_gap_s, t_from_s)
     if ctx is not None:
         for k, v in rejections.items():
@@ -390,15 +391,16 @@ def _report(runf: FilterRun, name: str, ids, t0_s: float, p: RangingParams, ctx:
         "aiding_events": int(aid.sum()), "accepted": int((aid & runf.ev_accepted).sum()),
         "gating_rejections": rejections,
         "coasting_intervals": [[a_ + t0_s, b + t0_s] for a_, b in coast],
-        "final_range_bias_m": float(runf.range_bias_m[-1]),
+        "final_range_bias_m": float(runf.extra(Block.RANGE_BIAS)[-1, 0]),
     }
 
 
 def _innovations(runf: FilterRun, name: str, ids, t0_s: float) -> pd.DataFrame:
-    evs = runf.events
-    aid = (evs.kind == EV_RANGE) | (evs.kind == EV_FIX_NE)
+    evs = runf.measurements
+    aid = (evs.kind == Kind.RANGE) | (evs.kind == Kind.FIX_NE)
     return pd.DataFrame({
-        "t": evs.t_s[aid] + t0_s, "solution": name, "kind": np.where(evs.kind[aid] == EV_RANGE, "range", "fix"),
-        "anchor": [ids[i] if i >= 0 else "" for i in evs.anchor[aid]],
-        "nis": runf.ev_nis[aid], "accepted": runf.ev_accepted[aid],
+        "t": evs.t_s[aid] + t0_s, "solution": name, "kind": np.where(evs.kind[aid] == Kind.RANGE, "range", "fix"),
+        "anchor": [ids[i] if i >= 0 else "" for i in anchor_of(evs)[aid]],
+        "nis": np.where(np.isfinite(runf.ev_nis[aid]), runf.ev_nis[aid], -1.0), "dof": evs.dim[aid],
+        "accepted": runf.ev_accepted[aid],
     })

@@ -23,7 +23,8 @@ def noise(
 
     from tpos_cli.errors import InvalidInputError
     from tpos_cli.importers.session_out import dumps_toml
-    from tpos_cli.noise import identify_noise, plot_allan
+    from tpos_cli.noise import identify_noise
+    from tpos_cli.report.figures import allan_page
     from tpos_cli.session import load_session
 
     with exit_on_error(), working("tpos noise: Allan deviation"):
@@ -42,6 +43,6 @@ def noise(
             raise InvalidInputError(f"{session}: only {100 * still.mean():.0f}% of the window is at rest; Allan analysis needs a static log (choose one with --static T0:T1)")
         nf = identify_noise(t[sel], s.imu.gyro_b_rps[sel], s.imu.acc_b_mps2[sel])
         out = plot or Path(f"{s.meta.name}_allan.png")
-        plot_allan(out, nf)
+        allan_page(nf).savefig(out, dpi=120)  # the same figure as the report's Allan page
     typer.echo(dumps_toml({"imu": nf.toml_keys()}).rstrip())
     typer.echo(f"# Allan deviation plot: {out}")

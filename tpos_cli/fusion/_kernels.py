@@ -1,70 +1,133 @@
-"""Compiled INS/GPS loop: mechanize every IMU sample, predict at covariance epochs, update at fixes.
+"""The compiled INS error-state loop: mechanize every IMU sample, predict at covariance epochs,
+update at measurements, feed back (closed loop, paper 003 Fig. 1).
 
-The same kernel serves the forward run and the backward run (reversed arrays, earth_sign = -1).
+One kernel serves every filter of the package (INS/GPS, INS/anchor ranges; forward, and backward
+on reversed arrays with earth_sign = -1) and stores what every smoother needs. Its inputs are a
+few named tuples of float64 arrays (numba compiles NamedTuples of arrays and scalars); the
+documented wrapper that builds and validates them is `tpos_cli.fusion.engine.run_filter`.
+Measurement kinds are dispatched by `fusion.measurements.measure`; extra states by
+`fusion.layout` offsets.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from tpos_cli.filters.kalman import discretize, nis_of, predict, update
-from tpos_cli.fusion.nav_errors import (
-    apply_feedback,
-    corrected_increments,
-    error_dynamics,
-    position_jacobian,
-    position_residual,
-    process_noise,
-    velocity_jacobian,
-    velocity_residual,
-)
+from tpos_cli.fusion.layout import N_NAV
+from tpos_cli.fusion.measurements import measure
+from tpos_cli.fusion.nav_errors import apply_feedback, corrected_increments, error_dynamics, process_noise
 from tpos_cli.ins._kernels import mech_step
 
 
-@njit(cache=True)
-def mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum):
-    """Advance the nominal over IMU interval k (bias-corrected increments, coning/sculling memory)
-    and accumulate the navigation-frame specific force over the current covariance interval.
+class ImuArrays(NamedTuple):
+    """t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2: body-frame (FRD) mean rates over (t_{k-1}, t_k]."""
 
-    The per-sample half of every error-state loop (INS/GPS here, INS/range in `ranging`); returns dt.
-    """
-    dt = t[k] - t[k - 1]
-    corrected_increments(gyro[k], acc[k], bias, dt, dth, dv)
+    t: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+
+
+class Nominal(NamedTuple):
+    """Nominal state: nav (6,) [lat rad, lon rad, h m, vn, ve, vd m/s], C (3, 3) C_nb, bias
+    (6 + n_extra,) [acc m/s^2 (3), gyro rad/s (3), nominal of the extra states]."""
+
+    nav: np.ndarray
+    C: np.ndarray
+    bias: np.ndarray
+
+
+class Settings(NamedTuple):
+    """q (4,) IMU PSDs [acc white, gyro white, acc-bias drive, gyro-bias drive] (SI); bias time
+    constants (<= 0: random walk); earth_sign (-1 backward); cov_step (IMU samples per covariance
+    epoch); extra_tau_s, extra_q (n_extra,) dynamics of the extra states; layout (N_BLOCKS,) int64
+    offsets (`StateLayout.offsets`); gate (4,) chi-square thresholds by dimension; max_reject:
+    consecutive rejections of a slot after which the next one is applied; store_rts."""
+
+    q: np.ndarray
+    tau_acc_s: float
+    tau_gyro_s: float
+    earth_sign: float
+    cov_step: int
+    extra_tau_s: np.ndarray
+    extra_q: np.ndarray
+    layout: np.ndarray
+    gate: np.ndarray
+    max_reject: int
+    store_rts: bool
+
+
+class EventArrays(NamedTuple):
+    """Measurements sorted by k (the sample at which each is processed, >= 1): lag (s, t_k minus
+    the measurement time, in the run's time direction), kind (`Kind`), dim (1-3), z (E, 3),
+    R (E, 3, 3), gated (E,) bool, slot (E,) int64 (counter of consecutive rejections, -1 none),
+    par (E,) int64 (per-kind parameter: anchor index, sens row)."""
+
+    k: np.ndarray
+    lag: np.ndarray
+    kind: np.ndarray
+    dim: np.ndarray
+    z: np.ndarray
+    R: np.ndarray
+    gated: np.ndarray
+    slot: np.ndarray
+    par: np.ndarray
+
+
+class Aiding(NamedTuple):
+    """Per-kind parameters: lever_b (3,) antenna in body (m), zero3 (3,) zeros, anchors_ned (A, 3)
+    local NED (m), r0_e (3,) ECEF origin of that frame, C_ne0 (3, 3) its ECEF->NED DCM, sens
+    (S, 2, 1 + A) sensitivity rows of the least-squares fixes to the floor and calibration states."""
+
+    lever_b: np.ndarray
+    zero3: np.ndarray
+    anchors_ned: np.ndarray
+    r0_e: np.ndarray
+    C_ne0: np.ndarray
+    sens: np.ndarray
+
+
+class History(NamedTuple):
+    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias) and per
+    covariance epoch ep_idx, ep_P (after the updates), ep_dx (correction fed back), and with
+    store_rts ep_Phi (transition from the previous epoch) and ep_Ppred."""
+
+    nav: np.ndarray
+    C: np.ndarray
+    bias: np.ndarray
+    ep_idx: np.ndarray
+    ep_Phi: np.ndarray
+    ep_Ppred: np.ndarray
+    ep_P: np.ndarray
+    ep_dx: np.ndarray
+
+
+class EventResults(NamedTuple):
+    """Per measurement (kernel order): nu (E, 3) residual about the nominal, pvar (E, 3) diagonal
+    of H P- H^T, nis (E,), logdet (E,) log det S, accepted (E,)."""
+
+    nu: np.ndarray
+    pvar: np.ndarray
+    nis: np.ndarray
+    logdet: np.ndarray
+    accepted: np.ndarray
+
+
+@njit(cache=True)
+def mechanize_sample(k, imu, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum):
+    """Advance the nominal over IMU interval k (bias-corrected increments, coning/sculling memory)
+    and accumulate the navigation-frame specific force over the current covariance interval; returns dt."""
+    dt = imu.t[k] - imu.t[k - 1]
+    corrected_increments(imu.gyro[k], imu.acc[k], bias, dt, dth, dv)
     mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
     for i in range(3):
         dth_prev[i] = dth[i]
         dv_prev[i] = dv[i]
         f_sum[i] += f_n[i] * dt
     return dt
-
-
-@njit(cache=True)
-def start_epochs(P, ep_idx, ep_P, ep_dx, ep_Phi, ep_Ppred, store_rts):
-    """Covariance epoch 0 is the prior at sample 0 (what the smoothers start from); returns 0."""
-    ep_idx[0] = 0
-    ep_P[0] = P
-    ep_dx[0] = 0.0
-    if store_rts:
-        ep_Phi[0] = np.eye(P.shape[0])
-        ep_Ppred[0] = P
-    return 0
-
-
-@njit(cache=True)
-def predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
-                  ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts):
-    """Open covariance epoch ep + 1 at sample k: F from the mean specific force, Van Loan Phi/Qd,
-    predict (x, P), and store what RTS needs. Returns the new epoch index."""
-    error_dynamics(nav, C, f_sum / dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F)
-    discretize(F, Qc, dt_sum, Phi, Qd)
-    predict(x, P, Phi, Qd)
-    ep += 1
-    ep_idx[ep] = k
-    if store_rts:
-        ep_Phi[ep] = Phi
-        ep_Ppred[ep] = P
-    return ep
 
 
 @njit(cache=True)
@@ -91,62 +154,42 @@ def _row_dot(H, PHt, i):
 
 
 @njit(cache=True)
-def insgps_kernel(
-    t, gyro, acc, nav0, C0, bias0, P0, q, tau_acc_s, tau_gyro_s, earth_sign, cov_step,
-    gps_idx, gps_lag, gps_pos, gps_vel, gps_var, lever_b, gate, max_reject, gap_s, gm_tau_s, gm_q,
-    out_nav, out_C, out_bias,
-    ep_idx, ep_Phi, ep_Ppred, ep_Pfilt, ep_dx, store_rts,
-    innov, innov_pvar, nis, accepted, innov_ldet,
-):
-    """Closed-loop INS/GPS filter over a whole log (forward or reversed): 15 navigation states,
-    plus, when P0 is 18 x 18, three GPS position-error states (NED m, estimate minus truth of the
-    fixes' own error) as first-order Gauss-Markov processes with time constant gm_tau_s and
-    driving PSDs gm_q (3,) = 2 sigma^2 / tau (time-correlated receiver errors: multipath, the
-    receiver's own filter, SBAS corrections). Their nominal (the estimated fix error) is
-    bias0[6:9], subtracted from each fix, decaying by exp(-dt / tau) between epochs and fed back
-    like the sensor biases; the process is stationary, so it runs unchanged in reversed time.
+def error_state_kernel(imu, start, P0, st, ev, aid, out, res):
+    """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
-    gps_* are sorted by gps_idx, the IMU sample at which each fix is processed; gps_var (M, 6)
-    position and velocity variances; NaN velocity -> position-only update; NaN vd -> horizontal velocity update. Per fix, innov (M, 6)
-    gets the residuals, nis (M, 2) and accepted (M, 2) the position and velocity NIS (3 d.o.f.
-    each, NaN when absent) and whether each was applied; innov_pvar (M, 6) the diagonal of
-    H P- H^T (the filter's own share of each residual's variance, R excluded) for covariance
-    matching of the GPS noise (`fusion.gps_noise`); innov_ldet (M, 2) log det S of each part, so
-    that -(ldet + nis) / 2 summed over the fixes is the log-likelihood of the innovations up to a
-    constant (prediction-error decomposition, used to fit the GPS error model). Gate: NIS above gate[3] rejects that
-    part of the fix, except after `max_reject` consecutive rejections of that kind (the nominal
-    has left the fixes for good: locking it out would diverge; 0 = no gating), and except the
-    first fix after a gap of more than `gap_s` between fixes (an outage: the INS has then drifted
-    by more than a MEMS error model predicts, and refusing the returning fixes prolongs the
-    outage; gap_s <= 0: no exception). Epochs (covariance steps) every
-    `cov_step` samples and at every fix; per epoch e: ep_idx[e], P_filt, dx (correction fed
-    back), and when store_rts also Phi (from epoch e-1) and P_pred. Returns (n_epochs, status):
-    status 0 ok, else 1 + sample index where an innovation covariance lost positive definiteness.
+    Per IMU sample: mechanize (`mechanize_sample`). Every `cov_step` samples, at every sample with
+    a measurement and at the last one, a covariance epoch: F from the mean specific force over the
+    interval, Phi and Qd (`filters.kalman.discretize`), predict; the nominal of the Gauss-Markov
+    extra states decays by exp(-dt / tau); then each measurement of the sample in turn: residual
+    and rows (`measurements.measure`), NIS, gate (NIS above gate[m] rejects it, unless not
+    `gated` or its slot has `max_reject` consecutive rejections: the nominal has then left the
+    measurements for good, and locking it out would diverge), Joseph update and feedback into
+    the nominal (the error state is reset to 0 after each, so each measurement is linearized
+    about the latest nominal). ep_dx of the epoch is the sum of the corrections fed back.
+
+    Returns (n_epochs, status): status 0 ok, else 1 + the sample index where an innovation
+    covariance lost positive definiteness.
     """
-    n = t.shape[0]
-    m_gps = gps_idx.shape[0]
-    nav = nav0.copy()
-    C = C0.copy()
-    bias = bias0.copy()
-    ns = P0.shape[0]
-    n_gm = ns - 15
-    x = np.zeros(ns)
+    n_t = imu.t.shape[0]
+    n = P0.shape[0]
+    n_extra = n - N_NAV
+    nav = start.nav.copy()
+    C = start.C.copy()
+    bias = start.bias.copy()
+    x = np.zeros(n)
     P = P0.copy()
-    F = np.zeros((ns, ns))
-    Qc = np.zeros((ns, ns))
-    process_noise(q, Qc)
-    for i in range(n_gm):
-        F[15 + i, 15 + i] = -1.0 / gm_tau_s  # error_dynamics writes only F[:15, :15]
-        Qc[15 + i, 15 + i] = gm_q[i]
-    Phi = np.empty((ns, ns))
-    Qd = np.empty((ns, ns))
-    H3 = np.zeros((3, ns))
-    for i in range(n_gm):
-        H3[i, 15 + i] = 1.0  # z = INS - (fix - b_est) = dp + (b_est - b) - noise
-    Hv = np.zeros((3, ns))
-    R3 = np.zeros((3, 3))
-    zp = np.empty(3)
-    zv = np.empty(3)
+    F = np.zeros((n, n))
+    Qc = np.zeros((n, n))
+    process_noise(st.q, Qc)
+    for i in range(n_extra):  # error_dynamics writes only F[:15, :15]
+        if st.extra_tau_s[i] > 0.0:
+            F[N_NAV + i, N_NAV + i] = -1.0 / st.extra_tau_s[i]
+        Qc[N_NAV + i, N_NAV + i] = st.extra_q[i]
+    Phi = np.empty((n, n))
+    Qd = np.empty((n, n))
+    H1, H2, H3 = np.zeros((1, n)), np.zeros((2, n)), np.zeros((3, n))
+    z1, z2, z3 = np.zeros(1), np.zeros(2), np.zeros(3)
+    R1, R2, R3 = np.zeros((1, 1)), np.zeros((2, 2)), np.zeros((3, 3))
     f_n = np.empty(3)
     f_sum = np.zeros(3)
     dth = np.empty(3)
@@ -154,92 +197,81 @@ def insgps_kernel(
     dth_prev = np.zeros(3)
     dv_prev = np.zeros(3)
     w_ib = np.zeros(3)
-    g = 0
-    while g < m_gps and gps_idx[g] < 1:  # fixes at or before the first sample are not used
-        g += 1
-    ep = start_epochs(P, ep_idx, ep_Pfilt, ep_dx, ep_Phi, ep_Ppred, store_rts)
-    out_nav[0] = nav
-    out_C[0] = C
-    out_bias[0] = bias
+    dx_sum = np.zeros(n)
+    n_ev = ev.k.shape[0]
+    n_slots = 1
+    for e in range(n_ev):
+        n_slots = max(n_slots, ev.slot[e] + 1)
+    consecutive = np.zeros(n_slots, np.int64)
+    # covariance epoch 0 is the prior at sample 0 (what the smoothers start from)
+    ep = 0
+    out.ep_idx[0] = 0
+    out.ep_P[0] = P
+    out.ep_dx[0] = 0.0
+    if st.store_rts:
+        out.ep_Phi[0] = np.eye(n)
+        out.ep_Ppred[0] = P
+    out.nav[0] = nav
+    out.C[0] = C
+    out.bias[0] = bias
+    e = 0
+    while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
+        e += 1
     last = 0
     dt_sum = 0.0
-    status = 0
-    n_rej = 0
-    n_rej_v = 0
-    t_prev_fix = t[0]
-    for k in range(1, n):
-        dt = mechanize_sample(k, t, gyro, acc, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
+    for k in range(1, n_t):
+        dt = mechanize_sample(k, imu, nav, C, bias, st.earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
         for i in range(3):
             w_ib[i] = dth[i] / dt
         dt_sum += dt
-        is_fix = g < m_gps and gps_idx[g] == k
-        if is_fix or k - last >= cov_step or k == n - 1:
-            ep = predict_epoch(nav, C, f_sum, dt_sum, earth_sign, tau_acc_s, tau_gyro_s, F, Qc, Phi, Qd, x, P,
-                               ep, k, ep_idx, ep_Phi, ep_Ppred, store_rts)
-            if n_gm > 0:
-                decay = np.exp(-dt_sum / gm_tau_s)  # the nominal fix error follows its mean
-                for i in range(n_gm):
-                    bias[6 + i] *= decay
-            while g < m_gps and gps_idx[g] == k:
-                if gap_s > 0.0 and t[k] - t_prev_fix > gap_s:
-                    n_rej = max_reject  # the first fix after an outage is applied ungated
-                    n_rej_v = max_reject
-                t_prev_fix = t[k]
-                # position and velocity are processed as two sequential 3-dim updates (exact for
-                # their diagonal R): each kind has its own NIS (3 d.o.f.) and its own gate, so a
-                # bad velocity does not throw away a good position
-                position_residual(nav, C, lever_b, gps_pos[g], gps_lag[g], zp)
-                position_jacobian(nav, C, lever_b, gps_lag[g], H3, 0)
-                for i in range(n_gm):
-                    zp[i] += bias[6 + i]
-                PHt = P @ H3.T
-                for i in range(3):
-                    innov[g, i] = zp[i]
-                    R3[i, i] = gps_var[g, i]
-                    innov_pvar[g, i] = _row_dot(H3, PHt, i)
-                s = nis_of(x, P, zp, H3, R3)
-                nis[g, 0] = s
-                innov_ldet[g, 0] = _log_det(H3 @ PHt + R3)
-                if s <= gate[3] or n_rej >= max_reject:
-                    n_rej = 0
-                    if update(x, P, zp, H3, R3) < 0.0:
-                        return ep + 1, 1 + k
-                    accepted[g, 0] = True
+        has_ev = e < n_ev and ev.k[e] == k
+        if has_ev or k - last >= st.cov_step or k == n_t - 1:
+            error_dynamics(nav, C, f_sum / dt_sum, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
+            discretize(F, Qc, dt_sum, Phi, Qd)
+            predict(x, P, Phi, Qd)
+            ep += 1
+            out.ep_idx[ep] = k
+            if st.store_rts:
+                out.ep_Phi[ep] = Phi
+                out.ep_Ppred[ep] = P
+            for i in range(n_extra):
+                if st.extra_tau_s[i] > 0.0:  # the nominal of a Gauss-Markov state follows its mean
+                    bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
+            while e < n_ev and ev.k[e] == k:
+                m = ev.dim[e]
+                if m == 1:
+                    z, H, R = z1, H1, R1
+                elif m == 2:
+                    z, H, R = z2, H2, R2
                 else:
-                    n_rej += 1
-                if not np.isnan(gps_vel[g, 0]):
-                    # receivers that log speed and course give no vertical velocity: 2-dim update
-                    mv = 2 if np.isnan(gps_vel[g, 2]) else 3
-                    velocity_residual(nav, C, lever_b, w_ib, gps_vel[g], zv)
-                    velocity_jacobian(C, lever_b, w_ib, Hv, 0)
-                    R3[:, :] = 0.0
-                    PHt = P @ Hv.T
-                    for i in range(mv):
-                        innov[g, 3 + i] = zv[i]
-                        R3[i, i] = gps_var[g, 3 + i]
-                        innov_pvar[g, 3 + i] = _row_dot(Hv, PHt, i)
-                    Rv = np.ascontiguousarray(R3[:mv, :mv])
-                    s = nis_of(x, P, zv[:mv], Hv[:mv], Rv)
-                    nis[g, 1] = s
-                    innov_ldet[g, 1] = _log_det(np.ascontiguousarray((Hv @ PHt)[:mv, :mv]) + Rv)
-                    if s <= gate[mv] or n_rej_v >= max_reject:
-                        n_rej_v = 0
-                        if update(x, P, zv[:mv], Hv[:mv], Rv) < 0.0:
-                            return ep + 1, 1 + k
-                        accepted[g, 1] = True
-                    else:
-                        n_rej_v += 1
-                g += 1
-            apply_feedback(nav, C, bias, x)
-            for i in range(n_gm):
-                bias[6 + i] -= x[15 + i]
-            ep_dx[ep] = x
-            x[:] = 0.0
-            ep_Pfilt[ep] = P
+                    z, H, R = z3, H3, R3
+                measure(e, ev, aid, nav, C, bias, w_ib, st.layout, z, H, R)
+                PHt = P @ H.T
+                for i in range(m):
+                    res.nu[e, i] = z[i]
+                    res.pvar[e, i] = _row_dot(H, PHt, i)
+                s = nis_of(x, P, z, H, R)
+                res.nis[e] = s
+                res.logdet[e] = _log_det(H @ PHt + R)
+                slot = ev.slot[e]
+                accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and consecutive[slot] >= st.max_reject)
+                if accept:
+                    if update(x, P, z, H, R) < 0.0:
+                        return ep + 1, 1 + k
+                    apply_feedback(nav, C, bias, x)
+                    dx_sum += x
+                    x[:] = 0.0
+                if slot >= 0:
+                    consecutive[slot] = 0 if accept else consecutive[slot] + 1
+                res.accepted[e] = accept
+                e += 1
+            out.ep_dx[ep] = dx_sum  # x stays 0 between epochs (closed loop: Phi 0 = 0)
+            dx_sum[:] = 0.0
+            out.ep_P[ep] = P
             last = k
             f_sum[:] = 0.0
             dt_sum = 0.0
-        out_nav[k] = nav
-        out_C[k] = C
-        out_bias[k] = bias
-    return ep + 1, status
+        out.nav[k] = nav
+        out.C[k] = C
+        out.bias[k] = bias
+    return ep + 1, 0

@@ -34,8 +34,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.fusion.engine import FilterConfig, InitialState
 from tpos_cli.fusion.gps_noise import pass_window
-from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.fusion.insgps import GpsFixes, gps_error_layout, gps_innovations, run_insgps
 
 RATIO_GRID = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0)  # sigma_gm / sigma_white tried
 TAU_GRID_S = (10.0, 30.0, 100.0, 300.0)  # time constants tried
@@ -68,10 +69,11 @@ class GpsErrorFit:
 def innovation_loglik(run, count, gate_1: float = 15.137) -> float:
     """-1/2 sum (log det S + NIS) over the position and velocity parts of the fixes in `count`,
     each NIS capped at gate_1 per degree of freedom (one multipath jump must not decide the fit)."""
-    ld = run.innovation_logdet[count]
-    nis = run.nis[count]
-    dof = np.column_stack([np.isfinite(run.innovation[count][:, :3]).sum(axis=1),
-                           np.isfinite(run.innovation[count][:, 3:]).sum(axis=1)])
+    gi = gps_innovations(run, count.size)
+    ld = gi.logdet[count]
+    nis = gi.nis[count]
+    dof = np.column_stack([np.isfinite(gi.innovation[count][:, :3]).sum(axis=1),
+                           np.isfinite(gi.innovation[count][:, 3:]).sum(axis=1)])
     ok = np.isfinite(ld) & np.isfinite(nis)
     return float(-0.5 * np.sum((ld + np.minimum(nis, gate_1 * dof))[ok]))
 
@@ -95,7 +97,7 @@ def fit_gps_error(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialSta
         raise ValueError("`grid` must start with 0")
 
     def loglik(r, tau):
-        pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), gps_gm_sigma_ned_m=r * sw, gps_gm_tau_s=tau)
+        pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), layout=gps_error_layout(r * sw, tau))
         return innovation_loglik(run_insgps(td, gd, ad, fixes, init, pcfg, store_rts=False), count)
 
     ll0 = loglik(0.0, taus[0])  # the white model: tau plays no part

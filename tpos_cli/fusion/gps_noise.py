@@ -27,8 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.fusion.engine import FilterConfig, InitialState
 from tpos_cli.fusion.initial import fixes_before
-from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.fusion.insgps import GpsFixes, gps_innovations, run_insgps
 from tpos_cli.ins.mechanization import decimate_imu
 
 GROUPS = ("pos_h", "pos_v", "vel_h", "vel_v")
@@ -142,7 +143,8 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
 
     Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
     the scale is moved by a secant step on log m against log s (the first step from this pass's
-    innovations with its H P- H^T held fixed) until every |m - 1| < max(tol, 3 sqrt(2 / n)). `after_s`: only fixes after this time count (the
+    innovations with its H P- H^T held fixed) until every |m - 1| < max(tol, 3 sqrt(2 / n)). `after_s`: only
+    fixes after this time count (the
     heading may still be converging before); ignored when fewer than 30 fixes would remain.
     `span_s`: the passes stop `span_s` after that (0 = whole log): 900 s give some 1800
     horizontal components, a variance to about 3%, and keep the passes cheap on long logs.
@@ -159,7 +161,8 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
         fx = scaled_fixes(fixes, np.exp(log_s))
         run = run_insgps(td, gd, ad, fx, init, pcfg, store_rts=False)
         var = np.column_stack([fx.sigma_pos_ned_m, fx.sigma_vel_mps])[count] ** 2
-        nu, hph = run.innovation[count], run.innovation_pvar[count]
+        gi = gps_innovations(run, count.size)
+        nu, hph = gi.innovation[count], gi.pvar[count]
         for j, cols in enumerate(_COLS):
             c = list(cols)
             m_last[j], n_used[j] = normalized_square(nu[:, c], hph[:, c], var[:, c])

@@ -16,7 +16,8 @@ from tpos_cli import alignment
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm, wrap_angle_rad
-from tpos_cli.fusion.insgps import FilterConfig, GpsFixes, InitialState, run_insgps
+from tpos_cli.fusion.engine import FilterConfig, InitialState
+from tpos_cli.fusion.insgps import GpsFixes, run_insgps
 from tpos_cli.ins.mechanization import integrate
 
 
@@ -247,7 +248,7 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
                              store_rts=False)
         except ProcessingError:
             continue  # diverged: not this one
-        scores[h] = float(np.nansum(run.nis))
+        scores[h] = float(np.nansum(run.ev_nis))
     best = int(np.argmin(scores))
     # the summed NIS is -2 log-likelihood up to terms alike for every hypothesis: the prior yields
     # only to a yaw at least `min_likelihood_ratio` times more likely (weak yaw observability,
@@ -274,15 +275,3 @@ def with_yaw(init: InitialState, yaw_rad: float, sigma_yaw_rad: float) -> Initia
     P0 = init.P0.copy()
     P0[8, 8] = sigma_yaw_rad**2
     return InitialState(init.nav.copy(), C, bias, P0)
-
-
-def measured_white_noise(x) -> float:
-    """Per-sample white-noise SD of a sensor series (N, 3), from its first differences.
-
-    For white noise of SD s, x[k+1] - x[k] has SD s sqrt(2); the motion of a vehicle at IMU rates
-    adds little to a difference. Robust scale (1.4826 MAD) so that bumps do not dominate;
-    averaged over the three axes.
-    """
-    d = np.diff(np.asarray(x, dtype=float), axis=0)
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
-    return float(np.mean(1.4826 * mad / np.sqrt(2.0)))

@@ -1,4 +1,4 @@
-"""15-state INS error model (paper 003 Eq. 6-10, 15), its feedback, and GPS measurement rows (Eq. 11-12).
+"""15-state INS error model (paper 003 Eq. 6-10, 15) and its feedback into the nominal state.
 
 Errors are estimate minus truth, position in NED metres (paper 003 uses lat/lon radians and
 rescales in H, Eq. 11; metres make H = I and need no rescaling). The paper's F_INS (Eq. 15) is
@@ -18,7 +18,7 @@ from numba import njit
 
 from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm
 from tpos_cli.frames.earth import OMEGA_IE_RPS
-from tpos_cli.fusion.layout import ATT, BA, BG, POS, VEL
+from tpos_cli.fusion.layout import ATT, BA, BG, N_NAV, POS, VEL
 from tpos_cli.ins._kernels import cross
 
 
@@ -38,7 +38,7 @@ def error_dynamics(nav, C, f_n, earth_sign, tau_acc_s, tau_gyro_s, F):
     tau <= 0 means a random-walk bias (no decay).
     """
     lat, h = nav[0], nav[2]
-    vn, ve, vd = nav[3], nav[4], nav[5]
+    vn, ve = nav[3], nav[4]
     rn, re = radii_m(lat)
     rn += h
     re += h
@@ -112,7 +112,8 @@ def process_noise(q, Qc):
 
 @njit(cache=True)
 def apply_feedback(nav, C, bias, x):
-    """Feed the error estimate x[:15] back into the nominal state and biases, in place (closed loop)."""
+    """Feed the error estimate x back into the nominal state, the IMU biases bias[:6] and the
+    nominal of the extra states bias[6:] (`fusion.layout`), in place (closed loop)."""
     lat, h = nav[0], nav[2]
     rn, re = radii_m(lat)
     nav[0] = lat - x[POS] / (rn + h)
@@ -124,78 +125,5 @@ def apply_feedback(nav, C, bias, x):
         bias[3 + i] -= x[BG + i]
     phi = x[ATT : ATT + 3].copy()
     C[:, :] = rotvec_to_dcm(phi) @ C  # C_true = (I + [phi x]) C_est, exactly as a rotation
-
-
-@njit(cache=True)
-def position_residual(nav, C, lever_b, lla_rad, lag_s, z):
-    """z = INS antenna position at the fix time - fix, NED metres (paper Eq. 12, lever arm added).
-
-    lag_s = t_nominal - t_fix: the nominal is moved back along its velocity to the fix time.
-    """
-    lat, h = nav[0], nav[2]
-    rn, re = radii_m(lat)
-    Cl = C @ lever_b
-    z[0] = (lat - lla_rad[0]) * (rn + h) + Cl[0] - nav[3] * lag_s
-    z[1] = (nav[1] - lla_rad[1]) * (re + h) * np.cos(lat) + Cl[1] - nav[4] * lag_s
-    z[2] = (lla_rad[2] - h) + Cl[2] - nav[5] * lag_s
-
-
-@njit(cache=True)
-def position_jacobian(nav, C, lever_b, lag_s, H, row):
-    """H rows row..row+2 for `position_residual` (clears the first 15 columns of those rows)."""
-    Cl = C @ lever_b
-    for i in range(3):
-        for j in range(15):
-            H[row + i, j] = 0.0
-        H[row + i, POS + i] = 1.0
-        H[row + i, VEL + i] = -lag_s
-    # C_est l - C_true l = [(C l) x] phi
-    H[row + 0, ATT + 1] = -Cl[2]
-    H[row + 0, ATT + 2] = Cl[1]
-    H[row + 1, ATT + 0] = Cl[2]
-    H[row + 1, ATT + 2] = -Cl[0]
-    H[row + 2, ATT + 0] = -Cl[1]
-    H[row + 2, ATT + 1] = Cl[0]
-
-
-@njit(cache=True)
-def velocity_residual(nav, C, lever_b, w_ib_b, vel_ned, z):
-    """z = INS antenna velocity - GPS velocity, m/s (paper Eq. 12)."""
-    u = C @ cross(w_ib_b, lever_b)
-    for i in range(3):
-        z[i] = nav[3 + i] + u[i] - vel_ned[i]
-
-
-@njit(cache=True)
-def velocity_jacobian(C, lever_b, w_ib_b, H, row):
-    """H rows row..row+2 for `velocity_residual`."""
-    u = C @ cross(w_ib_b, lever_b)
-    Cl = np.empty((3, 3))  # C [l x]
-    L = np.zeros((3, 3))
-    L[0, 1] = -lever_b[2]
-    L[0, 2] = lever_b[1]
-    L[1, 0] = lever_b[2]
-    L[1, 2] = -lever_b[0]
-    L[2, 0] = -lever_b[1]
-    L[2, 1] = lever_b[0]
-    Cl[:, :] = C @ L
-    for i in range(3):
-        for j in range(15):
-            H[row + i, j] = 0.0
-        H[row + i, VEL + i] = 1.0
-        for j in range(3):
-            H[row + i, BG + j] = Cl[i, j]
-    H[row + 0, ATT + 1] = -u[2]
-    H[row + 0, ATT + 2] = u[1]
-    H[row + 1, ATT + 0] = u[2]
-    H[row + 1, ATT + 2] = -u[0]
-    H[row + 2, ATT + 0] = -u[1]
-    H[row + 2, ATT + 1] = u[0]
-
-
-def backward_sign() -> np.ndarray:
-    """(15,) signs mapping a backward-run error state to forward-time errors: velocity and gyro bias flip."""
-    s = np.ones(15)
-    s[VEL : VEL + 3] = -1.0
-    s[BG : BG + 3] = -1.0
-    return s
+    for i in range(x.shape[0] - N_NAV):  # states after the 15 (fusion.layout): nominal in bias[6:]
+        bias[6 + i] -= x[N_NAV + i]

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 _GRID_POINTS = 2001  # centroid quadrature; piecewise-linear integrand -> error O(h^2) ~ 1e-7 of the span
 _BLOCK = 2048  # inputs per block of the centroid computation
 

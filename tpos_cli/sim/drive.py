@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames.geodetic import ned_to_lla
 from tpos_cli.sim.gps import simulate_gps
 from tpos_cli.sim.kinematics import MotionSample, simulate_truth_imu
 from tpos_cli.sim.profiles import SMOOTHSTEP_PEAK_RATE as PEAK
@@ -199,8 +200,6 @@ def simulate_drive(
 def _roadside_shots(truth: SimTruth, n: int, static_s: float, duration_s: float, range_m: float, sigma_m: float,
                     rng: np.random.Generator) -> dict:
     """Ranges, shots and truth targets for `n` single-return shots along the body x axis."""
-    from tpos_cli.frames.geodetic import ned_to_lla
-
     t_shot = np.linspace(static_s + 10.0, duration_s - 5.0, n) if n > 1 else np.array([0.5 * (static_s + duration_s)])
     i = np.clip(np.searchsorted(truth.t_s, t_shot), 0, truth.t_s.size - 1)
     t_r = truth.t_s[i]

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.frames.geodetic import lla_to_ned
+from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm
 from tpos_cli.sim.sensor_errors import ImuErrors, ImuGrade
+from tpos_cli.sim.writer import write_session
 
 
 @dataclass(frozen=True)
@@ -29,9 +31,6 @@ class SimTruth:
         """(K, 9) errors of an estimate at truth samples `idx`: NED position (m, about the first truth
         point), NED velocity (m/s), and attitude phi (rad) with C_est = (I - [phi x]) C_true.
         `nav` (K, 6) is lat, lon (rad), h (m), vn, ve, vd (m/s); `C_nb` (K, 3, 3)."""
-        from tpos_cli.frames.geodetic import lla_to_ned
-        from tpos_cli.frames.rotation import dcm_to_rotvec
-
         lla = np.column_stack([np.degrees(nav[:, 0]), np.degrees(nav[:, 1]), nav[:, 2]])
         e_p = lla_to_ned(lla, self.lla[0]) - lla_to_ned(self.lla[idx], self.lla[0])
         e_v = nav[:, 3:] - self.vel_ned_mps[idx]
@@ -148,6 +147,4 @@ class SimResult:
 
     def write(self, path: str | Path, *, overwrite: bool = False) -> Path:
         """Write the session directory (see `tpos_cli.sim.writer.write_session`)."""
-        from tpos_cli.sim.writer import write_session
-
         return write_session(self, path, overwrite=overwrite)

@@ -13,13 +13,16 @@ import math
 import shutil
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.rotation import axes_to_dcm
-from tpos_cli.sim.result import SimResult
+
+if TYPE_CHECKING:  # annotations only: sim.result imports this module for SimResult.write
+    from tpos_cli.sim.result import SimResult
 
 FORMATS = ("parquet", "csv")
 

@@ -1,0 +1,118 @@
+"""Measurement models (`fusion.measurements`): Jacobians against finite differences or nonlinear
+perturbation, local-frame positions against pymap3d, and the extra states' columns of `measure`."""
+
+import numpy as np
+from numpy.testing import assert_allclose
+
+from tpos_cli.frames import geodetic
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.fusion._kernels import Aiding, EventArrays
+from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block, ranging_blocks
+from tpos_cli.fusion.measurements import (
+    Kind,
+    gps_position_jacobian,
+    gps_position_residual,
+    gps_velocity_jacobian,
+    gps_velocity_residual,
+    lla_rad_to_ecef,
+    lla_to_local_ned,
+    measure,
+    range_jacobian,
+    range_residual,
+)
+from tpos_cli.fusion.nav_errors import apply_feedback
+
+
+def _nominal():
+    nav = np.array([np.radians(48.0), np.radians(8.0), 500.0, 12.0, -7.0, 0.3])
+    C = euler_to_dcm(*np.radians([3.0, -2.0, 130.0]))
+    return nav, C
+
+
+def test_ecef_and_local_ned_match_pymap3d():
+    origin = np.array([45.0, 126.0, 100.0])
+    lla = np.array([45.0003, 126.0004, 101.5])
+    r_e = lla_rad_to_ecef(np.radians(lla[0]), np.radians(lla[1]), lla[2])
+    assert_allclose(r_e, geodetic.lla_to_ecef(lla), rtol=0, atol=1e-6)  # 1 um: pymap3d's own tolerance
+    r0 = geodetic.lla_to_ecef(origin)
+    C = geodetic.ecef_to_ned_dcm(origin[0], origin[1])
+    ned = lla_to_local_ned(np.radians(lla[0]), np.radians(lla[1]), lla[2], r0, C)
+    assert_allclose(ned, geodetic.lla_to_ned(lla, origin), rtol=0, atol=1e-6)
+
+
+def test_range_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        p = rng.uniform(-20, 20, 3)
+        a = rng.uniform(-20, 20, 3)
+        lag = 0.01
+        H = np.zeros((1, 15))
+        range_jacobian(p, a, lag, H, 0)
+        fd = np.empty(3)
+        for j in range(3):
+            e = np.zeros(3)
+            e[j] = 1e-6
+            # residual = h(p) - z: d residual / dp = dh/dp
+            fd[j] = (range_residual(p + e, a, 10.0, 0.0, 0.0) - range_residual(p - e, a, 10.0, 0.0, 0.0)) / 2e-6
+        assert_allclose(H[0, :3], fd, rtol=0, atol=1e-8)  # central difference, h = 1e-6 m: error ~ h^2/rho + 1e-10 rounding
+        assert_allclose(H[0, 3:6], -lag * fd, rtol=0, atol=1e-10)  # the node moved back by v lag
+        # the biases enter with unit weight (last column of H_t, Eq. 24)
+        assert_allclose(range_residual(p, a, 10.0, 0.3, 0.1) - range_residual(p, a, 10.0, 0.0, 0.0), 0.4, atol=1e-12)
+
+
+def _events(kind, z, R, dim, par=0):
+    return EventArrays(np.array([1]), np.array([0.0]), np.array([int(kind)]), np.array([dim]), np.array([z], float),
+                       np.array([R], float), np.array([True]), np.array([0]), np.array([par]))
+
+
+def test_measure_adds_the_extra_states_columns():
+    nav, C = _nominal()
+    aid = Aiding(np.array([0.5, -0.3, -1.2]), np.zeros(3), np.array([[10.0, 5.0, -2.0], [0.0, 30.0, -2.0]]),
+                 geodetic.lla_to_ecef(np.array([48.0, 8.0, 480.0])), geodetic.ecef_to_ned_dcm(48.0, 8.0),
+                 np.zeros((1, 2, 3)))
+    # GPS error states: the fix's estimated error is subtracted from it, column 1 at the block
+    lay = StateLayout((gps_error_block([0.5, 0.5, 1.0], 30.0),))
+    bias = np.array([0, 0, 0, 0, 0, 0, 0.2, -0.1, 0.3])
+    fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
+    z, H, R = np.empty(3), np.zeros((3, 18)), np.zeros((3, 3))
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, nav, C, bias, np.zeros(3), lay.offsets(), z, H, R)
+    z0 = np.empty(3)
+    gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
+    assert_allclose(z - z0, bias[6:9], atol=0)
+    assert_allclose(H[:, 15:18], np.eye(3), atol=0)
+    # a range: eps_d and the anchor's calibration bias, each with unit weight
+    lay = StateLayout(ranging_blocks(0.05, 1e-6, 0.02, np.eye(2) * 1e-4))
+    bias = np.zeros(6 + lay.n_extra)
+    bias[6 + lay.offset(Block.RANGE_BIAS) - 15] = 0.3
+    bias[6 + lay.offset(Block.CALIBRATION) - 15 + 1] = -0.1
+    z, H, R = np.empty(1), np.zeros((1, lay.n_states)), np.zeros((1, 1))
+    measure(0, _events(Kind.RANGE, [25.0, 0, 0], np.eye(3) * 0.01, 1, par=1), aid, nav, C, bias, np.zeros(3),
+            lay.offsets(), z, H, R)
+    p = lla_to_local_ned(nav[0], nav[1], nav[2], aid.r0_e, aid.C_ne0)
+    assert_allclose(z[0], np.linalg.norm(p - aid.anchors_ned[1]) + 0.3 - 0.1 - 25.0, atol=1e-9)
+    assert H[0, lay.offset(Block.RANGE_BIAS)] == 1.0 and H[0, lay.offset(Block.CALIBRATION) + 1] == 1.0
+    assert H[0, lay.offset(Block.CALIBRATION)] == 0.0 and R[0, 0] == 0.01
+
+
+def test_gps_jacobians_against_perturbation():
+    nav, C = _nominal()
+    lever = np.array([0.5, -0.3, -1.2])
+    w_b = np.radians([2.0, -1.0, 20.0])
+    lag = 0.004
+    fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
+    v_gps = nav[3:6] + np.array([0.1, 0.2, -0.1])
+    dx = np.concatenate([[0.3, -0.2, 0.1], [0.05, 0.02, -0.03], [2e-3, -1e-3, 3e-3], [0, 0, 0], [1e-3, 2e-3, -1e-3]])
+    nav_t, C_t, b_t = nav.copy(), C.copy(), np.zeros(6)
+    apply_feedback(nav_t, C_t, b_t, dx)
+    z_e, z_t = np.empty(3), np.empty(3)
+    gps_position_residual(nav, C, lever, fix, lag, z_e)
+    gps_position_residual(nav_t, C_t, lever, fix, lag, z_t)
+    H = np.zeros((6, 15))
+    gps_position_jacobian(nav, C, lever, lag, H, 0)
+    np.testing.assert_allclose(z_e - z_t, H[:3] @ dx, rtol=0, atol=1e-5)  # quadratic: |phi|^2 |l| ~ 1e-5
+    v_e, v_t = np.empty(3), np.empty(3)
+    gps_velocity_residual(nav, C, lever, w_b, v_gps, v_e)
+    gps_velocity_residual(nav_t, C_t, lever, w_b + dx[12:], v_gps, v_t)  # truth rate = est rate + dbg
+    gps_velocity_jacobian(C, lever, w_b, H, 3)
+    # quadratic: |phi| |dbg| |l| = 4e-3 * 2.4e-3 * 1.4 ~ 1.3e-5
+    np.testing.assert_allclose(v_e - v_t, H[3:] @ dx, rtol=0, atol=3e-5)

@@ -1,0 +1,229 @@
+"""Measurement models of the INS error-state filter: one kind, one pair of @njit functions.
+
+Every kind is a member of `Kind`, a `*_residual` (z = h(INS) - measured, the sign convention of
+paper 003 Eq. 12, so that H x predicts z) and a `*_jacobian` (the rows of H for the 15
+navigation errors), and one branch of `measure`, which the filter kernel calls for each
+measurement and which adds the columns of the extra states (`fusion.layout`) the kind depends on.
+To add a kind (issue 11: ZUPT of a vehicle, ZARU, non-holonomic constraints, odometer speed): one
+`Kind` member, one residual/Jacobian pair with a finite-difference test, one branch in `measure`,
+and a builder of its `fusion.engine.Measurements` rows.
+
+Positions for the ranging kinds are NED metres in the local frame of the anchors' origin, reached
+through ECEF exactly (`lla_to_local_ned`): a range is rotation invariant, and that frame's axes
+differ from the vehicle's NED axes by (distance / Earth radius) ~ 1e-5 rad over a building,
+negligible in the Jacobian rows.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+from numba import njit
+
+from tpos_cli.frames._kernels import radii_m, skew
+from tpos_cli.frames.earth import A_M, E2
+from tpos_cli.fusion.layout import ATT, BG, N_NAV, POS, VEL, Block
+from tpos_cli.ins._kernels import cross
+
+
+class Kind(IntEnum):
+    """Measurement kinds (the `kind` column of `fusion.engine.Measurements`)."""
+
+    GPS_POSITION = 0  # z = fix lat, lon (rad), h (m); antenna at the lever arm (paper 003 Eq. 11-12)
+    GPS_VELOCITY = 1  # z = fix NED velocity (m/s); dim 2 when the receiver gives no vertical velocity
+    RANGE = 2  # z = calibrated range to anchor `par` (m) (paper 002 Eq. 21-24)
+    FIX_NE = 3  # z = least-squares (north, east) fix in the local frame (paper 002 Eq. 7-12); sens row `par`
+    FLOOR = 4  # z = down coordinate of the node in the local frame (floor constraint)
+    ZUPT = 5  # z = 0: NED velocity of the IMU while it stands still
+
+
+@njit(cache=True)
+def _put(H, row, col, M):
+    """H[row:row+3, col:col+3] = M (3, 3)."""
+    for i in range(3):
+        for j in range(3):
+            H[row + i, col + j] = M[i, j]
+
+
+@njit(cache=True)
+def gps_position_residual(nav, C, lever_b, lla_rad, lag_s, z):
+    """z = INS antenna position at the fix time - fix, NED metres (paper Eq. 12, lever arm added).
+
+    lag_s = t_nominal - t_fix: the nominal is moved back along its velocity to the fix time.
+    """
+    lat, h = nav[0], nav[2]
+    rn, re = radii_m(lat)
+    Cl = C @ lever_b
+    z[0] = (lat - lla_rad[0]) * (rn + h) + Cl[0] - nav[3] * lag_s
+    z[1] = (nav[1] - lla_rad[1]) * (re + h) * np.cos(lat) + Cl[1] - nav[4] * lag_s
+    z[2] = (lla_rad[2] - h) + Cl[2] - nav[5] * lag_s
+
+
+@njit(cache=True)
+def gps_position_jacobian(nav, C, lever_b, lag_s, H, row):
+    """H rows row..row+2 for `gps_position_residual` (clears the first 15 columns of those rows)."""
+    Cl = C @ lever_b
+    for i in range(3):
+        for j in range(15):
+            H[row + i, j] = 0.0
+        H[row + i, POS + i] = 1.0
+        H[row + i, VEL + i] = -lag_s
+    _put(H, row, ATT, skew(Cl))  # C_est l - C_true l = [(C l) x] phi
+
+
+@njit(cache=True)
+def gps_velocity_residual(nav, C, lever_b, w_ib_b, vel_ned, z):
+    """z = INS antenna velocity - GPS velocity, m/s (paper Eq. 12)."""
+    u = C @ cross(w_ib_b, lever_b)
+    for i in range(3):
+        z[i] = nav[3 + i] + u[i] - vel_ned[i]
+
+
+@njit(cache=True)
+def gps_velocity_jacobian(C, lever_b, w_ib_b, H, row):
+    """H rows row..row+2 for `gps_velocity_residual` (clears the first 15 columns of those rows)."""
+    u = C @ cross(w_ib_b, lever_b)
+    for i in range(3):
+        for j in range(15):
+            H[row + i, j] = 0.0
+        H[row + i, VEL + i] = 1.0
+    _put(H, row, BG, C @ skew(lever_b))  # C [l x] dbg: the lever arm's rate error
+    _put(H, row, ATT, skew(u))
+
+
+@njit(cache=True)
+def lla_rad_to_ecef(lat, lon, h):
+    """ECEF position (m) of geodetic lat, lon (rad), h (m) (Groves Eq. 2.112)."""
+    sl = np.sin(lat)
+    re = A_M / np.sqrt(1.0 - E2 * sl * sl)
+    out = np.empty(3)
+    out[0] = (re + h) * np.cos(lat) * np.cos(lon)
+    out[1] = (re + h) * np.cos(lat) * np.sin(lon)
+    out[2] = (re * (1.0 - E2) + h) * sl
+    return out
+
+
+@njit(cache=True)
+def lla_to_local_ned(lat, lon, h, r0_e, C_ne0):
+    """NED position (m) relative to the origin with ECEF position r0_e and ECEF->NED DCM C_ne0."""
+    return C_ne0 @ (lla_rad_to_ecef(lat, lon, h) - r0_e)
+
+
+@njit(cache=True)
+def node_position(nav, lag_s, r0_e, C_ne0):
+    """Local-frame NED position (m) of the INS at the measurement time (moved back by lag_s along its velocity)."""
+    p = lla_to_local_ned(nav[0], nav[1], nav[2], r0_e, C_ne0)
+    for i in range(3):
+        p[i] -= nav[3 + i] * lag_s
+    return p
+
+
+@njit(cache=True)
+def range_residual(p_ned, anchor_ned, range_m, bias_m, cal_m):
+    """z = |p - a| + eps_d + c_a - measured range (m): the INS range with the common bias eps_d
+    and the anchor's calibration bias c_a, minus the measured one (Eq. 21-22, fusion's sign)."""
+    d = p_ned - anchor_ned
+    return np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + bias_m + cal_m - range_m
+
+
+@njit(cache=True)
+def range_jacobian(p_ned, anchor_ned, lag_s, H, row):
+    """Row `row` of H for `range_residual`: unit line of sight (Eq. 23) on the position and,
+    through the lag, the velocity errors (clears the first 15 columns)."""
+    d = p_ned - anchor_ned
+    rho = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for j in range(N_NAV):
+        H[row, j] = 0.0
+    for i in range(3):
+        H[row, POS + i] = d[i] / rho
+        H[row, VEL + i] = -lag_s * d[i] / rho
+
+
+@njit(cache=True)
+def zupt_residual(nav, z):
+    """z = INS NED velocity - 0 (m/s) while the IMU stands still."""
+    for i in range(3):
+        z[i] = nav[3 + i]
+
+
+@njit(cache=True)
+def zupt_jacobian(H):
+    """The 3 rows of H for `zupt_residual` (clears the first 15 columns)."""
+    for i in range(3):
+        for j in range(N_NAV):
+            H[i, j] = 0.0
+        H[i, VEL + i] = 1.0
+
+
+@njit(cache=True)
+def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
+    """Residual z (m,), rows H (m, n) and noise R (m, m) of measurement e about the nominal state.
+
+    ev: the kernel's event arrays (`fusion._kernels.EventArrays`), aid: the per-kind parameters
+    (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample.
+    m = ev.dim[e] is the size of z, H and R, which the caller allocated; H is written whole.
+    """
+    kind = ev.kind[e]
+    m = z.shape[0]
+    lag = ev.lag[e]
+    for i in range(m):
+        for j in range(H.shape[1]):
+            H[i, j] = 0.0
+        for j in range(m):
+            R[i, j] = ev.R[e, i, j]
+    if kind == Kind.GPS_POSITION:
+        gps_position_residual(nav, C, aid.lever_b, ev.z[e], lag, z)
+        gps_position_jacobian(nav, C, aid.lever_b, lag, H, 0)
+        o = lay[Block.GPS_ERROR]
+        if o >= 0:  # z = INS - (fix - b_est) = dp + (b_est - b) - noise
+            for i in range(3):
+                z[i] += bias[6 + o - N_NAV + i]
+                H[i, o + i] = 1.0
+    elif kind == Kind.GPS_VELOCITY:
+        zv = np.empty(3)
+        gps_velocity_residual(nav, C, aid.lever_b, w_ib, ev.z[e], zv)
+        Hv = np.zeros((3, H.shape[1]))
+        gps_velocity_jacobian(C, aid.lever_b, w_ib, Hv, 0)
+        for i in range(m):
+            z[i] = zv[i]
+            for j in range(N_NAV):
+                H[i, j] = Hv[i, j]
+    elif kind == Kind.RANGE:
+        a = ev.par[e]
+        p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+        ob = lay[Block.RANGE_BIAS]
+        oc = lay[Block.CALIBRATION]
+        z[0] = range_residual(p, aid.anchors_ned[a], ev.z[e, 0], bias[6 + ob - N_NAV], bias[6 + oc - N_NAV + a])
+        range_jacobian(p, aid.anchors_ned[a], lag, H, 0)
+        H[0, ob] = 1.0  # Eq. 24, last column (sign: error = estimate - truth)
+        H[0, oc + a] = 1.0
+    elif kind == Kind.FIX_NE:
+        p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+        H3 = np.zeros((3, H.shape[1]))
+        gps_position_jacobian(nav, C, aid.zero3, lag, H3, 0)
+        of = lay[Block.FLOOR]  # the fix's sensitivity to the floor and calibration errors (FLOOR, CALIBRATION follow)
+        si = ev.par[e]
+        for i in range(2):
+            z[i] = p[i] - ev.z[e, i]
+            for j in range(N_NAV):
+                H[i, j] = H3[i, j]
+            if si >= 0:  # the fix corrected by the current floor and calibration estimates
+                for j in range(aid.sens.shape[2]):
+                    H[i, of + j] = aid.sens[si, i, j]
+                    z[i] += aid.sens[si, i, j] * bias[6 + of - N_NAV + j]
+    elif kind == Kind.FLOOR:
+        p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+        H3 = np.zeros((3, H.shape[1]))
+        gps_position_jacobian(nav, C, aid.zero3, lag, H3, 0)
+        of = lay[Block.FLOOR]
+        for j in range(N_NAV):
+            H[0, j] = H3[2, j]
+        H[0, of] = -1.0  # the floor used is z + its nominal correction; its error enters with -1
+        z[0] = p[2] - (ev.z[e, 0] + bias[6 + of - N_NAV])
+    else:  # Kind.ZUPT
+        zupt_residual(nav, z)
+        for i in range(3):
+            z[i] -= ev.z[e, i]
+        zupt_jacobian(H)
+    return m

@@ -1,0 +1,66 @@
+"""IMU noise figures for the filters: which value each chain uses, and where it came from.
+
+One resolution for every chain: a key the pipeline sets (file or `--set`) wins, then the session's
+`[imu]` figure, then a figure measured from the log (when the chain measures one), then the
+pipeline model's default. Figures are in the contract's units (`gyro_noise_dps` and
+`acc_noise_mg` white noise SD per sample, `gyro_bias_dph` and `acc_bias_mg` bias SD,
+`mag_noise_ut`); `ImuNoiseFigures.summary()` records value and source for `summary.json`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import BaseModel
+
+KEYS = ("gyro_noise_dps", "acc_noise_mg", "gyro_bias_dph", "acc_bias_mg", "mag_noise_ut")
+
+
+@dataclass(frozen=True)
+class ImuNoiseFigures:
+    """Resolved figures (contract units) and the source of each: "pipeline", "session",
+    the `measured` label, or "default"."""
+
+    values: Mapping[str, float]
+    sources: Mapping[str, str]
+
+    def __getitem__(self, key: str) -> float:
+        return self.values[key]
+
+    def summary(self, digits: int = 6) -> dict:
+        return {k: {"value": round(float(v), digits), "source": self.sources[k]} for k, v in self.values.items()}
+
+
+def resolve_imu_noise(params: BaseModel, session_noise, *, measured: Mapping[str, float | None] | None = None,
+                      measured_label: str = "measured from the log", keys=KEYS[:4]) -> ImuNoiseFigures:
+    """Figures for `keys`: pipeline (a key the user set: in `params.model_fields_set`) > session
+    `[imu]` (`session_noise`, a `session.ImuNoise`) > `measured` > the model's default."""
+    measured = measured or {}
+    values, sources = {}, {}
+    for key in keys:
+        given = getattr(params, key)
+        if key in params.model_fields_set and given is not None:
+            v, src = given, "pipeline"
+        elif getattr(session_noise, key, None) is not None:
+            v, src = getattr(session_noise, key), "session"
+        elif measured.get(key) is not None:
+            v, src = measured[key], measured_label
+        else:
+            v, src = type(params).model_fields[key].default, "default"
+        values[key] = float(v)
+        sources[key] = src
+    return ImuNoiseFigures(values, sources)
+
+
+def measured_white_noise(x) -> float:
+    """Per-sample white-noise SD of a sensor series (N, 3), from its first differences.
+
+    For white noise of SD s, x[k+1] - x[k] has SD s sqrt(2); the motion of a vehicle at IMU rates
+    adds little to a difference. Robust scale (1.4826 MAD) so that bumps do not dominate;
+    averaged over the three axes.
+    """
+    d = np.diff(np.asarray(x, dtype=float), axis=0)
+    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    return float(np.mean(1.4826 * mad / np.sqrt(2.0)))

@@ -1,0 +1,86 @@
+"""Navigation solutions and their contract trajectory rows (`trajectory.parquet`, docs/log-format.md).
+
+`Solution` is what every filter run and smoother yields at a set of IMU samples; `trajectory_table`
+turns any solution (also an attitude-only one) into contract rows: `t, lat, lon, h, vn, ve, vd,
+roll, pitch, yaw, solution`, the sigma columns it knows, then a chain's own columns. Attitude
+sigmas are Euler-angle SDs (`frames.rotation.euler_sigmas_deg`), never the SDs of the NED
+attitude error.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from tpos_cli.frames.rotation import dcm_to_euler, euler_sigmas_deg
+
+
+@dataclass(frozen=True)
+class Solution:
+    """A navigation solution at sample indices `idx` (K,): nav (K,6) [lat_rad, lon_rad, h_m, vn,
+    ve, vd], C_nb (K,3,3), P9 (K,9,9) covariance of [pos NED m, vel NED m/s, phi rad]; bias
+    (K, 6 + n_extra) or None: the IMU biases and the nominal of the extra states (`fusion.layout`)."""
+
+    name: str
+    idx: np.ndarray
+    nav: np.ndarray
+    C_nb: np.ndarray
+    P9: np.ndarray
+    bias: np.ndarray | None = None
+
+    def rows(self, keep) -> Solution:
+        """The solution at the rows where `keep` is True."""
+        return Solution(self.name, self.idx[keep], self.nav[keep], self.C_nb[keep], self.P9[keep],
+                        None if self.bias is None else self.bias[keep])
+
+    def renamed(self, name: str) -> Solution:
+        return Solution(name, self.idx, self.nav, self.C_nb, self.P9, self.bias)
+
+
+def _sd(P: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.clip(np.diagonal(P, axis1=1, axis2=2), 0.0, None))
+
+
+def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=None, P_vel_ned_m2ps2=None,
+                     P_att_rad2=None, vertical_sigma: str = "sigma_d",
+                     extra: Mapping[str, object] | None = None) -> pd.DataFrame:
+    """Contract rows of one solution.
+
+    t (K,) logger-clock s; lla_deg (K, 3) or (3,) (a static observer); vel_ned_mps (K, 3) or None
+    (zeros); C_nb (K, 3, 3); optional covariances (K, 3, 3) of the NED position (m^2), velocity
+    ((m/s)^2) and attitude error phi (rad^2) give `sigma_n, sigma_e, <vertical_sigma>`,
+    `sigma_vn, sigma_ve, sigma_vd`, `sigma_roll, sigma_pitch, sigma_yaw` (deg); `extra` columns follow.
+    """
+    t = np.asarray(t, dtype=float)
+    k = t.size
+    lla = np.broadcast_to(np.asarray(lla_deg, dtype=float), (k, 3))
+    vel = np.zeros((k, 3)) if vel_ned_mps is None else np.asarray(vel_ned_mps, dtype=float)
+    r, p, y = dcm_to_euler(C_nb)
+    cols: dict = {"t": t, "lat": lla[:, 0].copy(), "lon": lla[:, 1].copy(), "h": lla[:, 2].copy(),
+                  "vn": vel[:, 0], "ve": vel[:, 1], "vd": vel[:, 2],
+                  "roll": np.degrees(r), "pitch": np.degrees(p), "yaw": np.degrees(y),
+                  "solution": np.full(k, name, dtype=object)}
+    if P_pos_ned_m2 is not None:
+        sd = _sd(P_pos_ned_m2)
+        cols.update({"sigma_n": sd[:, 0], "sigma_e": sd[:, 1], vertical_sigma: sd[:, 2]})
+    if P_vel_ned_m2ps2 is not None:
+        sd = _sd(P_vel_ned_m2ps2)
+        cols.update({"sigma_vn": sd[:, 0], "sigma_ve": sd[:, 1], "sigma_vd": sd[:, 2]})
+    if P_att_rad2 is not None:
+        se = euler_sigmas_deg(C_nb, P_att_rad2)
+        cols.update({"sigma_roll": se[:, 0], "sigma_pitch": se[:, 1], "sigma_yaw": se[:, 2]})
+    cols.update(extra or {})
+    return pd.DataFrame(cols)
+
+
+def solution_table(sol: Solution, t_s, t0_s: float, *, vertical_sigma: str = "sigma_d",
+                   extra: Mapping[str, object] | None = None) -> pd.DataFrame:
+    """`trajectory_table` of a navigation `Solution`; t_s the run's sample times (session s), t0_s
+    the session epoch on the logger clock."""
+    lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
+    return trajectory_table(sol.name, np.asarray(t_s)[sol.idx] + t0_s, lla, sol.nav[:, 3:6], sol.C_nb,
+                            P_pos_ned_m2=sol.P9[:, 0:3, 0:3], P_vel_ned_m2ps2=sol.P9[:, 3:6, 3:6],
+                            P_att_rad2=sol.P9[:, 6:9, 6:9], vertical_sigma=vertical_sigma, extra=extra)
