@@ -464,10 +464,13 @@ def test_final_table_fits_80_columns():
         b.SessionResult(name="wall", session_dir="", run_dir="", status="failed", exit_code=2, error="bad", time_s=float("nan"),
                         started_utc="", worker=""),
         b.SessionResult(name="target_wall", session_dir="", run_dir="", status="skipped", exit_code=0, error="", time_s=0.2,
-                        started_utc="", worker="", accuracy={"truth.fkf.targets.rms_pos_3d_m": 0.0312, "truth.lf1.targets.rms_pos_3d_m": 0.5,
-                                                             "truth.fkf.trajectory.rms_att_deg": 0.25}),
+                        started_utc="", worker="",
+                        accuracy={"truth.fkf.targets.rms_pos_3d_m": 0.0312, "truth.lf1.targets.rms_pos_3d_m": 0.5,
+                                  "truth.fkf.trajectory.rms_att_deg": 0.25}),
     ]
-    lines = b.format_table(rows)
+    from tpos_cli.export.solutions import rank_solutions
+
+    lines = b.format_table(rows, rank_solutions)
     assert all(len(ln) <= 80 for ln in [*lines, *b.TABLE_LEGEND.splitlines()])
     assert lines[0].split() == ["session", "status", "verdict", "pos", "m", "att", "deg", "solution", "warn", "time", "s"]
     # both ends of a long name survive; the headline is the best solution's, not a config figure

@@ -803,15 +803,19 @@ def write_batch_record(batch: BatchResult, *, pipeline: str | None = None) -> tu
     return json_path, pq_path
 
 
-def headline_errors(r: SessionResult) -> tuple[str, float | None, float | None]:
+def _as_written(names) -> list[str]:
+    return list(dict.fromkeys(names))
+
+
+def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str, float | None, float | None]:
     """(solution, position error m, attitude error deg) against truth for the console table.
 
-    From the row's `truth.<solution>.<trajectory|targets>.<statistic>` figures: the best solution
-    the run has (`tpos_cli.export.solutions.rank_solutions`); the position error is the 3-D RMS
-    of the targets when the run has targets, else the horizontal RMS of the trajectory; the
-    attitude error is the RMS of the trajectory's attitude. ("", None, None) without figures."""
-    from tpos_cli.export.solutions import rank_solutions
-
+    From the row's `truth.<solution>.<trajectory|targets>.<statistic>` figures: the first solution
+    in `rank`'s order (the CLI passes `tpos_cli.export.solutions.rank_solutions`, best first); the
+    position error is the 3-D RMS of the targets when the run has targets, else the horizontal RMS of
+    the trajectory; the attitude error is the RMS of the trajectory's attitude. ("", None, None)
+    without figures."""
+    rank_solutions = rank
     figures: dict[tuple[str, str, str], float] = {}
     for key, v in r.accuracy.items():
         parts = key.split(".")
@@ -843,14 +847,15 @@ def _cell(text: str, width: int, right: bool) -> str:
     return text.rjust(width) if right else text.ljust(width)
 
 
-def format_table(results: Iterable[SessionResult]) -> list[str]:
-    """The final table a person reads in 80 columns: one line per session, then a legend."""
+def format_table(results: Iterable[SessionResult], rank: Callable = _as_written) -> list[str]:
+    """The final table a person reads in 80 columns: one line per session (`rank` orders solutions,
+    best first: see headline_errors)."""
     def num(v: float | None, fmt: str) -> str:
         return "-" if v is None or not math.isfinite(v) else format(v, fmt)
 
     lines = [" ".join(_cell(h, w, right) for h, w, right in TABLE_COLUMNS).rstrip()]
     for r in results:
-        sol, pos, att = headline_errors(r)
+        sol, pos, att = headline_errors(r, rank)
         cells = (r.name, r.status, r.verdict or "-", num(pos, ".3g"), num(att, ".3g"), sol or "-",
                  str(len(r.warnings)), num(r.time_s, ".1f"))
         lines.append(" ".join(_cell(c, w, right) for c, (_, w, right) in zip(cells, TABLE_COLUMNS)).rstrip())

@@ -28,7 +28,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.ranging.fuzzy import uncovered_input
 
-
 # value types with their bounds (all floats finite: the models set allow_inf_nan=False)
 Probability = Annotated[float, Field(gt=0.0, lt=1.0)]
 Positive = Annotated[float, Field(gt=0.0)]

@@ -6,7 +6,6 @@ import numpy as np
 
 from tpos_cli.session import Session
 
-
 # Sample intervals longer than this many median intervals are gaps (reported apart), not jitter;
 # the same factor as the loader's IMU gap detection (timebase.find_gaps).
 GAP_FACTOR = 2.5

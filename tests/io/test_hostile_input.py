@@ -3,7 +3,6 @@ written), or a plain exit 1 for an output that cannot be written; reads are boun
 
 from __future__ import annotations
 
-import json
 import os
 import resource
 import subprocess
@@ -65,7 +64,8 @@ def sparse_nul_imu(s):
 def parquet_with_many_rows(s):
     (s / "imu.csv").unlink()
     n = 25_000_000  # above the row limit; a constant column compresses to almost nothing
-    t = pa.table({"t": pa.array(np.zeros(n)), **{c: pa.array(np.zeros(n)) for c in ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")}})
+    cols = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+    t = pa.table({c: pa.array(np.zeros(n)) for c in cols})
     pq.write_table(t, s / "imu.parquet", compression="zstd", row_group_size=5_000_000)
 
 

@@ -17,8 +17,12 @@ def import_(
     mapping: Annotated[Path | None, typer.Option("--map", help="csv: mapping TOML (columns, units, axes, time).")] = None,
     clock: Annotated[str, typer.Option("--clock", help="nmea/rtklib-pos/ubx: clock of `t`: gps_tow | gps | unix.")] = "gps_tow",
     force: Annotated[bool, typer.Option("--force", help="Replace a table the session already has.")] = False,
-    geoid_sep_m: Annotated[float | None, typer.Option("--geoid-sep-m", help="nmea/rtklib-pos: geoid undulation at the site (m) for heights the source gives above the geoid (mean sea level) without it.")] = None,
-    heights: Annotated[str | None, typer.Option("--heights", help="rtklib-pos: ellipsoidal | geodetic, for a .pos file whose header does not say.")] = None,
+    geoid_sep_m: Annotated[float | None, typer.Option(
+        "--geoid-sep-m",
+        help="nmea/rtklib-pos: geoid undulation at the site (m) for heights the source gives above the geoid (mean sea level).",
+    )] = None,
+    heights: Annotated[str | None, typer.Option(
+        "--heights", help="rtklib-pos: ellipsoidal | geodetic, for a .pos file whose header does not say.")] = None,
 ) -> None:
     """Import SRC files of FORMAT into the session OUT (created, or added to: import the IMU CSV,
     then the GPS solution, into one session). Sources are never modified.

@@ -42,9 +42,10 @@ def _header(lines: list[str]) -> tuple[list[str], str, str | None, str | None, i
     time_sys = "GPST"
     height = datum = None
     n = 0
-    for n, line in enumerate(lines):
+    for line in lines:
         if not line.startswith("%"):
             break
+        n += 1
         m = _OPTIONS.search(line)
         if m:
             datum, height = m.group(1), m.group(2).lower()
@@ -52,8 +53,6 @@ def _header(lines: list[str]) -> tuple[list[str], str, str | None, str | None, i
         if toks and toks[0] in ("GPST", "UTC", "JST"):
             time_sys = toks[0]
             labels = toks
-    else:
-        n = len(lines)
     return labels, time_sys, height, datum, n
 
 
@@ -127,7 +126,7 @@ def import_rtklib_pos(path: Path, *, clock: str = "gps_tow", geoid_sep_m: float 
     if _DATE.match(str(df["_d"].iloc[0])):
         parts = df["_d"].str.extract(r"^(\d{4})/(\d{1,2})/(\d{1,2})$").astype(float)
         hms = df["_t"].str.extract(r"^(\d{1,2}):(\d{1,2}):(\d{1,2}(?:\.\d*)?)$").astype(float)
-        for frame, text_col in ((parts, "_d"), (hms, "_t")):
+        for frame in (parts, hms):
             bad = np.flatnonzero(frame.isna().any(axis=1).to_numpy())
             if bad.size:
                 raise InvalidInputError(f"{path}: line {line_nos[bad[0]]}: time {df['_d'].iloc[bad[0]]} {df['_t'].iloc[bad[0]]} "
