@@ -4,7 +4,6 @@ written), or a plain exit 1 for an output that cannot be written; reads are boun
 from __future__ import annotations
 
 import os
-import resource
 import subprocess
 import sys
 import textwrap
@@ -30,17 +29,17 @@ def _toml_add(s: Path, text: str) -> None:
 
 def _run_cli_bounded(args: list[str], cwd: Path, timeout_s: float = 120.0, mem_bytes: int = 1 << 30):
     """The CLI in a subprocess under a 1 GB address-space limit and a wall-clock timeout."""
+    peak_file = cwd / "peak_rss_kb"
     code = textwrap.dedent(f"""
-        import resource, sys
+        import atexit, resource, sys
         resource.setrlimit(resource.RLIMIT_AS, ({mem_bytes} * 4, {mem_bytes} * 4))  # virtual: numba/llvm reserve
+        atexit.register(lambda: open({str(peak_file)!r}, "w").write(str(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)))
         from tpos_cli.cli import main
         sys.argv = ["tpos", *{args!r}]
         main()
     """)
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout_s, cwd=cwd)
-    peak_kb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return res, max(peak_kb, before)
+    return res, int(peak_file.read_text())  # this child's own peak resident set, kB
 
 
 # ------------------------------------------------------------------ refused at the door (validate: exit 2)
