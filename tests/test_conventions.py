@@ -5,12 +5,12 @@ Analytic oracle: a device tilting about x and y with gravity along its up axis. 
 """
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from tests.helpers.paths import SHARED_DATA
 from tpos_cli.conventions import check_gravity, check_tilt_consistency
 from tpos_cli.frames.rotation import euler_to_dcm
 
@@ -62,8 +62,6 @@ def test_swapped_axes_and_flipped_accelerometer():
     assert "flipped sign" in w[0] and '"FRU"' not in w[0]
 
 
-from tests.helpers.paths import SHARED_DATA
-
 SHARED = SHARED_DATA / "real"
 
 
@@ -103,10 +101,10 @@ def test_valid_long_simulated_logs_raise_no_warning(tmp_path, scenario, seed):
     # Regression: over an hour of a vehicle's turns (which tilt the specific force) or of an
     # observer's yaw slews (which do not tilt the device), the tilt-gain fit looked precise and
     # flagged sound gyro axes as deg/s or mis-scaled.
+    from tpos_cli.conventions import check_conventions
     from tpos_cli.session import load_session
     from tpos_cli.sim import SCENARIOS
     from tpos_cli.sim.writer import write_session
-    from tpos_cli.conventions import check_conventions
 
     sim = SCENARIOS[scenario](duration_s=3600.0, seed=seed)  # these seeds were flagged before the fix
     write_session(sim, tmp_path / "s", fmt="parquet")

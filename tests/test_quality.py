@@ -268,3 +268,19 @@ def test_disturbed_magnetometer(sims):
     get, root = sims
     q = _run(get("target"), root, M.mag_disturbance(50.0, 0.5))
     assert _named(q, "magnetometer", "disturbed")
+
+
+def test_process_prints_the_verdict_and_strict_exits_1(sims):
+    from typer.testing import CliRunner
+
+    from tpos_cli.cli import app
+
+    get, root = sims
+    d = M.plant(get("drive"), root / "strict" / "s", M.gps_late(1e6))
+    runner = CliRunner()
+    res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run"), "-q", "--strict"])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "verdict: unreliable" in res.output and "GPS clock" in res.output
+    assert (root / "strict" / "run" / "summary.json").exists()  # written all the same
+    res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run2"), "-q"])
+    assert res.exit_code == 0 and "verdict: unreliable" in res.output

@@ -191,22 +191,61 @@ class _Runner:
         return f"{self.win[0]:.0f}-{self.win[1]:.0f} s of the log"
 
 
-def clock_advice(session, runner: _Runner, off) -> list[Finding]:
-    """The raw-data clock estimate `off` (conventions.gps_clock_estimate) tried by reprocessing."""
+CLOCK_Z = float(stats.norm.isf(0.0005))  # 3.29: two-sided 99.9 %
+
+
+def clock_signature(output) -> dict | None:
+    """GPS position innovations regressed on the velocity at the fix: a GPS stamped δ late gives
+    INS - GPS = v δ (the filter absorbs part of it, so the fitted δ is shrunk towards zero). Per run
+    (forward, backward): δ (s) and its SD from the residual scatter."""
+    inn = output.tables.get("innovations") if output is not None else None
+    tr = getattr(output, "trajectory", None)
+    if inn is None or tr is None or "nu_0" not in inn:
+        return None
+    out = {}
+    for sol in ("forward", "backward"):
+        f = tr[tr["solution"] == sol].sort_values("t")
+        g = inn[(inn["solution"] == sol) & (inn["kind"] == "gps_pos")]
+        if len(g) < 10 or len(f) < 2:
+            continue
+        t = g["t"].to_numpy(float)
+        v = np.column_stack([np.interp(t, f["t"], f[c]) for c in ("vn", "ve")])
+        nu = g[["nu_0", "nu_1"]].to_numpy(float)
+        ok = np.isfinite(nu).all(axis=1)
+        x, y = v[ok].ravel(), nu[ok].ravel()
+        if x.size < 20 or not float(x @ x) > 0:
+            continue
+        d = float(x @ y / (x @ x))
+        r = y - d * x
+        out[sol] = {"late_s": d, "sd_s": float(np.sqrt(r @ r / (y.size - 1) / (x @ x)))}
+    return out or None
+
+
+def clock_advice(session, output, runner: _Runner, off) -> list[Finding]:
+    """GPS clock offsets tried by reprocessing: from the raw-data estimate `off`
+    (conventions.gps_clock_estimate: δ and δ/2) and, when both runs' innovations carry a
+    significant signature of the same sign (`clock_signature`), from it (δ and 2δ: the filter
+    absorbs part of an offset). The candidate that predicts the GPS best is suggested if it
+    predicts it better than the times given (`compare`)."""
     cur = conventions._current_gps_offset(session)
     f = conventions.clock_finding(off, cur)
-    if f is None:
-        return []
-    fig = dict(f.figures)
-    if not fig["candidate"]:
-        return [Finding("clock", "ok", None, fig)]
-    base = runner.base()
+    fig = dict(f.figures) if f is not None else {}
+    cands = [frac * off.offset_s for frac in (1.0, 0.5)] if fig.get("candidate") else []
+    sig = clock_signature(output)
+    if sig is not None:
+        fig["innovation_signature"] = sig
+        ds = [v["late_s"] for v in sig.values()]
+        z = [abs(v["late_s"]) / v["sd_s"] for v in sig.values() if v["sd_s"] > 0]
+        if len(ds) == 2 and len(z) == 2 and min(z) > CLOCK_Z and np.sign(ds[0]) == np.sign(ds[1]):
+            d = -float(np.mean(ds))  # late GPS: add a negative offset
+            cands += [d, 2.0 * d]
+    cands = [d for d in cands if abs(d) >= conventions.CLOCK_MIN_S / 2]
+    base = runner.base() if cands else None
     if base is None:
-        return [Finding("clock", "ok", None, fig)]
+        return [Finding("clock", "ok", None, fig)] if fig else []
     tried = []
     best = None
-    for frac in (1.0, 0.5):
-        d = frac * off.offset_s
+    for d in cands:
         inn = runner.innovations(shift_gps(runner.session, d))
         if inn is None:
             continue
@@ -221,11 +260,11 @@ def clock_advice(session, runner: _Runner, off) -> list[Finding]:
     d, c = best
     late = "late" if d < 0 else "early"
     fig["suggested_gps_offset_s"] = cur + d
+    raw = f" (raw data: {abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s)" if off is not None else ""
     return [Finding("clock", "suspect",
-                    f"gps/imu: the GPS is time-stamped about {abs(d):.3f} s {late} against the IMU (raw data: "
-                    f"{abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s); re-processing {runner.label} with it cuts the GPS "
-                    f"prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set [time] gps_offset_s = {cur + d:.3f} "
-                    "in session.toml", fig)]
+                    f"gps/imu: the GPS is time-stamped about {abs(d):.3f} s {late} against the IMU{raw}; re-processing "
+                    f"{runner.label} with it cuts the GPS prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): "
+                    f"set [time] gps_offset_s = {cur + d:.3f} in session.toml", fig)]
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
@@ -387,7 +426,9 @@ def _with_anchor_at(session, i: int, ned_m):
 def locate_anchor(session, output, i: int, model: Mapping | None):
     """Anchor i's north/east (its height as given) from a run that did not use it: robust least
     squares of its ranges (corrected by the range model, measured = f true + c) against the run's
-    positions at the range times. Returns (ned (3,), sd_ne (2,), n) or None."""
+    positions at the range times, started at the listed position. Returns [(ned (3,), sd_ne (2,),
+    n)] or None. From a nearly straight track an anchor and its mirror image about the track fit
+    almost alike; the fit keeps the side it starts on unless the data prefer the other."""
     from scipy.optimize import least_squares
 
     from tpos_cli.frames.geodetic import lla_to_ned
@@ -423,14 +464,14 @@ def locate_anchor(session, output, i: int, model: Mapping | None):
         cov = np.linalg.inv(fit.jac.T @ fit.jac) * s2 * r.size / consistency.effective_sample_size(fit.fun)
     except np.linalg.LinAlgError:
         return None
-    return np.array([fit.x[0], fit.x[1], a0[2]]), np.sqrt(np.diag(cov)), int(r.size)
+    return [(np.array([fit.x[0], fit.x[1], a0[2]]), np.sqrt(np.diag(cov)), int(r.size))]
 
 
 def anchor_advice(session, output, runner: _Runner, gate_probability: float | None) -> list[Finding]:
-    """A moved anchor: when the range updates fail their NIS or rejection checks, each anchor is
-    left out in turn (re-processing); the one whose absence makes the rest most consistent is
-    located from that run, and its new coordinates are suggested when re-processing with them
-    predicts the ranges better than the coordinates given (`compare` on the range NIS)."""
+    """A moved anchor: when the range updates fail their NIS or rejection checks, each anchor in turn
+    is left out (re-processing), located from that run (`locate_anchor`), and the log re-processed
+    with it there; the relocation that predicts the ranges best, better than the coordinates given
+    (`compare` on the range NIS, z > 3), is suggested."""
     inn = output.tables.get("innovations") if output is not None else None
     if inn is None or session.anchors is None or session.anchor_ranges is None:
         return []
@@ -439,37 +480,44 @@ def anchor_advice(session, output, runner: _Runner, gate_probability: float | No
     fig: dict = {"range_score": score_all}
     if not fired or len(session.anchors.ids) < 4:
         return [Finding("anchors", "ok", None, fig)]
-    base = runner.base_output()
-    scores = {}
-    runs = {}
+    base = runner.base()
+    model = (output.summary or {}).get("range_model")
+    tried = {}
+    best = None
     for i, aid in enumerate(session.anchors.ids):
         # three anchors still give a horizontal fix (the floor height is known)
-        out = runner.output(_without_anchor(runner.session, i), {"lc_min_anchors": 3})
-        runs[i] = out
-        scores[aid] = _range_score(None if out is None else out.tables.get("innovations"))
-    fig["range_score_without"] = scores
-    i_best = int(np.argmin([scores[a] for a in session.anchors.ids]))
-    aid = session.anchors.ids[i_best]
-    if not scores[aid] < score_all or runs[i_best] is None:
+        without = runner.output(_without_anchor(runner.session, i), {"lc_min_anchors": 3})
+        places = locate_anchor(runner.session, without, i, model) if without is not None else None
+        if not places or base is None:
+            continue
+        for ned, sd, n in places:
+            trial = runner.innovations(_with_anchor_at(runner.session, i, ned))
+            if trial is None:
+                continue
+            c = compare(base, trial, kinds=RANGE_KINDS)
+            if aid in tried and c.ratio >= tried[aid]["ratio"]:
+                continue
+            given = session.anchors.ned_m[i]
+            tried[aid] = {"estimate_ne_m": [float(ned[0]), float(ned[1])], "sd_ne_m": sd.tolist(), "ranges": n,
+                          "moved_m": float(np.hypot(*(ned[:2] - given[:2]))), "ratio": c.ratio, "z": c.z,
+                          "range_score_without": _range_score(without.tables.get("innovations"))}
+        if aid in tried and tried[aid]["z"] > Z_ACCEPT and tried[aid]["ratio"] < 1.0 and (
+                best is None or tried[aid]["ratio"] < tried[best]["ratio"]):
+            best = aid
+    fig.update({"tried": tried, "window": runner.label})
+    if best is None:
         return [Finding("anchors", "ok", None, fig)]
-    loc = locate_anchor(runner.session, runs[i_best], i_best, (output.summary or {}).get("range_model"))
-    if loc is None:
-        return [Finding("anchors", "ok", None, fig)]
-    ned, sd, n = loc
-    trial = runner.output(_with_anchor_at(runner.session, i_best, ned))
-    c = compare(base.tables.get("innovations"), None if trial is None else trial.tables.get("innovations"),
-                kinds=RANGE_KINDS) if trial is not None else Comparison(0, float("nan"), float("nan"))
-    given = session.anchors.ned_m[i_best]
-    fig.update({"anchor": aid, "given_ne_m": [float(given[0]), float(given[1])], "estimate_ne_m": [float(ned[0]), float(ned[1])],
-                "sd_ne_m": sd.tolist(), "ranges": n, "ratio": c.ratio, "z": c.z, "window": runner.label})
-    if not c.better:
-        return [Finding("anchors", "ok", None, fig)]
-    moved = float(np.hypot(*(ned[:2] - given[:2])))
+    t = tried[best]
+    i = session.anchors.ids.index(best)
+    given = session.anchors.ned_m[i]
+    fig.update({"anchor": best, "given_ne_m": [float(given[0]), float(given[1])], "estimate_ne_m": t["estimate_ne_m"],
+                "sd_ne_m": t["sd_ne_m"]})
+    n_, e_ = t["estimate_ne_m"]
     return [Finding("anchors", "suspect",
-                    f"anchors: {aid}'s ranges disagree with the other anchors (leaving it out brings the range NIS from "
-                    f"{score_all:.1f}x to {scores[aid]:.1f}x its expectation); they put it {moved:.2f} m from its listed "
-                    f"position, at e = {ned[1]:.2f}, n = {ned[0]:.2f} m (± {max(sd):.2f}); re-processing with that cuts the "
-                    f"range NIS by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): re-survey {aid} or correct anchors.csv", fig)]
+                    f"anchors: {best}'s ranges disagree with the other anchors: they put it {t['moved_m']:.2f} m from its "
+                    f"listed position, at e = {e_:.2f}, n = {n_:.2f} m (± {max(t['sd_ne_m']):.2f}); re-processing "
+                    f"{runner.label} with that cuts the range NIS by {100 * (1 - t['ratio']):.0f} % (z = {t['z']:.1f}): "
+                    f"re-survey {best} or correct anchors.csv", fig)]
 
 
 def with_gyro_scale(session, factor: float):
@@ -510,7 +558,7 @@ def review(session, output, *, chain: str, config: Mapping | None, params, run: 
         off = conventions.gps_clock_estimate(session, max_span_s=WINDOW_S)
         gate = ((config or {}).get(chain) or {}).get("gate_probability")
         findings += units_advice(session, output, runner, gate)
-        findings += clock_advice(session, runner, off)
+        findings += clock_advice(session, output, runner, off)
         findings += lever_arm_advice(session, output, runner)
     if chain == "ranging_fatci" and output is not None:
         gate = ((config or {}).get(chain) or {}).get("gate_probability")

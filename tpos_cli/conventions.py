@@ -72,11 +72,12 @@ def _suggest_axes(axes: str, sensor_up: int, up_positive: bool) -> str:
     return best or axes
 
 
-def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[Finding]:
+def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", still=None, still_strict=None) -> list[Finding]:
     """+g on the up axis named by `axes` (at rest, else averaged over the whole log: a vehicle's or a
-    hand's accelerations average out over minutes), and a gyro norm at rest near Earth rate + bias."""
+    hand's accelerations average out over minutes), and a gyro norm at rest near Earth rate + bias.
+    `still`, `still_strict`: the `_still` masks at the default and the strict tolerance, if known."""
     out: list[Finding] = []
-    still = _still(t, gyro_b, acc_b)
+    still = _still(t, gyro_b, acc_b) if still is None else still
     at_rest = still.sum() >= 50
     long_enough = t.size >= 50 and t[-1] - t[0] >= 10.0
     if at_rest or long_enough:
@@ -101,7 +102,9 @@ def gravity_findings(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[Fin
             out.append(Finding("conventions.axes", "ok", None, fig))
     # The quietest rest period decides: a constant-rate turn can look still to the accelerometer,
     # but a log in deg/s reads high in every rest period.
-    w = _quietest_rest_rate(t, gyro_b, _still(t, gyro_b, acc_b, ACC_STILL_SD_MPS2))
+    if still_strict is None:
+        still_strict = _still(t, gyro_b, acc_b, ACC_STILL_SD_MPS2)
+    w = _quietest_rest_rate(t, gyro_b, still_strict)
     if w > STILL_GYRO_MAX_RPS:
         deg = w * np.pi / 180 < STILL_GYRO_MAX_RPS
         hint = " (it is deg/s logged as rad/s: multiply by pi/180)" if deg else ""
@@ -197,15 +200,23 @@ def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 
         # deg/s and increments put k near a small number: it must also be clearly above zero,
         # or an axis that barely tilts the device (k ~ 0 +- noise) would pass for either
         if holds(j, lambda kk, ss: abs(kk + 1) < 0.3 and ss < 0.2):
-            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} turns against the tilt seen by the accelerometer (gain {k[j]:+.2f} ± {sd[j]:.2f}): its sign is flipped; negate the column", fig))
+            out.append(Finding("conventions.tilt", "unreliable",
+                               f"{name}: {col} turns against the tilt seen by the accelerometer (gain {k[j]:+.2f} ± "
+                               f"{sd[j]:.2f}): its sign is flipped; negate the column", fig))
         elif holds(j, lambda kk, ss: abs(kk / deg - 1) < 0.3 and kk > 5 * ss):
-            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, not rad/s; multiply by pi/180", fig))
+            out.append(Finding("conventions.tilt", "unreliable",
+                               f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, "
+                               "not rad/s; multiply by pi/180", fig))
         elif holds(j, lambda kk, ss: abs(kk * dt - 1) < 0.3 and kk > 5 * ss):
-            out.append(Finding("conventions.tilt", "unreliable", f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these are angle increments; divide by the interval", fig))
+            out.append(Finding("conventions.tilt", "unreliable",
+                               f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these "
+                               "are angle increments; divide by the interval", fig))
         # A generic misfit needs a log whose accelerometer sees tilt, not acceleration (r2 > 0.9):
         # a vehicle's turns tilt the specific force too (simulated drives fit r2 ~0.75 with gains ~10).
         elif r2 > 0.9 and holds(j, lambda kk, ss: abs(kk - 1) > 0.3 and ss < 0.1):
-            out.append(Finding("conventions.tilt", "suspect", f"{name}: {col} disagrees with the tilt seen by the accelerometer (gain {k[j]:.2f} ± {sd[j]:.2f}, expected 1): wrong scale or axis", fig))
+            out.append(Finding("conventions.tilt", "suspect",
+                               f"{name}: {col} disagrees with the tilt seen by the accelerometer (gain {k[j]:.2f} ± "
+                               f"{sd[j]:.2f}, expected 1): wrong scale or axis", fig))
     return out or [Finding("conventions.tilt", "ok", None, fig)]
 
 
@@ -220,7 +231,8 @@ def magnetometer_findings(mag_b, lla, when, name: str = "imu") -> list[Finding]:
     if 0.7 < ratio < 1.3:
         return [Finding("conventions.magnetometer_units", "ok", None, fig)]
     units = {1e-3: "nT", 1e-1: "mG (milligauss)", 1e2: "gauss", 1e6: "T"}
-    hint = next((f": it looks like {u} (multiply by {f:g} to get µT)" for f, u in units.items() if 0.7 < m * f / ref < 1.3), "; uncalibrated hard iron or a disturbance? try `tpos calibrate-mag`")
+    hint = next((f": it looks like {u} (multiply by {f:g} to get µT)" for f, u in units.items() if 0.7 < m * f / ref < 1.3),
+                "; uncalibrated hard iron or a disturbance? try `tpos calibrate-mag`")
     return [Finding("conventions.magnetometer_units", "suspect",
                     f"{name}: median magnetometer magnitude {m:.3g} against {ref:.1f} µT from the IGRF at the session position{hint}", fig)]
 
@@ -264,7 +276,8 @@ def session_findings(session) -> list[Finding]:
     imu = session.imu
     t, gyro, acc = imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2
     axes = session.meta.axes
-    out = gravity_findings(t, gyro, acc, axes)
+    still = _still(t, gyro, acc)
+    out = gravity_findings(t, gyro, acc, axes, still=still)
     out += tilt_findings(t, gyro, acc, axes)
     out += course_findings(session)
     pos = None
@@ -274,13 +287,13 @@ def session_findings(session) -> list[Finding]:
         pos = session.meta.observer_lla
     if pos is not None:
         g_ref = float(normal_gravity_mps2(np.radians(pos[0]), pos[2]))
-        still = _still(t, gyro, acc)
         if still.sum() > 50:
             gm = float(np.linalg.norm(acc[still].mean(axis=0)))
             fig = {"rest_norm_mps2": gm, "normal_gravity_mps2": g_ref}
             if abs(gm / g_ref - 1) > 0.05:
                 out.append(Finding("conventions.gravity_norm", "unreliable",
-                                   f"imu: at rest |f| = {gm:.3f} m/s^2 against normal gravity {g_ref:.3f} m/s^2 here: accelerometer scale or units are off", fig))
+                                   f"imu: at rest |f| = {gm:.3f} m/s^2 against normal gravity {g_ref:.3f} m/s^2 here: "
+                                   "accelerometer scale or units are off", fig))
             else:
                 out.append(Finding("conventions.gravity_norm", "ok", None, fig))
     if imu.mag_b_ut is not None and pos is not None:

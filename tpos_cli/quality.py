@@ -15,6 +15,7 @@ test, never against values seen on particular logs:
   updates are rejected: the filter no longer follows its aiding.
 - `mounting`: the chain's course-against-yaw check while moving (a sideways or reversed IMU).
 - `fusion`: a local filter the federated fusion left out for more than `DISTURBED_ALLOWANCE`.
+- `bias`: bias states that settled more than 3.29 of their prior SDs from zero (`bias_findings`).
 - `flags`: epochs where the forward and backward runs disagree beyond their covariances (the
   chain's `flag` column, tested at its `flag_probability`), counted with the AR(1) effective
   sample size of the flag series: suspect when significantly more than the flag rate;
@@ -216,7 +217,8 @@ def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> li
         t = g.t_s[g.valid]
         t_imu = session.imu.t_s
         inside = (t >= t_imu[0]) & (t <= t_imu[-1])
-        fig = {"fixes": int(t.size), "inside_imu_log": int(inside.sum()), "gps_t_s": [float(t[0] + session.t0_s), float(t[-1] + session.t0_s)],
+        fig = {"fixes": int(t.size), "inside_imu_log": int(inside.sum()),
+               "gps_t_s": [float(t[0] + session.t0_s), float(t[-1] + session.t0_s)],
                "imu_t_s": [float(t_imu[0] + session.t0_s), float(t_imu[-1] + session.t0_s)]}
         if inside.mean() < MAJORITY:
             off = float(np.median(t_imu) - np.median(t))
@@ -224,7 +226,8 @@ def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> li
             out.append(Finding("aiding.gps_time", level,
                                f"gps: {int(t.size - inside.sum())} of {t.size} fixes (t {fig['gps_t_s'][0]:.1f}-{fig['gps_t_s'][1]:.1f} s) "
                                f"fall outside the IMU log ({fig['imu_t_s'][0]:.1f}-{fig['imu_t_s'][1]:.1f} s): the GPS clock is off by "
-                               f"about {off:+.4g} s (another time scale, time zone or epoch?); fix the gps t column or set [time] gps_offset_s",
+                               f"about {off:+.4g} s (another time scale, time zone or epoch?); fix the gps t column "
+                               "or set [time] gps_offset_s",
                                {**fig, "offset_estimate_s": off}))
         else:
             out.append(Finding("aiding.gps_time", "ok", None, fig))
@@ -276,6 +279,43 @@ def fusion_findings(results: Mapping | None) -> list[Finding]:
                     "the other filter", fig)]
 
 
+BIAS_Z = 3.29  # two-sided 99.9 % of a bias estimate against its prior SD
+
+
+def bias_findings(results: Mapping | None, config: Mapping | None, chain: str) -> list[Finding]:
+    """Bias convergence: an estimated bias state far outside its prior (z > 3.29 prior SDs) means the
+    data carry an error the prior says cannot be there (wrong units, a bad calibration).
+
+    Reads the ranging chain's `final_range_bias_m` per solution against `range_bias_sd_m` (its
+    random walk neglected: a stricter test), and any chain's `results["bias"]` = {name: {"estimate": [...],
+    "prior_sigma": [...]}}."""
+    res = results or {}
+    items = []
+    if chain == "ranging_fatci":
+        cfg = (config or {}).get(chain) or {}
+        sd0 = float(cfg.get("range_bias_sd_m", float("nan")))
+        sols = res.get("solutions") or {}
+        for sol, v in sols.items():
+            if isinstance(v, Mapping) and "final_range_bias_m" in v and sd0 > 0:
+                items.append((f"{sol} range bias", "m", [float(v["final_range_bias_m"])], [sd0],
+                              "the range calibration (range_calibration.csv) does not fit these ranges"))
+    for name, v in (res.get("bias") or {}).items():
+        if isinstance(v, Mapping) and "estimate" in v and "prior_sigma" in v:
+            items.append((name, "", list(v["estimate"]), list(v["prior_sigma"]), "check the sensor's units and calibration"))
+    out = []
+    for name, unit, est, sd, cause in items:
+        z = [abs(e) / s for e, s in zip(est, sd) if s and s > 0 and np.isfinite(e)]
+        zmax = max(z, default=0.0)
+        fig = {"estimate": est, "prior_sigma": sd, "z_max": zmax}
+        if zmax > BIAS_Z:
+            out.append(Finding(f"bias.{name.replace(' ', '_')}", "suspect",
+                               f"{name}: settled at {np.array2string(np.asarray(est), precision=3)} {unit}, {zmax:.1f} prior SDs "
+                               f"from zero (prior SD {np.array2string(np.asarray(sd), precision=3)} {unit}): {cause}", fig))
+        else:
+            out.append(Finding(f"bias.{name.replace(' ', '_')}", "ok", None, fig))
+    return out
+
+
 def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd.DataFrame | None = None,
            tables: Mapping | None = None, results: Mapping | None = None, counts: Mapping | None = None,
            findings: Iterable[Finding] = ()) -> Quality:
@@ -294,6 +334,7 @@ def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd
     fs += flag_findings(trajectory, flag_p)
     fs += mounting_findings(results)
     fs += fusion_findings(results)
+    fs += bias_findings(results, config, chain)
     fs += aiding_findings(session, innovations, chain)
     imu = session.imu
     fs += magnetometer_findings(counts, int(imu.t_s.size), imu.mag_b_ut is not None)

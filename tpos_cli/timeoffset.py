@@ -142,9 +142,14 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     wrap = np.abs(w.d_course) > np.pi / 2  # a course jump (reversing, noise at low speed)
     base_w = {"course": mask * ~wrap, "along": mask}
 
+    cache: dict = {}  # the jackknife re-scans the same offsets with other weights
+
     def regressors(delta):
-        d = np.stack([np.interp(w.tb + delta, t, integ[:, k]) - np.interp(w.ta + delta, t, integ[:, k]) for k in range(3)], axis=1)
-        return {"course": hp((w.s_mean * d[:, 0])[:, None], mask), "along": hp(d[:, 1:], mask)}
+        key = round(float(delta), 9)
+        if key not in cache:
+            d = np.stack([np.interp(w.tb + delta, t, integ[:, k]) - np.interp(w.ta + delta, t, integ[:, k]) for k in range(3)], axis=1)
+            cache[key] = {"course": hp((w.s_mean * d[:, 0])[:, None], mask), "along": hp(d[:, 1:], mask)}
+        return cache[key]
 
     def fit(delta, wts):
         X = regressors(delta)
@@ -178,14 +183,14 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
         return x + np.arange(-half_s, half_s + step / 2, step)
 
     # channel noise levels at their own best; channels that explain too little are dropped
-    n_c = np.array([wts[c].sum() for c in channels])
     ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
     r2 = 1 - sse.min(axis=0) / np.maximum(ss_y, 1e-300)
     i_best = np.argmin(sse, axis=0)
     gains = [float(np.linalg.norm(fit(grid[i], wts)[c][1])) for c, i in zip(channels, i_best)]
     use = tuple(c for c, q, k in zip(channels, r2, gains) if q >= MIN_R2 and GAIN_RANGE[0] < k < GAIN_RANGE[1])
     if not use:
-        raise ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, gains {np.array2string(np.array(gains), precision=2)}); "
+        raise ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, "
+                              f"gains {np.array2string(np.array(gains), precision=2)}); "
                               "too little motion, or the GPS velocity is too noisy")
     r2_all = tuple(float(q) for q in r2)
     channels = use
@@ -215,7 +220,9 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     sigma = float(np.sqrt((len(reps) - 1) / len(reps) * np.sum((reps - reps.mean()) ** 2))) if len(reps) > 2 else float("inf")
     gain = float(f["course"][1][0]) if "course" in channels else float("nan")
     gain_x = float(f["along"][1][0]) if "along" in channels else float("nan")
-    rms = float(np.sqrt(f["course"][0] / wts["course"].sum()) / window_s / max(np.median(w.s_mean[inside]), 1e-9)) if "course" in channels else float("nan")
+    rms = float("nan")
+    if "course" in channels:
+        rms = float(np.sqrt(f["course"][0] / wts["course"].sum()) / window_s / max(np.median(w.s_mean[inside]), 1e-9))
     return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels, r2_all)
 
 

@@ -45,7 +45,7 @@ def set_toml(d: Path, section: str, key: str, value: str) -> None:
     p = d / "session.toml"
     lines = p.read_text().splitlines()
     sec, out, done = None, [], False
-    for i, line in enumerate(lines):
+    for line in lines:
         m = re.match(r"\s*\[([^\]]+)\]", line)
         if m:
             if sec == section and not done:
