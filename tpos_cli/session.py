@@ -530,9 +530,11 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
     if imu_span_s is not None and not ((t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1]) & (fix[keep] > 0)).any():
-        c.problem(fname, f"no GPS fix falls within the IMU's time span (GPS {t_rel[0] + t0:.3f}-{t_rel[-1] + t0:.3f} s, IMU "
-                  f"{imu_span_s[0] + t0:.3f}-{imu_span_s[1] + t0:.3f} s on the logger clock): wrong clock or [time] gps_offset_s", "t")
-        return None
+        # counted and said; the run's verdict names the clock mistake and its fix (tpos_cli.quality)
+        c.count("gps_outside_imu_span", 1)
+        c.warnings.append(f"{fname}: no GPS fix falls within the IMU's time span (GPS {t_rel[0] + t0:.3f}-{t_rel[-1] + t0:.3f} s, "
+                          f"IMU {imu_span_s[0] + t0:.3f}-{imu_span_s[1] + t0:.3f} s on the logger clock): wrong clock or "
+                          "[time] gps_offset_s; the GPS cannot be used as it is")
     return GpsData(
         t_s=t_rel, lla=lla[keep], fix=fix[keep],
         nsat=opt(["nsat"])[keep, 0], hdop=opt(["hdop"])[keep, 0],
