@@ -80,16 +80,16 @@ class InitialState:
 @dataclass(frozen=True)
 class Measurements:
     """Aiding measurements, one row each, in any order: t_s (E,) session seconds, kind (E,)
-    (`fusion.measurements.Kind`), dim (E,) size of z, z (E, 3), R (E, 3, 3), gated (E,), slot (E,)
+    (`fusion.measurements.Kind`), z (E, 3), R (E, 3, 3), dim (E,) size of z, gated (E,), slot (E,)
     (counter of consecutive rejections, -1 none), par (E,) (anchor index of a range, sens row of
     a fix, fix index of a GPS row). Per-kind parameters: anchors_ned_m (A, 3) and origin_lla (3,)
     of the local frame, sens (S, 2, 1 + A) the fixes' sensitivities (`ranging.filter.fix_events`)."""
 
     t_s: np.ndarray
     kind: np.ndarray
-    dim: np.ndarray
     z: np.ndarray
     R: np.ndarray
+    dim: np.ndarray
     gated: np.ndarray
     slot: np.ndarray
     par: np.ndarray
@@ -117,7 +117,7 @@ class Measurements:
         def full(v, dt):
             return np.broadcast_to(np.asarray(v, dtype=dt), (n,)).copy()
 
-        return Measurements(t, full(kind, np.int64), full(dim, np.int64), z3, R3, full(gated, bool),
+        return Measurements(t, full(kind, np.int64), z3, R3, full(dim, np.int64), full(gated, bool),
                             full(slot, np.int64), full(par, np.int64), **params)
 
     @staticmethod
@@ -151,7 +151,7 @@ class Measurements:
     def take(self, rows) -> Measurements:
         """The rows `rows` (indices, in that order; parameters kept whole)."""
         r = np.asarray(rows, dtype=np.int64)
-        return Measurements(self.t_s[r], self.kind[r], self.dim[r], self.z[r], self.R[r], self.gated[r],
+        return Measurements(self.t_s[r], self.kind[r], self.z[r], self.R[r], self.dim[r], self.gated[r],
                             self.slot[r], self.par[r], self.anchors_ned_m, self.origin_lla, self.sens)
 
 

@@ -1,0 +1,83 @@
+"""The filter wrapper (`fusion.engine`): measurement rows, validation, covariance-epoch lookup, and
+a backward run that ends where the forward run started."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from tpos_cli.frames.earth import normal_gravity_mps2
+from tpos_cli.fusion.engine import (
+    FilterConfig,
+    FilterRun,
+    InitialState,
+    Measurements,
+    backward_start,
+    epoch_of,
+    run_filter,
+)
+from tpos_cli.fusion.measurements import Kind
+
+
+def test_merge_sorts_by_time_and_shifts_the_fix_sensitivity_rows():
+    a = Measurements.rows([2.0, 4.0], Kind.FIX_NE, np.zeros((2, 2)), np.tile(np.eye(2), (2, 1, 1)), dim=2, gated=True,
+                          par=[0, 1], sens=np.arange(2 * 2 * 3, dtype=float).reshape(2, 2, 3))
+    b = Measurements.rows([3.0, 1.0], Kind.FIX_NE, np.zeros((2, 2)), np.tile(np.eye(2), (2, 1, 1)), dim=2, gated=True,
+                          par=[1, 0], sens=100 + np.arange(2 * 2 * 3, dtype=float).reshape(2, 2, 3))
+    z = Measurements.rows([2.5], Kind.ZUPT, np.zeros((1, 3)), np.eye(3)[None], dim=3, gated=False)
+    m = Measurements.merge(a, z, b)
+    assert_allclose(m.t_s, [1.0, 2.0, 2.5, 3.0, 4.0])
+    assert list(m.kind) == [Kind.FIX_NE, Kind.FIX_NE, Kind.ZUPT, Kind.FIX_NE, Kind.FIX_NE]
+    # each fix still points at its own sensitivity rows
+    assert m.sens[m.par[0], 0, 0] == 100 and m.sens[m.par[3], 0, 0] == 106
+    assert m.sens[m.par[1], 0, 0] == 0 and m.sens[m.par[4], 0, 0] == 6
+    assert m.R[2, 2, 2] == 1.0 and m.dim[2] == 3 and not m.gated[2]
+
+
+def _still(n=2001, dt=0.01):
+    lat = np.radians(45.0)
+    t = np.arange(n) * dt
+    acc = np.tile([0.0, 0.0, -normal_gravity_mps2(lat, 100.0)], (n, 1))
+    w_ie = 7.292115e-5
+    gyro = np.tile([w_ie * np.cos(lat), 0.0, -w_ie * np.sin(lat)], (n, 1))  # body = NED, at rest
+    nav = np.array([lat, np.radians(7.0), 100.0, 0.0, 0.0, 0.0])
+    P0 = np.diag(np.r_[np.full(3, 1.0), np.full(3, 0.1), np.full(3, 1e-3), np.full(3, 1e-3), np.full(3, 1e-5)] ** 2)
+    cfg = FilterConfig(np.array([1e-4, 1e-8, 1e-12, 1e-14]), 0.0, 0.0, cov_step=10)
+    return t, gyro, acc, InitialState(nav, np.eye(3), np.zeros(6), P0), cfg
+
+
+def test_backward_run_at_rest_returns_to_the_start_with_forward_time_signs():
+    t, gyro, acc, init, cfg = _still()
+    zupt = Measurements.rows(np.arange(0.05, 20.0, 0.5), Kind.ZUPT, np.zeros((40, 3)), np.tile(1e-4 * np.eye(3), (40, 1, 1)),
+                             dim=3, gated=False)
+    fwd = run_filter(t, gyro, acc, init, cfg, zupt)
+    bwd = run_filter(t, gyro, acc, backward_start(fwd, init.P0), cfg, zupt, backward=True)
+    assert isinstance(bwd, FilterRun) and bwd.backward and bwd.ep_dx is None and bwd.ep_Phi is None
+    # exact IMU of a body at rest: both runs stay put (mm, mm/s; the normal-gravity model is the truth)
+    for run in (fwd, bwd):
+        assert_allclose(run.nav[:, 3:], 0.0, atol=1e-3)
+        assert_allclose((run.nav[:, 2] - 100.0), 0.0, atol=1e-2)
+    assert np.all(np.diff(bwd.ep_idx) > 0) and bwd.ep_idx[-1] == t.size - 1
+    # covariances in forward order: the backward run is most certain near its start, the end of the log
+    assert bwd.ep_P[-1, 0, 0] < bwd.ep_P[0, 0, 0]
+    assert np.all(np.isfinite(fwd.ev_nis)) and fwd.ev_accepted.all()
+
+
+def test_epoch_of_takes_the_data_side():
+    t, gyro, acc, init, cfg = _still(n=101)
+    fwd = run_filter(t, gyro, acc, init, cfg, Measurements.rows([], Kind.ZUPT, [], [], dim=3, gated=False))
+    assert list(fwd.ep_idx) == [0, 10, 20, 30, 40, 50, 60, 70, 80, 90, 100]
+    assert list(epoch_of(fwd, np.array([0, 5, 10, 99, 100]))) == [0, 0, 1, 9, 10]
+    bwd = run_filter(t, gyro, acc, backward_start(fwd, init.P0), cfg, fwd.measurements, backward=True)
+    e = epoch_of(bwd, np.array([0, 5, 10, 99, 100]))
+    assert list(bwd.ep_idx[e]) == [0, 10, 10, 100, 100]
+
+
+def test_wrapper_names_what_is_wrong():
+    t, gyro, acc, init, cfg = _still(n=11)
+    m = Measurements.rows([0.05], Kind.RANGE, [3.0], [0.01], dim=1, gated=True)
+    with pytest.raises(ValueError, match="origin_lla"):
+        run_filter(t, gyro, acc, init, cfg, m)
+    with pytest.raises(ValueError, match="`q`"):
+        run_filter(t, gyro, acc, init, FilterConfig(np.array([1.0, -1.0, 0.0, 0.0]), 0.0, 0.0), m)
+    with pytest.raises(ValueError, match="`gyro_b_rps`"):
+        run_filter(t, gyro[:, :2], acc, init, cfg, m)

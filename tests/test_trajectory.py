@@ -1,0 +1,31 @@
+"""Contract trajectory rows (`tpos_cli.trajectory`): Euler-angle sigmas, column layout."""
+
+import numpy as np
+from numpy.testing import assert_allclose
+
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.trajectory import Solution, solution_table, trajectory_table
+
+
+def test_attitude_sigmas_are_euler_sigmas_not_ned_error_sds():
+    # level, heading east: roll turns about the east axis, pitch about south, yaw about down, so
+    # the Euler SDs are (sigma_E, sigma_N, sigma_D) of the NED attitude error, exactly
+    C = euler_to_dcm(0.0, 0.0, np.pi / 2)[None]
+    P = np.diag(np.radians([1.0, 2.0, 3.0]) ** 2)[None]
+    df = trajectory_table("x", [10.0], [45.0, 7.0, 100.0], None, C, P_att_rad2=P)
+    assert_allclose(df[["sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()[0], [2.0, 1.0, 3.0], atol=1e-9)
+    assert_allclose(df[["vn", "ve", "vd", "yaw"]].to_numpy()[0], [0, 0, 0, 90.0], atol=1e-9)
+
+
+def test_solution_rows_have_the_contract_columns_in_order():
+    k = 3
+    P9 = np.tile(np.diag([1.0, 4.0, 9.0, 0.01, 0.04, 0.09, 1e-4, 1e-4, 1e-4]), (k, 1, 1))
+    nav = np.column_stack([np.radians([45.0] * k), np.radians([7.0] * k), [100.0] * k, np.ones((k, 3))])
+    sol = Solution("smoothed", np.arange(k), nav, np.tile(np.eye(3), (k, 1, 1)), P9)
+    df = solution_table(sol, np.arange(k) * 0.1, 1000.0, vertical_sigma="sigma_u", extra={"flag": np.zeros(k, bool)})
+    assert list(df.columns) == ["t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw", "solution",
+                                "sigma_n", "sigma_e", "sigma_u", "sigma_vn", "sigma_ve", "sigma_vd",
+                                "sigma_roll", "sigma_pitch", "sigma_yaw", "flag"]
+    assert_allclose(df["t"], [1000.0, 1000.1, 1000.2])
+    assert_allclose(df[["sigma_n", "sigma_e", "sigma_u"]].to_numpy()[0], [1.0, 2.0, 3.0])
+    assert_allclose(df["lat"], 45.0, atol=1e-12)
