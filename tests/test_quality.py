@@ -284,3 +284,25 @@ def test_process_prints_the_verdict_and_strict_exits_1(sims):
     assert (root / "strict" / "run" / "summary.json").exists()  # written all the same
     res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run2"), "-q"])
     assert res.exit_code == 0 and "verdict: unreliable" in res.output
+
+
+def test_crop_session_rebases_the_clock(sims):
+    from tpos_cli.advice import crop_session
+    from tpos_cli.session import load_session
+
+    get, _ = sims
+    s = load_session(get("drive"))
+    c = crop_session(s, 30.0, 90.0)
+    assert c.imu.t_s[0] == 0.0 and c.t0_s == pytest.approx(s.t0_s + 30.0)
+    assert c.imu.t_s[-1] == pytest.approx(60.0, abs=0.011)
+    g = c.gps.t_s[c.gps.valid]
+    assert g.min() >= 0.0 and g.max() <= c.imu.t_s[-1]
+    # the same fix, the same logger-clock time
+    assert g[0] + c.t0_s == pytest.approx(s.gps.t_s[s.gps.valid][s.gps.t_s[s.gps.valid] >= 30.0][0] + s.t0_s)
+
+
+def test_clock_advice_on_a_window_of_a_long_log(sims):
+    # longer than the advice window: the candidate is tried on the busiest 300 s only
+    get, root = sims
+    q = _run(get("drive", duration_s=500.0, outages=((250.0, 30.0),)), root, M.gps_late(0.3))
+    assert _named(q, "gps_offset_s = -0.", "s of the log")

@@ -102,8 +102,16 @@ def test_target_session_all_formats(target_run):
     gj = json.loads((run / "targets_fkf_cal.geojson").read_text())
     assert gj["type"] == "FeatureCollection" and "crs" not in gj
     feats = [f for f in gj["features"] if f["properties"]["role"] == "target"]
-    rows_gj = [{"id": f["properties"]["id"], "lon": f["geometry"]["coordinates"][0], "lat": f["geometry"]["coordinates"][1],
-                "h": f["geometry"]["coordinates"][2], **{k: f["properties"][k] for k in ("sigma_n", "sigma_e", "sigma_u")}} for f in feats]
+    rows_gj = [
+        {
+            "id": f["properties"]["id"],
+            "lon": f["geometry"]["coordinates"][0],
+            "lat": f["geometry"]["coordinates"][1],
+            "h": f["geometry"]["coordinates"][2],
+            **{k: f["properties"][k] for k in ("sigma_n", "sigma_e", "sigma_u")},
+        }
+        for f in feats
+    ]
     assert len(rows_gj) == 5
     _check_against_truth(rows_gj, truth)
 
@@ -113,7 +121,8 @@ def test_target_session_all_formats(target_run):
     wp = {w.name: w for w in g.waypoints}
     for r in rows:
         assert (wp[r["id"]].latitude, wp[r["id"]].longitude, wp[r["id"]].elevation) == pytest.approx(
-            (float(r["lat"]), float(r["lon"]), float(r["h"])), abs=1e-4)
+            (float(r["lat"]), float(r["lon"]), float(r["h"])), abs=1e-4
+        )
         assert wp[r["id"]].time is not None and wp[r["id"]].time.year == 2015
 
 
@@ -158,12 +167,16 @@ def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
     finally:
         os.umask(old)
     out = tmp_path / "targets_smoothed.geojson"
-    assert stat.S_IMODE(out.stat().st_mode) == 0o644 and [p.name for p in tmp_path.iterdir()] == [out.name]
-    res = runner.invoke(app, ["export", str(run), "-f", "csv", "-o", "-"])
+    assert stat.S_IMODE(out.stat().st_mode) == 0o644 and [p.name for p in tmp_path.iterdir()] == [out.name]  # nothing else left
+    res = runner.invoke(app, ["export", str(run), "-o", "-"])  # no --format: CSV
     assert res.exit_code == 0 and list(csv.DictReader(io.StringIO(res.stdout)))[0]["id"] == "T1"
-    for args, msg in ((["-f", "csv", "-s", "forward"], "no solution 'forward'; the run has: smoothed"),
-                      (["-f", "shp"], "expected one of csv, kml, geojson, gpx"),
-                      (["-f", "csv", "--trajectory", "--rate", "0"], "must be a positive number"),
-                      (["-f", "csv", "-o", str(tmp_path / "nope" / "x.csv")], "does not exist")):
+    res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(tmp_path / "drive.kml")])  # format from the name
+    assert res.exit_code == 0 and ET.parse(tmp_path / "drive.kml").getroot().tag == KML + "kml"
+    for args, msg in (
+        (["-f", "csv", "-s", "forward"], "no solution 'forward'; the run has: smoothed"),
+        (["-f", "shp"], "expected one of csv, kml, geojson, gpx"),
+        (["-f", "csv", "--trajectory", "--rate", "0"], "must be a positive number"),
+        (["-f", "csv", "-o", str(tmp_path / "nope" / "x.csv")], "does not exist"),
+    ):
         res = runner.invoke(app, ["export", str(run), *args])
         assert res.exit_code == 2 and msg in res.output, res.output

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.export.solutions import choose_solution, rank_solutions
 from tpos_cli.export.trajectory import epochs_at_rate, trajectory_table
+from tpos_cli.report.solutions import choose_solution, rank_solutions
 
 
 def test_epochs_at_rate_keeps_real_epochs_nearest_each_tick():
@@ -33,9 +33,21 @@ def test_best_solution_order_and_unknown_names():
 
 
 def test_trajectory_table_sigma_u_from_sigma_d_and_yaw_range():
-    df = pd.DataFrame({"t": [0.0, 1.0], "lat": [45.0, 45.0001], "lon": [-73.0, -73.0], "h": [10.0, 10.0],
-                       "roll": 0.0, "pitch": 0.0, "yaw": [-10.0, 350.0], "solution": "forward",
-                       "sigma_n": 1.0, "sigma_e": 1.0, "sigma_d": 2.0})
+    df = pd.DataFrame(
+        {
+            "t": [0.0, 1.0],
+            "lat": [45.0, 45.0001],
+            "lon": [-73.0, -73.0],
+            "h": [10.0, 10.0],
+            "roll": 0.0,
+            "pitch": 0.0,
+            "yaw": [-10.0, 350.0],
+            "solution": "forward",
+            "sigma_n": 1.0,
+            "sigma_e": 1.0,
+            "sigma_d": 2.0,
+        }
+    )
     tab, zone = trajectory_table(df, "forward")
     assert list(tab["sigma_u"]) == [2.0, 2.0] and list(tab["yaw"]) == [350.0, 350.0]
     assert zone.label == "18N" and np.all(np.isfinite(tab["utm_e_m"]))

@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.frames.geodetic import ned_to_lla
+from tpos_cli.session import session_file_hashes
 
 ORIGIN = np.array([45.5, -73.6, 50.0])
 T0 = 1000.0  # logger clock of the first IMU sample
@@ -89,8 +90,13 @@ def write_session(
         ).to_csv(d / "gps.csv", index=False)
     if targets:
         pd.DataFrame(
-            {"id": [n for n, _, _ in targets], "lat": [p[0] for _, p, _ in targets], "lon": [p[1] for _, p, _ in targets],
-             "h": [p[2] for _, p, _ in targets], "role": [r for _, _, r in targets]}
+            {
+                "id": [n for n, _, _ in targets],
+                "lat": [p[0] for _, p, _ in targets],
+                "lon": [p[1] for _, p, _ in targets],
+                "h": [p[2] for _, p, _ in targets],
+                "role": [r for _, _, r in targets],
+            }
         ).to_csv(d / "targets.csv", index=False)
     return d
 
@@ -102,8 +108,19 @@ def trajectory_rows(solution: str, t_rel, offsets_ned_m, rpy_err_deg=(0.0, 0.0, 
     rpy = truth_rpy_deg(t_rel) + np.asarray(rpy_err_deg, float)
     rpy[:, 2] = rpy[:, 2] % 360.0
     df = pd.DataFrame(
-        {"t": T0 + t_rel, "lat": lla[:, 0], "lon": lla[:, 1], "h": lla[:, 2], "vn": 1.0, "ve": 0.0, "vd": 0.0,
-         "roll": rpy[:, 0], "pitch": rpy[:, 1], "yaw": rpy[:, 2], "solution": solution}
+        {
+            "t": T0 + t_rel,
+            "lat": lla[:, 0],
+            "lon": lla[:, 1],
+            "h": lla[:, 2],
+            "vn": 1.0,
+            "ve": 0.0,
+            "vd": 0.0,
+            "roll": rpy[:, 0],
+            "pitch": rpy[:, 1],
+            "yaw": rpy[:, 2],
+            "solution": solution,
+        }
     )
     if sigma is not None:
         for c, v in zip(("sigma_n", "sigma_e", "sigma_d"), sigma):
@@ -136,7 +153,7 @@ def write_run(
         "config": {},
         "config_sha256": "ab" * 32,
         "session": {"path": str(session_dir), "name": "synthetic_report", "kind": "drive"},
-        "inputs": {"imu.csv": "cd" * 32},
+        "inputs": session_file_hashes(session_dir),  # as tpos process records them
         "timings_s": {"total": 0.1},
         "counts": {},
         "warnings": ["a warning from the chain"],

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 from numpy.testing import assert_allclose
+from scipy import stats
 
 from tests.report import synth
-from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.report.build import make_report
 
@@ -102,13 +102,31 @@ def _target_session(tmp_path, kind="target"):
     ]
     s = synth.write_session(tmp_path / "s", kind=kind, truth=False, targets=tgts)
     rows = []
-    offsets = {("lf1", "T1"): [0.3, -0.2, 0.1], ("lf1", "T2"): [0.3, -0.2, 0.1],
-               ("fkf", "T1"): [0.3, 0.4, 0.0], ("fkf", "T2"): [0.6, 0.8, 0.0], ("fkf", "R1"): [9.0, 9.0, 9.0]}
+    offsets = {
+        ("lf1", "T1"): [0.3, -0.2, 0.1],
+        ("lf1", "T2"): [0.3, -0.2, 0.1],
+        ("fkf", "T1"): [0.3, 0.4, 0.0],
+        ("fkf", "T2"): [0.6, 0.8, 0.0],
+        ("fkf", "R1"): [9.0, 9.0, 9.0],
+    }
     lut = {n: p for n, p, _ in tgts}
     for (sol, tid), off in offsets.items():
         lla = synth.displaced(lut[tid][None, :], np.array([off]))[0]
-        rows.append(dict(id=tid, t_start=1005.0, t_end=1006.0, range_m=9.42, lat=lla[0], lon=lla[1], h=lla[2],
-                         solution=sol, sigma_n=0.2, sigma_e=0.2, sigma_u=0.3))
+        rows.append(
+            dict(
+                id=tid,
+                t_start=1005.0,
+                t_end=1006.0,
+                range_m=9.42,
+                lat=lla[0],
+                lon=lla[1],
+                h=lla[2],
+                solution=sol,
+                sigma_n=0.2,
+                sigma_e=0.2,
+                sigma_u=0.3,
+            )
+        )
     return s, pd.DataFrame(rows)
 
 
@@ -138,8 +156,9 @@ def test_gps_truth_with_lever_arm_and_withheld(tmp_path):
     gps = pd.DataFrame({"t": synth.T0 + t1, "lat": antenna[:, 0], "lon": antenna[:, 1], "h": antenna[:, 2], "fix": 2})
     gps.to_csv(s / "gps.csv", index=False)
     withheld = gps[(gps.t >= 1005.0) & (gps.t <= 1008.0)]
-    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", t1, [0.0, 0.0, 0.0]),
-                        mask_gps=[[1005.0, 1008.0]], withheld=withheld)
+    r = synth.write_run(
+        tmp_path / "r", s, synth.trajectory_rows("forward", t1, [0.0, 0.0, 0.0]), mask_gps=[[1005.0, 1008.0]], withheld=withheld
+    )
     res = make_report(r, pdf=False)
     assert res.truth.trajectory.source == "gps"
     assert "withheld" in res.truth.trajectory.description
@@ -161,8 +180,12 @@ def test_paper002_table_for_ranging(tmp_path):
     assert_allclose([row.max_m, row.average_m], [np.hypot(0.2, 0.25), np.hypot(e, n).mean()], atol=GEO_ATOL_M)
 
 
-def test_no_truth_is_invalid_input(tmp_path):
+def test_no_truth_is_a_quality_control_report(tmp_path):
     s = synth.write_session(tmp_path / "s", truth=False)
-    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0]))
-    with pytest.raises(InvalidInputError, match="no truth"):
-        make_report(r, pdf=False)
+    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0], sigma=(0.3, 0.4, 1.0)))
+    res = make_report(r, pdf=False)
+    assert res.accuracy.table.empty and res.summary["headline"] == [] and res.summary["truth"] is None
+    est = res.summary["estimated"][0]
+    # circular-enough: the 95 % ellipse semi-major axis is sqrt(chi2_2(0.95)) sigma_max; vertical 1.96 sigma
+    assert_allclose(est["h95_median_m"], np.sqrt(stats.chi2.ppf(0.95, 2)) * 0.4, rtol=1e-9)
+    assert_allclose(est["v95_median_m"], stats.norm.ppf(0.975) * 1.0, rtol=1e-9)

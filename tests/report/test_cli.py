@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
 import re
+import stat
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from tests.report import synth
@@ -23,13 +28,23 @@ def _pdf_page_count(data: bytes) -> int:
 def _run(tmp_path):
     s = synth.write_session(tmp_path / "s", movement=True)
     t10 = np.arange(0.0, 20.0 + 1e-9, 0.1)
-    traj = pd.concat([
-        synth.trajectory_rows("forward", t10, [3.0, 4.0, 0.0], (0.5, -0.3, 2.0), sigma=(1.0, 1.0, 1.0)),
-        synth.trajectory_rows("smoothed", t10, [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5)),
-    ])
+    traj = pd.concat(
+        [
+            synth.trajectory_rows("forward", t10, [3.0, 4.0, 0.0], (0.5, -0.3, 2.0), sigma=(1.0, 1.0, 1.0)),
+            synth.trajectory_rows("smoothed", t10, [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5)),
+        ]
+    )
     rng = np.random.default_rng(3)
-    inn = pd.DataFrame({"t": synth.T0 + np.arange(20.0), "solution": "forward", "kind": "gps_position",
-                        "nis": rng.chisquare(3, 20), "dof": 3, "accepted": True})
+    inn = pd.DataFrame(
+        {
+            "t": synth.T0 + np.arange(20.0),
+            "solution": "forward",
+            "kind": "gps_position",
+            "nis": rng.chisquare(3, 20),
+            "dof": 3,
+            "accepted": True,
+        }
+    )
     inn.loc[4, ["nis", "accepted"]] = [50.0, False]
     return synth.write_run(tmp_path / "r", s, traj, gps_outages=[[1005.0, 1012.0]], innovations=inn)
 
@@ -38,24 +53,24 @@ def test_report_writes_files_and_pdf_pages(tmp_path):
     r = _run(tmp_path)
     res = runner.invoke(app, ["report", str(r)])
     assert res.exit_code == 0, res.output
-    assert "forward" in res.output and "truth.*" in res.output
+    assert "forward" in res.output and "truth.*" in res.output and "verdict: no verdict recorded" in res.output
     acc = pd.read_parquet(r / "accuracy.parquet")
     assert {"solution", "segment", "quantity", "rms", "p95", "cep"} <= set(acc.columns)
     js = json.loads((r / "accuracy.json").read_text())
-    assert js["truth"]["trajectory"]["source"] == "truth"
+    assert js["truth"]["trajectory"]["source"] == "truth" and js["quality"] is None
     assert js["config_sha256"] == "ab" * 32 and js["health"]["nis"][0]["n_rejected"] == 1
     pdf = (r / "report.pdf").read_bytes()
     assert pdf.startswith(b"%PDF") and pdf.rstrip().endswith(b"%%EOF")
-    # cover, summary, outage table, 2 segment pages, health, 1 map page (2 solutions), position error,
-    # 2 attitude pages, attitude error, NIS
     from tpos_cli.report.build import make_report
 
     pages = make_report(r).pages
-    assert pages[0] == "cover" and pages[1] == "summary"
-    for kind in ("paper003_outages", "segments", "health", "trajectory", "position_error", "attitude", "attitude_error", "nis"):
-        assert kind in pages
-    assert pages.count("attitude") == 2
-    assert _pdf_page_count((r / "report.pdf").read_bytes()) == len(pages)
+    sections = "+".join(pages).split("+")
+    assert pages[0] == "summary"  # page 1 is the summary alone
+    for name in ("accuracy", "innovations", "attitude", "figures_truth", "figures_outages", "figures_estimated", "warnings"):
+        assert name in sections, name
+    assert len(pages) <= 8 and _pdf_page_count((r / "report.pdf").read_bytes()) == len(pages)
+    full = make_report(r, full=True).pages
+    assert len(full) > len(pages) and "appendix_segments" in "+".join(full)
 
 
 def test_report_json_to_stdout(tmp_path):
@@ -67,24 +82,98 @@ def test_report_json_to_stdout(tmp_path):
     assert abs(h["forward"]["rms_pos_h_m"] - 5.0) < 1e-6 and abs(h["smoothed"]["rms_pos_h_m"] - 0.5) < 1e-6
 
 
-def test_report_truth_override(tmp_path):
+def test_report_session_moved_and_truth_override(tmp_path):
     r = _run(tmp_path)
     summary = json.loads((r / "summary.json").read_text())
     summary["session"]["path"] = str(tmp_path / "moved")
     (r / "summary.json").write_text(json.dumps(summary))
-    assert runner.invoke(app, ["report", str(r)]).exit_code == 2  # session not found
-    assert runner.invoke(app, ["report", str(r), "--truth", str(tmp_path / "s")]).exit_code == 0
+    res = runner.invoke(app, ["report", str(r)])  # the run alone: a quality-control report, said so
+    assert res.exit_code == 0 and "note: session" in res.stderr and "not found" in res.stderr
+    assert json.loads((r / "accuracy.json").read_text())["truth"] is None
+    res = runner.invoke(app, ["report", str(r), "--truth", str(tmp_path / "s")])
+    assert res.exit_code == 0 and json.loads((r / "accuracy.json").read_text())["truth"]["trajectory"]["source"] == "truth"
+    assert runner.invoke(app, ["report", str(r), "--truth", str(tmp_path / "nowhere")]).exit_code == 2
 
 
-def test_report_without_truth_exits_2(tmp_path):
+def test_report_without_truth_is_a_quality_control_report(tmp_path):
     s = synth.write_session(tmp_path / "s", truth=False)
-    r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0]))
+    traj = synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0], sigma=(1.0, 1.0, 2.0))
+    r = synth.write_run(tmp_path / "r", s, traj)
+    res = runner.invoke(app, ["report", str(r)])
+    assert res.exit_code == 0, res.output
+    assert "truth: none (quality-control report)" in res.output
+    js = json.loads((r / "accuracy.json").read_text())
+    assert js["truth"] is None and js["headline"] == [] and js["estimated"][0]["solution"] == "forward"
+    assert (r / "report.pdf").exists() and pd.read_parquet(r / "accuracy.parquet").empty
+
+
+def test_report_shows_the_runs_verdict(tmp_path):
+    r = _run(tmp_path)
+    summary = json.loads((r / "summary.json").read_text())
+    summary["quality"] = {
+        "verdict": "suspect",
+        "reasons": ["gps_pos NIS 9.1 above its band 2.5-3.5: GPS noise understated; set [gps] sigma"],
+        "checks": {"nis": {"level": "suspect", "forward.gps_pos.mean": 9.1}},
+    }
+    (r / "summary.json").write_text(json.dumps(summary))
+    from tpos_cli.report.build import build_context, make_report
+    from tpos_cli.report.summary import headline_rows
+
+    res = runner.invoke(app, ["report", str(r)])
+    assert res.exit_code == 0 and "verdict: suspect (1 reason(s) on page 1)" in res.output
+    assert json.loads((r / "accuracy.json").read_text())["quality"]["verdict"] == "suspect"
+    assert "verdict_checks" in "+".join(make_report(r).pages)
+    rows = dict(headline_rows(build_context(r)))
+    assert rows["Solution shown"].startswith("smoothed") and "RMS" in rows["Error against truth"]
+
+
+def test_changed_inputs_are_refused_truth_changes_noted(tmp_path):
+    r = _run(tmp_path)
+    s = tmp_path / "s"
+    (s / "truth.csv").write_text((s / "truth.csv").read_text() + "\n")  # report-only input: noted, used
+    res = runner.invoke(app, ["report", str(r)])
+    assert res.exit_code == 0 and "note: truth.csv changed since the run was processed" in res.stderr
+    (s / "imu.csv").write_text((s / "imu.csv").read_text().replace("-9.8", "-9.81"))  # a processing input
+    for p in r.glob("accuracy.*"):
+        p.unlink()
     res = runner.invoke(app, ["report", str(r)])
     assert res.exit_code == 2
-    assert "no truth" in res.output
-    assert not (r / "report.pdf").exists()
+    (line,) = res.stderr.strip().splitlines()
+    assert "imu.csv changed" in line and "reprocess" in line
+    assert not list(r.glob("accuracy.*"))  # nothing written
 
 
-def test_report_not_a_run_exits_2(tmp_path):
+def test_outputs_readable_by_others_and_no_temporaries_left(tmp_path, monkeypatch):
+    r = _run(tmp_path)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    (r / f".report.pdf.{int(dead.stdout)}-0a1b2c3d.tmp").write_text("killed")  # a killed report's temporary
+    (r / ".accuracy.json.x7k2m9qa.tmp").write_text("old")  # an older tpos's temporary (no pid)
+    old = os.umask(0o022)
+    try:
+        assert runner.invoke(app, ["report", str(r)]).exit_code == 0
+    finally:
+        os.umask(old)
+    for n in ("accuracy.parquet", "accuracy.json", "report.pdf"):
+        assert stat.S_IMODE((r / n).stat().st_mode) == 0o644, n
+    assert not list(r.glob(".*.tmp"))
+    before = {n: (r / n).read_bytes() for n in ("accuracy.json", "report.pdf")}
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt  # Ctrl-C while the PDF is being written
+
+    monkeypatch.setattr("tpos_cli.report.pdf.write_pdf", interrupted)
+    from tpos_cli.report.build import make_report
+
+    with pytest.raises(KeyboardInterrupt):
+        make_report(r)
+    assert not list(r.glob(".*.tmp"))
+    assert {n: (r / n).read_bytes() for n in before} == before  # the earlier report is intact
+
+
+def test_report_not_a_run_or_nothing_to_report_exits_2(tmp_path):
     res = runner.invoke(app, ["report", str(tmp_path)])
     assert res.exit_code == 2 and "summary.json" in res.output
+    s = synth.write_session(tmp_path / "s")
+    r = synth.write_run(tmp_path / "r", s)  # a run without solutions (the ingest pipeline)
+    res = runner.invoke(app, ["report", str(r)])
+    assert res.exit_code == 2 and "nothing to report" in res.output

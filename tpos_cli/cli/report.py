@@ -1,4 +1,4 @@
-"""`tpos report`: accuracy of a run against GPS-referenced truth (accuracy.parquet/.json, report.pdf)."""
+"""`tpos report`: a report someone hands in (report.pdf), with accuracy.parquet and accuracy.json."""
 
 from __future__ import annotations
 
@@ -13,30 +13,58 @@ from tpos_cli.cli._common import exit_on_error, working
 def report(
     run: Path = typer.Argument(..., help="Run directory written by `tpos process`."),
     truth: Path = typer.Option(None, "--truth", help="Session holding the truth; default: the run's own session (summary.json)."),
+    full: bool = typer.Option(False, "--full", help="Add the appendix: every segment, innovation stream and shot."),
     json_: bool = typer.Option(False, "--json", help="Print the accuracy summary (accuracy.json) to stdout for scripts."),
 ) -> None:
-    """Compare RUN's solutions with truth and write accuracy.parquet, accuracy.json and report.pdf into RUN.
+    """Write report.pdf, accuracy.parquet and accuracy.json into RUN.
 
-    Truth, in order: the session's truth.*; surveyed targets (role = truth); else the GPS fixes
-    (independent only inside --mask-gps windows). The report says which was used.
-    Exit code 2 when the run has nothing to compare with.
+    Page 1 is the summary (verdict, headline figures, plan view, provenance). Without truth the
+    report is a quality-control report (estimated accuracy, forward/backward separation, GPS
+    quality, innovations); with truth (the session's truth.*, surveyed targets, or GPS fixes
+    withheld by --mask-gps) it adds the errors against it. A run whose session inputs changed since
+    it was processed is refused (exit 2): reprocess it first.
 
     Example: tpos report runs/drive --json
     """
     from tpos_cli.report.build import make_report
+    from tpos_cli.report.files import terminate_as_interrupt
 
-    with exit_on_error(), working(f"tpos report {run}"):
-        res = make_report(run, truth)
+    try:
+        with exit_on_error(), terminate_as_interrupt(), working(f"tpos report {run}"):
+            res = make_report(run, truth, full=full)
+    except KeyboardInterrupt:
+        typer.echo("tpos report: interrupted; the run's earlier report files, if any, are unchanged", err=True)
+        raise typer.Exit(130) from None
+    for n in res.notes:
+        typer.echo(f"note: {n}", err=True)
     if json_:
         typer.echo(json.dumps(res.summary, indent=1))
         return
-    tt = res.truth.trajectory
-    typer.echo(f"truth: {tt.description if tt is not None else res.truth.targets.description}")
+    q = res.summary.get("quality")
+    typer.echo(
+        f"verdict: {q['verdict']}" + (f" ({len(q.get('reasons') or [])} reason(s) on page 1)" if q.get("reasons") else "")
+        if q
+        else "verdict: no verdict recorded"
+    )
+    tt = res.truth.trajectory if res.truth is not None else None
+    tg = res.truth.targets if res.truth is not None else None
+    typer.echo(f"truth: {tt.description if tt is not None else tg.description if tg is not None else 'none (quality-control report)'}")
+
     def f(v):
         return "n/a" if v is None else f"{v:.3g}"
 
+    static = res.summary["session"]["kind"] == "target"
     for h in res.summary["headline"]:
+        if static and h["of"] == "trajectory":  # a fixed observer: its solutions are attitudes
+            if "rms_yaw_deg" in h:
+                typer.echo(
+                    f"{h['solution']:>10} (attitude, n={h['n']}): RMS roll {f(h.get('rms_roll_deg'))}, pitch "
+                    f"{f(h.get('rms_pitch_deg'))}, yaw {f(h['rms_yaw_deg'])} deg"
+                )
+            continue
         yaw = f", yaw {f(h['rms_yaw_deg'])} deg" if "rms_yaw_deg" in h else ""
-        typer.echo(f"{h['solution']:>10} ({h['of']}, n={h['n']}): RMS 3-D {f(h['rms_pos_3d_m'])} m, "
-                   f"horizontal {f(h['rms_pos_h_m'])} m, vertical {f(h['rms_pos_v_m'])} m{yaw}")
+        typer.echo(
+            f"{h['solution']:>10} ({h['of']}, n={h['n']}): RMS 3-D {f(h['rms_pos_3d_m'])} m, "
+            f"horizontal {f(h['rms_pos_h_m'])} m, vertical {f(h['rms_pos_v_m'])} m{yaw}"
+        )
     typer.echo(f"-> {res.run_dir} ({', '.join(res.outputs)}, {len(res.pages)} PDF pages)")

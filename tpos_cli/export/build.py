@@ -16,19 +16,15 @@ import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.export import geojson, gpx, kml
-from tpos_cli.export.files import write_atomic
-from tpos_cli.export.meta import ExportMeta, decimals, read_start_utc, utc_strings
-from tpos_cli.export.projection import to_utm, zone_for
-from tpos_cli.export.solutions import choose_solution
-from tpos_cli.export.targets import combine_shots
+from tpos_cli.export.meta import ExportMeta, decimals, read_start_utc
 from tpos_cli.export.trajectory import trajectory_table
+from tpos_cli.report.files import write_atomic
+from tpos_cli.report.format import utc_strings
+from tpos_cli.report.solutions import choose_solution
+from tpos_cli.report.targets import combined_targets
 
 FORMATS = ("csv", "kml", "geojson", "gpx")
 MAP_RATE_HZ = 1.0  # default rate of the map formats: a track a viewer draws smoothly, a file a person opens
-
-TARGET_COLUMNS = ("id", "lat", "lon", "h", "sigma_n", "sigma_e", "sigma_u", "ell95_major_m", "ell95_minor_m",
-                  "ell95_azimuth_deg", "n_shots", "utm_zone", "utm_e_m", "utm_n_m", "cov_ne_m2", "cov_nu_m2",
-                  "cov_eu_m2", "shot_chi2_dof", "t_first", "t_last", "time_first_utc", "solution")
 
 
 @dataclass(frozen=True)
@@ -70,28 +66,19 @@ def _observer(run, solution: str) -> pd.DataFrame | None:
     return pd.DataFrame({"id": ["observer"], "lat": [p[0, 0]], "lon": [p[0, 1]], "h": [p[0, 2]]})
 
 
-def target_export_table(run, solution: str, start_utc=None):
-    """The combined targets of `solution` with UTM coordinates (TARGET_COLUMNS) and their zone."""
-    shots = run.targets[run.targets["solution"] == solution]
-    tab = combine_shots(shots)
-    ok = np.isfinite(tab[["lat", "lon"]].to_numpy(float)).all(axis=1)
-    if not ok.any():
-        raise InvalidInputError(f"{run.path.name}/targets.parquet: solution '{solution}' has no target with a position")
-    zone = zone_for(tab.loc[ok, "lat"], tab.loc[ok, "lon"])
-    tab["utm_zone"] = zone.label
-    tab["utm_e_m"], tab["utm_n_m"] = to_utm(tab["lat"], tab["lon"], zone)
-    utc = utc_strings(tab["t_first"].to_numpy(float), start_utc, 0)
-    tab["time_first_utc"] = np.where(np.isfinite(tab["t_first"]), utc, "") if utc is not None else ""
-    tab["solution"] = solution
-    return tab[list(TARGET_COLUMNS)], zone
-
-
 def _default_path(run_dir: Path, kind: str, solution: str, fmt: str) -> Path:
     return run_dir / f"{kind}_{solution}.{fmt}"
 
 
-def export_run(run_dir: Path, fmt: str, *, solution: str | None = None, rate_hz: float | None = None,
-               out: Path | str | None = None, trajectory: bool = False) -> ExportResult:
+def export_run(
+    run_dir: Path,
+    fmt: str,
+    *,
+    solution: str | None = None,
+    rate_hz: float | None = None,
+    out: Path | str | None = None,
+    trajectory: bool = False,
+) -> ExportResult:
     """Write one export of a run (see module docstring); `out` "-" writes to stdout; `trajectory`
     exports the trajectory of a run that also has targets (a drive with roadside shots).
 
@@ -111,20 +98,32 @@ def export_run(run_dir: Path, fmt: str, *, solution: str | None = None, rate_hz:
     sess = s.get("session") or {}
 
     def meta(kind, sol, zone):
-        return ExportMeta(session=str(sess.get("name") or run.path.name), kind=kind, solution=sol, run_dir=str(run.path),
-                          pipeline=str(s.get("pipeline")), config_sha256=str(s.get("config_sha256") or ""),
-                          tpos_version=__version__, zone=zone, start_utc=start_utc)
+        return ExportMeta(
+            session=str(sess.get("name") or run.path.name),
+            kind=kind,
+            solution=sol,
+            run_dir=str(run.path),
+            pipeline=str(s.get("pipeline")),
+            config_sha256=str(s.get("config_sha256") or ""),
+            tpos_version=__version__,
+            zone=zone,
+            start_utc=start_utc,
+        )
 
     if trajectory and (run.trajectory is None or not len(run.trajectory)):
         raise InvalidInputError(f"{run.path.name}: the run has no trajectory.parquet to export")
     if not trajectory and run.targets is not None and len(run.targets):
         kind = "targets"
         sol = choose_solution(run.targets["solution"], solution, f"{run.path.name}/targets.parquet")
-        table, zone = target_export_table(run, sol, start_utc)
+        table, zone = combined_targets(run, sol, start_utc)
         m = meta(kind, sol, zone)
         obs = _observer(run, sol)
-        writers = {"csv": lambda: format_csv(table), "geojson": lambda: geojson.targets(table, m, obs),
-                   "kml": lambda: kml.targets(table, m, obs), "gpx": lambda: gpx.targets(table, m, obs)}
+        writers = {
+            "csv": lambda: format_csv(table),
+            "geojson": lambda: geojson.targets(table, m, obs),
+            "kml": lambda: kml.targets(table, m, obs),
+            "gpx": lambda: gpx.targets(table, m, obs),
+        }
         rate = None
     elif run.trajectory is not None and len(run.trajectory):
         kind = "trajectory"
@@ -136,10 +135,16 @@ def export_run(run_dir: Path, fmt: str, *, solution: str | None = None, rate_hz:
             table.insert(1, "time_utc", utc)
         table["solution"] = sol
         m = meta(kind, sol, zone)
-        writers = {"csv": lambda: format_csv(table), "geojson": lambda: geojson.track(table, m),
-                   "kml": lambda: kml.track(table, m), "gpx": lambda: gpx.track(table, m)}
+        writers = {
+            "csv": lambda: format_csv(table),
+            "geojson": lambda: geojson.track(table, m),
+            "kml": lambda: kml.track(table, m),
+            "gpx": lambda: gpx.track(table, m),
+        }
     else:
-        raise InvalidInputError(f"{run.path.name}: the run has no targets and no trajectory to export (run a pipeline that writes solutions)")
+        raise InvalidInputError(
+            f"{run.path.name}: the run has no targets and no trajectory to export (run a pipeline that writes solutions)"
+        )
     data = writers[fmt]()
     if out is not None and str(out) == "-":
         sys.stdout.buffer.write(data)

@@ -54,8 +54,13 @@ def targets(table: pd.DataFrame, meta: ExportMeta, observer: pd.DataFrame | None
 
 def track(table: pd.DataFrame, meta: ExportMeta) -> bytes:
     """The track as a LineString feature, then one Point feature per epoch."""
-    line = [_position(lo, la, h) for lo, la, h in zip(table["lon"].to_numpy(float), table["lat"].to_numpy(float), table["h"].to_numpy(float))]
+    line = [
+        _position(lo, la, h) for lo, la, h in zip(table["lon"].to_numpy(float), table["lat"].to_numpy(float), table["h"].to_numpy(float))
+    ]
     t = table["t"].to_numpy(float)
-    head = {"type": "Feature", "geometry": {"type": "LineString", "coordinates": line},
-            "properties": {"role": "track", "solution": meta.solution, "n_points": len(line), "t_first": float(t[0]), "t_last": float(t[-1])}}
+    head = {
+        "type": "Feature",
+        "geometry": {"type": "LineString", "coordinates": line},
+        "properties": {"role": "track", "solution": meta.solution, "n_points": len(line), "t_first": float(t[0]), "t_last": float(t[-1])},
+    }
     return _collection([head] + _points(table, {"role": "epoch"}), meta)

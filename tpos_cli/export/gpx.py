@@ -18,8 +18,7 @@ from tpos_cli.export.meta import ExportMeta, decimals, target_summary
 NS = "http://www.topografix.com/GPX/1/1"
 NS_TPOS = "urn:tpos:gpx-extensions:1"
 SCHEMA = "http://www.topografix.com/GPX/1/1 http://www.topografix.com/GPX/1/1/gpx.xsd"
-EXT_COLUMNS = ("t", "sigma_n", "sigma_e", "sigma_u", "ell95_major_m", "ell95_minor_m", "ell95_azimuth_deg", "n_shots",
-               "shot_chi2_dof", "roll", "pitch", "yaw", "sigma_roll", "sigma_pitch", "sigma_yaw", "utm_zone", "utm_e_m", "utm_n_m")
+IN_GPX = ("lat", "lon", "h", "id", "time_utc", "time_first_utc")  # written as GPX elements, not extensions
 
 ET.register_namespace("", NS)
 ET.register_namespace("tpos", NS_TPOS)
@@ -38,8 +37,10 @@ def _sub(parent, tag, text=None, ns: str = NS, **attrib):
 
 
 def _root(meta: ExportMeta):
-    root = ET.Element(_q("gpx"), {"version": "1.1", "creator": f"tpos {meta.tpos_version}",
-                                  "{http://www.w3.org/2001/XMLSchema-instance}schemaLocation": SCHEMA})
+    root = ET.Element(
+        _q("gpx"),
+        {"version": "1.1", "creator": f"tpos {meta.tpos_version}", "{http://www.w3.org/2001/XMLSchema-instance}schemaLocation": SCHEMA},
+    )
     md = _sub(root, "metadata")
     _sub(md, "name", meta.title)
     _sub(md, "desc", meta.description)
@@ -59,7 +60,7 @@ def _point(parent, tag, r: dict, when=None, name=None, sym=None, desc=None):
         _sub(p, "desc", desc)
     if sym is not None:
         _sub(p, "sym", sym)
-    ext_vals = [(k, r[k]) for k in EXT_COLUMNS if k in r]
+    ext_vals = [(k, v) for k, v in r.items() if k not in IN_GPX]
     ext_vals = [(k, v) for k, v in ext_vals if not (isinstance(v, (float, np.floating)) and not math.isfinite(v))]
     if ext_vals:
         ext = _sub(p, "extensions")
@@ -80,8 +81,9 @@ def targets(table: pd.DataFrame, meta: ExportMeta, observer: pd.DataFrame | None
             continue
         for r in rows.to_dict("records"):
             if math.isfinite(r["lat"]) and math.isfinite(r["lon"]):
-                _point(root, "wpt", r, when=r.get("time_first_utc") or None, name=str(r.get("id", "observer")), sym=sym,
-                       desc=target_summary(r))
+                _point(
+                    root, "wpt", r, when=r.get("time_first_utc") or None, name=str(r.get("id", "observer")), sym=sym, desc=target_summary(r)
+                )
     return _bytes(root)
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tpos_cli.export.projection import UtmZone
+from tpos_cli.report.projection import UtmZone
 
 # units and meaning of the exported columns (CSV header names, GeoJSON properties, KML data, GPX extensions)
 COLUMN_DOC = {
@@ -19,26 +19,60 @@ COLUMN_DOC = {
     "lat": "WGS-84 latitude, deg",
     "lon": "WGS-84 longitude, deg",
     "h": "WGS-84 ellipsoidal height, m",
-    "vn": "north velocity, m/s", "ve": "east velocity, m/s", "vd": "down velocity, m/s",
-    "roll": "roll, deg", "pitch": "pitch, deg", "yaw": "yaw from true north, deg [0, 360)",
-    "sigma_n": "north SD, m", "sigma_e": "east SD, m", "sigma_u": "up SD, m",
-    "sigma_vn": "north velocity SD, m/s", "sigma_ve": "east velocity SD, m/s", "sigma_vd": "down velocity SD, m/s",
-    "sigma_roll": "roll SD, deg", "sigma_pitch": "pitch SD, deg", "sigma_yaw": "yaw SD, deg",
-    "cov_ne_m2": "north-east covariance, m^2", "cov_nu_m2": "north-up covariance, m^2", "cov_eu_m2": "east-up covariance, m^2",
+    "vn": "north velocity, m/s",
+    "ve": "east velocity, m/s",
+    "vd": "down velocity, m/s",
+    "roll": "roll, deg",
+    "pitch": "pitch, deg",
+    "yaw": "yaw from true north, deg [0, 360)",
+    "sigma_n": "north SD, m",
+    "sigma_e": "east SD, m",
+    "sigma_u": "up SD, m",
+    "sigma_vn": "north velocity SD, m/s",
+    "sigma_ve": "east velocity SD, m/s",
+    "sigma_vd": "down velocity SD, m/s",
+    "sigma_roll": "roll SD, deg",
+    "sigma_pitch": "pitch SD, deg",
+    "sigma_yaw": "yaw SD, deg",
+    "cov_ne_m2": "north-east covariance, m^2",
+    "cov_nu_m2": "north-up covariance, m^2",
+    "cov_eu_m2": "east-up covariance, m^2",
     "ell95_major_m": "95 % horizontal ellipse, semi-major axis, m",
     "ell95_minor_m": "95 % horizontal ellipse, semi-minor axis, m",
     "ell95_azimuth_deg": "95 % ellipse major-axis azimuth, deg clockwise from true north [0, 180)",
     "n_shots": "shots combined (inverse-covariance weighting)",
-    "shot_chi2_dof": "chi-square per degree of freedom of the shots about the combined point (NaN for one shot; above 1 the sigmas were scaled up by it)",
-    "t_first": "start of the first shot, logger clock, s", "t_last": "end of the last shot, logger clock, s",
-    "utm_zone": "UTM zone (WGS 84)", "utm_e_m": "UTM easting, m", "utm_n_m": "UTM northing, m",
+    "shot_chi2_dof": "chi-square per degree of freedom of the shots about the combined point "
+    "(NaN for one shot; above 1 the sigmas were scaled up by it)",
+    "t_first": "start of the first shot, logger clock, s",
+    "t_last": "end of the last shot, logger clock, s",
+    "utm_zone": "UTM zone (WGS 84)",
+    "utm_e_m": "UTM easting, m",
+    "utm_n_m": "UTM northing, m",
 }
 
 
 # decimals written per column: 1e-9 deg ~ 0.1 mm; metres to 0.1 mm; SDs to 0.01 mm; angles to 1e-6 deg
-DECIMALS = {"lat": 9, "lon": 9, "h": 4, "utm_e_m": 4, "utm_n_m": 4, "t": 3, "t_first": 3, "t_last": 3,
-            "vn": 4, "ve": 4, "vd": 4, "roll": 6, "pitch": 6, "yaw": 6, "ell95_azimuth_deg": 2,
-            "cov_ne_m2": 10, "cov_nu_m2": 10, "cov_eu_m2": 10, "shot_chi2_dof": 3}
+DECIMALS = {
+    "lat": 9,
+    "lon": 9,
+    "h": 4,
+    "utm_e_m": 4,
+    "utm_n_m": 4,
+    "t": 3,
+    "t_first": 3,
+    "t_last": 3,
+    "vn": 4,
+    "ve": 4,
+    "vd": 4,
+    "roll": 6,
+    "pitch": 6,
+    "yaw": 6,
+    "ell95_azimuth_deg": 2,
+    "cov_ne_m2": 10,
+    "cov_nu_m2": 10,
+    "cov_eu_m2": 10,
+    "shot_chi2_dof": 3,
+}
 DEFAULT_DECIMALS = 5
 
 
@@ -67,10 +101,14 @@ class ExportMeta:
 
     @property
     def description(self) -> str:
-        time = "UTC from the session's start_utc" if self.start_utc else "no UTC (the session has no start_utc): times are the logger clock t"
-        return (f"tpos {self.tpos_version} export of run {self.run_dir} (pipeline {self.pipeline}, config sha256 "
-                f"{self.config_sha256[:12]}), solution {self.solution}. WGS-84; heights are ellipsoidal, m; "
-                f"sigmas are 1-SD; ellipses 95 %; grid UTM {self.zone.label} (EPSG:{self.zone.epsg}); {time}.")
+        time = (
+            "UTC from the session's start_utc" if self.start_utc else "no UTC (the session has no start_utc): times are the logger clock t"
+        )
+        return (
+            f"tpos {self.tpos_version} export of run {self.run_dir} (pipeline {self.pipeline}, config sha256 "
+            f"{self.config_sha256[:12]}), solution {self.solution}. WGS-84; heights are ellipsoidal, m; "
+            f"sigmas are 1-SD; ellipses 95 %; grid UTM {self.zone.label} (EPSG:{self.zone.epsg}); {time}."
+        )
 
 
 def read_start_utc(session_dir: Path | None) -> datetime | None:
@@ -88,24 +126,17 @@ def read_start_utc(session_dir: Path | None) -> datetime | None:
     return dt.replace(tzinfo=UTC) if dt.tzinfo is None else dt.astimezone(UTC)
 
 
-def utc_strings(t_s, start_utc: datetime | None, decimals: int = 3) -> np.ndarray | None:
-    """ISO-8601 UTC stamps ("...Z") of logger-clock times, millisecond resolution; None without start_utc."""
-    if start_utc is None:
-        return None
-    t = np.asarray(t_s, dtype=float)
-    base = np.datetime64(start_utc.replace(tzinfo=None), "ns")
-    stamps = base + np.round(t * 1e9).astype("int64").astype("timedelta64[ns]")
-    unit = {0: "s", 3: "ms", 6: "us"}[decimals]
-    return np.char.add(np.datetime_as_string(stamps, unit=unit), "Z")
-
-
 def target_summary(r: dict) -> str:
     """One line a person reads in a GPS tool or Google Earth: position SDs, 95 % ellipse, shots."""
+
     def mm(v):
         return "n/a" if v is None or not np.isfinite(v) else f"{1000.0 * v:.1f} mm" if v < 1.0 else f"{v:.3f} m"
+
     if "n_shots" not in r:
         return "observer (instrument position)"
-    txt = (f"h {r['h']:.4f} m (ellipsoidal); SD north {mm(r['sigma_n'])}, east {mm(r['sigma_e'])}, up {mm(r['sigma_u'])}; "
-           f"95 % ellipse {mm(r['ell95_major_m'])} x {mm(r['ell95_minor_m'])}, major axis at {r['ell95_azimuth_deg']:.1f} deg; "
-           f"{r['n_shots']} shot{'s' if r['n_shots'] != 1 else ''}; UTM {r['utm_zone']} E {r['utm_e_m']:.3f} N {r['utm_n_m']:.3f}")
+    txt = (
+        f"h {r['h']:.4f} m (ellipsoidal); SD north {mm(r['sigma_n'])}, east {mm(r['sigma_e'])}, up {mm(r['sigma_u'])}; "
+        f"95 % ellipse {mm(r['ell95_major_m'])} x {mm(r['ell95_minor_m'])}, major axis at {r['ell95_azimuth_deg']:.1f} deg; "
+        f"{r['n_shots']} shot{'s' if r['n_shots'] != 1 else ''}; UTM {r['utm_zone']} E {r['utm_e_m']:.3f} N {r['utm_n_m']:.3f}"
+    )
     return txt

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.export.projection import UtmZone, to_utm, zone_for
-from tpos_cli.export.targets import horizontal_ellipse
+from tpos_cli.report.projection import UtmZone, to_utm, zone_for
+from tpos_cli.report.targets import horizontal_ellipse
 
 BASE = ("t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw")
 SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_vn", "sigma_ve", "sigma_vd", "sigma_roll", "sigma_pitch", "sigma_yaw")

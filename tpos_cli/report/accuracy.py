@@ -15,8 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from tpos_cli.frames.geodetic import ecef_to_ned_dcm, lla_to_ecef
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.report import metrics
+from tpos_cli.report.qc import Series, solution_series
 from tpos_cli.report.rundir import RunData, ordered_solutions
 from tpos_cli.report.truth import (
     ReportTruth,
@@ -72,33 +74,48 @@ def _stat_row(solution, target, segment, quantity, err) -> dict:
     }
 
 
-def solution_errors(run: RunData, truth: ReportTruth, solution: str) -> SolutionErrors:
-    """Errors of trajectory solution `solution` against `truth.trajectory` at its own epochs."""
-    df = run.trajectory[run.trajectory["solution"] == solution]
-    t = df["t"].to_numpy(float)
-    lla = df[["lat", "lon", "h"]].to_numpy(float)
-    rpy = df[["roll", "pitch", "yaw"]].to_numpy(float)
+@dataclass(frozen=True)
+class TruthAt:
+    """The truth at one set of epochs, with what every solution's errors need, computed once for
+    all the solutions that share those epochs (the target chain's six solutions do)."""
+
+    t: np.ndarray
+    lla: np.ndarray
+    rpy_deg: np.ndarray | None
+    r_e: np.ndarray
+    C_ne: np.ndarray
+    C_nb: np.ndarray | None
+
+    @classmethod
+    def at(cls, tt, t: np.ndarray) -> TruthAt:
+        lla = interpolate_positions(tt.t, tt.lla, t, tt.max_gap_s)
+        rpy = interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s) if tt.rpy_deg is not None else None
+        C_nb = euler_to_dcm(*np.radians(rpy).T) if rpy is not None else None
+        return cls(t, lla, rpy, lla_to_ecef(lla), ecef_to_ned_dcm(lla[:, 0], lla[:, 1]), C_nb)
+
+
+def solution_errors(run: RunData, truth: ReportTruth, series: Series, truth_at: TruthAt | None = None) -> SolutionErrors:
+    """Errors of one trajectory solution against `truth.trajectory` at its own epochs (`truth_at`
+    when it was built for exactly these epochs)."""
+    t, lla, rpy = series.t, series.lla, series.rpy_deg
     tt = truth.trajectory
-    truth_lla = interpolate_positions(tt.t, tt.lla, t, tt.max_gap_s)
+    if truth_at is None or not np.array_equal(truth_at.t, t):
+        truth_at = TruthAt.at(tt, t)
+    truth_lla, truth_rpy = truth_at.lla, truth_at.rpy_deg
     offset = None
     if np.any(tt.lever_arm_b_m != 0.0):
         # truth is the GPS antenna: move the solution from the IMU point to it, r_a = r + C_nb l_b
         C_nb = euler_to_dcm(*np.radians(rpy).T)
         offset = C_nb @ tt.lever_arm_b_m
-    err = metrics.position_errors_ned(lla, truth_lla, offset)
-    att = truth_rpy = None
-    if tt.rpy_deg is not None:
-        truth_rpy = interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s)
-        att = metrics.attitude_errors_deg(rpy, truth_rpy)
+    err = metrics.position_errors_ned(lla, truth_lla, offset, truth_r_e=truth_at.r_e, truth_C_ne=truth_at.C_ne)
+    att = metrics.attitude_errors_deg(rpy, truth_rpy, truth_C_nb=truth_at.C_nb) if truth_rpy is not None else None
     idx = np.full(t.size, -1)
     for k, w in enumerate(run.outage_windows):
         idx[in_intervals(t, w[None, :])] = k  # [start, end), as timebase defines outages
-    in_out = idx >= 0
-    if "outage" in df.columns:  # the chain's own outage flag, when it wrote one
-        in_out |= df["outage"].fillna(False).to_numpy(bool)
+    in_out = (idx >= 0) | series.outage  # and the chain's own outage flag, when it wrote one
     movement = interpolate_flag(tt.t, tt.movement, t, tt.max_gap_s) if tt.movement is not None else None
     indep = interpolate_flag(tt.t, tt.independent.astype(float), t, tt.max_gap_s)
-    return SolutionErrors(solution, t, lla, rpy, truth_lla, truth_rpy, err, att, idx, in_out, movement, indep)
+    return SolutionErrors(series.name, t, lla, rpy, truth_lla, truth_rpy, err, att, idx, in_out, movement, indep)
 
 
 def _trajectory_rows(run: RunData, se: SolutionErrors, gps_truth: bool) -> list[dict]:
@@ -170,12 +187,7 @@ def _target_rows(te: pd.DataFrame) -> list[dict]:
 
 
 def _get(table: pd.DataFrame, solution, target, segment, quantity, stat) -> float:
-    m = (
-        (table["solution"] == solution)
-        & (table["target"] == target)
-        & (table["segment"] == segment)
-        & (table["quantity"] == quantity)
-    )
+    m = (table["solution"] == solution) & (table["target"] == target) & (table["segment"] == segment) & (table["quantity"] == quantity)
     v = table.loc[m, stat]
     return float(v.iloc[0]) if len(v) else float("nan")
 
@@ -237,17 +249,21 @@ def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.D
     return out
 
 
-def compute_accuracy(run: RunData, truth: ReportTruth, kind: str = "") -> Accuracy:
-    """All error statistics of a run against `truth` (see module docstring)."""
+def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", series: dict[str, Series] | None = None) -> Accuracy:
+    """All error statistics of a run against `truth` (see module docstring); empty without truth."""
     rows: list[dict] = []
     sols: list[SolutionErrors] = []
-    if run.trajectory is not None and truth.trajectory is not None:
+    if truth is not None and run.trajectory is not None and truth.trajectory is not None:
+        series = series if series is not None else solution_series(run.trajectory)
         gps_truth = truth.trajectory.source == "gps"
-        for s in ordered_solutions(run.trajectory["solution"]):
-            se = solution_errors(run, truth, s)
+        truth_at = None
+        for s in ordered_solutions(series):
+            if truth_at is None or not np.array_equal(truth_at.t, series[s].t):
+                truth_at = TruthAt.at(truth.trajectory, series[s].t)
+            se = solution_errors(run, truth, series[s], truth_at)
             sols.append(se)
             rows += _trajectory_rows(run, se, gps_truth)
-    te = target_errors(run, truth)
+    te = target_errors(run, truth) if truth is not None else None
     if te is not None:
         rows += _target_rows(te)
     table = pd.DataFrame(rows, columns=list(COLUMNS))

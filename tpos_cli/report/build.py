@@ -1,24 +1,34 @@
-"""`make_report`: the one call behind `tpos report` (run directory in, accuracy files and PDF out)."""
+"""`make_report`: the one call behind `tpos report` (run directory in, accuracy files and PDF out).
+
+Without truth the report is a quality-control report (estimated accuracy, forward/backward
+separation, GPS quality, innovations, the run's verdict); with truth it adds the errors against it.
+A run whose session files changed since it was processed is refused (see `check_inputs`).
+"""
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.report import qc
 from tpos_cli.report.accuracy import Accuracy, compute_accuracy
+from tpos_cli.report.context import ReportContext, ShotWindows
+from tpos_cli.report.files import staged
 from tpos_cli.report.health import Health, filter_health
-from tpos_cli.report.rundir import RunData, load_run
-from tpos_cli.report.truth import ReportTruth, choose_truth, resolve_session_path
+from tpos_cli.report.rundir import RunData, load_run, session_dir_of
+from tpos_cli.report.solutions import rank_solutions
+from tpos_cli.report.targets import combined_targets
+from tpos_cli.report.truth import ReportTruth, choose_truth
 
 OUTPUTS = ("accuracy.parquet", "accuracy.json", "report.pdf")
+REPORT_ONLY_INPUTS = ("truth",)  # session tables only reports read: changing them does not change the run
 
 
 @dataclass(frozen=True)
@@ -27,9 +37,10 @@ class ReportResult:
     summary: dict  # what accuracy.json holds
     accuracy: Accuracy
     health: Health
-    truth: ReportTruth
+    truth: ReportTruth | None
     outputs: tuple[str, ...]
     pages: tuple[str, ...]  # PDF page kinds in order (empty without a PDF)
+    notes: tuple[str, ...] = ()  # one line each, for the terminal (e.g. inputs not verified)
 
 
 def _clean_json(x):
@@ -64,7 +75,15 @@ def headline(acc: Accuracy) -> list[dict]:
                 continue
             q = dd.set_index("quantity")
             row = {"solution": sol, "of": target_kind, "n": int(q.loc["pos_3d_m", "n"])}
-            for name, stat in (("pos_3d_m", "rms"), ("pos_h_m", "rms"), ("pos_v_m", "rms"), ("pos_h_m", "p95"), ("pos_3d_m", "max"), ("pos_3d_m", "mean"), ("pos_3d_m", "sd")):
+            for name, stat in (
+                ("pos_3d_m", "rms"),
+                ("pos_h_m", "rms"),
+                ("pos_v_m", "rms"),
+                ("pos_h_m", "p95"),
+                ("pos_3d_m", "max"),
+                ("pos_3d_m", "mean"),
+                ("pos_3d_m", "sd"),
+            ):
                 row[f"{stat}_{name}"] = float(q.loc[name, stat])
             if target_kind == "targets":
                 row["cep_m"] = float(q.loc["pos_h_m", "cep"])
@@ -76,82 +95,219 @@ def headline(acc: Accuracy) -> list[dict]:
     return out
 
 
-def build_summary(run: RunData, session, truth: ReportTruth, acc: Accuracy, health: Health) -> dict:
+def check_inputs(recorded: dict | None, current: dict[str, str], run_name: str) -> list[str]:
+    """Compare the session's files with the input hashes recorded when the run was processed.
+
+    Returns the report-only files that changed (truth.*: the run does not depend on them).
+    Raises InvalidInputError (exit 2) when a processing input changed, appeared or disappeared: the
+    run's solutions would then be reported as if they came from data they were not computed from.
+    """
+    if not recorded:
+        return []
+
+    def report_only(name: str) -> bool:
+        return name.partition(".")[0] in REPORT_ONLY_INPUTS
+
+    changed = []
+    for name in sorted(set(recorded) | set(current)):
+        a, b = recorded.get(name), current.get(name)
+        if a == b:
+            continue
+        if report_only(name):
+            changed.append(name)
+            continue
+        what = "is missing" if b is None else "is new" if a is None else f"changed (sha256 {a[:12]}... when processed, {b[:12]}... now)"
+        raise InvalidInputError(
+            f"{run_name}: session file {name} {what} since this run was processed; reprocess it (tpos process) before reporting"
+        )
+    return changed
+
+
+def _shots(run: RunData, solution: str | None) -> ShotWindows | None:
+    tg = run.targets
+    if tg is None or solution is None or "t_start" not in tg.columns:
+        return None
+    d = tg[tg["solution"] == solution]
+    t1 = d["t_end"].to_numpy(float) if "t_end" in d.columns else d["t_start"].to_numpy(float)
+    return ShotWindows(tuple(d["id"].astype(str)), d["t_start"].to_numpy(float), t1)
+
+
+def build_summary(ctx: ReportContext) -> dict:
     from tpos_cli import __version__
 
-    s = run.summary
+    s = ctx.run.summary
+    sess = ctx.session
+    truth = ctx.truth
     return _clean_json(
         {
-            "run": str(run.path),
-            "report_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "run": str(ctx.run.path),
+            "report_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "tpos_version": __version__,
             "run_tpos_version": s.get("tpos_version"),
-            "session": {"path": truth.session_path, "name": session.meta.name, "kind": session.meta.kind},
+            "session": {
+                "path": str(sess.path) if sess is not None else (s.get("session") or {}).get("path"),
+                "name": sess.meta.name if sess is not None else (s.get("session") or {}).get("name"),
+                "kind": ctx.kind,
+                "inputs_verified": ctx.inputs_note,
+            },
             "pipeline": s.get("pipeline"),
             "config_sha256": s.get("config_sha256"),
-            "truth": {
+            "quality": ctx.verdict,
+            "truth": None
+            if not ctx.has_truth
+            else {
                 "trajectory": None
                 if truth.trajectory is None
                 else {"source": truth.trajectory.source, "description": truth.trajectory.description},
                 "targets": None if truth.targets is None else {"ids": list(truth.targets.ids), "description": truth.targets.description},
             },
             "conventions": "mean/sd of the signed error (population SD), max_abs/p50/p90/p95 of |error|; "
-            "position error = solution - truth in NED at the truth point, vertical = up; CEP/CE90 = p50/p90 of horizontal error",
-            "gps_outages": run.outage_windows,
-            "mask_gps": run.mask_windows,
-            "headline": headline(acc),
-            "paper_tables": {k: _records(v) for k, v in acc.paper_tables.items()},
-            "targets": _records(acc.targets),
+            "position error = solution - truth in NED at the truth point, vertical = up; CEP/CE90 = p50/p90 of horizontal error; "
+            "estimated: h95 = semi-major axis of the stated 95 % horizontal ellipse, v95/yaw95 = 1.96 sigma",
+            "gps_outages": ctx.run.outage_windows,
+            "mask_gps": ctx.run.mask_windows,
+            "best_solution": ctx.best,
+            "estimated": _records(ctx.estimated),
+            "headline": headline(ctx.acc),
+            "paper_tables": {k: _records(v) for k, v in ctx.acc.paper_tables.items()},
+            "targets": _records(ctx.acc.targets),
+            "targets_combined": {"solution": ctx.target_solution, "rows": _records(ctx.targets)} if ctx.targets is not None else None,
             "health": {
-                "nis": _records(health.nis),
-                "flags": _records(health.flags),
-                "disagreement": _records(health.disagreement),
+                "nis": _records(ctx.health.nis),
+                "flags": _records(ctx.health.flags),
+                "disagreement": _records(ctx.health.disagreement),
                 "run_warnings": list(s.get("warnings") or []),
             },
-            "accuracy": _records(acc.table),
+            "notes": list(ctx.notes),
+            "accuracy": _records(ctx.acc.table),
         }
     )
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Write through a temporary sibling and rename, so a reader never sees half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(Path(tmp))
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | None, str, str, list[str]]:
+    """The session to report with: (session, why its data are not shown, inputs note, notes)."""
+    from tpos_cli.session import load_session, session_file_hashes
+
+    notes: list[str] = []
+    if truth_session is not None:
+        p = Path(truth_session)
+        if not p.is_dir():
+            raise InvalidInputError(f"--truth {truth_session}: not a session directory")
+        session = load_session(p)
+        same = all(
+            session.file_hashes.get(k) == v
+            for k, v in (run.summary.get("inputs") or {}).items()
+            if k.partition(".")[0] not in REPORT_ONLY_INPUTS
+        )
+        if same:
+            return session, "", "yes (--truth is the processed session)", notes
+        notes.append(f"--truth {p.name} is not the session this run was processed from: only its truth is used")
+        return session, "the --truth session is not the processed one", "no (--truth session differs)", notes
+    sdir = session_dir_of(run.summary, run.path)
+    if sdir is None:
+        raw = (run.summary.get("session") or {}).get("path")
+        notes.append(
+            f"session {raw} not found: no truth, GPS or sensor data; give it with --truth SESSION"
+            if raw
+            else "summary.json names no session: no truth, GPS or sensor data; give it with --truth SESSION"
+        )
+        return None, "session not found", "no (session not found)", notes
+    changed = check_inputs(run.summary.get("inputs"), session_file_hashes(sdir), run.path.name)
+    for name in changed:
+        notes.append(f"{name} changed since the run was processed: the report uses the current one")
+    session = load_session(sdir)
+    if not run.summary.get("inputs"):
+        notes.append("summary.json records no input hashes: the session could not be verified")
+        return session, "", "no (no input hashes recorded)", notes
+    return session, "", "yes", notes
 
 
-def make_report(run_dir: Path, truth_session: Path | None = None, *, pdf: bool = True) -> ReportResult:
-    """Compare a run with its truth; write accuracy.parquet, accuracy.json and report.pdf into it.
-
-    Raises InvalidInputError (exit 2) when the run, its session or any truth is missing.
-    """
-    from tpos_cli.session import load_session
-
-    run_dir = Path(run_dir)
-    run = load_run(run_dir)
-    session = load_session(resolve_session_path(run.summary, run_dir, truth_session))
-    truth = choose_truth(
-        session,
-        withheld_gps=run.withheld_gps,
-        mask_windows=run.mask_windows,
-        need_targets=run.targets is not None,
-        need_trajectory=run.trajectory is not None,
+def build_context(run_dir: Path, truth_session: Path | None = None, *, full: bool = False) -> ReportContext:
+    run = load_run(Path(run_dir))
+    if (run.trajectory is None or run.trajectory.empty) and (run.targets is None or run.targets.empty):
+        raise InvalidInputError(
+            f"{run.path.name}: nothing to report: the run has no trajectory and no targets (the pipeline wrote no solutions)"
+        )
+    session, session_note, inputs_note, notes = _load_session(run, truth_session)
+    truth = None
+    if session is not None:
+        truth = choose_truth(
+            session,
+            withheld_gps=run.withheld_gps,
+            mask_windows=run.mask_windows,
+            need_targets=run.targets is not None,
+            need_trajectory=run.trajectory is not None,
+        )
+        if session_note and truth.trajectory is not None and truth.trajectory.source == "gps":
+            truth = ReportTruth(None, truth.targets, truth.session_path, truth.notes)  # another session's GPS is no truth
+    kind = session.meta.kind if session is not None else str((run.summary.get("session") or {}).get("kind") or "")
+    series = qc.solution_series(run.trajectory)
+    order = rank_solutions(series)
+    acc = compute_accuracy(run, truth, kind=kind, series=series)
+    health = filter_health(run.innovations, series)
+    t0 = (run.summary.get("session") or {}).get("t0")  # logger clock of the first IMU sample
+    if t0 is not None:
+        t_ref = float(t0)
+    elif session is not None:
+        t_ref = float(session.t0_s)
+    else:
+        t_ref = float(min(s.t[0] for s in series.values())) if series else 0.0
+    targets = target_solution = None
+    if run.targets is not None and len(run.targets):
+        target_solution = rank_solutions(run.targets["solution"])[0]
+        try:
+            targets, _ = combined_targets(run, target_solution)
+        except InvalidInputError:
+            targets = None
+    own_session = session if not session_note else None
+    mag_ref = (
+        (run.summary.get("results") or {}).get("alignment", {}).get("mag_norm_ut")
+        if isinstance((run.summary.get("results") or {}).get("alignment"), dict)
+        else None
     )
-    acc = compute_accuracy(run, truth, kind=session.meta.kind)
-    health = filter_health(run)
-    summary = build_summary(run, session, truth, acc, health)
-    _atomic_write(run_dir / "accuracy.parquet", lambda p: acc.table.to_parquet(p, index=False))
-    _atomic_write(run_dir / "accuracy.json", lambda p: p.write_text(json.dumps(summary, indent=1), encoding="utf-8"))
-    outputs = ["accuracy.parquet", "accuracy.json"]
-    pages: list[str] = []
-    if pdf:
-        from tpos_cli.report.pdf import write_pdf
+    verdict = run.summary.get("quality") if isinstance(run.summary.get("quality"), dict) else None
+    return ReportContext(
+        run=run,
+        session=session,
+        session_note=session_note,
+        truth=truth,
+        acc=acc,
+        health=health,
+        series=series,
+        order=order,
+        kind=kind,
+        t_ref=t_ref,
+        shots=_shots(run, target_solution),
+        targets=targets,
+        target_solution=target_solution,
+        verdict=verdict,
+        gps=qc.gps_quality(own_session) if own_session is not None else None,
+        mag=qc.magnetic_field(own_session, mag_ref) if own_session is not None and kind == "target" else None,
+        anchors=qc.anchor_visibility(own_session) if own_session is not None else None,
+        estimated=qc.estimated_accuracy(series, order),
+        full=full,
+        inputs_note=inputs_note,
+        notes=tuple(notes),
+    )
 
-        _atomic_write(run_dir / "report.pdf", lambda p: pages.extend(write_pdf(p, run, session, truth, acc, health, summary)))
-        outputs.append("report.pdf")
-    return ReportResult(run_dir, summary, acc, health, truth, tuple(outputs), tuple(pages))
+
+def make_report(run_dir: Path, truth_session: Path | None = None, *, pdf: bool = True, full: bool = False) -> ReportResult:
+    """Report on a run (with truth when the session has some); write accuracy.parquet, accuracy.json
+    and report.pdf into it, all or none, readable under the umask.
+
+    Raises InvalidInputError (exit 2) when the run is not one, has no solutions, or its session's
+    processing inputs changed since it was processed.
+    """
+    ctx = build_context(run_dir, truth_session, full=full)
+    summary = build_summary(ctx)
+    run_dir = ctx.run.path
+    names = OUTPUTS if pdf else OUTPUTS[:2]
+    pages: list[str] = []
+    with staged([run_dir / n for n in names]) as tmp:
+        ctx.acc.table.to_parquet(tmp[run_dir / "accuracy.parquet"], index=False)
+        tmp[run_dir / "accuracy.json"].write_text(json.dumps(summary, indent=1), encoding="utf-8")
+        if pdf:
+            from tpos_cli.report.pdf import write_pdf
+
+            pages = write_pdf(tmp[run_dir / "report.pdf"], ctx, summary)
+    return ReportResult(run_dir, summary, ctx.acc, ctx.health, ctx.truth, tuple(names), tuple(pages), ctx.notes)

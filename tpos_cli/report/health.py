@@ -9,12 +9,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report import metrics
-from tpos_cli.report.rundir import RunData, ordered_solutions
-from tpos_cli.report.truth import covered, median_gap_limit
+from tpos_cli.report.metrics import chi2_ppf
+from tpos_cli.report.qc import Separation, Series, separation
+from tpos_cli.report.rundir import ordered_solutions
 
-SIGMA_NED = ("sigma_n", "sigma_e", "sigma_d")
+FLAG_PROBABILITY = 0.99  # the forward/backward separation bound of the disagreement statistics
 
 
 @dataclass(frozen=True)
@@ -22,65 +22,54 @@ class Health:
     nis: pd.DataFrame  # solution, kind, n, n_accepted, n_rejected, dof, mean_nis, mean_lo, mean_hi, frac_above_95, consistent
     flags: pd.DataFrame  # solution, n_epochs, n_flagged
     disagreement: pd.DataFrame  # a, b, n, rms_m, max_m, n_flagged, frac_flagged
+    separations: tuple[Separation, ...] = ()
 
 
 def nis_table(innovations: pd.DataFrame | None) -> pd.DataFrame:
     cols = ["solution", "kind"] + list(metrics.NisStats.__dataclass_fields__)
     if innovations is None or innovations.empty:
         return pd.DataFrame(columns=cols)
+    nis = innovations["nis"].to_numpy(float)
+    dof = innovations["dof"].to_numpy(float)
+    acc = innovations["accepted"].fillna(False).to_numpy(bool)
+    groups = innovations.groupby([innovations["solution"].astype(str), innovations["kind"].astype(str)], sort=False).indices
     rows = []
-    inn = innovations.assign(kind=innovations["kind"].astype(str))
-    for sol in ordered_solutions(inn["solution"]):
-        d = inn[inn["solution"] == sol]
-        for kind in dict.fromkeys(d["kind"]):
-            k = d[d["kind"] == kind]
-            st = metrics.nis_stats(k["nis"].to_numpy(float), k["dof"].to_numpy(float), k["accepted"].fillna(False).to_numpy(bool))
-            rows.append({"solution": sol, "kind": kind, **st.as_dict()})
+    for sol in ordered_solutions(s for s, _ in groups):
+        for (s, kind), i in groups.items():
+            if s == sol:
+                rows.append({"solution": sol, "kind": kind, **metrics.nis_stats(nis[i], dof[i], acc[i]).as_dict()})
     return pd.DataFrame(rows, columns=cols)
 
 
-def disagreement_table(trajectory: pd.DataFrame | None, pairs=(("forward", "backward"),)) -> pd.DataFrame:
+def disagreement_table(series: dict[str, Series], pairs=(("forward", "backward"),)) -> tuple[pd.DataFrame, tuple[Separation, ...]]:
     """Position disagreement between solution pairs at the first one's epochs (linear interpolation
-    of the second, no extrapolation, no bridging of gaps)."""
+    of the second, no extrapolation, no bridging of gaps), and the separation series."""
     cols = ["a", "b", "n", "rms_m", "max_m", "n_flagged", "frac_flagged"]
-    if trajectory is None:
-        return pd.DataFrame(columns=cols)
-    rows = []
-    present = set(trajectory["solution"])
+    rows, seps = [], []
     for a, b in pairs:
-        if a not in present or b not in present:
+        if a not in series or b not in series:
             continue
-        da = trajectory[trajectory["solution"] == a].sort_values("t")
-        db = trajectory[trajectory["solution"] == b].sort_values("t")
-        origin = da[["lat", "lon", "h"]].to_numpy(float)[0]
-        na = lla_to_ned(da[["lat", "lon", "h"]].to_numpy(float), origin)
-        nb = lla_to_ned(db[["lat", "lon", "h"]].to_numpy(float), origin)
-        ta, tb = da["t"].to_numpy(float), db["t"].to_numpy(float)
-        _, _, ok = covered(tb, ta, median_gap_limit(tb))
-        nb_at = np.full_like(na, np.nan)
-        nb_at[ok] = np.column_stack([np.interp(ta[ok], tb, nb[:, i]) for i in range(3)])
-        var = None
-        if all(c in da and c in db for c in SIGMA_NED):
-            sa = da[list(SIGMA_NED)].to_numpy(float)
-            sb = db[list(SIGMA_NED)].to_numpy(float)
-            sb_at = np.full_like(sa, np.nan)
-            sb_at[ok] = np.column_stack([np.interp(ta[ok], tb, sb[:, i]) for i in range(3)])
-            var = sa**2 + sb_at**2
-        st = metrics.disagreement(na - nb_at, var)
+        sep = separation(series[a], series[b])
+        var = sep.var_ned_m2 if np.isfinite(sep.var_ned_m2).any() else None
+        st = metrics.disagreement(sep.d_ned_m, var, prob=FLAG_PROBABILITY)
         rows.append({"a": a, "b": b, **st.__dict__})
-    return pd.DataFrame(rows, columns=cols)
+        seps.append(sep)
+    return pd.DataFrame(rows, columns=cols), tuple(seps)
 
 
-def flag_table(trajectory: pd.DataFrame | None) -> pd.DataFrame:
+def flag_table(series: dict[str, Series]) -> pd.DataFrame:
     cols = ["solution", "n_epochs", "n_flagged"]
-    if trajectory is None or "flag" not in trajectory.columns:
-        return pd.DataFrame(columns=cols)
-    rows = []
-    for sol in ordered_solutions(trajectory["solution"]):
-        f = trajectory.loc[trajectory["solution"] == sol, "flag"].fillna(False).to_numpy(bool)
-        rows.append({"solution": sol, "n_epochs": int(f.size), "n_flagged": int(f.sum())})
+    rows = [{"solution": n, "n_epochs": int(s.flag.size), "n_flagged": int(s.flag.sum())} for n, s in series.items() if s.flag.any()]
     return pd.DataFrame(rows, columns=cols)
 
 
-def filter_health(run: RunData) -> Health:
-    return Health(nis_table(run.innovations), flag_table(run.trajectory), disagreement_table(run.trajectory))
+def filter_health(innovations: pd.DataFrame | None, series: dict[str, Series]) -> Health:
+    dis, seps = disagreement_table(series)
+    return Health(nis_table(innovations), flag_table(series), dis, seps)
+
+
+def nis_band(dof, prob: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Per-update two-sided chi-square band of the NIS (NaN where dof is unknown)."""
+    d = np.asarray(dof, dtype=float)
+    a = (1.0 - prob) / 2.0
+    return chi2_ppf(a, d), chi2_ppf(1.0 - a, d)

@@ -17,10 +17,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import special
 
 from tpos_cli.frames.geodetic import ecef_to_ned_dcm, lla_to_ecef
-from tpos_cli.frames.rotation import wrap_angle_deg
+from tpos_cli.frames.rotation import euler_to_dcm, wrap_angle_deg
 
 STAT_FIELDS = ("n", "mean", "sd", "rms", "min", "max", "max_abs", "p50", "p90", "p95")
 
@@ -42,6 +42,13 @@ class ErrorStats:
 
     def as_dict(self) -> dict:
         return {f: getattr(self, f) for f in STAT_FIELDS}
+
+
+def chi2_ppf(prob, dof):
+    """Quantile of the chi-square distribution: 2 P^-1(dof/2, prob), P the regularised lower
+    incomplete gamma function (chi2 with k dof is Gamma(k/2, scale 2)). Through scipy.special:
+    scipy.stats would add a second to the start-up of every report."""
+    return 2.0 * special.gammaincinv(np.asarray(dof, dtype=float) / 2.0, prob)
 
 
 def error_stats(err) -> ErrorStats:
@@ -67,17 +74,20 @@ def error_stats(err) -> ErrorStats:
     )
 
 
-def position_errors_ned(sol_lla, truth_lla, truth_offset_ned_m=None):
+def position_errors_ned(sol_lla, truth_lla, truth_offset_ned_m=None, *, truth_r_e=None, truth_C_ne=None):
     """Solution-minus-truth position error, m, shape (N, 3), NED at each truth point.
 
     Exact (no flat-Earth approximation): the ECEF difference rotated by C_ne of the truth point.
     `truth_offset_ned_m` (N, 3) is added to the solution point first, e.g. `C_nb @ lever_arm` when the
     truth is a GPS antenna and the solution is the IMU point. Rows with NaN give NaN.
+    `truth_r_e` and `truth_C_ne` (the truth's ECEF position and C_ne) may be passed when several
+    solutions are compared with the same truth epochs.
     """
     sol = np.asarray(sol_lla, dtype=float).reshape(-1, 3)
     tru = np.asarray(truth_lla, dtype=float).reshape(-1, 3)
-    d_e = lla_to_ecef(sol) - lla_to_ecef(tru)
-    err = np.einsum("nij,nj->ni", ecef_to_ned_dcm(tru[:, 0], tru[:, 1]), d_e)
+    r_t = lla_to_ecef(tru) if truth_r_e is None else truth_r_e
+    C_ne = ecef_to_ned_dcm(tru[:, 0], tru[:, 1]) if truth_C_ne is None else truth_C_ne
+    err = np.einsum("nij,nj->ni", C_ne, lla_to_ecef(sol) - r_t)
     if truth_offset_ned_m is not None:
         err = err + np.asarray(truth_offset_ned_m, dtype=float).reshape(-1, 3)
     return err
@@ -95,21 +105,27 @@ def split_position_errors(err_ned_m) -> dict[str, np.ndarray]:
     }
 
 
-def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg) -> dict[str, np.ndarray]:
-    """Wrap-aware Euler-angle errors (solution minus truth), deg in (-180, 180], and the total
-    rotation angle of C_truth^T C_sol, deg (independent of the Euler convention near gimbal lock)."""
-    from scipy.spatial.transform import Rotation
+def rotation_angle_deg(C) -> np.ndarray:
+    """Angle of rotation matrices (..., 3, 3), deg: atan2(|vee(C - C^T)| / 2, (trace C - 1) / 2),
+    accurate at small and large angles alike (arccos of the trace alone loses digits near 0)."""
+    C = np.asarray(C, dtype=float)
+    v = np.stack([C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0], C[..., 1, 0] - C[..., 0, 1]], axis=-1)
+    return np.degrees(np.arctan2(0.5 * np.linalg.norm(v, axis=-1), 0.5 * (np.trace(C, axis1=-2, axis2=-1) - 1.0)))
 
+
+def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg, *, truth_C_nb=None) -> dict[str, np.ndarray]:
+    """Wrap-aware Euler-angle errors (solution minus truth), deg in (-180, 180], and the total
+    rotation angle of C_truth^T C_sol, deg (independent of the Euler convention near gimbal lock).
+    `truth_C_nb` (N, 3, 3) may be passed when several solutions share the truth epochs."""
     s = np.asarray(sol_rpy_deg, dtype=float).reshape(-1, 3)
     t = np.asarray(truth_rpy_deg, dtype=float).reshape(-1, 3)
     d = wrap_angle_deg(s - t)
     total = np.full(s.shape[0], np.nan)
     ok = np.all(np.isfinite(s), axis=1) & np.all(np.isfinite(t), axis=1)
     if ok.any():
-        # C_nb = Rz(yaw) Ry(pitch) Rx(roll) is scipy's intrinsic "ZYX" with angles (yaw, pitch, roll)
-        rs = Rotation.from_euler("ZYX", s[ok][:, ::-1], degrees=True)
-        rt = Rotation.from_euler("ZYX", t[ok][:, ::-1], degrees=True)
-        total[ok] = np.degrees((rt.inv() * rs).magnitude())
+        Cs = euler_to_dcm(*np.radians(s[ok]).T)
+        Ct = euler_to_dcm(*np.radians(t[ok]).T) if truth_C_nb is None else truth_C_nb[ok]
+        total[ok] = rotation_angle_deg(np.einsum("nji,njk->nik", Ct, Cs))
     return {"roll_deg": d[:, 0], "pitch_deg": d[:, 1], "yaw_deg": d[:, 2], "att_deg": total}
 
 
@@ -131,7 +147,7 @@ def cep_from_sigmas(sigma_n_m, sigma_e_m, prob=0.5, rho=0.0) -> float:
         return 0.0
     if s2 <= 1e-9 * s1:
         # degenerate to 1-D: P(|x| <= r) = prob
-        return float(s1 * stats.norm.ppf(0.5 + prob / 2.0))
+        return float(s1 * special.ndtri(0.5 + prob / 2.0))
     th = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
     q = np.cos(th) ** 2 / s1**2 + np.sin(th) ** 2 / s2**2
 
@@ -139,12 +155,16 @@ def cep_from_sigmas(sigma_n_m, sigma_e_m, prob=0.5, rho=0.0) -> float:
         return float(np.mean((1.0 - np.exp(-0.5 * r * r * q)) / q) / (s1 * s2))
 
     hi = s1 * 10.0
-    return float(optimize.brentq(lambda r: cdf(r) - prob, 0.0, hi, xtol=1e-12 * s1))
+    from scipy.optimize import (
+        brentq,  # lazy: scipy.optimize costs a report's start-up 0.2 s
+    )
+
+    return float(brentq(lambda r: cdf(r) - prob, 0.0, hi, xtol=1e-12 * s1))
 
 
 def ellipse_scale(prob: float = 0.95, dof: int = 2) -> float:
     """Mahalanobis radius of the `prob` confidence ellipse: sqrt(chi2.ppf(prob, dof))."""
-    return float(np.sqrt(stats.chi2.ppf(prob, dof)))
+    return float(np.sqrt(chi2_ppf(prob, dof)))
 
 
 @dataclass(frozen=True)
@@ -181,13 +201,13 @@ def nis_stats(nis, dof, accepted) -> NisStats:
     nan = float("nan")
     if n == 0:
         return NisStats(0, 0, 0, nan, nan, nan, nan, nan, False)
-    above = float(np.mean(nis[ok] > stats.chi2.ppf(0.95, dof[ok])))
+    above = float(np.mean(nis[ok] > chi2_ppf(0.95, dof[ok])))
     if na == 0:
         return NisStats(n, 0, n, float(np.median(dof[ok])), nan, nan, nan, above, False)
     sum_dof = float(dof[a].sum())
     mean = float(nis[a].mean())
-    lo = float(stats.chi2.ppf(0.025, sum_dof) / na)
-    hi = float(stats.chi2.ppf(0.975, sum_dof) / na)
+    lo = float(chi2_ppf(0.025, sum_dof) / na)
+    hi = float(chi2_ppf(0.975, sum_dof) / na)
     return NisStats(n, na, n - na, float(np.median(dof[ok])), mean, lo, hi, above, bool(lo <= mean <= hi))
 
 
@@ -221,5 +241,5 @@ def disagreement(diff_ned_m, var_sum_ned_m2=None, prob: float = 0.99) -> Disagre
         v = np.asarray(var_sum_ned_m2, dtype=float).reshape(-1, 3)[ok]
         good = np.all(np.isfinite(v) & (v > 0), axis=1)
         m2 = np.sum(d[good] ** 2 / v[good], axis=1)
-        n_flag = int(np.sum(m2 > stats.chi2.ppf(prob, 3)))
+        n_flag = int(np.sum(m2 > chi2_ppf(prob, 3)))
     return Disagreement(n, float(np.sqrt(np.mean(dist**2))), float(dist.max()), n_flag, n_flag / n)

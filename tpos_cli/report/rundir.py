@@ -16,6 +16,9 @@ TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
 INNOVATIONS_REQUIRED = ("t", "nis", "accepted")  # plus solution, kind, dof (filled in when absent, see _complete_innovations)
 GPS_REQUIRED = ("t", "lat", "lon", "h")
 
+# size of a measurement of each innovation kind, for tables without `dof` or `nu_*` columns (the
+# ranging chain: one scalar range, a north-east fix)
+KIND_DOF = {"range": 1.0, "fix": 2.0}
 # paper 000 Tables 4-5 list the attitude sources in this order; other solutions follow as found
 SOLUTION_ORDER = ("gyro", "lf1", "lf2", "fkf", "forward", "backward", "smoothed")
 
@@ -33,32 +36,61 @@ class RunData:
 
 
 def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame | None:
+    """A run table; its label columns (`solution`, `kind`) as pandas categoricals, so splitting an
+    hour-long 100 Hz table by solution costs one pass."""
     path = run_dir / name
     if not path.exists():
         return None
     try:
-        df = pd.read_parquet(path)
+        import pyarrow as pa
+        import pyarrow.compute as pc
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path)
+        for col in ("solution", "kind"):
+            i = table.schema.get_field_index(col)
+            if i >= 0 and (pa.types.is_string(table.schema.field(i).type) or pa.types.is_large_string(table.schema.field(i).type)):
+                table = table.set_column(i, col, pc.dictionary_encode(table.column(col)))
+        df = table.to_pandas()
     except Exception as exc:  # pyarrow raises several unrelated types for a damaged file
         raise InvalidInputError(f"{run_dir.name}/{name}: not a readable Parquet file ({str(exc).splitlines()[0][:160]})") from exc
     missing = [c for c in required if c not in df.columns]
     if missing:
         raise InvalidInputError(f"{run_dir.name}/{name}: column '{missing[0]}': required column is missing")
-    if "solution" in df.columns:
-        df["solution"] = df["solution"].astype(str)
+    if "solution" in df.columns and not isinstance(df["solution"].dtype, pd.CategoricalDtype):
+        df["solution"] = df["solution"].astype(str).astype("category")
     return df
+
+
+def _sorted_by_solution_time(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows grouped by solution (first-appearance order) with time increasing in each group; the
+    chains write them that way, so this is one check and usually no sort."""
+    codes = df["solution"].cat.codes.to_numpy()
+    t = df["t"].to_numpy(float)
+    same = codes[1:] == codes[:-1]
+    if np.count_nonzero(~same) == len(np.unique(codes)) - 1 and np.all(t[1:][same] >= t[:-1][same]):
+        return df.reset_index(drop=True)
+    first = pd.unique(codes)
+    rank = np.empty(codes.max() + 1, dtype=np.int64)
+    rank[first] = np.arange(first.size)
+    return df.iloc[np.lexsort((t, rank[codes]))].reset_index(drop=True)
 
 
 def _complete_innovations(df: pd.DataFrame | None) -> pd.DataFrame | None:
     """Fill the optional innovation columns: `solution` and `kind` "unspecified", and `dof` as the
-    number of finite `nu_*` components of each row (NaN when there are none: no chi-square bounds)."""
+    number of finite `nu_*` components of each row, else the size of the measurement kind
+    (`KIND_DOF`), else NaN (no chi-square bounds)."""
     if df is None:
         return None
     df = df.copy()
     for c in ("solution", "kind"):
-        df[c] = df[c].astype(str) if c in df.columns else "unspecified"
+        df[c] = df[c].astype(str).astype("category") if c in df.columns else pd.Categorical(["unspecified"] * len(df))
     if "dof" not in df.columns:
         nu = [c for c in df.columns if c.startswith("nu_")]
-        dof = np.isfinite(df[nu].to_numpy(float)).sum(axis=1).astype(float) if nu else np.full(len(df), np.nan)
+        if nu:
+            dof = np.isfinite(df[nu].to_numpy(float)).sum(axis=1).astype(float)
+        else:  # the measurement's own size, where its kind says it
+            dof = df["kind"].astype(str).map(KIND_DOF).to_numpy(float)
         df["dof"] = np.where(dof > 0, dof, np.nan)
     return df
 
@@ -107,8 +139,8 @@ def load_run(run_dir: Path) -> RunData:
         tgts["id"] = tgts["id"].astype(str)
     withheld = _read(run_dir, "withheld_gps.parquet", GPS_REQUIRED)
     innov = _complete_innovations(_read(run_dir, "innovations.parquet", INNOVATIONS_REQUIRED))
-    if traj is not None:
-        traj = traj.sort_values(["solution", "t"], kind="stable").reset_index(drop=True)
+    if traj is not None and len(traj):
+        traj = _sorted_by_solution_time(traj)
     outages = windows(summary.get("gps_outages"), "gps_outages")
     mask = windows(summary.get("mask_gps"), "mask_gps")
     return RunData(run_dir, summary, traj, tgts, withheld, innov, merge_windows(outages, mask), mask)
@@ -121,7 +153,7 @@ def session_dir_of(summary: dict, run_dir: Path) -> Path | None:
     if not raw:
         return None
     p = Path(raw)
-    for cand in ([p] if p.is_absolute() else [Path.cwd() / p, Path(run_dir).parent / p, Path(run_dir) / p]):
+    for cand in [p] if p.is_absolute() else [Path.cwd() / p, Path(run_dir).parent / p, Path(run_dir) / p]:
         if cand.is_dir():
             return cand
     return None

@@ -14,14 +14,10 @@ attitude by SLERP.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
-from tpos_cli.report.rundir import session_dir_of
 
 GAP_FACTOR = 2.5  # a gap is > 2.5 median intervals: one missed sample plus clock jitter is not a gap
 
@@ -105,37 +101,49 @@ def covered(t_truth, t_query, max_gap_s: float):
     return lo, hi, ok
 
 
+def _brackets(t_truth, values, t_query, max_gap_s: float):
+    """Cleaned truth values (K, 3), the mask of covered queries, and for those the bracketing
+    truth indices and the weight of the later sample (0 on a truth stamp)."""
+    t, v = _clean(t_truth, np.asarray(values, dtype=float).reshape(-1, 3))
+    tq = np.asarray(t_query, dtype=float)
+    lo, hi, ok = covered(t, tq, max_gap_s)
+    lo, hi, q = lo[ok], hi[ok], tq[ok]
+    span = t[hi] - t[lo]
+    return v, ok, lo, hi, np.divide(q - t[lo], span, out=np.zeros_like(q), where=span > 0)
+
+
 def interpolate_positions(t_truth, lla_truth, t_query, max_gap_s: float):
     """Truth positions at `t_query`, (Q, 3) lla; linear in NED about the first truth point; NaN
-    where not covered."""
-    t, lla = _clean(t_truth, np.asarray(lla_truth, dtype=float).reshape(-1, 3))
-    tq = np.asarray(t_query, dtype=float)
-    out = np.full((tq.size, 3), np.nan)
-    _, _, ok = covered(t, tq, max_gap_s)
-    if not ok.any():
-        return out
-    origin = lla[0]
-    ned = lla_to_ned(lla, origin)
-    ned_q = np.column_stack([np.interp(tq[ok], t, ned[:, i]) for i in range(3)])
-    out[ok] = ned_to_lla(ned_q, origin)
+    where not covered. Only the bracketing truth samples are converted (hour-long 100 Hz truth),
+    and queries on a truth stamp need no conversion at all."""
+    lla, ok, lo, hi, w = _brackets(t_truth, lla_truth, t_query, max_gap_s)
+    out = np.full((ok.size, 3), np.nan)
+    res = lla[lo].copy()
+    between = w > 0
+    if between.any():
+        origin = lla[0]
+        a, b = lla_to_ned(lla[lo[between]], origin), lla_to_ned(lla[hi[between]], origin)
+        res[between] = ned_to_lla(a + w[between, None] * (b - a), origin)
+    out[ok] = res
     return out
 
 
 def interpolate_attitude(t_truth, rpy_deg_truth, t_query, max_gap_s: float):
-    """Truth roll, pitch, yaw (deg) at `t_query` by SLERP, (Q, 3); NaN where not covered."""
-    t, rpy = _clean(t_truth, np.asarray(rpy_deg_truth, dtype=float).reshape(-1, 3))
-    tq = np.asarray(t_query, dtype=float)
-    out = np.full((tq.size, 3), np.nan)
-    _, _, ok = covered(t, tq, max_gap_s)
-    if not ok.any():
-        return out
-    # C_nb = Rz(yaw) Ry(pitch) Rx(roll): scipy intrinsic "ZYX" with (yaw, pitch, roll)
-    rot = Rotation.from_euler("ZYX", rpy[:, ::-1], degrees=True)
-    if t.size == 1:
-        out[ok] = rpy[0]
-        return out
-    ypr = Slerp(t, rot)(tq[ok]).as_euler("ZYX", degrees=True)
-    out[ok] = ypr[:, ::-1]
+    """Truth roll, pitch, yaw (deg) at `t_query` by SLERP between the bracketing truth samples,
+    (Q, 3); NaN where not covered."""
+    rpy, ok, lo, hi, w = _brackets(t_truth, rpy_deg_truth, t_query, max_gap_s)
+    out = np.full((ok.size, 3), np.nan)
+    res = rpy[lo].copy()
+    between = w > 0
+    if between.any():
+        from scipy.spatial.transform import Rotation  # lazy: only for queries between truth samples
+
+        # C_nb = Rz(yaw) Ry(pitch) Rx(roll): scipy intrinsic "ZYX" with (yaw, pitch, roll)
+        r_lo = Rotation.from_euler("ZYX", rpy[lo[between]][:, ::-1], degrees=True)
+        r_hi = Rotation.from_euler("ZYX", rpy[hi[between]][:, ::-1], degrees=True)
+        step = Rotation.from_rotvec(w[between, None] * (r_lo.inv() * r_hi).as_rotvec())  # SLERP
+        res[between] = (r_lo * step).as_euler("ZYX", degrees=True)[:, ::-1]
+    out[ok] = res
     return out
 
 
@@ -149,23 +157,6 @@ def interpolate_flag(t_truth, flag, t_query, max_gap_s: float):
 
 
 # ---------------------------------------------------------------- choosing the truth of a run
-
-
-def resolve_session_path(summary: dict, run_dir: Path, override: Path | None) -> Path:
-    """The session directory of a run: `--truth` if given, else summary.json `session.path`
-    (absolute, or relative to the current directory or to the run directory's parent)."""
-    if override is not None:
-        p = Path(override)
-        if not p.is_dir():
-            raise InvalidInputError(f"--truth {override}: not a session directory")
-        return p
-    raw = (summary.get("session") or {}).get("path")
-    if not raw:
-        raise InvalidInputError(f"{run_dir.name}/summary.json: no session.path; give the session with --truth SESSION")
-    found = session_dir_of(summary, run_dir)
-    if found is None:
-        raise InvalidInputError(f"{run_dir.name}/summary.json: session {raw} not found; give it with --truth SESSION")
-    return found
 
 
 def _truth_from_reference(session) -> TrajectoryTruth | None:
@@ -282,16 +273,10 @@ def _target_truth(session) -> TargetTruth | None:
 
 
 def choose_truth(session, *, withheld_gps=None, mask_windows=(), need_targets: bool, need_trajectory: bool) -> ReportTruth:
-    """Pick the truth for a run from its session (see module docstring); raises InvalidInputError
-    (exit 2) with a clear message when nothing the run produced can be checked."""
+    """Pick the truth for a run from its session (see module docstring); fields are None where the
+    session has nothing to judge that part of the run against (a quality-control-only report)."""
     traj = _truth_from_reference(session) if need_trajectory else None
     if need_trajectory and traj is None:
         traj = _truth_from_gps(session, withheld_gps, mask_windows)
     tgt = _target_truth(session) if need_targets else None
-    if traj is None and tgt is None:
-        what = " and ".join(w for w, f in (("a trajectory", need_trajectory), ("targets", need_targets)) if f) or "nothing"
-        raise InvalidInputError(
-            f"{Path(str(session.path)).name}: no truth to report against: the run has {what}, but the session has no "
-            "truth.*, no targets.* rows with role = truth, and no GPS fixes; give a session with truth via --truth SESSION"
-        )
     return ReportTruth(traj, tgt, str(session.path))

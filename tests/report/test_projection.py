@@ -5,21 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tpos_cli.export.projection import to_utm, utm_zone, zone_for
+from tpos_cli.report.projection import to_utm, utm_zone, zone_for
 
 # Meridian arc of WGS-84 from the equator to 45 deg: 4 984 944.378 m (Bowring's series, also
 # NGA's UTM tables); on the central meridian the UTM northing is k0 = 0.9996 times the arc.
 ARC_45_M = 4984944.378
 
 
-@pytest.mark.parametrize(("lat", "lon", "label", "epsg"), [
-    (45.49, -73.56, "18N", 32618),  # Montreal
-    (-33.87, 151.21, "56S", 32756),  # Sydney
-    (60.39, 5.32, "32N", 32632),  # Bergen: the Norway exception (would be 31)
-    (78.22, 15.65, "33N", 32633),  # Longyearbyen: the Svalbard exception
-    (0.0, 179.99, "60N", 32660),
-    (10.0, -180.0, "1N", 32601),
-])
+@pytest.mark.parametrize(
+    ("lat", "lon", "label", "epsg"),
+    [
+        (45.49, -73.56, "18N", 32618),  # Montreal
+        (-33.87, 151.21, "56S", 32756),  # Sydney
+        (60.39, 5.32, "32N", 32632),  # Bergen: the Norway exception (would be 31)
+        (78.22, 15.65, "33N", 32633),  # Longyearbyen: the Svalbard exception
+        (0.0, 179.99, "60N", 32660),
+        (10.0, -180.0, "1N", 32601),
+    ],
+)
 def test_zones(lat, lon, label, epsg):
     z = utm_zone(lat, lon)
     assert (z.label, z.epsg) == (label, epsg)

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from tpos_cli.export.files import remove_stale_temporaries, staged, write_atomic
+from tpos_cli.report.files import remove_stale_temporaries, staged, write_atomic
 
 
 @pytest.fixture
@@ -60,7 +60,7 @@ def test_sigterm_mid_write_leaves_nothing(tmp_path):
     (tmp_path / "out.bin").write_text("old")
     code = (
         "import sys, time; from pathlib import Path\n"
-        "from tpos_cli.export.files import staged, terminate_as_interrupt\n"
+        "from tpos_cli.report.files import staged, terminate_as_interrupt\n"
         f"p = Path({str(tmp_path / 'out.bin')!r})\n"
         "with terminate_as_interrupt():\n"
         "    try:\n"

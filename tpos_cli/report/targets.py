@@ -15,7 +15,7 @@ than the shots show. The independence assumption is the limit of this combinatio
 session share the attitude filter's slowly varying errors, so agreeing shots can still share a bias.
 
 The 95 % horizontal ellipse of a 2x2 north-east covariance C has semi-axes sqrt(chi2_2(0.95) l_k)
-for the eigenvalues l_k of C, and its orientation is the azimuth of the major axis, degrees
+for the eigenvalues l_k of C (chi2_2(p) = -2 ln(1 - p), exactly), and its orientation is the azimuth of the major axis, degrees
 clockwise from true north in [0, 180).
 """
 
@@ -25,9 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
+from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.geodetic import enu_to_lla, lla_to_enu
+from tpos_cli.report.format import utc_strings
+from tpos_cli.report.projection import UtmZone, to_utm, zone_for
 
 SIGMA_COLS = ("sigma_n", "sigma_e", "sigma_u")
 CROSS_COLS = {"cov_ne_m2": (0, 1), "cov_nu_m2": (0, 2), "cov_eu_m2": (1, 2)}
@@ -64,7 +66,7 @@ def horizontal_ellipse(cov_ne_m2, prob: float = ELLIPSE_PROB) -> HorizontalEllip
     """The `prob` confidence ellipse of each (2, 2) north-east covariance (NaN where not finite)."""
     c = np.asarray(cov_ne_m2, dtype=float).reshape(-1, 2, 2)
     ok = np.all(np.isfinite(c), axis=(1, 2))
-    k2 = stats.chi2.ppf(prob, 2)  # squared Mahalanobis radius of the ellipse
+    k2 = -2.0 * np.log1p(-prob)  # squared Mahalanobis radius: chi-square with 2 dof is exponential, mean 2
     major = np.full(len(c), np.nan)
     minor = np.full(len(c), np.nan)
     az = np.full(len(c), np.nan)
@@ -126,8 +128,15 @@ def combine_shots(shots: pd.DataFrame) -> pd.DataFrame:
         else:
             xc, P, chi2_dof = x_enu[:, [1, 0, 2]].mean(axis=0), np.full((3, 3), np.nan), float("nan")
         row.update(zip(("lat", "lon", "h"), enu_to_lla(xc[[1, 0, 2]], origin).reshape(3)))
-        row.update(sigma_n=np.sqrt(P[0, 0]), sigma_e=np.sqrt(P[1, 1]), sigma_u=np.sqrt(P[2, 2]),
-                   cov_ne_m2=P[0, 1], cov_nu_m2=P[0, 2], cov_eu_m2=P[1, 2], shot_chi2_dof=chi2_dof)
+        row.update(
+            sigma_n=np.sqrt(P[0, 0]),
+            sigma_e=np.sqrt(P[1, 1]),
+            sigma_u=np.sqrt(P[2, 2]),
+            cov_ne_m2=P[0, 1],
+            cov_nu_m2=P[0, 2],
+            cov_eu_m2=P[1, 2],
+            shot_chi2_dof=chi2_dof,
+        )
         rows.append(row)
     out = pd.DataFrame(rows, columns=["id", "lat", "lon", "h", *SIGMA_COLS, *CROSS_COLS, "n_shots", "shot_chi2_dof", "t_first", "t_last"])
     cov_ne = np.stack([np.column_stack([out.sigma_n**2, out.cov_ne_m2]), np.column_stack([out.cov_ne_m2, out.sigma_e**2])], axis=1)
@@ -136,3 +145,47 @@ def combine_shots(shots: pd.DataFrame) -> pd.DataFrame:
     out.insert(11, "ell95_minor_m", ell.semi_minor_m)
     out.insert(12, "ell95_azimuth_deg", ell.azimuth_deg)
     return out
+
+
+TARGET_COLUMNS = (
+    "id",
+    "lat",
+    "lon",
+    "h",
+    "sigma_n",
+    "sigma_e",
+    "sigma_u",
+    "ell95_major_m",
+    "ell95_minor_m",
+    "ell95_azimuth_deg",
+    "n_shots",
+    "utm_zone",
+    "utm_e_m",
+    "utm_n_m",
+    "cov_ne_m2",
+    "cov_nu_m2",
+    "cov_eu_m2",
+    "shot_chi2_dof",
+    "t_first",
+    "t_last",
+    "time_first_utc",
+    "solution",
+)
+
+
+def combined_targets(run, solution: str, start_utc=None) -> tuple[pd.DataFrame, UtmZone]:
+    """The combined targets of one solution of a run (`TARGET_COLUMNS`: `combine_shots` plus UTM
+    in one zone for the job, the first shot's UTC and the solution), and that zone. Raises
+    InvalidInputError when no target of the solution has a position."""
+    shots = run.targets[run.targets["solution"] == solution]
+    tab = combine_shots(shots)
+    ok = np.isfinite(tab[["lat", "lon"]].to_numpy(float)).all(axis=1)
+    if not ok.any():
+        raise InvalidInputError(f"{run.path.name}/targets.parquet: solution '{solution}' has no target with a position")
+    zone = zone_for(tab.loc[ok, "lat"], tab.loc[ok, "lon"])
+    tab["utm_zone"] = zone.label
+    tab["utm_e_m"], tab["utm_n_m"] = to_utm(tab["lat"], tab["lon"], zone)
+    utc = utc_strings(tab["t_first"].to_numpy(float), start_utc, 0)
+    tab["time_first_utc"] = np.where(np.isfinite(tab["t_first"]), utc, "") if utc is not None else ""
+    tab["solution"] = solution
+    return tab[list(TARGET_COLUMNS)], zone

@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 from scipy import linalg, stats
 
-from tpos_cli.export.targets import combine_shots, covariance_neu, horizontal_ellipse
 from tpos_cli.frames.geodetic import enu_to_lla, lla_to_enu
+from tpos_cli.report.targets import combine_shots, covariance_neu, horizontal_ellipse
 
 ORIGIN = np.array([45.5, -73.6, 40.0])
 ATOL_M = 1e-6  # 1 µm: far below any sigma, far above the geodetic round trip (~1e-9 m)
@@ -18,12 +18,23 @@ def _shots(ids, neu_m, cov_neu):
     neu_m = np.asarray(neu_m, float)
     lla = enu_to_lla(neu_m[:, [1, 0, 2]], ORIGIN)
     cov = np.asarray(cov_neu, float)
-    return pd.DataFrame({
-        "id": ids, "t_start": 10.0 * np.arange(len(ids)), "t_end": 10.0 * np.arange(len(ids)) + 5.0,
-        "lat": lla[:, 0], "lon": lla[:, 1], "h": lla[:, 2],
-        "sigma_n": np.sqrt(cov[:, 0, 0]), "sigma_e": np.sqrt(cov[:, 1, 1]), "sigma_u": np.sqrt(cov[:, 2, 2]),
-        "cov_ne_m2": cov[:, 0, 1], "cov_nu_m2": cov[:, 0, 2], "cov_eu_m2": cov[:, 1, 2], "solution": "fkf",
-    })
+    return pd.DataFrame(
+        {
+            "id": ids,
+            "t_start": 10.0 * np.arange(len(ids)),
+            "t_end": 10.0 * np.arange(len(ids)) + 5.0,
+            "lat": lla[:, 0],
+            "lon": lla[:, 1],
+            "h": lla[:, 2],
+            "sigma_n": np.sqrt(cov[:, 0, 0]),
+            "sigma_e": np.sqrt(cov[:, 1, 1]),
+            "sigma_u": np.sqrt(cov[:, 2, 2]),
+            "cov_ne_m2": cov[:, 0, 1],
+            "cov_nu_m2": cov[:, 0, 2],
+            "cov_eu_m2": cov[:, 1, 2],
+            "solution": "fkf",
+        }
+    )
 
 
 def _random_cov(rng, scale):
