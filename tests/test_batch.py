@@ -468,7 +468,7 @@ def test_final_table_fits_80_columns():
                         accuracy={"truth.fkf.targets.rms_pos_3d_m": 0.0312, "truth.lf1.targets.rms_pos_3d_m": 0.5,
                                   "truth.fkf.trajectory.rms_att_deg": 0.25}),
     ]
-    from tpos_cli.export.solutions import rank_solutions
+    from tpos_cli.report.solutions import rank_solutions
 
     lines = b.format_table(rows, rank_solutions)
     assert all(len(ln) <= 80 for ln in [*lines, *b.TABLE_LEGEND.splitlines()])

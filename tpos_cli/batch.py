@@ -811,7 +811,7 @@ def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str
     """(solution, position error m, attitude error deg) against truth for the console table.
 
     From the row's `truth.<solution>.<trajectory|targets>.<statistic>` figures: the first solution
-    in `rank`'s order (the CLI passes `tpos_cli.export.solutions.rank_solutions`, best first); the
+    in `rank`'s order (the CLI passes `tpos_cli.report.solutions.rank_solutions`, best first); the
     position error is the 3-D RMS of the targets when the run has targets, else the horizontal RMS of
     the trajectory; the attitude error is the RMS of the trajectory's attitude. ("", None, None)
     without figures."""

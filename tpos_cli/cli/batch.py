@@ -80,7 +80,7 @@ def _run_with_progress(tasks, jobs, scheduler, quiet):
 
 def _print_table(result) -> None:
     from tpos_cli.batch import TABLE_LEGEND, format_table
-    from tpos_cli.export.solutions import rank_solutions
+    from tpos_cli.report.solutions import rank_solutions
 
     for line in format_table(result.results, rank_solutions):
         typer.echo(line)
