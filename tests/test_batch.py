@@ -11,6 +11,8 @@ import hashlib
 import json
 import os
 import shutil
+import signal
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -46,6 +48,15 @@ def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
         raise ZeroDivisionError("division by zero")
     if behaviour == "crash":
         os._exit(3)  # a segfault or the OOM killer, as seen from the pool
+    if behaviour == "hang":
+        time.sleep(120)  # a session that takes too long
+    if behaviour == "fifo":
+        fifo = session_dir / "imu.fifo"
+        os.mkfifo(fifo)
+        open(fifo, "rb").read()  # blocks until a writer comes: never
+    if behaviour == "stuck":
+        signal.signal(signal.SIGALRM, signal.SIG_IGN)  # deaf to the alarm, as compiled code is
+        time.sleep(120)
     inputs, config_sha = fake_fingerprint(session_dir, pipeline)
     tmp = run_dir.with_name(f".{run_dir.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -55,6 +66,9 @@ def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
         "pipeline": pipeline or "default", "config_sha256": config_sha, "inputs": inputs,
         "timings_s": {"load": 0.01, "filter": 0.02},
         "results": {"position": {"rms_h_m": 1.5, "max_h_m": 4.0}, "n_fixes": 10, "ok": True, "label": "x"},
+        "warnings": ["imu.csv: 2 duplicate time stamps; the first sample of each kept"],
+        "quality": {"verdict": "suspect" if behaviour == "suspect" else "ok",
+                    "reasons": ["GPS late by 0.2 s: set [time] gps_offset_s = -0.2"] if behaviour == "suspect" else []},
     }
     (tmp / "summary.json").write_text(json.dumps(summary))
     # count how often each session really ran (to prove skips)
@@ -240,8 +254,6 @@ def test_batch_record_has_one_row_per_session(tmp_path):
     assert list(df["name"]) == ["a", "b"] and list(df["status"]) == ["ok", "failed"]
     assert df.loc[0, "acc.position.rms_h_m"] == 1.5 and df.loc[0, "timing.filter"] == 0.02
     assert pd.isna(df.loc[1, "acc.position.rms_h_m"])
-    # error-like keys (rms, cep, err, sigma, ...) lead the console table, then the others by name
-    assert b.key_accuracy_figures(res.results) == ["position.rms_h_m", "n_fixes", "position.max_h_m"]
 
 
 # --------------------------------------------------------------------------- CLI
@@ -265,7 +277,7 @@ def test_cli_exit_codes_table_and_resume(tmp_path, cli):
     r = cli(f"{tmp_path}/logs/*", "--out", out, "-j", "1", "--report")
     assert r.exit_code == 1, r.output
     assert "broken/imu.csv: column 'gyro_x', row 7: not a number" in r.output
-    assert "2 ok, 0 skipped, 1 failed" in r.output and "rms_h_m" in r.output
+    assert "2 ok, 0 skipped, 1 failed" in r.output
     assert (out / "good1" / "summary.json").exists() and not (out / "broken").exists()
     r = cli(f"{tmp_path}/logs/good*", "--out", out, "-j", "1")
     assert r.exit_code == 0, r.output
@@ -364,3 +376,153 @@ def test_batch_report_adds_errors_against_truth(tmp_path):
     assert row["report_note"] == ""
     assert 0.0 < row["accuracy"]["truth.smoothed.trajectory.rms_pos_h_m"] < 2.0  # sample drive: 1.5 m GPS noise, 30 s outage
     assert (out / "smooth" / "drive" / "report.pdf").exists() and (out / "smooth" / "drive" / "accuracy.json").exists()
+
+
+# --------------------------------------------------------------------------- record merging, table, limits
+
+
+REPORTS_BUILT: list[str] = []
+
+
+def fake_report(run_dir: Path, summary) -> dict:
+    """Stand-in for `tpos report` on a run: headline errors against truth, counted per call."""
+    REPORTS_BUILT.append(run_dir.name)
+    (run_dir / "accuracy.json").write_text("{}")
+    return {"accuracy": {"truth.forward.trajectory.rms_pos_h_m": 3.0, "truth.smoothed.trajectory.rms_pos_h_m": 1.25,
+                         "truth.smoothed.trajectory.rms_att_deg": 0.5}}
+
+
+@pytest.fixture
+def counted_reports(monkeypatch):
+    REPORTS_BUILT.clear()
+    monkeypatch.setattr(b, "_report", fake_report)
+    return REPORTS_BUILT
+
+
+def _batch(sessions, out, **kw):
+    res = b.run_batch(tasks_for(sessions, out, **kw), jobs=1, process=fake_process, is_current=fake_is_current)
+    b.write_batch_record(res, pipeline="p1")
+    return {r["name"]: r for r in json.loads((out / "batch.json").read_text())["sessions"]}
+
+
+def test_rows_carry_verdict_and_warnings(tmp_path):
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "suspect"})
+    out = tmp_path / "out"
+    rows = _batch(sessions, out)
+    assert (rows["a"]["verdict"], rows["b"]["verdict"]) == ("ok", "suspect")
+    assert rows["b"]["quality_reasons"] == ["GPS late by 0.2 s: set [time] gps_offset_s = -0.2"]
+    assert rows["a"]["warnings"] == ["imu.csv: 2 duplicate time stamps; the first sample of each kept"]
+    df = pd.read_parquet(out / "batch.parquet").set_index("name")
+    assert df.loc["b", "verdict"] == "suspect" and df.loc["a", "n_warnings"] == 1
+    assert list(df.loc["a", "warnings"]) == rows["a"]["warnings"]
+
+
+def test_reruns_merge_truth_figures_and_rebuild_reports_only_for_changed_runs(tmp_path, counted_reports):
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok"})
+    out = tmp_path / "out"
+    rows = _batch(sessions, out, report=True)
+    assert counted_reports == ["a", "b"] and rows["a"]["report"] == "built"
+    assert rows["a"]["accuracy"]["truth.smoothed.trajectory.rms_pos_h_m"] == 1.25
+
+    rows = _batch(sessions, out)  # no --report: the unchanged runs keep their figures
+    assert rows["a"]["status"] == "skipped" and rows["a"]["report"] == "earlier"
+    assert rows["a"]["accuracy"]["truth.smoothed.trajectory.rms_pos_h_m"] == 1.25
+
+    rows = _batch(sessions, out, report=True)  # --report again: nothing changed, nothing rebuilt
+    assert counted_reports == ["a", "b"] and rows["b"]["report"] == "reused"
+    assert rows["b"]["accuracy"]["truth.smoothed.trajectory.rms_pos_h_m"] == 1.25
+
+    (sessions[0] / "imu.csv").write_text("t,gyro_x\n0,7\n")  # a changes: its old figures are stale
+    rows = _batch(sessions, out)
+    assert rows["a"]["status"] == "ok" and rows["a"]["accuracy"] == {} and rows["a"]["report"] == ""
+    assert rows["b"]["report"] == "earlier"
+    rows = _batch(sessions, out, report=True)
+    assert counted_reports == ["a", "b", "a"] and rows["a"]["report"] == "built"
+
+
+def test_rows_of_sessions_not_named_again_are_kept_while_their_run_is(tmp_path):
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok", "c": "invalid"})
+    out = tmp_path / "out"
+    _batch(sessions, out)
+    res = b.run_batch(tasks_for(sessions[:1], out), jobs=1, process=fake_process, is_current=fake_is_current)
+    b.write_batch_record(res)
+    doc = json.loads((out / "batch.json").read_text())
+    assert [(r["name"], r["in_this_batch"]) for r in doc["sessions"]] == [("a", True), ("b", False)]  # c failed: no run
+    assert doc["counts"] == {"ok": 0, "skipped": 1, "failed": 0}  # this batch's
+    shutil.rmtree(out / "b")
+    b.write_batch_record(res)
+    assert [r["name"] for r in json.loads((out / "batch.json").read_text())["sessions"]] == ["a"]
+
+
+def test_final_table_fits_80_columns():
+    rows = [
+        b.SessionResult(name="rtklibexplorer_drive_0708_part1_with_a_long_suffix", session_dir="", run_dir="",
+                        status="ok", exit_code=0, error="", time_s=1234.5, started_utc="", worker="",
+                        accuracy={"truth.forward.trajectory.rms_pos_h_m": 3.0, "truth.smoothed.trajectory.rms_pos_h_m": 1.25,
+                                  "truth.smoothed.trajectory.rms_att_deg": 0.5, "gps_error_states.sigma_h_m": 0.1},
+                        verdict="unreliable", warnings=("w1", "w2")),
+        b.SessionResult(name="wall", session_dir="", run_dir="", status="failed", exit_code=2, error="bad", time_s=float("nan"),
+                        started_utc="", worker=""),
+        b.SessionResult(name="target_wall", session_dir="", run_dir="", status="skipped", exit_code=0, error="", time_s=0.2,
+                        started_utc="", worker="",
+                        accuracy={"truth.fkf.targets.rms_pos_3d_m": 0.0312, "truth.lf1.targets.rms_pos_3d_m": 0.5,
+                                  "truth.fkf.trajectory.rms_att_deg": 0.25}),
+    ]
+    from tpos_cli.report.solutions import rank_solutions
+
+    lines = b.format_table(rows, rank_solutions)
+    assert all(len(ln) <= 80 for ln in [*lines, *b.TABLE_LEGEND.splitlines()])
+    assert lines[0].split() == ["session", "status", "verdict", "pos", "m", "att", "deg", "solution", "warn", "time", "s"]
+    # both ends of a long name survive; the headline is the best solution's, not a config figure
+    assert lines[1].split() == ["rtklibexp..ong_suffix", "ok", "unreliable", "1.25", "0.5", "smoothed", "2", "1234.5"]
+    assert lines[2].split() == ["wall", "failed", "-", "-", "-", "-", "0", "-"]
+    assert lines[3].split() == ["target_wall", "skipped", "-", "0.0312", "0.25", "fkf", "0", "0.2"]
+
+
+def test_batch_help_has_an_example():
+    from tpos_cli.cli import app
+
+    res = CliRunner().invoke(app, ["batch", "--help"])
+    assert res.exit_code == 0 and "Example: tpos batch" in res.output and "--timeout" in res.output
+
+
+@pytest.mark.parametrize("behaviour", ["hang", "fifo"])
+def test_a_session_over_its_time_limit_fails_alone(tmp_path, behaviour):
+    sessions = make_sessions(tmp_path / "logs", {"slow": behaviour, "fine": "ok"})
+    t0 = time.monotonic()
+    res = b.run_batch(tasks_for(sessions, tmp_path / "out", timeout_s=1.0), jobs=1, process=fake_process,
+                      is_current=fake_is_current)
+    assert time.monotonic() - t0 < 30
+    assert [r.status for r in res.results] == ["failed", "ok"]
+    assert res.results[0].exit_code == 1 and res.results[0].error.startswith("timed out after 1 s")
+    assert signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, None) or callable(signal.getsignal(signal.SIGALRM))
+
+
+def test_pool_kills_a_worker_deaf_to_its_alarm(tmp_path, monkeypatch):
+    monkeypatch.setattr(b, "HARD_GRACE_S", 2.0)
+    sessions = make_sessions(tmp_path / "logs", {"stuck": "stuck", "fine": "ok", "slow": "hang"})
+    t0 = time.monotonic()
+    res = b.run_batch(tasks_for(sessions, tmp_path / "out", timeout_s=1.0), jobs=2, process=fake_process,
+                      is_current=fake_is_current)
+    assert time.monotonic() - t0 < 60
+    assert [r.status for r in res.results] == ["failed", "ok", "failed"]
+    assert "worker killed" in res.results[0].error and res.results[2].error.startswith("timed out after 1 s")
+
+
+def test_bad_timeout_is_invalid_input(tmp_path):
+    (s,) = make_sessions(tmp_path, {"s": "ok"})
+    with pytest.raises(InvalidInputError, match="--timeout"):
+        b.plan_batch([s], tmp_path / "out", timeout_s=-1.0)
+
+
+def test_a_session_list_that_includes_itself_is_refused(tmp_path, cli, monkeypatch):
+    make_sessions(tmp_path / "logs", {"a": "ok"})
+    (tmp_path / "all.txt").write_text("logs/a\nmore.txt\n")
+    (tmp_path / "more.txt").write_text("# again\nall.txt\n")
+    monkeypatch.chdir(tmp_path)
+    r = cli("all.txt", "--out", "o")
+    assert r.exit_code == 2 and "includes itself (all.txt -> more.txt -> all.txt)" in r.output
+    os.mkfifo(tmp_path / "fifo.txt")
+    r = cli("fifo.txt", "--out", "o")
+    assert r.exit_code == 2 and "regular file" in r.output
+    assert not (tmp_path / "o").exists()

@@ -11,8 +11,19 @@ Resumability: a run whose `summary.json` records the same input hashes and the s
 complete, so a run killed midway has no `summary.json` in `ROOT/<name>/` and is redone.
 
 The batch record (`batch.json`, `batch.parquet`) has one row per session: status
-(`ok`, `skipped`, `failed`), wall time, per-stage timings, the one-line error, and the numeric
-results of the chain (its accuracy summary) when `report` is set.
+(`ok`, `skipped`, `failed`), the run's verdict (`summary.json["quality"]["verdict"]`) and warnings,
+wall time, per-stage timings, the one-line error, and the numeric results of the chain and its
+errors against truth (`truth.*`) when `report` is set.
+
+Re-runs merge into the record: a run that has not changed since the last batch (same sha256 of its
+`summary.json`) keeps the figures of its earlier report, so a re-run without `report` does not drop
+them and a re-run with `report` does not rebuild it; rows of sessions not named this time are kept
+while their run is unchanged (`in_this_batch` false).
+
+Each task has a time limit (`timeout_s`): in a worker process (and with one job, in this process)
+an alarm ends the session with exit code 1 at the next Python instruction; a pool whose workers
+all stop answering for longer than the limit plus `HARD_GRACE_S` is killed and the sessions it
+held are rerun one at a time, each killed if it overruns.
 """
 
 from __future__ import annotations
@@ -21,16 +32,20 @@ import contextlib
 import dataclasses
 import functools
 import glob
+import hashlib
 import json
 import math
 import multiprocessing
 import os
 import signal
 import socket
+import stat
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import TimeoutError as FutureTimeoutError
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
@@ -47,6 +62,14 @@ SUMMARY_FILE = "summary.json"
 BATCH_JSON = "batch.json"
 BATCH_PARQUET = "batch.parquet"
 _GLOB_CHARS = frozenset("*?[")
+# A session list is a small text file: a bigger one is not a list (a log passed by mistake).
+MAX_LIST_BYTES = 4 << 20
+# Default time limit per session (s); 0 or None disables it. Hours of 100 Hz IMU take minutes.
+DEFAULT_TIMEOUT_S = 7200.0
+# How long past its time limit a silent pool is given before its workers are killed.
+HARD_GRACE_S = 60.0
+# The earlier batch.json is read only up to this size (it holds one row per session).
+MAX_RECORD_BYTES = 256 << 20
 
 ProcessFn = Callable[[Path, "str | None", Path], Any]
 CurrentFn = Callable[[Path, "str | None", "Mapping[str, Any]"], bool]
@@ -61,6 +84,9 @@ class SessionTask:
     pipeline: str | None = None  # pipeline name or TOML path; None = default for the session kind
     force: bool = False
     report: bool = False
+    timeout_s: float | None = None  # time limit of the task, s; None = none
+    # This session's row in the root's earlier batch.json (figures of an earlier report), or None.
+    previous: Mapping[str, Any] | None = field(default=None, compare=False, hash=False)
 
     @property
     def name(self) -> str:
@@ -84,6 +110,12 @@ class SessionResult:
     timings_s: dict[str, float] = field(default_factory=dict)  # per stage, from summary.json
     accuracy: dict[str, float] = field(default_factory=dict)  # with report: chain results and truth.* errors
     report_note: str = ""  # with report: why no accuracy against truth was computed, if it was not
+    verdict: str = ""  # summary.json["quality"]["verdict"] (ok | suspect | unreliable), "" when absent
+    warnings: tuple[str, ...] = ()  # summary.json["warnings"]: what the run handled or doubts
+    quality_reasons: tuple[str, ...] = ()  # summary.json["quality"]["reasons"]
+    run_sha256: str = ""  # sha256 of the run's summary.json: which run the figures belong to
+    report: str = ""  # "built" now, "reused" (run unchanged), "earlier" (figures of an earlier report), ""
+    in_this_batch: bool = True  # False: a row kept from an earlier batch (session not named this time)
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,6 +158,8 @@ def expand_sessions(specs: Sequence[str], cwd: Path | None = None) -> tuple[Path
             seen.add(p)
             found.append(p)
 
+    reading: list[Path] = []  # the list files being expanded, outermost first
+
     def expand(spec: str, rel_to: Path, where: str) -> None:
         spec = spec.strip()
         path = Path(spec).expanduser()
@@ -139,15 +173,19 @@ def expand_sessions(specs: Sequence[str], cwd: Path | None = None) -> tuple[Path
                 add(d)
         elif path.is_dir():
             add(path)
-        elif path.is_file():
-            try:
-                lines = path.read_text(encoding="utf-8").splitlines()
-            except (OSError, UnicodeDecodeError) as exc:
-                raise InvalidInputError(f"{spec}: cannot read session list: {exc}") from exc
-            for i, line in enumerate(lines, start=1):
+        elif path.exists():
+            key = path.resolve()
+            if key in reading:
+                chain = " -> ".join(p.name for p in [*reading, key])
+                raise InvalidInputError(f"{where}session list {path.name} includes itself ({chain})")
+            for i, line in enumerate(_read_list(path, spec), start=1):
                 line = line.split("#", 1)[0].strip()
                 if line:
-                    expand(line, path.parent, f"{path.name}, line {i}: ")
+                    reading.append(key)
+                    try:
+                        expand(line, path.parent, f"{path.name}, line {i}: ")
+                    finally:
+                        reading.pop()
         else:
             raise InvalidInputError(f"{where}'{spec}': no such session directory or list file")
 
@@ -158,6 +196,26 @@ def expand_sessions(specs: Sequence[str], cwd: Path | None = None) -> tuple[Path
     return tuple(found)
 
 
+def _read_list(path: Path, spec: str) -> list[str]:
+    """Lines of a session list: a regular UTF-8 text file of bounded size (never a FIFO or device)."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise InvalidInputError(f"{spec}: cannot read session list ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise InvalidInputError(f"{spec}: a session list must be a regular file (this is a FIFO, device or socket)")
+    if st.st_size > MAX_LIST_BYTES:
+        raise InvalidInputError(f"{spec}: {st.st_size} bytes is too big for a session list (at most {MAX_LIST_BYTES}); "
+                                "is it a log file?")
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(MAX_LIST_BYTES + 1).decode("utf-8").splitlines()
+    except OSError as exc:
+        raise InvalidInputError(f"{spec}: cannot read session list ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{spec}: a session list must be UTF-8 text (one session per line)") from None
+
+
 def plan_batch(
     sessions: Sequence[Path],
     out_root: Path,
@@ -165,13 +223,20 @@ def plan_batch(
     *,
     force: bool = False,
     report: bool = False,
+    timeout_s: float | None = DEFAULT_TIMEOUT_S,
 ) -> tuple[SessionTask, ...]:
     """One task per session, run directory `out_root/<session directory name>`.
 
-    A pipeline given as a file path is made absolute (workers may run elsewhere). Raises
-    `InvalidInputError` when two sessions share a directory name (their runs would collide).
+    A pipeline given as a file path is made absolute (workers may run elsewhere). Each task carries
+    its session's row of the root's earlier `batch.json` (to keep the figures of an unchanged run).
+    Raises `InvalidInputError` when two sessions share a directory name (their runs would collide)
+    or the time limit is negative or not finite (0 or None: no limit).
     """
+    if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s >= 0):
+        raise InvalidInputError(f"--timeout must be a number of seconds >= 0 (0: no limit), got {timeout_s}")
+    timeout_s = timeout_s or None
     root = Path(out_root).expanduser().resolve()
+    previous = read_batch_record(root)
     if pipeline is not None and (pipeline.endswith(".toml") or Path(pipeline).exists()):
         pipeline = str(Path(pipeline).expanduser().resolve())  # workers may run in another directory
     by_name: dict[str, Path] = {}
@@ -184,7 +249,10 @@ def plan_batch(
                 f"both would be written to {root / s.name}"
             )
         by_name[s.name] = s
-        tasks.append(SessionTask(str(s), str(root / s.name), pipeline, force, report))
+        prev = previous.get(s.name)
+        if prev is not None and prev.get("run_dir") != str(root / s.name):
+            prev = None
+        tasks.append(SessionTask(str(s), str(root / s.name), pipeline, force, report, timeout_s, prev))
     return tuple(tasks)
 
 
@@ -295,6 +363,69 @@ def _default_process(session_dir: Path, pipeline: str | None, run_dir: Path) -> 
     return process_session(session_dir, pipeline, run_dir)
 
 
+class SessionTimeout(TposError):
+    """A session ran past the batch's per-session time limit (exit code 1: processing failure)."""
+
+    exit_code = 1
+
+
+@contextlib.contextmanager
+def _time_limit(seconds: float | None):
+    """Raise SessionTimeout in this thread after `seconds` (an interval timer and SIGALRM).
+
+    Only the main thread of a process can take signals: elsewhere (a Dask worker thread) this is a
+    no-op. The alarm interrupts blocking system calls (a read that waits forever) and Python code;
+    a compiled kernel is interrupted when it returns.
+    """
+    if not seconds or threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def _expired(signum, frame):
+        raise SessionTimeout(f"timed out after {seconds:g} s (batch --timeout)")
+
+    old = signal.signal(signal.SIGALRM, _expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _summary_sha256(run_dir: Path) -> str:
+    try:
+        return hashlib.sha256((run_dir / SUMMARY_FILE).read_bytes()).hexdigest()
+    except OSError:
+        return ""
+
+
+def _quality(summary: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+    q = summary.get("quality")
+    if not isinstance(q, Mapping):
+        return "", ()
+    verdict = q.get("verdict")
+    reasons = q.get("reasons")
+    return (str(verdict) if isinstance(verdict, str) else "",
+            tuple(str(r) for r in reasons) if isinstance(reasons, (list, tuple)) else ())
+
+
+def _report_or_reuse(task: SessionTask, run_dir: Path, summary: Mapping[str, Any], run_sha: str) -> dict:
+    """The report fields of a row: an earlier report of this very run is kept (with `report`, not
+    rebuilt; without, its figures are carried), else `report` builds one now."""
+    prev = task.previous or {}
+    same_run = bool(run_sha) and prev.get("run_sha256") == run_sha and prev.get("report") in ("built", "reused", "earlier")
+    if same_run:
+        earlier = {"accuracy": dict(prev.get("accuracy") or {}), "report_note": str(prev.get("report_note") or "")}
+        if not task.report:
+            return {**earlier, "report": "earlier"}
+        if earlier["report_note"] or (run_dir / "accuracy.json").exists():
+            return {**earlier, "report": "reused"}
+    if not task.report:
+        return {}
+    return {**_report(run_dir, summary), "report": "built"}
+
+
 def run_session_task(
     task: SessionTask, process: ProcessFn | None = None, is_current: CurrentFn | None = None
 ) -> SessionResult:
@@ -302,22 +433,26 @@ def run_session_task(
 
     `process(session_dir, pipeline, run_dir)` defaults to `tpos_cli.pipeline.process_session` and
     `is_current` to `run_is_current` (tests pass stand-ins). Errors become the row's one-line `error`; exit code 1 for
-    processing errors and unexpected exceptions, 2 for invalid input.
+    processing errors, time-outs and unexpected exceptions, 2 for invalid input.
     """
     t_start = time.perf_counter()
     started = _now_utc()
     name = task.name
+    run_dir = Path(task.run_dir)
     common = dict(name=name, session_dir=task.session_dir, run_dir=task.run_dir, started_utc=started)
     try:
-        summary = None if task.force else finished_summary(task, is_current)
-        status = STATUS_SKIPPED
-        if summary is None:
-            status = STATUS_OK
-            fn = _default_process if process is None else process
-            rs = fn(Path(task.session_dir), task.pipeline, Path(task.run_dir))
-            summary = getattr(rs, "summary", None)
-            if not isinstance(summary, dict):
-                summary = _read_summary(Path(task.run_dir)) or {}
+        with _time_limit(task.timeout_s):
+            summary = None if task.force else finished_summary(task, is_current)
+            status = STATUS_SKIPPED
+            if summary is None:
+                status = STATUS_OK
+                fn = _default_process if process is None else process
+                rs = fn(Path(task.session_dir), task.pipeline, run_dir)
+                summary = getattr(rs, "summary", None)
+                if not isinstance(summary, dict):
+                    summary = _read_summary(run_dir) or {}
+            run_sha = _summary_sha256(run_dir)
+            report_fields = _report_or_reuse(task, run_dir, summary, run_sha)
     except (KeyboardInterrupt, SystemExit):
         raise
     except BaseException as exc:  # one bad session must never stop the others
@@ -331,6 +466,8 @@ def run_session_task(
             pipeline=str(task.pipeline or ""),
         )
     timings = summary.get("timings_s")
+    warnings = summary.get("warnings")
+    verdict, reasons = _quality(summary)
     return SessionResult(
         **common,
         status=status,
@@ -340,7 +477,11 @@ def run_session_task(
         worker=_worker_id(),
         pipeline=str(summary.get("pipeline") or task.pipeline or ""),
         timings_s=_flatten_numbers(timings) if isinstance(timings, Mapping) else {},
-        **(_report(Path(task.run_dir), summary) if task.report else {}),
+        verdict=verdict,
+        warnings=tuple(str(w) for w in warnings) if isinstance(warnings, (list, tuple)) else (),
+        quality_reasons=reasons,
+        run_sha256=run_sha,
+        **report_fields,
     )
 
 
@@ -400,6 +541,17 @@ def _init_worker() -> None:
         pass  # each task then fails with the import error as its message; the pool must survive
 
 
+def _worker_ready() -> bool:
+    return True
+
+
+def _kill_workers(ex: ProcessPoolExecutor) -> None:
+    procs = list((getattr(ex, "_processes", None) or {}).values())  # before shutdown drops them
+    ex.shutdown(wait=False, cancel_futures=True)
+    for proc in procs:
+        proc.terminate()
+
+
 def _run_pool(
     tasks: Sequence[SessionTask], fn: Callable[[SessionTask], SessionResult], jobs: int,
     emit: Callable[[int, SessionResult], None],
@@ -408,35 +560,51 @@ def _run_pool(
     ctx = multiprocessing.get_context("spawn")
     lost: list[int] = []
     t_start = time.time()
+    limits = [t.timeout_s for t in tasks if t.timeout_s]
+    hard_s = max(limits) + HARD_GRACE_S if len(limits) == len(tasks) and limits else None
     with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker) as ex:
         with _single_threaded_children():  # workers start during submit
             futures = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
+        pending = set(futures)
+        last_progress = time.monotonic()
         try:
-            for fut in as_completed(futures):
-                i = futures[fut]
-                try:
-                    emit(i, fut.result())
-                except BrokenProcessPool:
-                    lost.append(i)
+            while pending:
+                done, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    i = futures[fut]
+                    try:
+                        emit(i, fut.result())
+                    except BrokenProcessPool:
+                        lost.append(i)
+                if done:
+                    last_progress = time.monotonic()
+                elif hard_s is not None and time.monotonic() - last_progress > hard_s:
+                    # every worker is past its own alarm and silent (stuck in compiled code):
+                    # kill them; the sessions they held are rerun one at a time below
+                    _kill_workers(ex)
+                    lost.extend(futures[f] for f in pending)
+                    pending = set()
         except KeyboardInterrupt:
             # stop now: drop the queued sessions and end the running ones (their outputs are still
             # in temporary directories, never in place); the next call redoes them
-            procs = list((getattr(ex, "_processes", None) or {}).values())  # before shutdown drops them
-            ex.shutdown(wait=False, cancel_futures=True)
-            for proc in procs:
-                proc.terminate()
+            _kill_workers(ex)
             raise
     # A worker died (segfault, out of memory, killed): the pool fails every task it still held,
     # without saying which one killed it. Rerun those one at a time in their own process, so the
     # culprit fails alone and the innocent ones complete.
     for i in sorted(lost):
+        limit = tasks[i].timeout_s + HARD_GRACE_S if tasks[i].timeout_s else None
         with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=_init_worker) as ex:
             try:
                 with _single_threaded_children():
+                    ex.submit(_worker_ready).result()  # the limit counts the session, not the worker's start-up
                     fut = ex.submit(fn, tasks[i])
-                emit(i, _processed_in_this_batch(fut.result(), t_start))
+                emit(i, _processed_in_this_batch(fut.result(timeout=limit), t_start))
             except BrokenProcessPool:
                 emit(i, _failed(tasks[i], "worker process died (crashed, killed or out of memory)"))
+            except FutureTimeoutError:
+                _kill_workers(ex)
+                emit(i, _failed(tasks[i], f"timed out after {tasks[i].timeout_s:g} s (batch --timeout); worker killed"))
 
 
 def _processed_in_this_batch(r: SessionResult, t_start: float) -> SessionResult:
@@ -519,11 +687,62 @@ def run_batch(
 # --------------------------------------------------------------------------- the batch record
 
 
+def read_batch_record(root: Path) -> dict[str, dict[str, Any]]:
+    """The rows of `root/batch.json` by session name; {} when there is none or it is unreadable
+    (a damaged record is rewritten by the next batch, never trusted)."""
+    path = Path(root) / BATCH_JSON
+    try:
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_RECORD_BYTES:
+            return {}
+        doc = json.loads(path.read_bytes())
+    except (OSError, ValueError, RecursionError):
+        return {}
+    rows = doc.get("sessions") if isinstance(doc, dict) else None
+    if not isinstance(rows, list):
+        return {}
+    return {r["name"]: r for r in rows if isinstance(r, dict) and isinstance(r.get("name"), str)}
+
+
+def _result_from_row(row: Mapping[str, Any]) -> SessionResult | None:
+    """A row of an earlier batch.json as a SessionResult (None if it does not fit the current fields)."""
+    kw = {}
+    for f in dataclasses.fields(SessionResult):
+        if f.name in row:
+            v = row[f.name]
+            kw[f.name] = tuple(v) if isinstance(v, list) else v
+    kw["in_this_batch"] = False
+    if kw.get("time_s") is None:
+        kw["time_s"] = float("nan")
+    try:
+        return SessionResult(**kw)
+    except TypeError:
+        return None
+
+
+def earlier_rows(root: Path, names: Iterable[str]) -> tuple[SessionResult, ...]:
+    """Rows of the earlier record for sessions not in `names` whose run is still there, unchanged."""
+    skip = set(names)
+    out = []
+    for name, row in read_batch_record(root).items():
+        if name in skip or row.get("status") == STATUS_FAILED or not row.get("run_sha256"):
+            continue
+        if _summary_sha256(Path(root) / name) != row["run_sha256"] or row.get("run_dir") != str(Path(root) / name):
+            continue
+        r = _result_from_row(row)
+        if r is not None:
+            out.append(r)
+    return tuple(out)
+
+
 def batch_rows(results: Iterable[SessionResult]) -> list[dict[str, Any]]:
     """Flat rows: fixed columns, then `timing.<stage>_s`-style and `acc.<key>` columns."""
     rows = []
     for r in results:
         row = {k: v for k, v in asdict(r).items() if k not in ("timings_s", "accuracy")}
+        row["warnings"] = list(r.warnings)
+        row["quality_reasons"] = list(r.quality_reasons)
+        row["n_warnings"] = len(r.warnings)
         row.update({f"timing.{k}": v for k, v in r.timings_s.items()})
         row.update({f"acc.{k}": v for k, v in r.accuracy.items()})
         rows.append(row)
@@ -548,13 +767,17 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
 
 
 def write_batch_record(batch: BatchResult, *, pipeline: str | None = None) -> tuple[Path, Path]:
-    """Write `ROOT/batch.json` and `ROOT/batch.parquet` (each replaced atomically); return both paths."""
+    """Write `ROOT/batch.json` and `ROOT/batch.parquet` (each replaced atomically); return both paths.
+
+    The rows are this batch's, then the earlier record's rows of sessions not in this batch whose
+    run is unchanged (`in_this_batch` false); `counts` and `exit_code` are this batch's."""
     import pandas as pd
 
     from tpos_cli import __version__
 
     root = Path(batch.root)
     root.mkdir(parents=True, exist_ok=True)
+    rows = batch.results + earlier_rows(root, (r.name for r in batch.results))
     doc = {
         "tpos_version": __version__,
         "created_utc": _now_utc(),
@@ -564,13 +787,13 @@ def write_batch_record(batch: BatchResult, *, pipeline: str | None = None) -> tu
         "wall_time_s": batch.wall_time_s,
         "counts": {s: batch.count(s) for s in (STATUS_OK, STATUS_SKIPPED, STATUS_FAILED)},
         "exit_code": batch.exit_code,
-        "sessions": [asdict(r) for r in batch.results],
+        "sessions": [asdict(r) for r in rows],
     }
     text = json.dumps(_json_safe(doc), indent=2, allow_nan=False)
     json_path = root / BATCH_JSON
     _atomic_write_bytes(json_path, (text + "\n").encode("utf-8"))
 
-    df = pd.DataFrame(batch_rows(batch.results))
+    df = pd.DataFrame(batch_rows(rows))
     if df.empty:
         df = pd.DataFrame({k: pd.Series(dtype=object) for k in SessionResult.__slots__ if k not in ("timings_s", "accuracy")})
     pq_path = root / BATCH_PARQUET
@@ -580,18 +803,60 @@ def write_batch_record(batch: BatchResult, *, pipeline: str | None = None) -> tu
     return json_path, pq_path
 
 
-_KEY_WORDS = ("rms", "cep", "err", "sigma", "sd", "nees")
+def _as_written(names) -> list[str]:
+    return list(dict.fromkeys(names))
 
 
-def key_accuracy_figures(results: Iterable[SessionResult], n: int = 3) -> list[str]:
-    """Up to `n` accuracy keys for the console table: error-like keys first, most common first."""
-    counts: dict[str, int] = {}
+def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str, float | None, float | None]:
+    """(solution, position error m, attitude error deg) against truth for the console table.
+
+    From the row's `truth.<solution>.<trajectory|targets>.<statistic>` figures: the first solution
+    in `rank`'s order (the CLI passes `tpos_cli.report.solutions.rank_solutions`, best first); the
+    position error is the 3-D RMS of the targets when the run has targets, else the horizontal RMS of
+    the trajectory; the attitude error is the RMS of the trajectory's attitude. ("", None, None)
+    without figures."""
+    rank_solutions = rank
+    figures: dict[tuple[str, str, str], float] = {}
+    for key, v in r.accuracy.items():
+        parts = key.split(".")
+        if len(parts) >= 4 and parts[0] == "truth":
+            figures[(".".join(parts[1:-2]), parts[-2], parts[-1])] = v
+    if not figures:
+        return "", None, None
+    has_targets = any(of == "targets" for _, of, _ in figures)
+    pos_key = ("targets", "rms_pos_3d_m") if has_targets else ("trajectory", "rms_pos_h_m")
+    sols = [s for s in rank_solutions(sol for sol, _, _ in figures) if (s, *pos_key) in figures]
+    if not sols:
+        return "", None, None
+    sol = sols[0]
+    return sol, figures[(sol, *pos_key)], figures.get((sol, "trajectory", "rms_att_deg"))
+
+
+# The console table: (header, width, right-aligned). 79 characters with the separating spaces.
+TABLE_COLUMNS = (("session", 21, False), ("status", 7, False), ("verdict", 10, False), ("pos m", 7, True),
+                 ("att deg", 7, True), ("solution", 9, False), ("warn", 4, True), ("time s", 7, True))
+TABLE_LEGEND = ("pos m, att deg: RMS errors against truth of the best solution (--report);\n"
+                "pos is 3-D for targets, horizontal for a trajectory. warn: the run's warnings.\n"
+                "Every row, warning and figure: OUT/batch.json and OUT/batch.parquet.")
+
+
+def _cell(text: str, width: int, right: bool) -> str:
+    if len(text) > width:  # keep both ends of a long session name: dates and suffixes differ there
+        head = (width - 2) // 2
+        text = text[:head] + ".." + text[len(text) - (width - 2 - head):]
+    return text.rjust(width) if right else text.ljust(width)
+
+
+def format_table(results: Iterable[SessionResult], rank: Callable = _as_written) -> list[str]:
+    """The final table a person reads in 80 columns: one line per session (`rank` orders solutions,
+    best first: see headline_errors)."""
+    def num(v: float | None, fmt: str) -> str:
+        return "-" if v is None or not math.isfinite(v) else format(v, fmt)
+
+    lines = [" ".join(_cell(h, w, right) for h, w, right in TABLE_COLUMNS).rstrip()]
     for r in results:
-        for k in r.accuracy:
-            counts[k] = counts.get(k, 0) + 1
-
-    def rank(k: str) -> tuple[int, int, str]:
-        leaf = k.rsplit(".", 1)[-1].lower()
-        return (0 if any(w in leaf for w in _KEY_WORDS) else 1, -counts[k], k)
-
-    return sorted(counts, key=rank)[:n]
+        sol, pos, att = headline_errors(r, rank)
+        cells = (r.name, r.status, r.verdict or "-", num(pos, ".3g"), num(att, ".3g"), sol or "-",
+                 str(len(r.warnings)), num(r.time_s, ".1f"))
+        lines.append(" ".join(_cell(c, w, right) for c, (_, w, right) in zip(cells, TABLE_COLUMNS)).rstrip())
+    return lines

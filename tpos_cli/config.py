@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import importlib.resources
 import json
 import tomllib
 from collections.abc import Mapping
@@ -26,8 +27,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.ranging.fuzzy import uncovered_input
-
-PIPELINES_DIR = Path(__file__).resolve().parent.parent / "pipelines"
 
 # value types with their bounds (all floats finite: the models set allow_inf_nan=False)
 Probability = Annotated[float, Field(gt=0.0, lt=1.0)]
@@ -320,8 +319,9 @@ class ResolvedConfig:
 
 
 def pipelines_dir() -> Path:
-    """The folder of bundled pipelines (next to the package in a checkout or editable install)."""
-    return PIPELINES_DIR
+    """The folder of bundled pipelines: the package data `tpos_cli.pipelines` (the repository's
+    `pipelines/`, mapped into the package by setup.py), in a checkout, an editable install or a wheel."""
+    return Path(str(importlib.resources.files("tpos_cli.pipelines")))
 
 
 def list_pipelines() -> list[PipelineFile]:

@@ -30,10 +30,12 @@ from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pip
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.run_dir import (
     check_run_dir,
+    claim_run_dir,
     default_run_dir,
     json_default,
     remove_stale_partials,
     replace_dir,
+    run_dir_claims,
     write_parquet,
 )
 from tpos_cli.session import GpsData, Session, load_session
@@ -120,7 +122,7 @@ def process_session(
 ) -> RunSummary:
     """Process one session with one pipeline into a run directory (see docs/architecture.md)."""
     ctx = RunContext(progress=progress)
-    with ctx.live(f"tpos process {Path(session_dir).name}"):
+    with ctx.live(f"tpos process {Path(session_dir).name}"), run_dir_claims():
         return _process(ctx, session_dir, pipeline, run_dir, mask_gps_windows, overrides)
 
 
@@ -134,6 +136,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
         cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
     pipe = cfg.pipeline
     out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
+    claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
     run = CHAINS[pipe.chain]
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows))

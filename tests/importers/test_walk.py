@@ -56,13 +56,20 @@ def test_imu_csv_units_mounting_and_time_tags(tmp_path):
     assert r.toml["imu"] == {"axes": "FRD", "rate_hz": pytest.approx(1.0 / np.median(np.diff(imu["t"])), rel=1e-4)}
 
 
+# The walk's .pos has no header line saying what its heights are; they are the receiver's heights
+# above mean sea level: its NAV-PVT of the same epochs gives hMSL 1601.435 m, height 1580.048 m, so
+# the geoid separation there is -21.387 m (UBX NAV-PVT at 17:30:21.75 GPST).
+WALK_GEOID_SEP_M = -21.387
+
+
 def test_rtklib_pos_excerpt():
-    g = import_rtklib_pos(DATA / "gnss_head.pos").tables["gps"]
+    g = import_rtklib_pos(DATA / "gnss_head.pos", heights="geodetic", geoid_sep_m=WALK_GEOID_SEP_M).tables["gps"]
     assert len(g) == 41
     assert g["t"].iloc[0] == pytest.approx(408639.749, abs=1e-9)  # 2025/08/28 17:30:39.749 GPST = Thu 17:30:39.749 of the week
     assert_allclose(np.diff(g["t"]), 0.25, atol=1e-6)  # 4 Hz
     row = g.iloc[0]
-    assert (row.lat, row.lon, row.h) == (40.0966916, -105.1471665, 1601.435)  # digits copied, not recomputed
+    assert (row.lat, row.lon) == (40.0966916, -105.1471665)  # digits copied, not recomputed
+    assert row.h == pytest.approx(1580.048, abs=1e-9)  # 1601.435 above the geoid - 21.387: the UBX ellipsoidal height
     assert row.vd == pytest.approx(-0.027) and row.vn == pytest.approx(0.001)  # vd = -vu
     assert (g["fix"] == 2).all()  # Q = 1 (fix) -> 2 (differential)
     assert (row.sigma_n, row.sigma_u, int(row.nsat)) == (0.0098995, 0.01, 25)
@@ -74,6 +81,10 @@ def test_cli_builds_one_session_from_two_imports(tmp_path):
     res = runner.invoke(app, ["import", "csv", str(DATA / "imu_head.csv"), "--map", str(_mapping_for("imu_head.csv", tmp_path)), "-o", str(out)])
     assert res.exit_code == 0, res.output
     res = runner.invoke(app, ["import", "rtklib-pos", str(DATA / "gnss_head.pos"), "-o", str(out)])
+    assert res.exit_code == 2 and "does not say whether its heights are ellipsoidal or geodetic" in res.output
+    assert not (out / "gps.csv").exists()
+    pos_args = ["--heights", "geodetic", "--geoid-sep-m", str(WALK_GEOID_SEP_M)]
+    res = runner.invoke(app, ["import", "rtklib-pos", str(DATA / "gnss_head.pos"), "-o", str(out), *pos_args])
     assert res.exit_code == 0, res.output
     from tpos_cli.session import load_session
 
@@ -81,9 +92,9 @@ def test_cli_builds_one_session_from_two_imports(tmp_path):
     assert s.meta.axes == "FRD" and s.gps is not None and len(s.gps.t_s) == 41
     assert_allclose(s.meta.lever_arm_b_m, [0.0, -0.05, 0.0])
     # a second import of the same table is refused without --force (exit 2), accepted with it
-    res = runner.invoke(app, ["import", "rtklib-pos", str(DATA / "gnss_head.pos"), "-o", str(out)])
+    res = runner.invoke(app, ["import", "rtklib-pos", str(DATA / "gnss_head.pos"), "-o", str(out), *pos_args])
     assert res.exit_code == 2 and "--force" in res.output
-    res = runner.invoke(app, ["import", "rtklib-pos", str(DATA / "gnss_head.pos"), "-o", str(out), "--force"])
+    res = runner.invoke(app, ["import", "rtklib-pos", str(DATA / "gnss_head.pos"), "-o", str(out), "--force", *pos_args])
     assert res.exit_code == 0
 
 
@@ -92,11 +103,18 @@ def test_full_walk_matches_converted_session(tmp_path):
     raw, real = SHARED / "raw" / "rtklibexplorer_walk_0827", SHARED / "real" / "rtklibexplorer_walk_0827"
     out = tmp_path / "walk"
     import_into_session("csv", [raw / "imu_1730.csv"], out, mapping=MAP)
-    import_into_session("rtklib-pos", [raw / "gnss_1730_sf.pos"], out)
+    import_into_session("rtklib-pos", [raw / "gnss_1730_sf.pos"], out, heights="geodetic", geoid_sep_m=WALK_GEOID_SEP_M)
     g, g_ref = pd.read_csv(out / "gps.csv"), pd.read_csv(real / "gps.csv")
     for c in ("lat", "lon"):
         assert np.abs(g[c] - g_ref[c]).max() * 111e3 < 1e-3  # within 1 mm (the bound)
-    assert np.abs(g["h"] - g_ref["h"]).max() < 1e-3
+    # the converted session kept the file's heights above the geoid; ours are ellipsoidal, and they
+    # agree with the receiver's own ellipsoidal heights (UBX NAV-PVT) of the same epochs within 1 mm
+    assert np.abs(g["h"] - (g_ref["h"] + WALK_GEOID_SEP_M)).max() < 1e-6
+    from tpos_cli.importers.ubx import import_ubx
+
+    u = import_ubx(raw / "gnss_1730.ubx").tables["gps"]
+    m = pd.merge_asof(g, u, on="t", tolerance=0.01, direction="nearest", suffixes=("", "_ubx")).dropna(subset=["h_ubx"])
+    assert len(m) == len(g) and np.abs(m["h"] - m["h_ubx"]).max() <= 1e-3 + 1e-9
     assert np.abs(g["t"] - g_ref["t"]).max() < 1e-6
     imu, ref = pd.read_parquet(out / "imu.parquet"), pd.read_parquet(real / "imu.parquet")
     cols = ["gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import stat
 import subprocess
 import sys
@@ -177,3 +178,13 @@ def test_report_not_a_run_or_nothing_to_report_exits_2(tmp_path):
     r = synth.write_run(tmp_path / "r", s)  # a run without solutions (the ingest pipeline)
     res = runner.invoke(app, ["report", str(r)])
     assert res.exit_code == 2 and "nothing to report" in res.output
+
+
+def test_truth_from_another_session_is_used_for_truth_only(tmp_path):
+    r = _run(tmp_path)
+    other = shutil.copytree(tmp_path / "s", tmp_path / "other")
+    (other / "imu.csv").write_text((other / "imu.csv").read_text().replace("-9.8", "-9.81"))  # not the processed data
+    res = runner.invoke(app, ["report", str(r), "--truth", str(other)])
+    assert res.exit_code == 0 and "is not the session this run was processed from" in res.stderr
+    js = json.loads((r / "accuracy.json").read_text())
+    assert js["truth"]["trajectory"]["source"] == "truth" and js["session"]["inputs_verified"].startswith("no")

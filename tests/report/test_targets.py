@@ -51,43 +51,80 @@ def test_covariance_neu_reads_sigmas_and_cross_terms():
     np.testing.assert_allclose(diag, covs * np.eye(3), rtol=1e-12, atol=0)  # absent cross terms are zero
 
 
-def test_combination_equals_whitened_least_squares():
-    # generalised least squares of one point seen three times: stack the whitened observations
-    # L_i^-1 x_i = L_i^-1 p + noise and solve by lstsq (an independent route to the same estimate)
-    rng = np.random.default_rng(2)
-    covs = np.stack([_random_cov(rng, s) for s in (0.01, 0.02, 0.005)])
-    x = rng.normal(scale=0.01, size=(3, 3)) + [5.0, -3.0, 2.0]
-    df = _shots(["T1"] * 3, x, covs)
-    out = combine_shots(df)
-    assert len(out) == 1 and out.loc[0, "n_shots"] == 3
+def _gls(x, covs):
+    """Generalised least squares of one point seen len(x) times, by stacking the whitened
+    observations L_i^-1 x_i = L_i^-1 p + noise and solving with lstsq (an independent route)."""
     A, b = [], []
     for xi, ci in zip(x, covs):
         Li = np.linalg.cholesky(ci)
         A.append(linalg.solve_triangular(Li, np.eye(3), lower=True))
         b.append(linalg.solve_triangular(Li, xi, lower=True))
     p, *_ = np.linalg.lstsq(np.vstack(A), np.concatenate(b), rcond=None)
-    P = np.linalg.inv(np.vstack(A).T @ np.vstack(A))
-    r = out.iloc[0]
-    got = lla_to_enu(np.array([r.lat, r.lon, r.h]), ORIGIN)[[1, 0, 2]]
+    return p, np.linalg.inv(np.vstack(A).T @ np.vstack(A))
+
+
+def _combined(row):
+    p = lla_to_enu(np.array([row.lat, row.lon, row.h]), ORIGIN)[[1, 0, 2]]
+    P = np.array(
+        [
+            [row.sigma_n**2, row.cov_ne_m2, row.cov_nu_m2],
+            [row.cov_ne_m2, row.sigma_e**2, row.cov_eu_m2],
+            [row.cov_nu_m2, row.cov_eu_m2, row.sigma_u**2],
+        ]
+    )
+    return p, P
+
+
+def test_point_is_the_inverse_covariance_weighted_estimate():
+    rng = np.random.default_rng(2)
+    covs = np.stack([_random_cov(rng, s) for s in (0.01, 0.02, 0.005)])
+    x = rng.normal(scale=0.01, size=(3, 3)) + [5.0, -3.0, 2.0]
+    out = combine_shots(_shots(["T1"] * 3, x, covs))
+    assert len(out) == 1 and out.loc[0, "n_shots"] == 3
+    p, P_ind = _gls(x, covs)
+    got, _ = _combined(out.iloc[0])
     np.testing.assert_allclose(got, p, atol=ATOL_M, rtol=0)
-    chi2_dof = sum((xi - p) @ np.linalg.solve(ci, xi - p) for xi, ci in zip(x, covs)) / 6.0
-    np.testing.assert_allclose(r.shot_chi2_dof, chi2_dof, rtol=1e-6)
-    scale = max(chi2_dof, 1.0)
-    np.testing.assert_allclose([r.sigma_n**2, r.sigma_e**2, r.sigma_u**2], np.diag(P) * scale, rtol=1e-6)
-    np.testing.assert_allclose([r.cov_ne_m2, r.cov_nu_m2, r.cov_eu_m2], [P[0, 1] * scale, P[0, 2] * scale, P[1, 2] * scale], rtol=1e-6)
+    f = sum((xi - p) @ np.linalg.solve(ci, xi - p) for xi, ci in zip(x, covs)) / 6.0
+    np.testing.assert_allclose(out.loc[0, "shot_chi2_dof"], f, rtol=1e-6)
 
 
-def test_agreeing_shots_shrink_sigma_by_root_n_and_scattered_shots_do_not():
+def test_independent_looking_shots_average_and_scattered_shots_scale_up():
+    # four shots of equal covariance placed so that their scatter is exactly what the covariance
+    # predicts (chi2/dof = 1): the independent model, sigma / sqrt(4)
+    sd = np.array([0.01, 0.02, 0.03])
+    cov = np.diag(sd**2)
+    u = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)  # zero-mean, orthogonal columns
+    x = u * sd * np.sqrt(9.0 / 12.0)  # chi2 = sum of (x/sd)^2 = 12 * 9/12 = 9 = dof (3 x 3): f = 1
+    r = combine_shots(_shots(["T"] * 4, x, np.stack([cov] * 4))).iloc[0]
+    assert r.shot_chi2_dof == pytest.approx(1.0, rel=1e-6)  # 1e-6: the shots go through lat/lon and back
+    np.testing.assert_allclose([r.sigma_n, r.sigma_e, r.sigma_u], sd / 2.0, rtol=1e-6)
+    # twice as far apart: chi2/dof = 4, sigmas scaled by sqrt(4)
+    r = combine_shots(_shots(["T"] * 4, 2 * x, np.stack([cov] * 4))).iloc[0]
+    assert r.shot_chi2_dof == pytest.approx(4.0, rel=1e-6)
+    np.testing.assert_allclose([r.sigma_n, r.sigma_e, r.sigma_u], sd / 2.0 * 2.0, rtol=1e-6)
+
+
+def test_agreeing_shots_keep_a_single_shots_sigma():
+    # identical shots show no independent error: nothing averages out (full correlation)
     cov = np.diag([0.01, 0.02, 0.03]) ** 2
-    agree = _shots(["T"] * 4, np.zeros((4, 3)), np.stack([cov] * 4))
-    r = combine_shots(agree).iloc[0]
-    np.testing.assert_allclose([r.sigma_n, r.sigma_e, r.sigma_u], np.array([0.01, 0.02, 0.03]) / 2.0, rtol=1e-9)
-    assert r.shot_chi2_dof == pytest.approx(0.0, abs=1e-9)
-    # shots 10 SD apart in north: chi2/dof = sum((+-5)^2)/dof, sigmas scaled by it
-    x = np.array([[0.05, 0, 0], [-0.05, 0, 0]])
-    r = combine_shots(_shots(["T"] * 2, x, np.stack([cov] * 2))).iloc[0]
-    assert r.shot_chi2_dof == pytest.approx(50.0 / 3.0, rel=1e-6)
-    assert r.sigma_n == pytest.approx(0.01 / np.sqrt(2) * np.sqrt(50.0 / 3.0), rel=1e-6)
+    r = combine_shots(_shots(["T"] * 5, np.zeros((5, 3)), np.stack([cov] * 5))).iloc[0]
+    assert r.shot_chi2_dof == pytest.approx(0.0, abs=1e-12)
+    np.testing.assert_allclose([r.sigma_n, r.sigma_e, r.sigma_u], [0.01, 0.02, 0.03], rtol=1e-9)
+
+
+def test_partly_independent_shots_mix_the_two_models():
+    # f < 1: P = (1 - f) P_cor + f P_ind, with P_cor of fully correlated errors e_i = L_i z
+    rng = np.random.default_rng(7)
+    covs = np.stack([_random_cov(rng, s) for s in (0.02, 0.03)])
+    x = rng.normal(scale=0.002, size=(2, 3))  # far closer than their sigmas: f << 1
+    r = combine_shots(_shots(["T"] * 2, x, covs)).iloc[0]
+    p, P_ind = _gls(x, covs)
+    f = sum((xi - p) @ np.linalg.solve(ci, xi - p) for xi, ci in zip(x, covs)) / 3.0
+    assert 0.0 < f < 1.0
+    A = [P_ind @ np.linalg.inv(c) for c in covs]  # the weights of the two shots
+    M = sum(a @ np.linalg.cholesky(c) for a, c in zip(A, covs))
+    _, P = _combined(r)
+    np.testing.assert_allclose(P, (1 - f) * M @ M.T + f * P_ind, rtol=1e-6, atol=1e-12)
 
 
 def test_one_row_per_target_in_order_of_appearance_and_failed_shots():

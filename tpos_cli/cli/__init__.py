@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Annotated
 
 import typer
 
@@ -31,6 +32,25 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
+
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from tpos_cli import __version__
+
+        typer.echo(f"tpos {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                          help="Print the tpos version and exit.")] = False,
+) -> None:
+    # Options of `tpos` itself; the help text is the app's (above).
+    return None
+
 
 app.command("validate")(_validate.validate)
 app.command("inspect")(_inspect.inspect)

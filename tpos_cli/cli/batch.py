@@ -17,14 +17,22 @@ def batch(
     jobs: Annotated[int | None, typer.Option("--jobs", "-j", help="Worker processes (default: all cores; 1 runs in this process).")] = None,
     report: Annotated[bool, typer.Option("--report", help="Run `tpos report` on each finished run (accuracy files and report.pdf in it) and add its errors against truth, with the run's own figures, to the table and batch files.")] = False,
     force: Annotated[bool, typer.Option("--force", help="Redo sessions whose finished run is current.")] = False,
+    timeout: Annotated[float, typer.Option("--timeout", help="Time limit per session in seconds (0: none); a session over it fails with exit code 1, the others go on.")] = 7200.0,
     scheduler: Annotated[str | None, typer.Option("--scheduler", help="Dask scheduler address (tcp://host:8786): run the sessions on that cluster.")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Process every session into OUT/<session-name>/; skip finished ones; exit 1 if any failed."""
+    """Process every session into OUT/<session-name>/; skip finished ones; exit 1 if any failed.
+
+    Prints one line per session (status, verdict, errors against truth with --report, warnings,
+    time) and writes OUT/batch.json and OUT/batch.parquet: every row with its warnings, verdict and
+    figures, merged with earlier batches into OUT (an unchanged run keeps its earlier report).
+
+    Example: tpos batch 'field/2024-*' more_sessions.txt -o runs/all --jobs 2 --report
+    """
     from tpos_cli import batch as b
 
     try:
-        tasks = b.plan_batch(b.expand_sessions(sessions), out, pipeline, force=force, report=report)
+        tasks = b.plan_batch(b.expand_sessions(sessions), out, pipeline, force=force, report=report, timeout_s=timeout)
         result = _run_with_progress(tasks, jobs, scheduler, quiet)
         json_path, _ = b.write_batch_record(result, pipeline=pipeline)
     except InvalidInputError as exc:
@@ -71,24 +79,12 @@ def _run_with_progress(tasks, jobs, scheduler, quiet):
 
 
 def _print_table(result) -> None:
-    from rich.console import Console
-    from rich.table import Table
+    from tpos_cli.batch import TABLE_LEGEND, format_table
+    from tpos_cli.report.solutions import rank_solutions
 
-    from tpos_cli.batch import key_accuracy_figures
-
-    keys = key_accuracy_figures(result.results)
-    table = Table(show_edge=False)
-    for col in ("session", "status", "time s", *keys):
-        table.add_column(col, overflow="fold")
-    style = {"ok": "green", "skipped": "cyan", "failed": "red"}
-    for r in result.results:
-        acc = [f"{r.accuracy[k]:.4g}" if k in r.accuracy else "" for k in keys]
-        time_s = "" if r.time_s != r.time_s else f"{r.time_s:.1f}"  # NaN: the worker was lost
-        table.add_row(r.name, f"[{style[r.status]}]{r.status}[/]", time_s, *acc)
-    console = Console()
-    if not console.is_terminal:  # piped or logged: do not fold names at 80 columns
-        console = Console(width=200)
-    console.print(table)
+    for line in format_table(result.results, rank_solutions):
+        typer.echo(line)
+    typer.echo(TABLE_LEGEND)
     for r in result.results:  # whole lines, not folded into a cell: easy to read and to grep
         if r.error:
             typer.echo(f"{r.name}: {r.error}")

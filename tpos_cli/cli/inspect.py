@@ -33,11 +33,13 @@ def inspect(
         return
     typer.echo(f"session {info['name']} ({info['kind']}) at {info['path']}")
     typer.echo(f"  clock: t0 = {info['t0']:.6f} s, duration {info['duration_s']:.2f} s")
-    typer.echo(f"  {'table':<18}{'rows':>9}{'span s':>10}{'rate Hz':>10}  notes")
+    typer.echo(f"  {'table':<18}{'rows':>8}{'span s':>9}{'rate Hz':>9}{'jitter ms':>10}  notes")
     for name, t in info["tables"].items():
         rate = f"{t['rate_hz']:.2f}" if t.get("rate_hz") else "-"
+        jitter = f"{t['jitter_ms']:.2f}" if t.get("jitter_ms") is not None else "-"
         span = f"{t['span_s']:.1f}" if t.get("span_s") is not None else "-"
-        typer.echo(f"  {name:<18}{t['rows']:>9}{span:>10}{rate:>10}  {t.get('notes', '')}")
+        typer.echo(f"  {name:<18}{t['rows']:>8}{span:>9}{rate:>9}{jitter:>10}  {t.get('notes', '')}")
+    typer.echo("  (rate: mean over the sample intervals; jitter: their SD; gaps left out and listed below)")
     if info["gps_outages"]:
         typer.echo("  GPS outages (logger clock): " + ", ".join(f"{a:.2f}-{b:.2f} ({b - a:.1f} s)" for a, b in info["gps_outages"]))
     if info["imu_gaps"]:

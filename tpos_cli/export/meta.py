@@ -41,8 +41,8 @@ COLUMN_DOC = {
     "ell95_minor_m": "95 % horizontal ellipse, semi-minor axis, m",
     "ell95_azimuth_deg": "95 % ellipse major-axis azimuth, deg clockwise from true north [0, 180)",
     "n_shots": "shots combined (inverse-covariance weighting)",
-    "shot_chi2_dof": "chi-square per degree of freedom of the shots about the combined point "
-    "(NaN for one shot; above 1 the sigmas were scaled up by it)",
+    "shot_chi2_dof": "chi-square per degree of freedom of the shots about the combined point (NaN for one shot): "
+    "the share of the shots' variance that averages out (above 1: the sigmas were scaled up by it)",
     "t_first": "start of the first shot, logger clock, s",
     "t_last": "end of the last shot, logger clock, s",
     "utm_zone": "UTM zone (WGS 84)",

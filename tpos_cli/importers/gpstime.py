@@ -2,27 +2,54 @@
 
 GPS time runs without leap seconds from 1980-01-06T00:00:00 UTC; UNIX time counts UTC seconds from
 1970-01-01 without leap seconds, so GPS - UTC jumps by one second at each leap second (IS-GPS-200
-§20.3.3.5.2.4; table from IERS Bulletin C).
+§20.3.3.5.2.4). GPS - UTC = (TAI - UTC) - 19 s.
+
+The leap seconds come from ERFA's table (pyerfa, `erfa.leap_seconds`): the IAU SOFA-derived library
+that astropy uses, updated with each IERS Bulletin C announcement, so `pip install -U pyerfa` brings a
+new leap second without a change here. (pynmeagps, which pyubx2 pulls in, also has a table, but only
+as a per-date scalar lookup without a validity check.) `leap_table_note` says when a log's date lies
+past the years the installed table vouches for.
 """
 
 from __future__ import annotations
 
 import calendar
+import warnings
 
+import erfa
 import numpy as np
 
 GPS_EPOCH_UNIX_S = 315964800.0  # 1980-01-06T00:00:00Z in UNIX seconds
 WEEK_S = 604800.0
+TAI_MINUS_GPS_S = 19.0
 
-# (UNIX time at which the new offset starts, GPS - UTC in seconds after it)
-_LEAPS = [
-    ("1981-07-01", 1), ("1982-07-01", 2), ("1983-07-01", 3), ("1985-07-01", 4), ("1988-01-01", 5),
-    ("1990-01-01", 6), ("1991-01-01", 7), ("1992-07-01", 8), ("1993-07-01", 9), ("1994-07-01", 10),
-    ("1996-01-01", 11), ("1997-07-01", 12), ("1999-01-01", 13), ("2006-01-01", 14), ("2009-01-01", 15),
-    ("2012-07-01", 16), ("2015-07-01", 17), ("2017-01-01", 18),
-]
-_LEAP_UNIX_S = np.array([calendar.timegm(tuple(int(x) for x in d.split("-")) + (0, 0, 0)) for d, _ in _LEAPS], float)
-_LEAP_S = np.array([n for _, n in _LEAPS], float)
+
+def _leap_table() -> tuple[np.ndarray, np.ndarray]:
+    """(UNIX time at which each GPS - UTC offset starts, the offset in s) from ERFA's table."""
+    table = erfa.leap_seconds.get()
+    start = np.array([calendar.timegm((int(y), int(m), 1, 0, 0, 0)) for y, m in zip(table["year"], table["month"])], float)
+    gps_utc = np.asarray(table["tai_utc"], float) - TAI_MINUS_GPS_S
+    keep = start > GPS_EPOCH_UNIX_S  # GPS - UTC is 0 at the GPS epoch; earlier rows do not apply
+    return start[keep], gps_utc[keep]
+
+
+_LEAP_UNIX_S, _LEAP_S = _leap_table()
+
+
+def leap_table_note(unix_s) -> str | None:
+    """A warning when the latest of `unix_s` is past the years ERFA's table vouches for, else None."""
+    u = np.asarray(unix_s, float)
+    u = u[np.isfinite(u)]
+    if u.size == 0:
+        return None
+    y, mo, d = (int(x) for x in np.datetime64(int(u.max()), "s").astype(object).timetuple()[:3])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        erfa.dat(y, mo, d, 0.0)
+    if any("dubious" in str(w.message) for w in caught):
+        return (f"the leap-second table of the installed pyerfa {erfa.__version__} may be out of date for "
+                f"{y:04d}-{mo:02d}-{d:02d} (`pip install -U pyerfa`); GPS - UTC taken as {int(_LEAP_S[-1])} s")
+    return None
 
 CLOCKS = ("gps_tow", "gps", "unix")  # clocks an importer may write into a session's `t`
 

@@ -1,20 +1,23 @@
 """Write imported tables into a session directory (new, or one being assembled by several imports).
 
 Only the output session is ever written: sources are read, never touched. A table that already
-exists in the output is replaced only with `force=True`. `session.toml` is merged: sections the
-import knows (e.g. `[imu] axes`, `rate_hz`) are set, every other key already there is kept.
+exists in the output is replaced only with `force=True`. `session.toml` is merged with tomlkit:
+sections the import knows (e.g. `[imu] axes`, `rate_hz`) are set, every other key, comment, quoted
+key, datetime and array of tables already there is kept as written. Everything is checked and the
+new `session.toml` text built before the first file is written; each file is replaced atomically.
 """
 
 from __future__ import annotations
 
 import math
 import os
-import tomllib
 from pathlib import Path
 
 import pandas as pd
+import tomlkit
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.bounded import MAX_TOML_BYTES, parse_toml, read_bytes_bounded
 
 PARQUET_TABLES = ("imu", "truth")  # large tables go to Parquet, the rest to CSV (readable)
 
@@ -72,48 +75,90 @@ def merge_toml(base: dict, update: dict) -> dict:
     return out
 
 
+def _merge_into(doc, update: dict, where: str) -> None:
+    """Set `update`'s keys in the tomlkit container `doc`, recursing into tables; a key the update
+    needs as a table but the file has as a value (or the reverse) is refused."""
+    for k, v in update.items():
+        if isinstance(v, dict):
+            if k not in doc:
+                doc[k] = tomlkit.table()
+            elif not isinstance(doc[k], dict):
+                raise InvalidInputError(f"{where}: {k} is a value, not a table ([{k}]); the import needs to add keys to it")
+            _merge_into(doc[k], v, where)
+        else:
+            if k in doc and isinstance(doc[k], dict):
+                raise InvalidInputError(f"{where}: {k} is a table; the import needs to set it to a value")
+            doc[k] = v
+
+
+def session_toml_text(toml_path: Path, toml_update: dict, default_name: str) -> str:
+    """The new `session.toml`: the existing file (bounded, valid, kept as written) with the
+    update merged in, and `[session] name`/`kind` when missing; checked by a re-parse."""
+    where = str(toml_path)
+    if toml_path.exists():
+        data = read_bytes_bounded(toml_path, where, MAX_TOML_BYTES)
+        try:
+            text = data.decode("utf-8")
+        except UnicodeDecodeError:
+            raise InvalidInputError(f"{where}: not UTF-8 text") from None
+        parse_toml(text, where)
+        doc = tomlkit.parse(text)
+    else:
+        doc = tomlkit.document()
+        doc["session"] = tomlkit.table()
+    if "session" not in doc:
+        doc["session"] = tomlkit.table()
+    if not isinstance(doc["session"], dict):
+        raise InvalidInputError(f"{where}: session must be a table ([session] with name and kind)")
+    _merge_into(doc, toml_update, where)
+    doc["session"].setdefault("name", default_name)
+    doc["session"].setdefault("kind", "drive")
+    try:
+        out = tomlkit.dumps(doc)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{where}: the imported keys cannot be written as TOML ({exc})") from None
+    parse_toml(out, where)
+    return out
+
+
 def write_session(out_dir: Path, tables: dict[str, pd.DataFrame], toml_update: dict, *, force: bool = False) -> list[Path]:
     """Add `tables` ({"imu": df, "gps": df, ...}) and `toml_update` to the session at `out_dir`.
 
     Creates the directory and a `[session]` section (name = directory name, kind = "drive" unless
-    given) when needed. Returns the files written. Raises InvalidInputError when a table exists
-    and `force` is False.
+    given) when needed. Returns the files written. Raises InvalidInputError, before writing any
+    file, when a table exists and `force` is False or when `session.toml` cannot take the update.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InvalidInputError(f"{out_dir}: exists and is not a session directory")
     toml_path = out_dir / "session.toml"
-    doc: dict = {}
-    if toml_path.exists():
-        try:
-            doc = tomllib.loads(toml_path.read_text(encoding="utf-8"))
-        except tomllib.TOMLDecodeError as exc:
-            raise InvalidInputError(f"{toml_path}: not valid TOML ({exc})") from exc
     for name in tables:
         existing = [p for p in (out_dir / f"{name}.csv", out_dir / f"{name}.parquet") if p.exists()]
         if existing and not force:
             raise InvalidInputError(
                 f"{existing[0]}: the session already has a '{name}' table; use --force to replace it"
             )
-    doc = merge_toml(doc, toml_update)
-    session = doc.setdefault("session", {})
-    session.setdefault("name", out_dir.resolve().name)
-    session.setdefault("kind", "drive")
+    toml_text = session_toml_text(toml_path, toml_update, out_dir.resolve().name)
+    encoded = {}
+    for name, df in tables.items():
+        if name not in PARQUET_TABLES:
+            encoded[name] = df.to_csv(index=False).encode("utf-8")
+    out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     for name, df in tables.items():
-        for p in (out_dir / f"{name}.csv", out_dir / f"{name}.parquet"):
-            if p.exists():
-                p.unlink()
         if name in PARQUET_TABLES:
             path = out_dir / f"{name}.parquet"
             tmp = path.with_name(f".{path.name}.tmp")
             df.to_parquet(tmp, index=False)
             os.replace(tmp, path)
+            other = out_dir / f"{name}.csv"
         else:
             path = out_dir / f"{name}.csv"
-            _atomic_write_bytes(path, df.to_csv(index=False).encode("utf-8"))
+            _atomic_write_bytes(path, encoded[name])
+            other = out_dir / f"{name}.parquet"
+        if other.exists():
+            other.unlink()  # the table now lives in `path` only
         written.append(path)
-    # keep [session] first, as in the contract's example
-    ordered = {"session": doc.pop("session"), **doc}
-    _atomic_write_bytes(toml_path, dumps_toml(ordered).encode("utf-8"))
+    _atomic_write_bytes(toml_path, toml_text.encode("utf-8"))
     written.append(toml_path)
     return written

@@ -1,102 +1,103 @@
-"""`tpos import ubx`: u-blox binary logs, NAV-PVT messages (class 0x01, id 0x07, 92-byte payload).
+"""`tpos import ubx`: u-blox binary logs, NAV-PVT messages, decoded with pyubx2.
 
-Decoded directly with `struct` from the u-blox interface description (u-blox 8 / M8 and F9
-"UBX-NAV-PVT"); every frame's Fletcher checksum is verified and bad frames are skipped. Other
-messages (raw measurements, NMEA text interleaved in the stream) are ignored. Time: GPS time from
-iTOW (GPS time of week of the epoch), the week from the UTC date when `valid` says it is
-resolved; height: `height` above the ellipsoid (`hMSL` is not used); fix:
-fixType 2/3 with gnssFixOK -> 1, or 2 when a differential solution was applied (diffSoln, or
-carrSoln float/fixed); fixType 0/1/5 (no fix, dead reckoning only, time only) -> 0.
+pyubx2 finds the UBX frames in the stream, verifies each frame's checksum and decodes UBX-NAV-PVT
+(u-blox 8 / M8, F9); frames with a bad checksum are skipped and counted, other messages (raw
+measurements, NMEA text interleaved in the stream) are ignored. Time: GPS time from iTOW (GPS time
+of week of the epoch), the week from the UTC date when `valid` says it is resolved; height: `height`
+above the ellipsoid (`hMSL`, above mean sea level, is not used; their difference is the geoid
+separation, printed in a note); fix: fixType 2/3/4 with gnssFixOK -> 1, or 2 when a differential
+solution was applied (diffSoln, or carrSoln float/fixed); fixType 0/1/5 (no fix, dead reckoning
+only, time only) -> 0. A message with a good checksum and an impossible value (latitude beyond 90 deg,
+month 13, hour 99) refuses the file: it is damaged or not what it claims.
 """
 
 from __future__ import annotations
 
-import struct
+import io
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from pyubx2 import ERR_LOG, UBX_PROTOCOL, VALCKSUM, UBXReader
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, utc_calendar_to_clock
+from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, leap_table_note, utc_calendar_to_clock
 from tpos_cli.importers.result import ImportResult, read_source
 
-SYNC = b"\xb5\x62"
-NAV_PVT = (0x01, 0x07)
-_PVT = struct.Struct("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHBBi")  # first 84 bytes of the payload (to headMot..)
+# (field, lowest, highest, what it must be) of the NAV-PVT values used (u-blox interface description)
+_RANGES = (("lat", -90.0, 90.0, "a latitude (±90 deg)"), ("lon", -180.0, 180.0, "a longitude (±180 deg)"),
+           ("month", 1, 12, "a month (1-12)"), ("day", 1, 31, "a day (1-31)"), ("hour", 0, 23, "an hour (0-23)"),
+           ("min", 0, 59, "a minute (0-59)"), ("second", 0, 60, "a second (0-60)"),
+           ("iTOW", 0, WEEK_S * 1e3, "milliseconds of a GPS week"))
 
 
-def _frames(data: bytes):
-    """Yield (class, id, payload) of every checksum-valid UBX frame; count the bad ones."""
-    i, bad = 0, 0
-    n = len(data)
-    while True:
-        i = data.find(SYNC, i)
-        if i < 0 or i + 8 > n:
-            break
-        length = data[i + 4] | (data[i + 5] << 8)
-        end = i + 6 + length
-        if end + 2 > n:
-            break
-        ck_a = ck_b = 0
-        for byte in data[i + 2 : end]:
-            ck_a = (ck_a + byte) & 0xFF
-            ck_b = (ck_b + ck_a) & 0xFF
-        if data[end] == ck_a and data[end + 1] == ck_b:
-            yield data[i + 2], data[i + 3], data[i + 6 : end]
-            i = end + 2
-        else:
-            bad += 1
-            i += 2  # a false sync inside other data: resynchronise on the next one
-    _frames.bad = bad  # type: ignore[attr-defined]
+def read_nav_pvt(data: bytes, name: str = "UBX") -> tuple[pd.DataFrame, int]:
+    """NAV-PVT fields of every checksum-valid frame (contract units: deg, m, m/s) and the number of
+    frames skipped for a bad checksum or a damaged header."""
+    bad = [0]
 
+    def count(_err) -> None:
+        bad[0] += 1
 
-def decode_nav_pvt(payload: bytes) -> dict:
-    """Fields of one NAV-PVT payload in contract units (deg, m, m/s)."""
-    (itow, year, month, day, hour, minute, sec, valid, tacc, nano, fixtype, flags, _flags2, numsv,
-     lon, lat, height, hmsl, hacc, vacc, veln, vele, veld, _gspeed, _headmot, sacc, _headacc, pdop,
-     _flags3, _r1, _r2) = _PVT.unpack_from(payload, 0)
-    return {
-        "itow_ms": itow, "year": year, "month": month, "day": day, "hour": hour, "minute": minute,
-        "second": sec + nano * 1e-9, "valid": valid, "fix_type": fixtype, "flags": flags, "nsat": numsv,
-        "lat": lat * 1e-7, "lon": lon * 1e-7, "h": height * 1e-3, "h_msl": hmsl * 1e-3,
-        "hacc_m": hacc * 1e-3, "vacc_m": vacc * 1e-3, "vn": veln * 1e-3, "ve": vele * 1e-3, "vd": veld * 1e-3,
-        "sacc_mps": sacc * 1e-3, "pdop": pdop * 0.01,
-    }
+    reader = UBXReader(io.BytesIO(data), protfilter=UBX_PROTOCOL, validate=VALCKSUM, quitonerror=ERR_LOG,
+                       errorhandler=count)
+    recs = []
+    for _raw, msg in reader:
+        if msg is None or msg.identity != "NAV-PVT":
+            continue
+        rec = {k: getattr(msg, k) for k in ("iTOW", "year", "month", "day", "hour", "min", "second", "nano",
+                                             "validDate", "validTime", "fullyResolved", "fixType", "gnssFixOk",
+                                             "diffSoln", "carrSoln", "numSV", "lat", "lon", "height", "hMSL",
+                                             "hAcc", "vAcc", "velN", "velE", "velD")}
+        resolved = rec["validDate"] and rec["validTime"] and rec["fullyResolved"]
+        for field, lo, hi, what in _RANGES:
+            if field in ("lat", "lon") and not rec["gnssFixOk"]:
+                continue  # no position: the receiver may leave anything there
+            if field in ("month", "day", "hour", "min", "second") and not resolved:
+                continue
+            if not lo <= rec[field] <= hi:
+                raise InvalidInputError(f"{name}: NAV-PVT message {len(recs) + 1} (iTOW {rec['iTOW']} ms): {field} "
+                                        f"{rec[field]} is not {what}; the file is damaged (nothing written)")
+        recs.append(rec)
+    return pd.DataFrame(recs), bad[0]
 
 
 def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
     """Read the NAV-PVT messages of a u-blox log into a contract `gps` table."""
     path = Path(path)
     data = read_source(path, clock)
-    recs = [decode_nav_pvt(p) for c, i, p in _frames(data) if (c, i) == NAV_PVT and len(p) == 92]
-    bad = getattr(_frames, "bad", 0)
-    if not recs:
+    r, bad = read_nav_pvt(data, str(path))
+    if r.empty:
         raise InvalidInputError(f"{path}: no UBX NAV-PVT messages (enable UBX-NAV-PVT output on the receiver)")
-    r = pd.DataFrame(recs)
-    # valid bit 0 validDate, bit 1 validTime, bit 2 fullyResolved
-    resolved = (r["valid"] & 0x7) == 0x7
+    n_all = len(r)
+    resolved = (r["validDate"] == 1) & (r["validTime"] == 1) & (r["fullyResolved"] == 1)
     r = r[resolved].reset_index(drop=True)
     if r.empty:
         raise InvalidInputError(f"{path}: NAV-PVT present but no message has a resolved UTC date and time")
     # iTOW is the epoch's GPS time of week (ms); the UTC fields only pick the week
-    tow_s = r["itow_ms"].to_numpy(float) * 1e-3
-    gps_from_utc = utc_calendar_to_clock(r["year"], r["month"], r["day"], r["hour"], r["minute"], r["second"], "gps")
+    tow_s = r["iTOW"].to_numpy(float) * 1e-3
+    utc_second = r["second"].to_numpy(float) + r["nano"].to_numpy(float) * 1e-9
+    gps_from_utc = utc_calendar_to_clock(r["year"], r["month"], r["day"], r["hour"], r["min"], utc_second, "gps")
     week = np.round((gps_from_utc - tow_s) / WEEK_S)
     t = tow_s if clock == "gps_tow" else gps_s_to_clock(week * WEEK_S + tow_s, clock)
-    flags = r["flags"].to_numpy(np.int64)
-    gnss_ok = (flags & 0x01) == 0x01
-    diff = ((flags & 0x02) == 0x02) | (((flags >> 6) & 0x3) > 0)  # diffSoln, carrSoln
-    fix = np.where(gnss_ok & r["fix_type"].isin([2, 3, 4]).to_numpy(), np.where(diff, 2, 1), 0)
+    gnss_ok = r["gnssFixOk"].to_numpy() == 1
+    diff = (r["diffSoln"].to_numpy() == 1) | (r["carrSoln"].to_numpy() > 0)
+    fix = np.where(gnss_ok & r["fixType"].isin([2, 3, 4]).to_numpy(), np.where(diff, 2, 1), 0)
+    h_m, h_msl_m = r["height"].to_numpy(float) * 1e-3, r["hMSL"].to_numpy(float) * 1e-3
+    hacc_m = r["hAcc"].to_numpy(float) * 1e-3
     g = pd.DataFrame({
-        "t": t, "lat": r["lat"], "lon": r["lon"], "h": r["h"], "fix": fix.astype(np.int64),
-        "nsat": r["nsat"].astype("Int64"), "vn": r["vn"], "ve": r["ve"], "vd": r["vd"],
+        "t": t, "lat": r["lat"].astype(float), "lon": r["lon"].astype(float), "h": h_m, "fix": fix.astype(np.int64),
+        "nsat": r["numSV"].astype("Int64"),
+        "vn": r["velN"] * 1e-3, "ve": r["velE"] * 1e-3, "vd": r["velD"] * 1e-3,
         # hAcc/vAcc are the receiver's accuracy estimates (about 1 sigma); split hAcc evenly over n/e
-        "sigma_n": r["hacc_m"] / np.sqrt(2.0), "sigma_e": r["hacc_m"] / np.sqrt(2.0), "sigma_u": r["vacc_m"],
+        "sigma_n": hacc_m / np.sqrt(2.0), "sigma_e": hacc_m / np.sqrt(2.0), "sigma_u": r["vAcc"] * 1e-3,
     })
     g.loc[g["fix"] == 0, ["lat", "lon", "h"]] = np.nan
-    notes = [f"{path.name}: heights written above the ellipsoid (geoid separation in this log: "
-             f"{float((r['h'] - r['h_msl']).median()):.3f} m)"]
-    notes += [f"{path.name}: {len(recs)} NAV-PVT messages ({int((~resolved).sum())} without resolved time dropped), "
-             f"{bad} bad-checksum frame(s) skipped; fix {dict(sorted((int(k), int(v)) for k, v in g['fix'].value_counts().items()))}"]
+    notes = [f"{path.name}: heights: NAV-PVT 'height' above the ellipsoid (geoid separation in this log, "
+             f"height - hMSL: {float(np.median(h_m - h_msl_m)):.3f} m)"]
+    notes += [f"{path.name}: {n_all} NAV-PVT messages ({int((~resolved).sum())} without resolved time dropped), "
+              f"{bad} bad frame(s) skipped; fix {dict(sorted((int(k), int(v)) for k, v in g['fix'].value_counts().items()))}"]
+    leap = leap_table_note(gps_s_to_clock(week * WEEK_S + tow_s, "unix"))
+    if leap:
+        notes.append(f"{path.name}: {leap}")
     return ImportResult({"gps": g}, {}, tuple(notes))

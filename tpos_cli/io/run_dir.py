@@ -2,13 +2,21 @@
 
 Outputs are written into a temporary sibling directory that is renamed into place only when
 complete, so a failed or killed run leaves no partial output and an older run is replaced only
-by a finished one.
+by a finished one. A run claims its directory before the work (`claim_run_dir`): a lock, so that a
+second run to the same directory is refused instead of racing on the rename, and a test write, so
+that a read-only or full disk is found before minutes of computing. Claims live inside
+`run_dir_claims()`, which releases them (the lock file included) however the run ends and turns
+an OSError of the writing into a plain message (exit code 1).
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import dataclasses
+import fcntl
 import os
+import re
 import shutil
 from collections.abc import Mapping
 from datetime import datetime
@@ -19,11 +27,21 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from tpos_cli.errors import InvalidInputError
+from tpos_cli.errors import InvalidInputError, TposError
+
+# A name that becomes one path component: no separators, no "..", no leading dot, no control characters.
+_SAFE_NAME = re.compile(r"^[^/\\\x00-\x1f.][^/\\\x00-\x1f]*$")
 
 
 def default_run_dir(session_name: str, pipeline_name: str) -> Path:
-    """`runs/<session directory name>-<pipeline name>` under the current directory."""
+    """`runs/<session directory name>-<pipeline name>` under the current directory.
+
+    Both names become one directory name, so a name holding a path separator, `..`, a leading dot
+    or a control character is refused (InvalidInputError): outputs never leave `runs/`."""
+    for what, name in (("session directory", session_name), ("pipeline", pipeline_name)):
+        if not _SAFE_NAME.match(name) or ".." in name or len(name) > 200:
+            raise InvalidInputError(f"{what} name {name!r} cannot name a run directory (no '/', '\\', '..', leading "
+                                    "'.' or control characters); rename it or pass -o")
     return Path("runs") / f"{session_name}-{pipeline_name}"
 
 
@@ -75,6 +93,90 @@ def _pid_alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+class RunDirBusy(TposError):
+    """Another run is writing the same run directory (exit code 1)."""
+
+    exit_code = 1
+
+
+@dataclasses.dataclass
+class _Claim:
+    lock_path: Path
+    fd: int
+
+    def release(self) -> None:
+        with contextlib.suppress(OSError):
+            if os.fstat(self.fd).st_ino == os.stat(self.lock_path).st_ino:
+                os.unlink(self.lock_path)  # still holding the lock: nobody else uses this inode now
+        os.close(self.fd)
+
+
+_ACTIVE: contextvars.ContextVar[list | None] = contextvars.ContextVar("tpos_run_dir_claims", default=None)
+
+
+def _plain(exc: OSError, out_dir: Path) -> TposError:
+    where = f" ({exc.filename})" if exc.filename else ""
+    return TposError(f"cannot write the run directory {out_dir}: {exc.strerror or exc}{where}")
+
+
+@contextlib.contextmanager
+def run_dir_claims():
+    """Scope of a run's directory claims: released on exit; an OSError becomes a plain TposError."""
+    claims: list[_Claim] = []
+    token = _ACTIVE.set(claims)
+    try:
+        yield
+    except OSError as exc:
+        raise _plain(exc, Path(exc.filename or "?").parent) from None
+    finally:
+        _ACTIVE.reset(token)
+        for c in reversed(claims):
+            c.release()
+
+
+def claim_run_dir(out_dir: Path) -> None:
+    """Lock `out_dir` for this run and check that its parent can be written, before the work.
+
+    Raises RunDirBusy when another run holds it, TposError (exit 1) when it cannot be written."""
+    out_dir = Path(out_dir)
+    claims = _ACTIVE.get()
+    lock_path = out_dir.parent / f".{out_dir.name}.lock"
+    try:
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise RunDirBusy(f"another tpos run is writing {out_dir}; wait for it to finish or choose another -o") from None
+            try:
+                same = os.fstat(fd).st_ino == os.stat(lock_path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)  # the previous holder removed it as we opened it: take the new one
+        claim = _Claim(lock_path, fd)
+        if claims is None:
+            import atexit
+
+            atexit.register(claim.release)
+        else:
+            claims.append(claim)  # released by run_dir_claims however the run ends
+        probe = out_dir.parent / f".{out_dir.name}.probe-{os.getpid()}"
+        try:
+            with open(probe, "wb") as fh:
+                fh.write(b"\0" * 65536)  # a run writes at least this much; a full disk says so now
+                fh.flush()
+                os.fsync(fh.fileno())
+        finally:
+            with contextlib.suppress(OSError):
+                probe.unlink()
+    except OSError as exc:
+        raise _plain(exc, out_dir) from None
 
 
 def replace_dir(tmp: Path, out_dir: Path) -> None:

@@ -15,6 +15,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_ROWS, regular_file_size
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,8 +63,12 @@ def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (),
     Raises InvalidInputError for unreadable files, missing required columns, no data rows, a
     truncated last line, and cells of numeric columns that are not numbers (first such row).
     """
+    try:
+        regular_file_size(path, path.name, MAX_TABLE_BYTES)
+    except InvalidInputError as exc:
+        _fail(path, str(exc).split(": ", 1)[1])
     if path.suffix == ".parquet":
-        df = _read_parquet(path)
+        df = _read_parquet(path, set(numeric) | set(text) | set(required))
     else:
         df = _read_csv(path)
     missing = [c for c in required if c not in df.columns]
@@ -97,12 +102,22 @@ def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
     return conv.to_numpy(dtype=np.float64, na_value=np.nan)
 
 
-def _read_parquet(path: Path) -> pd.DataFrame:
+def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
+    """Only the wanted columns, after the row count in the footer is checked; the pandas metadata
+    (index, dtypes) is ignored: a damaged one cannot matter, the columns are all tpos reads."""
     try:
-        table = pq.read_table(path)
+        meta = pq.read_metadata(path)
+        names = pq.read_schema(path).names
     except (pa.ArrowException, OSError, ValueError) as exc:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
-    return table.to_pandas()
+    if meta.num_rows > MAX_TABLE_ROWS:
+        _fail(path, f"{meta.num_rows} rows is more than the {MAX_TABLE_ROWS}-row limit for a table")
+    columns = [c for c in names if c in wanted]
+    try:
+        table = pq.read_table(path, columns=columns)
+        return table.to_pandas(ignore_metadata=True)
+    except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
+        _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
@@ -113,6 +128,8 @@ def _read_csv(path: Path) -> pd.DataFrame:
         _fail(path, f"cannot be read ({exc.strerror})")
     if not head.strip():
         _fail(path, "the file is empty (no header, no data)")
+    if b"\x00" in head:
+        _fail(path, "contains NUL bytes: a binary or sparse file, not CSV text")
     try:
         head.decode("utf-8")
     except UnicodeDecodeError as exc:

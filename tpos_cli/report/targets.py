@@ -2,17 +2,25 @@
 
 A run writes one `targets.parquet` row per shot and solution, with the shot's north-east-up SDs
 (`sigma_n`, `sigma_e`, `sigma_u`, m) and, where the chain provides them, the cross covariances
-(`cov_ne_m2`, `cov_nu_m2`, `cov_eu_m2`, m^2, north-east-up). The shots of one target combine as the
-best linear unbiased estimate of one point seen n times with independent errors:
+(`cov_ne_m2`, `cov_nu_m2`, `cov_eu_m2`, m^2, north-east-up). The shots of one target combine by
+inverse-covariance weighting (generalised least squares of one point seen n times):
 
-    W_i = P_i^-1,   P = (sum W_i)^-1,   x = P sum W_i x_i          (generalised least squares)
+    W_i = P_i^-1,   P_ind = (sum W_i)^-1,   x = P_ind sum W_i x_i,   A_i = P_ind W_i (sum A_i = I)
 
-and the scatter of the shots about x is checked against their covariances with
-chi2 = sum (x_i - x)^T W_i (x_i - x), 3 (n - 1) degrees of freedom. When the shots disagree more
-than their covariances allow (chi2 / dof > 1) the combined covariance is scaled by chi2 / dof (the
-a-posteriori variance factor of a least-squares adjustment), so the combined sigma never claims more
-than the shots show. The independence assumption is the limit of this combination: shots of one
-session share the attitude filter's slowly varying errors, so agreeing shots can still share a bias.
+P_ind is the covariance of x only if the shots' errors are independent. Shots of one session share
+the attitude filter's slowly varying errors (heading bias, the reference calibration), and a
+shared error does not average out: with fully correlated errors e_i = L_i z (L_i L_i^T = P_i) the
+covariance of x is P_cor = M M^T, M = sum A_i L_i (P_i itself for equal shots). The shots' scatter
+about x tells how much of their error is independent: f = chi2 / dof with chi2 = sum
+(x_i - x)^T W_i (x_i - x) and dof = 3 (n - 1) (variance-component estimation). The combined
+covariance is
+
+    P = f P_ind                      for f >= 1 (the shots disagree more than their sigmas allow:
+                                     the a-posteriori variance factor of a least-squares adjustment)
+    P = (1 - f) P_cor + f P_ind      for f < 1 (the share f of each shot's variance that shows as
+                                     scatter averages out, the rest is common to the shots)
+
+so a combination never claims more than the shots show: agreeing shots keep a single shot's sigma.
 
 The 95 % horizontal ellipse of a 2x2 north-east covariance C has semi-axes sqrt(chi2_2(0.95) l_k)
 for the eigenvalues l_k of C (chi2_2(p) = -2 ln(1 - p), exactly), and its orientation is the azimuth of the major axis, degrees
@@ -81,18 +89,21 @@ def horizontal_ellipse(cov_ne_m2, prob: float = ELLIPSE_PROB) -> HorizontalEllip
 
 
 def _combine_one(x_enu: np.ndarray, cov_neu: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Combined NEU offset (3,), its covariance (3, 3) and chi2 / dof (NaN for one shot)."""
+    """Combined NEU offset (3,), its covariance (3, 3) and f = chi2 / dof (NaN for one shot); see
+    the module docstring."""
     x = x_enu[:, [1, 0, 2]]  # east-north-up -> north-east-up, the covariance's order
     n = len(x)
     W = np.linalg.inv(cov_neu)
-    P = np.linalg.inv(W.sum(axis=0))
-    xc = P @ np.einsum("nij,nj->i", W, x)
+    P_ind = np.linalg.inv(W.sum(axis=0))
+    xc = P_ind @ np.einsum("nij,nj->i", W, x)
     if n == 1:
-        return xc, P, float("nan")
+        return xc, P_ind, float("nan")
     r = x - xc
-    chi2 = float(np.einsum("ni,nij,nj->", r, W, r))
-    factor = chi2 / (3.0 * (n - 1))
-    return xc, P * max(factor, 1.0), factor
+    f = float(np.einsum("ni,nij,nj->", r, W, r)) / (3.0 * (n - 1))
+    if f >= 1.0:
+        return xc, f * P_ind, f
+    M = np.einsum("ij,njk,nkl->il", P_ind, W, np.linalg.cholesky(cov_neu))  # sum A_i L_i
+    return xc, (1.0 - f) * (M @ M.T) + f * P_ind, f
 
 
 def combine_shots(shots: pd.DataFrame) -> pd.DataFrame:

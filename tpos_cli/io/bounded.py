@@ -1,0 +1,91 @@
+"""Bounded reads of input files: regular files only, sizes checked before reading, TOML depth limited.
+
+A FIFO named `imu.csv` would block a read forever, `/dev/zero` never ends, and a sparse file or a
+small Parquet file can decode to gigabytes: every input is checked from its metadata (file type,
+size, row count) before any byte is decoded, and refused with a one-line `InvalidInputError`
+(exit 2) naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import tomllib
+from pathlib import Path
+
+from tpos_cli.errors import InvalidInputError
+
+# A contract table larger than this is not a field log (an hour of 100 Hz IMU is about 40 MB of CSV);
+# rows are capped so that no table decodes to more than a few GB of float64 columns.
+MAX_TABLE_BYTES = 2 << 30
+MAX_TABLE_ROWS = 20_000_000
+# session.toml and pipeline files are a few kB; nesting deeper than this is not metadata.
+MAX_TOML_BYTES = 1 << 20
+MAX_TOML_DEPTH = 16
+
+
+def regular_file_size(path: Path, what: str, limit: int) -> int:
+    """Size of `path` if it is a regular file no larger than `limit` bytes, else InvalidInputError."""
+    try:
+        st = os.stat(path)  # follows symlinks: a link to /dev/zero is a device
+    except OSError as exc:
+        raise InvalidInputError(f"{what}: cannot be read ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(st.st_mode) else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) \
+            else "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+        raise InvalidInputError(f"{what}: is {kind}; inputs must be regular files")
+    if st.st_size > limit:
+        raise InvalidInputError(f"{what}: {st.st_size} bytes is more than the {limit}-byte limit for this file")
+    return st.st_size
+
+
+def read_bytes_bounded(path: Path, what: str, limit: int) -> bytes:
+    """The bytes of a regular file of at most `limit` bytes (checked before and while reading)."""
+    regular_file_size(path, what, limit)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise InvalidInputError(f"{what}: cannot be read ({exc.strerror})") from None
+    if len(data) > limit:
+        raise InvalidInputError(f"{what}: more than the {limit}-byte limit for this file")
+    return data
+
+
+def toml_depth(value, limit: int = MAX_TOML_DEPTH) -> int:
+    """Nesting depth of parsed TOML (tables and arrays), counted without recursion."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        deepest = max(deepest, d)
+        if deepest > limit:
+            break
+        if isinstance(v, dict):
+            stack.extend((x, d + 1) for x in v.values())
+        elif isinstance(v, list):
+            stack.extend((x, d + 1) for x in v)
+    return deepest
+
+
+def parse_toml(text: str, what: str) -> dict:
+    """tomllib.loads with a depth limit; every failure is an InvalidInputError naming `what`."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InvalidInputError(f"{what}: not valid TOML ({exc})") from None
+    except RecursionError:
+        raise InvalidInputError(f"{what}: nested too deeply to be metadata (at most {MAX_TOML_DEPTH} levels)") from None
+    if toml_depth(doc) > MAX_TOML_DEPTH:
+        raise InvalidInputError(f"{what}: nested too deeply to be metadata (at most {MAX_TOML_DEPTH} levels)")
+    return doc
+
+
+def read_toml(path: Path, what: str | None = None) -> dict:
+    """A small TOML file: regular, at most MAX_TOML_BYTES, UTF-8, nested at most MAX_TOML_DEPTH levels."""
+    what = what or str(path)
+    data = read_bytes_bounded(path, what, MAX_TOML_BYTES)
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{what}: not UTF-8 text") from None
+    return parse_toml(text, what)
