@@ -268,6 +268,7 @@ class TargetFkfParams(Section):
     mag_dip_tol_deg: float = 3.0
     mag_nis_window_s: NonNegative = 1.0  # > 0: reject the field while its mean NIS over this window exceeds ...
     mag_nis_ratio: Positive = 3.0  # ... this many times its expectation (1 dof)
+    imu_gap_max_s: Positive = 1.0  # refuse a log with a longer IMU gap: the attitude cannot be carried across it
     mag_lag_from_log: bool = True  # estimate the magnetometer's delay behind the gyro and remove it
     mag_lag_max_s: NonNegative = 0.05
     # LF2 gating

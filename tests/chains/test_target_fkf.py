@@ -96,11 +96,33 @@ def test_cli_writes_contract_columns(tmp_path):
     assert res.exit_code == 0, res.output
     tg = pd.read_parquet(tmp_path / "run" / "targets.parquet")
     assert list(tg.columns) == ["id", "t_start", "t_end", "range_m", "lat", "lon", "h", "solution",
-                                "sigma_n", "sigma_e", "sigma_u"]
+                                "sigma_n", "sigma_e", "sigma_u", "cov_ne_m2", "cov_nu_m2", "cov_eu_m2"]
     assert set(tg.solution) == {"gyro", "lf1", "lf2", "fkf", "fkf_raw", "fkf_cal"}
     assert (tg[["sigma_n", "sigma_e", "sigma_u"]] > 0).all().all()
+    # the full covariance of each target (north, east, up) is a covariance: symmetric positive definite
+    for r in tg.itertuples():
+        P = np.array([[r.sigma_n**2, r.cov_ne_m2, r.cov_nu_m2], [r.cov_ne_m2, r.sigma_e**2, r.cov_eu_m2],
+                      [r.cov_nu_m2, r.cov_eu_m2, r.sigma_u**2]])
+        assert np.all(np.linalg.eigvalsh(P) > 0), r
     pairs = pd.read_parquet(tmp_path / "run" / "targets_pairs.parquet")
     assert list(pairs.columns) == ["id_1", "id_2", "solution", "slant_range_m", "dh_m", "horizontal_m",
                                    "sigma_slant_m", "sigma_dh_m"]
     n = tg[tg.solution == "fkf"].id.nunique()
     assert (pairs.solution == "fkf").sum() == n * (n - 1) // 2
+
+
+def test_an_hour_long_imu_gap_is_refused_with_a_one_line_message(tmp_path):
+    # the gyro did not record the turns made during the gap: no attitude after it can be honest
+    sim = simulate_target(60.0, seed=4)
+    d = write_session(sim, tmp_path / "s", overwrite=True)
+    imu = pd.read_parquet(d / "imu.parquet")
+    tcol = imu.columns[0]
+    k = len(imu) // 2
+    imu.loc[k:, tcol] = imu.loc[k:, tcol] + 3600.0
+    imu.to_parquet(d / "imu.parquet", index=False)
+    res = CliRunner().invoke(app, ["process", str(d), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2, res.output
+    msg = res.output.strip().splitlines()
+    assert any("imu: a gap of 3600.0 s" in m and "split the log" in m for m in msg), res.output
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "run").exists()  # no partial output

@@ -393,6 +393,9 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
                 return run_full(name, t, imu.gyro_b_rps, imu.acc_b_mps2, mag_, rd, setups.forward, use, still=still)
 
             sols["lf1"] = run("lf1", mag, None, K.USE_ACC | mot | (K.USE_MAG if mag is not None else 0))
+            if field is not None and sols["lf1"].mag_ok is not None:
+                # the samples the survey masked were not used either
+                sols["lf1"] = replace(sols["lf1"], mag_ok=sols["lf1"].mag_ok & ~field.disturbed)
             if beams.rdiff is not None:
                 sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot), beams.wall_var_rad2)
             summary["forward_backward_consistency"] = {
@@ -460,7 +463,24 @@ def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, 
     return pd.concat(rows, ignore_index=True), ({"targets_pairs": pd.concat(pairs, ignore_index=True)} if pairs else {})
 
 
+def check_imu_gaps(session: Session, p: TargetFkfParams) -> None:
+    """InvalidInputError for an IMU gap longer than `imu_gap_max_s`: the gyro did not record the turns
+    made during it, so no attitude (and no target) after it can be honest; the user splits the log."""
+    gaps = np.asarray(session.imu_gaps_s, dtype=float).reshape(-1, 2)
+    if gaps.size == 0:
+        return
+    length = gaps[:, 1] - gaps[:, 0]
+    k = int(np.argmax(length))
+    if length[k] > p.imu_gap_max_s:
+        row = int(np.searchsorted(session.imu.t_s, gaps[k, 0], side="right"))
+        raise InvalidInputError(
+            f"imu: a gap of {length[k]:.1f} s after sample {row} (t = {gaps[k, 0] + session.t0_s:.3f} s); the attitude "
+            f"cannot be carried across an IMU gap longer than target_fkf.imu_gap_max_s = {p.imu_gap_max_s:g} s: "
+            "split the log at the gap")
+
+
 def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
+    check_imu_gaps(session, p)
     summary: dict = {"model": p.model}
     session = remove_mag_lag(session, p, ctx, summary)
     obs_lla, obs_src = observer_position(session)
@@ -560,6 +580,14 @@ def _shots(session: Session, p: TargetFkfParams, t, win):
     return [f"auto_{i + 1:02d}" for i in range(a.size)], a, b
 
 
+def _sigma_columns(cov_ned_m2) -> dict:
+    """A target's SDs (m) and the off-diagonal covariances (m^2) of north, east and up (up = -down)."""
+    c = np.asarray(cov_ned_m2, dtype=float)
+    sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
+    return {"sigma_n": sd[0], "sigma_e": sd[1], "sigma_u": sd[2],
+            "cov_ne_m2": c[0, 1], "cov_nu_m2": -c[0, 2], "cov_eu_m2": -c[1, 2]}
+
+
 def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r):
     ids, ta, tb = shots
     rows, llas, covs = [], [], []
@@ -569,7 +597,7 @@ def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r):
         r = r[np.isfinite(r)]
         if i1 <= i0 or r.size == 0:
             rows.append({"id": sid, "t_start": a, "t_end": b, "range_m": np.nan, "lat": np.nan, "lon": np.nan,
-                         "h": np.nan, "solution": sol.name, "sigma_n": np.nan, "sigma_e": np.nan, "sigma_u": np.nan})
+                         "h": np.nan, "solution": sol.name, **_sigma_columns(np.full((3, 3), np.nan))})
             llas.append(np.full(3, np.nan))
             covs.append(np.full((3, 3), np.nan))
             continue
@@ -577,9 +605,8 @@ def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r):
         d = float(r.mean())
         fx = targeting.geolocate(obs_lla, Cm[None], np.array([d]), P_att_rad2=Pm[None],
                                  sigma_range_m=sigma_r / np.sqrt(r.size))
-        s = fx.sigma_neu_m[0]
         rows.append({"id": sid, "t_start": a, "t_end": b, "range_m": d, "lat": fx.lla[0, 0], "lon": fx.lla[0, 1],
-                     "h": fx.lla[0, 2], "solution": sol.name, "sigma_n": s[0], "sigma_e": s[1], "sigma_u": s[2]})
+                     "h": fx.lla[0, 2], "solution": sol.name, **_sigma_columns(fx.cov_ned_m2[0])})
         llas.append(fx.lla[0])
         covs.append(fx.cov_ned_m2[0])
     return pd.DataFrame(rows), np.array(llas), np.array(covs)
