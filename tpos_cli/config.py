@@ -96,14 +96,15 @@ class DriveSmoothParams(Section):
     # noise) the log's own sample scatter if larger than these defaults, then these defaults
     gyro_noise_dps: Positive = 0.01  # white noise SD per sample
     acc_noise_mg: Positive = 2.0
-    gyro_bias_dph: NonNegative = 20.0  # initial bias SD
+    gyro_bias_dph: NonNegative = 1080.0  # initial bias SD: consumer MEMS turn-on biases reach 0.1-0.3
+    # deg/s (the rtklibexplorer car's board: 60-620 deg/h); a tighter prior locks in a wrong bias
     acc_bias_mg: NonNegative = 10.0
     gyro_bias_inrun_dph: NonNegative = 10.0  # Gauss-Markov in-run bias SD
     acc_bias_inrun_mg: NonNegative = 2.0
     bias_tau_s: Positive = 300.0
     gps_sigma_h_m: Positive = 1.5  # used when gps has no sigma columns
-    gps_sigma_floor_m: NonNegative = 0.3  # reported SDs below this (e.g. RTK) are raised to it: lever
-    # arm, timing and antenna motion errors of a low-cost setup are not below a few decimetres
+    gps_sigma_floor_m: NonNegative = 0.01  # reported SDs below this are raised to it (a receiver's
+    # RTK SDs are used as given: raising them to decimetres lets the solution sit off centimetre fixes)
     max_consecutive_rejections: Count = 5  # then the next fix is applied ungated
     gps_sigma_v_m: Positive = 2.5
     gps_sigma_vel_mps: Positive = 0.1
@@ -111,8 +112,9 @@ class DriveSmoothParams(Section):
     gps_noise: Literal["estimate", "given"] = "estimate"  # estimate: scale the GPS SDs by covariance
     # matching on a first decimated pass (`fusion.gps_noise`); given: the log's SDs or the defaults
     gps_noise_span_s: NonNegative = 900.0  # log time the estimation passes cover (0 = all)
-    gps_error_model: Literal["gauss_markov", "white"] = "gauss_markov"  # gauss_markov: 3 GPS
-    # position-error states (time-correlated receiver errors, `fusion.gps_error`); white: independent fixes
+    gps_error_model: Literal["gauss_markov", "white"] = "white"  # gauss_markov: 3 GPS
+    # position-error states (time-correlated receiver errors, `fusion.gps_error`); white: independent
+    # fixes (default: error states fitted on one stretch let the solution wander off good fixes, issue 11)
     gps_gm_tau_s: Positive | None = None  # time constant of the GPS error states; None: fitted
     gps_gm_sigma_h_m: NonNegative | None = None  # stationary SD of the correlated error; None: estimated
     gps_gm_sigma_v_m: NonNegative | None = None
@@ -120,6 +122,21 @@ class DriveSmoothParams(Section):
     mounting_check_deg: Annotated[float, Field(ge=0.0, le=180.0)] = 20.0  # warn above this median
     # of course - yaw while moving (0 = no check)
     mounting_min_speed_mps: NonNegative = 0.3  # rows faster than this count for the mounting check
+    # vehicle motion constraints (issue 11, `fusion.constraints`)
+    platform: Literal["auto", "car", "rover", "pedestrian", "uav", "none"] = "auto"  # car/rover: NHC
+    # + ZUPT/ZARU on stops; pedestrian: ZUPT on stops; uav/none: no constraint; auto: car when the
+    # travel direction stays fixed in the IMU's axes on a first forward run, else pedestrian
+    auto_min_steadiness: Probability = 0.97  # auto: mean resultant length of the body-frame travel
+    # directions above which the platform is wheeled (0.97 ~ a 14 deg angular spread)
+    nhc_sigma_mps: Positive = 0.1  # lateral and vertical velocity of a wheeled vehicle (SD)
+    nhc_rate_hz: Positive = 10.0  # NHC rows per second
+    nhc_axle_sigma_m: Positive = 2.0  # prior SD of the distance from the IMU back to the rear axle (a state)
+    mounting_sigma_given_deg: Positive = 0.5  # prior SD of the residual misalignment states (pitch,
+    # yaw) when the session gives the mounting, and the least for an estimated one
+    mounting_sigma_assumed_deg: Positive = 3.0  # ... when it is assumed aligned
+    zupt_sigma_mps: Positive = 0.02  # velocity SD on a detected stop
+    stop_max_speed_mps: Positive = 0.1  # GPS or odometer speed below this for stop_min_duration_s = a stop
+    stop_min_duration_s: Positive = 2.0
 
 
 # --------------------------------------------------------------------------- [ranging_fatci]

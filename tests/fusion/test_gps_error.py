@@ -41,7 +41,7 @@ def test_white_simulated_gps_keeps_the_15_state_filter():
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate_drive(600.0, seed=1, outages=(OUTAGE,))
         ses = load_session(sim.write(Path(tmp) / "s"))
-    res = process_drive(ses, DriveSmoothParams(gps_sigma_vel_mps=0.05), None, names=("forward", "backward", "smoothed"))
+    res = process_drive(ses, DriveSmoothParams(gps_sigma_vel_mps=0.05, gps_error_model="gauss_markov"), None, names=("forward", "backward", "smoothed"))
     ge = res.info["gps_error_states"]
     assert ge["sigma_h_m"] == 0.0 and ge["sigma_v_m"] == 0.0
     assert res.forward.ep_P.shape[1] == 15 and res.forward.bias.shape[1] == 6

@@ -15,10 +15,14 @@ from tpos_cli.fusion.measurements import (
     gps_velocity_jacobian,
     gps_velocity_residual,
     lla_rad_to_ecef,
+    nhc_jacobian,
+    nhc_residual,
     lla_to_local_ned,
     measure,
     range_jacobian,
     range_residual,
+    zaru_jacobian,
+    zaru_residual,
 )
 from tpos_cli.fusion.nav_errors import apply_feedback
 
@@ -69,7 +73,7 @@ def test_measure_adds_the_extra_states_columns():
     nav, C = _nominal()
     aid = Aiding(np.array([0.5, -0.3, -1.2]), np.zeros(3), np.array([[10.0, 5.0, -2.0], [0.0, 30.0, -2.0]]),
                  geodetic.lla_to_ecef(np.array([48.0, 8.0, 480.0])), geodetic.ecef_to_ned_dcm(48.0, 8.0),
-                 np.zeros((1, 2, 3)))
+                 np.zeros((1, 2, 3)), np.eye(3), 1.0)
     # GPS error states: the fix's estimated error is subtracted from it, column 1 at the block
     lay = StateLayout((gps_error_block([0.5, 0.5, 1.0], 30.0),))
     bias = np.array([0, 0, 0, 0, 0, 0, 0.2, -0.1, 0.3])
@@ -116,3 +120,35 @@ def test_gps_jacobians_against_perturbation():
     gps_velocity_jacobian(C, lever, w_b, H, 3)
     # quadratic: |phi| |dbg| |l| = 4e-3 * 2.4e-3 * 1.4 ~ 1.3e-5
     np.testing.assert_allclose(v_e - v_t, H[3:] @ dx, rtol=0, atol=3e-5)
+
+
+def test_nhc_and_zaru_jacobians_against_perturbation():
+    """NHC: rows 1, 2 of C_vb C^T v; ZARU: the gyro-bias error with unit weight (issue 11)."""
+    nav, C = _nominal()
+    C_vb = euler_to_dcm(*np.radians([0.5, -3.0, 4.0]))
+    dx = np.concatenate([[0.3, -0.2, 0.1], [0.05, 0.02, -0.03], [2e-3, -1e-3, 3e-3], [0, 0, 0], [1e-3, 2e-3, -1e-3]])
+    nav_t, C_t, b_t = nav.copy(), C.copy(), np.zeros(6)
+    apply_feedback(nav_t, C_t, b_t, dx)
+    z_e, z_t = np.empty(2), np.empty(2)
+    nhc_residual(nav, C, C_vb, z_e)
+    nhc_residual(nav_t, C_t, C_vb, z_t)
+    H = np.zeros((2, 15))
+    nhc_jacobian(nav, C, C_vb, H)
+    # quadratic: |phi| |dv| + |phi|^2 |v| = 4e-3 * 0.06 + 1.4e-5 * 14 ~ 4e-4
+    np.testing.assert_allclose(z_e - z_t, H @ dx, rtol=0, atol=5e-4)
+    # the body velocity of the nominal is along the vehicle's x axis when C_vb says so
+    v_b = C.T @ nav[3:6]
+    yaw = np.arctan2(v_b[1], v_b[0])
+    pitch = -np.arctan2(v_b[2], np.hypot(v_b[0], v_b[1]))
+    nhc_residual(nav, C, euler_to_dcm(0.0, pitch, yaw).T, z_e)
+    np.testing.assert_allclose(z_e, 0.0, atol=1e-12)
+    # ZARU: standing gyro = bias + Earth rate; the residual moves with the bias error one to one
+    bias = np.array([0, 0, 0, 1e-3, -2e-3, 5e-4])
+    w_ie_b = C.T @ np.array([7.292115e-5 * np.cos(nav[0]), 0.0, -7.292115e-5 * np.sin(nav[0])])
+    z = np.empty(3)
+    zaru_residual(nav, C, bias, 1.0, bias[3:] + w_ie_b, z)
+    np.testing.assert_allclose(z, 0.0, atol=1e-12)
+    zaru_residual(nav, C, bias + np.r_[0, 0, 0, dx[12:]], 1.0, bias[3:] + w_ie_b, z)
+    Hz = np.zeros((3, 15))
+    zaru_jacobian(Hz)
+    np.testing.assert_allclose(z, Hz @ dx, atol=1e-15)

@@ -25,11 +25,15 @@ from tpos_cli.errors import ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.frames.rotation import dcm_to_euler
-from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, backward_start
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.fusion.constraints import detect_stops, nhc_measurements, stop_measurements, travel_direction
+from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
-from tpos_cli.fusion.gps_noise import estimate_gps_noise, median_sigmas, scaled_fixes
+from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps
+from tpos_cli.fusion.layout import Block, StateLayout, mounting_block
+from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.ranging.filter import output_indices
@@ -174,6 +178,12 @@ def align(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, cf
     return init, info
 
 
+def raise_only(gn: GpsNoise, fixes: GpsFixes) -> GpsNoise:
+    """The matching's scales below 1 set to 1 (the receiver's SDs are a floor), SDs recomputed."""
+    scale = np.maximum(gn.scale, 1.0)
+    return dataclasses.replace(gn, scale=scale, sigma=median_sigmas(scaled_fixes(fixes, scale)))
+
+
 def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
              t0_s: float) -> tuple[GpsFixes, FilterConfig]:
     """GPS noise (covariance matching, `fusion.gps_noise`) and GPS error states (`fusion.gps_error`);
@@ -182,8 +192,13 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     gn = None
     if p.gps_noise == "estimate":
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+        # matching may raise the receiver's SDs, never lower them: a quiet stretch of centimetre
+        # fixes says little about the next multipath one, and lowered SDs pull the solution off
+        # good fixes elsewhere (issue 11)
+        gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
-        info["gps_noise"] = {"method": "covariance matching on decimated filter passes (fusion.gps_noise)", **gn.summary()}
+        info["gps_noise"] = {"method": "covariance matching on decimated filter passes, raising only (fusion.gps_noise)",
+                             **gn.summary()}
         info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + t0_s, 2) for v in gn.window_s]
     else:
         info["gps_noise"] = {"method": "given (log SDs or pipeline defaults)",
@@ -211,9 +226,94 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
         # fix-to-fix scatter that the wander makes
         fixes = scaled_fixes(fixes, 1.0 / gn.scale)
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+        gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
         info["gps_noise"].update(gn.summary())
     return fixes, cfg
+
+
+WHEELED = ("car", "rover")
+
+
+def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState,
+                       cfg: FilterConfig, info: dict) -> tuple[FilterConfig, Measurements | None]:
+    """The platform's motion constraints (`fusion.constraints`): stops from GPS / odometer speed
+    (ZUPT, and ZARU on a wheeled vehicle), NHC in the vehicle axes of a wheeled one. The mounting
+    comes from `[imu] mounting_rpy_deg`, else from the travel direction of a first forward run,
+    which also decides an `auto` platform. Records what was decided in info["constraints"]."""
+    gps = session.gps
+    odo = session.odometry
+    stops = detect_stops(gps.t_s[gps.valid], gps.vel_ned_mps[gps.valid], None if odo is None else odo.t_s,
+                         None if odo is None else odo.speed_mps, max_speed_mps=p.stop_max_speed_mps,
+                         min_duration_s=p.stop_min_duration_s)
+    platform, decided = p.platform, "pipeline"
+    mounting = session.meta.mounting_rpy_deg
+    out: dict = {"stops": int(stops.intervals_s.shape[0]), "stopped_s": round(stops.total_s, 1), "stops_from": stops.sources}
+    C_vb = None
+    if mounting is not None:
+        C_vb = euler_to_dcm(*np.radians(np.asarray(mounting, dtype=float)))
+        out["mounting"] = {"source": "session", "mounting_rpy_deg": [float(v) for v in mounting]}
+    if platform == "auto" or (platform in WHEELED and C_vb is None):
+        zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps) if platform in WHEELED else None
+        first = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=False, extra=zu)
+        td = travel_direction(first)
+        if td is not None:
+            if C_vb is None:
+                C_vb = td.C_vb
+                out["mounting"] = {"source": "travel direction of a first forward run", **td.summary()}
+            else:
+                out["travel_direction"] = td.summary()
+        if platform == "auto":
+            platform = "car" if td is not None and td.steadiness >= p.auto_min_steadiness else "pedestrian"
+            decided = (f"auto: travel direction steadiness {td.steadiness:.3f} vs {p.auto_min_steadiness}" if td is not None
+                       else "auto: too little motion to tell (no constraint of a wheeled vehicle)")
+    out["platform"] = platform
+    out["decided_by"] = decided
+    info["constraints"] = out
+    parts = []
+    if platform in WHEELED or platform == "pedestrian":
+        zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps)
+        if zu is not None and platform == "pedestrian":
+            zu = zu.select(zu.kind == Kind.ZUPT)  # a standing walker still turns: no ZARU
+        parts.append(zu)
+    if platform in WHEELED:
+        if C_vb is None:
+            C_vb = np.eye(3)
+            out["mounting"] = {"source": "assumed aligned (too little motion to estimate it)", "mounting_rpy_deg": [0.0, 0.0, 0.0]}
+            sd_deg = p.mounting_sigma_assumed_deg
+        elif mounting is not None:
+            sd_deg = p.mounting_sigma_given_deg
+        else:  # the first run's attitude errors are common to its blocks: the scatter alone is optimistic
+            sd_deg = max(p.mounting_sigma_given_deg, *(v for v in (td.sigma_pitch_deg, td.sigma_yaw_deg) if np.isfinite(v)))
+        out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
+        cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
+                                  layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
+        parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps))
+    parts = [m for m in parts if m is not None and len(m)]
+    return cfg, (Measurements.merge(*parts) if parts else None)
+
+
+def constraint_summary(run: FilterRun) -> dict:
+    """Per constraint kind of a run: rows, rejected, mean NIS of the accepted ones against its band."""
+    out = {}
+    meas = run.measurements
+    for kind, name in ((Kind.NHC, "nhc"), (Kind.ZUPT, "zupt"), (Kind.ZARU, "zaru")):
+        r = meas.kind == kind
+        if not r.any():
+            continue
+        ok = r & np.isfinite(run.ev_nis)
+        acc = ok & run.ev_accepted
+        out[name] = {"rows": int(ok.sum()), "rejected": int((ok & ~run.ev_accepted).sum()),
+                     "nis": nis_band(run.ev_nis[acc], run.ev_nu[acc])}
+    o = run.layout.offset(Block.MOUNTING)
+    if o >= 0:  # at the run's end in its own direction (where it has seen the whole log)
+        j = 0 if run.backward else -1
+        m = run.extra(Block.MOUNTING)[j]
+        sd = np.sqrt(np.diagonal(run.ep_P[j])[o:o + 3])
+        out["residual_misalignment_deg"] = {"pitch_yaw": [round(float(v), 3) for v in np.degrees(m[:2])],
+                                            "sigma": [round(float(v), 3) for v in np.degrees(sd[:2])]}
+        out["nhc_point_behind_imu_m"] = {"estimate": round(float(m[2]), 3), "sigma": round(float(sd[2]), 3)}
+    return out
 
 
 def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothParams, names, sols: dict):
@@ -270,17 +370,20 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))
     if extra_idx is not None and len(extra_idx):
         out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
+    with stage("constraints"):
+        cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     sols = {}
     with stage("forward"):
-        fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=need_rts)
+        fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=need_rts, extra=extra)
     if need_rts:
         with stage("smoothing_rts"):
             sols["rts"] = smoothing.rts(fwd, out_idx)
             # drop the RTS history before the backward run: it is the largest array of the run
             fwd = dataclasses.replace(fwd, ep_Phi=None, ep_Ppred=None)
     with stage("backward"):
-        bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg, backward=True)
+        bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg, backward=True,
+                         extra=extra)
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
@@ -395,6 +498,8 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "outages_s": (res.outages_s + t0_s).tolist(),
         "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
         "mounting_check": mounting,
+        "constraints": {**res.info.get("constraints", {}), "forward": constraint_summary(res.forward),
+                        "backward": constraint_summary(res.backward)},
     }
 
 

@@ -80,7 +80,8 @@ class EventArrays(NamedTuple):
 class Aiding(NamedTuple):
     """Per-kind parameters: lever_b (3,) antenna in body (m), zero3 (3,) zeros, anchors_ned (A, 3)
     local NED (m), r0_e (3,) ECEF origin of that frame, C_ne0 (3, 3) its ECEF->NED DCM, sens
-    (S, 2, 1 + A) sensitivity rows of the least-squares fixes to the floor and calibration states."""
+    (S, 2, 1 + A) sensitivity rows of the least-squares fixes to the floor and calibration states,
+    C_vb (3, 3) IMU body to vehicle axes (non-holonomic constraints), earth_sign (-1 backward)."""
 
     lever_b: np.ndarray
     zero3: np.ndarray
@@ -88,6 +89,8 @@ class Aiding(NamedTuple):
     r0_e: np.ndarray
     C_ne0: np.ndarray
     sens: np.ndarray
+    C_vb: np.ndarray
+    earth_sign: float
 
 
 class History(NamedTuple):

@@ -35,7 +35,8 @@ from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, backward_sign
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.ins.mechanization import reverse_imu
 
-_VELOCITY_KINDS = (Kind.GPS_VELOCITY, Kind.ZUPT)  # residuals in m/s: their sign flips in reversed time
+# residuals odd in time (velocities, rates): their measured value and residual flip sign in reversed time
+_VELOCITY_KINDS = (Kind.GPS_VELOCITY, Kind.ZUPT, Kind.NHC, Kind.ZARU)
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,7 @@ class FilterConfig:
     lever_arm_b_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ungated_after_gap_s: float = 0.0
     layout: StateLayout = field(default_factory=StateLayout)
+    C_vb: np.ndarray = field(default_factory=lambda: np.eye(3))  # IMU body -> vehicle axes (NHC rows)
 
     @property
     def n_states(self) -> int:
@@ -248,7 +250,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                      np.ascontiguousarray(z[order]), np.ascontiguousarray(meas.R[order], dtype=float),
                      meas.gated[order].astype(np.bool_), meas.slot[order].astype(np.int64),
                      meas.par[order].astype(np.int64))
-    aid = _aiding(cfg, meas)
+    aid = _aiding(cfg, meas, backward)
     n_ep = n // max(cfg.cov_step, 1) + np.unique(k_o).size + 3
     nr = n_ep if store_rts else 1
     out = History(np.empty((n, 6)), np.empty((n, 3, 3)), np.empty((n, nb)), np.zeros(n_ep, np.int64),
@@ -309,7 +311,7 @@ def _check(cfg: FilterConfig, meas: Measurements) -> None:
         raise ValueError("`Measurements`: range, fix and floor rows need `origin_lla` (and `anchors_ned_m`)")
 
 
-def _aiding(cfg: FilterConfig, meas: Measurements) -> Aiding:
+def _aiding(cfg: FilterConfig, meas: Measurements, backward: bool = False) -> Aiding:
     anchors = np.ascontiguousarray(meas.anchors_ned_m, dtype=float).reshape(-1, 3)
     if meas.origin_lla is not None:
         r0_e = geodetic.lla_to_ecef(np.asarray(meas.origin_lla, dtype=float))
@@ -319,7 +321,8 @@ def _aiding(cfg: FilterConfig, meas: Measurements) -> Aiding:
     sens = meas.sens if meas.sens is not None and meas.sens.shape[0] else np.zeros((1, 2, 1 + anchors.shape[0]))
     return Aiding(np.ascontiguousarray(cfg.lever_arm_b_m, dtype=float).reshape(3), np.zeros(3), anchors,
                   np.ascontiguousarray(r0_e, dtype=float), np.ascontiguousarray(C_ne0, dtype=float),
-                  np.ascontiguousarray(sens, dtype=float))
+                  np.ascontiguousarray(sens, dtype=float), np.ascontiguousarray(cfg.C_vb, dtype=float).reshape(3, 3),
+                  -1.0 if backward else 1.0)
 
 
 def backward_start(run: FilterRun, P0: np.ndarray) -> InitialState:

@@ -36,6 +36,8 @@ class Block(IntEnum):
     RANGE_BIAS = 1  # 1: common range bias / NLOS state eps_d of paper 002 Eq. 17-18, m (random walk)
     FLOOR = 2  # 1: error of the floor height of the floor constraint, m (constant)
     CALIBRATION = 3  # A: residual bias of each anchor's calibrated range, m (constants; follows FLOOR)
+    MOUNTING = 4  # 3: residual misalignment [pitch, yaw] (rad) of the IMU on the vehicle, distance (m) from
+    # the IMU forward to the point where the non-holonomic constraint holds, negative behind (constants)
 
 
 N_BLOCKS = len(Block)
@@ -112,6 +114,15 @@ def ranging_blocks(range_bias_sd_m: float, range_bias_q_m2ps: float, floor_sd_m:
     return (ExtraBlock(Block.RANGE_BIAS, 1, 0.0, np.array([range_bias_q_m2ps]), np.array([[range_bias_sd_m**2]])),
             ExtraBlock(Block.FLOOR, 1, 0.0, np.zeros(1), np.array([[floor_sd_m**2]])),
             ExtraBlock(Block.CALIBRATION, cal.shape[0], 0.0, np.zeros(cal.shape[0]), cal))
+
+
+def mounting_block(sigma_rad: float, sigma_axle_m: float) -> ExtraBlock:
+    """Residual mounting misalignment [pitch, yaw] (rad, prior SD sigma_rad) and the distance (m,
+    prior SD sigma_axle_m) from the IMU back to the point where the vehicle does not slip (rear
+    axle), random constants: the NHC rows (`fusion.measurements.Kind.NHC`) observe the angles
+    with the forward speed and the distance with the yaw rate; without them an error in the
+    mounting would be enforced on the attitude as if it were exact."""
+    return ExtraBlock(Block.MOUNTING, 3, 0.0, np.zeros(3), np.diag([float(sigma_rad) ** 2] * 2 + [float(sigma_axle_m) ** 2]))
 
 
 def backward_sign(n_states: int = N_NAV) -> np.ndarray:

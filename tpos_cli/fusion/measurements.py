@@ -21,7 +21,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import radii_m, skew
+from tpos_cli.frames._kernels import earth_rate_ned, radii_m, skew
 from tpos_cli.frames.earth import A_M, E2
 from tpos_cli.fusion.layout import ATT, BG, N_NAV, POS, VEL, Block
 from tpos_cli.ins._kernels import cross
@@ -36,6 +36,8 @@ class Kind(IntEnum):
     FIX_NE = 3  # z = least-squares (north, east) fix in the local frame (paper 002 Eq. 7-12); sens row `par`
     FLOOR = 4  # z = down coordinate of the node in the local frame (floor constraint)
     ZUPT = 5  # z = 0: NED velocity of the IMU while it stands still
+    NHC = 6  # z = 0: lateral and vertical velocity of a wheeled vehicle in its own axes (dim 2)
+    ZARU = 7  # z = mean raw gyro rate over a stop (rad/s): the gyro bias plus the Earth's rate
 
 
 @njit(cache=True)
@@ -157,6 +159,51 @@ def zupt_jacobian(H):
 
 
 @njit(cache=True)
+def nhc_residual(nav, C, C_vb, z):
+    """z = (lateral, vertical) velocity of the vehicle in its own axes, m/s: rows 1, 2 of
+    C_vb C_nb^T v_ned (Groves 2013 Sec. 15.4.3 non-holonomic constraints; measured value 0)."""
+    v_v = C_vb @ (C.T @ nav[3:6])
+    z[0] = v_v[1]
+    z[1] = v_v[2]
+
+
+@njit(cache=True)
+def nhc_jacobian(nav, C, C_vb, H):
+    """The 2 rows of H for `nhc_residual` (clears the first 15 columns).
+
+    With C_est = (I - [phi x]) C_true: v_b,est - v_b,true = C^T dv - C^T [v x] phi (first order),
+    so H_vel = (C_vb C^T)[1:3] and H_att = -(C_vb C^T [v x])[1:3].
+    """
+    A = C_vb @ C.T
+    B = -(A @ skew(nav[3:6]))
+    for i in range(2):
+        for j in range(N_NAV):
+            H[i, j] = 0.0
+        for j in range(3):
+            H[i, VEL + j] = A[1 + i, j]
+            H[i, ATT + j] = B[1 + i, j]
+
+
+@njit(cache=True)
+def zaru_residual(nav, C, bias, earth_sign, gyro_mean_rps, z):
+    """z = (gyro bias + Earth rate in body) - mean raw gyro rate over a stop, rad/s (the nominal's
+    prediction of the standing gyro minus what it read); earth_sign -1 in reversed time."""
+    w_ie_b = C.T @ earth_rate_ned(nav[0])
+    for i in range(3):
+        z[i] = bias[3 + i] + earth_sign * w_ie_b[i] - gyro_mean_rps[i]
+
+
+@njit(cache=True)
+def zaru_jacobian(H):
+    """The 3 rows of H for `zaru_residual`: the gyro-bias error with unit weight (the Earth-rate
+    term's attitude sensitivity, 7e-5 rad/s x phi, is negligible)."""
+    for i in range(3):
+        for j in range(N_NAV):
+            H[i, j] = 0.0
+        H[i, BG + i] = 1.0
+
+
+@njit(cache=True)
 def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
     """Residual z (m,), rows H (m, n) and noise R (m, m) of measurement e about the nominal state.
 
@@ -221,6 +268,25 @@ def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
             H[0, j] = H3[2, j]
         H[0, of] = -1.0  # the floor used is z + its nominal correction; its error enters with -1
         z[0] = p[2] - (ev.z[e, 0] + bias[6 + of - N_NAV])
+    elif kind == Kind.NHC:
+        nhc_residual(nav, C, aid.C_vb, z)
+        nhc_jacobian(nav, C, aid.C_vb, H)
+        om = lay[Block.MOUNTING]
+        if om >= 0:  # the residual misalignment m = [pitch, yaw] turns the vehicle axes:
+            # v_vehicle = (I - [(0, m_p, m_y) x]) C_vb v_b -> lateral - s m_y, vertical + s m_p; and
+            # the constraint holds at a point d behind the IMU (the rear axle): + w x (-d, 0, 0)
+            s = (aid.C_vb @ (C.T @ nav[3:6]))[0]
+            w_v = aid.C_vb @ w_ib
+            mp, my, d = bias[6 + om - N_NAV], bias[6 + om - N_NAV + 1], bias[6 + om - N_NAV + 2]
+            z[0] += -s * my - w_v[2] * d
+            z[1] += s * mp + w_v[1] * d
+            H[0, om + 1] = -s
+            H[1, om] = s
+            H[0, om + 2] = -w_v[2]
+            H[1, om + 2] = w_v[1]
+    elif kind == Kind.ZARU:
+        zaru_residual(nav, C, bias, aid.earth_sign, ev.z[e], z)
+        zaru_jacobian(H)
     else:  # Kind.ZUPT
         zupt_residual(nav, z)
         for i in range(3):

@@ -1,0 +1,189 @@
+"""Vehicle motion constraints as measurements of the error-state filter (issue 11).
+
+- Stops (`detect_stops`): intervals where the GPS speed or the odometer says the vehicle stands
+  (an engine's vibration fails a raw-IMU stillness test, so the IMU alone does not decide).
+- ZUPT (`Kind.ZUPT`, NED velocity 0) and ZARU (`Kind.ZARU`, mean raw gyro = gyro bias + Earth rate)
+  rows on the stops (`stop_measurements`).
+- Non-holonomic constraints (`Kind.NHC`: the vehicle's lateral and vertical velocity are 0,
+  Groves 2013 Sec. 15.4.3) while it is not stopped (`nhc_measurements`), in the vehicle axes given
+  by the mounting rotation C_vb.
+- The mounting (`travel_direction`): the IMU-to-vehicle rotation from a first run's body-frame
+  velocity (a wheeled vehicle moves along its own x axis), with its sigma and the steadiness of
+  that direction, which decides the platform when the pipeline says `auto` (a car's travel
+  direction is fixed in its body axes, a walker's or a hand-held unit's is not).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.fusion.engine import FilterRun, Measurements
+from tpos_cli.fusion.measurements import Kind
+
+_SLOT_NHC, _SLOT_ZUPT, _SLOT_ZARU = 10, 11, 12  # rejection counters of their own (GPS uses 0, 1)
+
+
+@dataclass(frozen=True)
+class Stops:
+    """Stop intervals (K, 2) session seconds, and where they were found (`gps`, `odometry` counts)."""
+
+    intervals_s: np.ndarray
+    sources: dict
+
+    def contains(self, t_s) -> np.ndarray:
+        t = np.asarray(t_s, dtype=float)
+        inside = np.zeros(t.shape, dtype=bool)
+        for a, b in self.intervals_s:
+            inside |= (t >= a) & (t <= b)
+        return inside
+
+    @property
+    def total_s(self) -> float:
+        return float(np.sum(self.intervals_s[:, 1] - self.intervals_s[:, 0])) if self.intervals_s.size else 0.0
+
+
+def _runs(t_s, still, max_step_s: float, min_len_s: float) -> list[tuple[float, float]]:
+    """Intervals [first, last] of consecutive `still` samples no more than max_step_s apart."""
+    out = []
+    t = np.asarray(t_s, dtype=float)
+    i = 0
+    n = t.size
+    while i < n:
+        if not still[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < n and still[j + 1] and t[j + 1] - t[j] <= max_step_s:
+            j += 1
+        if t[j] - t[i] >= min_len_s:
+            out.append((float(t[i]), float(t[j])))
+        i = j + 1
+    return out
+
+
+def detect_stops(gps_t_s, gps_vel_ned_mps, odo_t_s=None, odo_speed_mps=None, *, max_speed_mps: float = 0.1,
+                 min_duration_s: float = 2.0) -> Stops:
+    """Stops where consecutive GPS velocities (horizontal speed) or odometer speeds stay below
+    max_speed_mps for at least min_duration_s. Each interval is shrunk by 0.5 s at both ends (the
+    vehicle may be starting or finishing a stop between samples)."""
+    found = []
+    src = {"gps": 0, "odometry": 0}
+    t = np.asarray(gps_t_s, dtype=float)
+    v = np.asarray(gps_vel_ned_mps, dtype=float).reshape(-1, 3)
+    ok = np.isfinite(v[:, 0]) & np.isfinite(v[:, 1])
+    if ok.sum() > 1:
+        sp = np.hypot(v[ok, 0], v[ok, 1])
+        r = _runs(t[ok], sp < max_speed_mps, max_step_s=1.5, min_len_s=min_duration_s)
+        src["gps"] = len(r)
+        found += r
+    if odo_t_s is not None and np.size(odo_t_s) > 1:
+        to = np.asarray(odo_t_s, dtype=float)
+        r = _runs(to, np.asarray(odo_speed_mps, dtype=float) < max_speed_mps, max_step_s=1.0, min_len_s=min_duration_s)
+        src["odometry"] = len(r)
+        found += r
+    iv = sorted((a + 0.5, b - 0.5) for a, b in found if b - a > 1.0)
+    merged: list[list[float]] = []
+    for a, b in iv:
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    return Stops(np.array(merged, dtype=float).reshape(-1, 2), src)
+
+
+def stop_measurements(t_imu_s, gyro_b_rps, stops: Stops, *, zupt_sigma_mps: float, block_s: float = 0.5,
+                      min_gyro_sigma_rps: float = np.radians(0.005)) -> Measurements | None:
+    """ZUPT and ZARU rows every block_s inside the stops. ZARU: z = the block's mean raw gyro; its
+    SD is the sample scatter over sqrt(N), doubled for vibration correlated between samples, at
+    least min_gyro_sigma_rps."""
+    t = np.asarray(t_imu_s, dtype=float)
+    gyro = np.asarray(gyro_b_rps, dtype=float)
+    tz, zz, Rz = [], [], []
+    for a, b in stops.intervals_s:
+        edges = np.arange(a, b + 1e-9, block_s)
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            i0, i1 = np.searchsorted(t, [lo, hi])
+            if i1 - i0 < 3:
+                continue
+            g = gyro[i0:i1]
+            sd = np.maximum(2.0 * g.std(axis=0, ddof=1) / np.sqrt(i1 - i0), min_gyro_sigma_rps)
+            tz.append(t[i1 - 1])
+            zz.append(g.mean(axis=0))
+            Rz.append(np.diag(sd**2))
+    if not tz:
+        return None
+    n = len(tz)
+    zupt = Measurements.rows(tz, Kind.ZUPT, np.zeros((n, 3)), np.broadcast_to(zupt_sigma_mps**2 * np.eye(3), (n, 3, 3)),
+                             dim=3, gated=True, slot=_SLOT_ZUPT)
+    zaru = Measurements.rows(tz, Kind.ZARU, np.array(zz), np.array(Rz), dim=3, gated=True, slot=_SLOT_ZARU)
+    return Measurements.merge(zupt, zaru)
+
+
+def nhc_measurements(t_imu_s, stops: Stops, *, rate_hz: float, sigma_mps: float) -> Measurements:
+    """NHC rows at rate_hz over the log, outside the stops: z = 0 (2 dof), R = sigma^2 each (the
+    mounting block, `fusion.layout.mounting_block`, carries the misalignment and the distance to
+    the point where the constraint holds)."""
+    t = np.asarray(t_imu_s, dtype=float)
+    step = max(1, int(round((t.size - 1) / (t[-1] - t[0]) / rate_hz))) if t.size > 1 else 1
+    tn = t[step::step]
+    tn = tn[~stops.contains(tn)]
+    n = tn.size
+    return Measurements.rows(tn, Kind.NHC, np.zeros((n, 3)), np.broadcast_to(sigma_mps**2 * np.eye(2), (n, 2, 2)), dim=2,
+                             gated=True, slot=_SLOT_NHC)
+
+
+@dataclass(frozen=True)
+class TravelDirection:
+    """The IMU-to-vehicle rotation from the travel direction in body axes: pitch_deg, yaw_deg with
+    their SDs (roll is unobservable this way: 0), steadiness (mean resultant length of the unit
+    body-frame velocities, 1 = a fixed direction), moving_s (time used)."""
+
+    pitch_deg: float
+    yaw_deg: float
+    sigma_pitch_deg: float
+    sigma_yaw_deg: float
+    steadiness: float
+    moving_s: float
+
+    @property
+    def C_vb(self) -> np.ndarray:
+        """Body -> vehicle DCM (v_vehicle = C_vb v_body), the contract's mounting convention."""
+        return euler_to_dcm(0.0, np.radians(self.pitch_deg), np.radians(self.yaw_deg))
+
+    def summary(self) -> dict:
+        return {"mounting_rpy_deg": [0.0, round(self.pitch_deg, 2), round(self.yaw_deg, 2)],
+                "sigma_rpy_deg": [None, round(self.sigma_pitch_deg, 2), round(self.sigma_yaw_deg, 2)],
+                "steadiness": round(self.steadiness, 4), "moving_s": round(self.moving_s, 1)}
+
+
+def travel_direction(run: FilterRun, *, min_speed_mps: float = 3.0, block_s: float = 10.0) -> TravelDirection | None:
+    """Mounting from the direction of the run's velocity in body axes while faster than
+    min_speed_mps. u = C_nb^T v / |v|; with v_vehicle = Rz(yaw) Ry(pitch) v_body along x:
+    u = (cos p cos y, -sin y, sin p cos y), so pitch = atan2(u_z, u_x), yaw = atan2(-u_y, |u_xz|).
+    SDs: scatter of 10 s block means over sqrt(number of blocks)."""
+    v = run.nav[:, 3:6]
+    sp = np.linalg.norm(v, axis=1)
+    m = sp > min_speed_mps
+    if m.sum() < 10:
+        return None
+    u = np.einsum("kji,kj->ki", run.C_nb[m], v[m]) / sp[m, None]
+    mean = u.mean(axis=0)
+    steadiness = float(np.linalg.norm(mean))
+    d = mean / steadiness
+    pitch = np.degrees(np.arctan2(d[2], d[0]))
+    yaw = np.degrees(np.arctan2(-d[1], np.hypot(d[0], d[2])))
+    t = run.t_s[m]
+    blk = np.floor((t - t[0]) / block_s).astype(np.int64)
+    ids = np.unique(blk)
+    dt = float(np.median(np.diff(run.t_s))) if run.t_s.size > 1 else 0.0
+    if ids.size >= 3:
+        bm = np.array([u[blk == i].mean(axis=0) for i in ids])
+        bp = np.degrees(np.arctan2(bm[:, 2], bm[:, 0]))
+        by = np.degrees(np.arctan2(-bm[:, 1], np.hypot(bm[:, 0], bm[:, 2])))
+        sp_, sy_ = (float(np.std(x, ddof=1) / np.sqrt(ids.size)) for x in (bp, by))
+    else:
+        sp_ = sy_ = float("nan")
+    return TravelDirection(float(pitch), float(yaw), sp_, sy_, steadiness, float(m.sum() * dt))
