@@ -8,6 +8,7 @@ import pytest
 
 from tpos_cli.chains.drive_smooth import process_drive
 from tpos_cli.config import DriveSmoothParams
+from tpos_cli.fusion.layout import Block
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.fusion.engine import epoch_of
 from tpos_cli.session import load_session
@@ -44,7 +45,7 @@ def test_white_simulated_gps_keeps_the_15_state_filter():
     res = process_drive(ses, DriveSmoothParams(gps_sigma_vel_mps=0.05, gps_error_model="gauss_markov"), None, names=("forward", "backward", "smoothed"))
     ge = res.info["gps_error_states"]
     assert ge["sigma_h_m"] == 0.0 and ge["sigma_v_m"] == 0.0
-    assert res.forward.ep_P.shape[1] == 15 and res.forward.bias.shape[1] == 6
+    assert res.forward.layout.offset(Block.GPS_ERROR) == -1
 
 
 def _stats(sim, sol, inside):
@@ -79,7 +80,7 @@ def test_error_states_are_fitted_on_correlated_gps(correlated_runs):
         # ML over ten correlation times of one drive: the SD is known to a factor of about 2 (the
         # innovations pin the drift rate sigma^2 / tau better than sigma or tau alone)
         assert 0.5 <= ge["sigma_h_m"] <= 2.0
-        assert runs["gauss_markov"].forward.ep_P.shape[1] == 18
+        assert runs["gauss_markov"].forward.layout.offset(Block.GPS_ERROR) >= 0
 
 
 def test_error_states_are_consistent_forward_and_backward(correlated_runs):

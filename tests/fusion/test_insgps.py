@@ -1,5 +1,8 @@
 """The INS/GPS filter on a simulated MEMS drive: consistency (NEES), outage bridging, backward run."""
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.stats import chi2
@@ -58,14 +61,38 @@ def test_outage_bridging(drive):
         eh = np.hypot(e[:, 0], e[:, 1])
         m = _in_outage(sim, sol)
         rms[name] = (np.sqrt(np.mean(eh[m] ** 2)), np.sqrt(np.mean(eh[~m] ** 2)))
-    # issue 4 goals for a 30 s outage with 1.5 m GPS noise
-    assert rms["rts"][0] < 0.5 and rms["rts"][0] < 0.35 * rms["forward"][0]
-    assert rms["two_filter"][0] < 0.5 and rms["two_filter"][0] < 0.35 * rms["forward"][0]
+    # issue 4 goals for a 30 s outage with 1.5 m GPS noise (the car's motion constraints on: the
+    # forward coast itself is already within a few decimetres, issue 11)
+    assert rms["rts"][0] < 0.5 and rms["rts"][0] < rms["forward"][0]
+    assert rms["two_filter"][0] < 0.5 and rms["two_filter"][0] < rms["forward"][0]
     assert rms["rts"][1] < 0.6
     # the forward filter is not a weak strawman: its outside-outage RMS is below the GPS noise
     assert rms["forward"][1] < 1.0
+    assert rms["rts"][0] < rms["simplified"][0]
+
+
+@pytest.fixture(scope="module")
+def drive_unconstrained(drive):
+    """The same drive without motion constraints (`platform = "none"`): paper 003's smoothers alone."""
+    sim, _ = drive
+    with tempfile.TemporaryDirectory() as tmp:
+        session = load_session(sim.write(Path(tmp) / "s"))
+    p = DriveSmoothParams(gps_sigma_vel_mps=0.05, platform="none")
+    return sim, process_drive(session, p, None, names=("forward", "rts", "two_filter", "simplified"))
+
+
+def test_outage_bridging_without_constraints(drive_unconstrained):
+    """Issue 4 goals: the smoothers bridge a 30 s outage at a third of the free forward coast."""
+    sim, res = drive_unconstrained
+    rms = {}
+    for name, sol in res.solutions.items():
+        e = _errors(sim, sol)
+        m = _in_outage(sim, sol)
+        rms[name] = np.sqrt(np.mean(np.hypot(e[m, 0], e[m, 1]) ** 2))
+    assert rms["rts"] < 0.5 and rms["rts"] < 0.35 * rms["forward"]
+    assert rms["two_filter"] < 0.5 and rms["two_filter"] < 0.35 * rms["forward"]
     # paper 003's simplified smoother bridges worse than the optimal ones but better than forward
-    assert rms["rts"][0] < rms["simplified"][0] < rms["forward"][0]
+    assert rms["rts"] < rms["simplified"] < rms["forward"]
 
 
 def test_backward_run_on_reversed_log(drive):
@@ -79,7 +106,7 @@ def test_backward_run_on_reversed_log(drive):
     # the forward filter's gyro bias estimate at the end agrees with the truth (sensor errors known)
     b_true = sim.imu.errors.gyro_bias_rps[-1]
     sd = np.sqrt(np.diagonal(fwd.ep_P[-1])[12:15])
-    assert np.all(np.abs(fwd.bias[-1, 3:] - b_true) < 4 * sd)
+    assert np.all(np.abs(fwd.bias[-1, 3:6] - b_true) < 4 * sd)
 
 
 def test_flags_and_rejections_quiet_on_clean_data(drive):

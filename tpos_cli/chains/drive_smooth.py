@@ -79,7 +79,9 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     ok = gps.valid
     sig = np.array(gps.sigma_neu_m[ok], dtype=float)
     default = np.array([p.gps_sigma_h_m, p.gps_sigma_h_m, p.gps_sigma_v_m])
-    sig = np.where(np.isfinite(sig) & (sig > 0), np.maximum(sig, p.gps_sigma_floor_m), default)
+    logged = np.isfinite(sig) & (sig > 0)
+    sig = np.where(logged, np.maximum(sig, p.gps_sigma_floor_m), default)
+    from_receiver = (bool(logged[:, :2].mean() > 0.5), bool(logged[:, 2].mean() > 0.5), False, False) if logged.size else (False,) * 4
     vel = np.array(gps.vel_ned_mps[ok], dtype=float)
     if not p.use_gps_velocity:
         vel[:] = np.nan
@@ -87,7 +89,7 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     t = np.array(gps.t_s[ok], dtype=float)
     keep = decimate_times(t, p.gps_max_rate_hz)
     return GpsFixes(t[keep], np.array(gps.lla[ok], dtype=float)[keep], vel[keep], sig[keep],
-                    np.full((int(keep.size), 3), p.gps_sigma_vel_mps))
+                    np.full((int(keep.size), 3), p.gps_sigma_vel_mps), from_receiver)
 
 
 def decimate_times(t_s, max_rate_hz) -> np.ndarray:
@@ -179,8 +181,9 @@ def align(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, cf
 
 
 def raise_only(gn: GpsNoise, fixes: GpsFixes) -> GpsNoise:
-    """The matching's scales below 1 set to 1 (the receiver's SDs are a floor), SDs recomputed."""
-    scale = np.maximum(gn.scale, 1.0)
+    """The matching's scales below 1 set to 1 where the receiver logged the SDs (they are a floor:
+    a quiet stretch of fixes says little about the next multipath one); SDs recomputed."""
+    scale = np.where(np.asarray(fixes.from_receiver, dtype=bool), np.maximum(gn.scale, 1.0), gn.scale)
     return dataclasses.replace(gn, scale=scale, sigma=median_sigmas(scaled_fixes(fixes, scale)))
 
 
@@ -192,12 +195,9 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     gn = None
     if p.gps_noise == "estimate":
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
-        # matching may raise the receiver's SDs, never lower them: a quiet stretch of centimetre
-        # fixes says little about the next multipath one, and lowered SDs pull the solution off
-        # good fixes elsewhere (issue 11)
         gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
-        info["gps_noise"] = {"method": "covariance matching on decimated filter passes, raising only (fusion.gps_noise)",
+        info["gps_noise"] = {"method": "covariance matching on decimated filter passes; the receiver's own SDs only raised (fusion.gps_noise)",
                              **gn.summary()}
         info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + t0_s, 2) for v in gn.window_s]
     else:
@@ -288,7 +288,9 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
                                   layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
-        parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps))
+        after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else -np.inf
+        out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
+        parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))
     parts = [m for m in parts if m is not None and len(m)]
     return cfg, (Measurements.merge(*parts) if parts else None)
 

@@ -23,7 +23,9 @@ from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion.engine import FilterRun, Measurements
 from tpos_cli.fusion.measurements import Kind
 
-_SLOT_NHC, _SLOT_ZUPT, _SLOT_ZARU = 10, 11, 12  # rejection counters of their own (GPS uses 0, 1)
+# constraints are gated without a counter of consecutive rejections (slot -1): when they keep
+# failing it is the state that is wrong (e.g. a wrong initial yaw), and only the GPS may force it back
+_SLOT_NHC = _SLOT_ZUPT = _SLOT_ZARU = -1
 
 
 @dataclass(frozen=True)
@@ -122,14 +124,15 @@ def stop_measurements(t_imu_s, gyro_b_rps, stops: Stops, *, zupt_sigma_mps: floa
     return Measurements.merge(zupt, zaru)
 
 
-def nhc_measurements(t_imu_s, stops: Stops, *, rate_hz: float, sigma_mps: float) -> Measurements:
-    """NHC rows at rate_hz over the log, outside the stops: z = 0 (2 dof), R = sigma^2 each (the
-    mounting block, `fusion.layout.mounting_block`, carries the misalignment and the distance to
-    the point where the constraint holds)."""
+def nhc_measurements(t_imu_s, stops: Stops, *, rate_hz: float, sigma_mps: float, after_s: float = -np.inf) -> Measurements:
+    """NHC rows at rate_hz over the log after `after_s`, outside the stops: z = 0 (2 dof), R =
+    sigma^2 each (the mounting block, `fusion.layout.mounting_block`, carries the misalignment and
+    the distance to the point where the constraint holds). `after_s`: the end of the initial yaw
+    search; before it the yaw may be tens of degrees off, far outside the constraint's linear range."""
     t = np.asarray(t_imu_s, dtype=float)
     step = max(1, int(round((t.size - 1) / (t[-1] - t[0]) / rate_hz))) if t.size > 1 else 1
     tn = t[step::step]
-    tn = tn[~stops.contains(tn)]
+    tn = tn[~stops.contains(tn) & (tn >= after_s)]
     n = tn.size
     return Measurements.rows(tn, Kind.NHC, np.zeros((n, 3)), np.broadcast_to(sigma_mps**2 * np.eye(2), (n, 2, 2)), dim=2,
                              gated=True, slot=_SLOT_NHC)

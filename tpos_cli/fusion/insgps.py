@@ -23,13 +23,16 @@ _SLOT_POSITION, _SLOT_VELOCITY = 0, 1
 @dataclass(frozen=True)
 class GpsFixes:
     """Fixes used by the filter: t_s (M,), lla (M,3) deg/m, vel_ned_mps (M,3) NaN if absent,
-    sigma_pos_ned_m (M,3), sigma_vel_mps (M,3)."""
+    sigma_pos_ned_m (M,3), sigma_vel_mps (M,3), from_receiver (4,) bool."""
 
     t_s: np.ndarray
     lla: np.ndarray
     vel_ned_mps: np.ndarray
     sigma_pos_ned_m: np.ndarray
     sigma_vel_mps: np.ndarray
+    # per group (pos_h, pos_v, vel_h, vel_v): SDs the receiver logged (not pipeline defaults);
+    # noise matching may raise those but never lower them
+    from_receiver: tuple = (False, False, False, False)
 
 
 @dataclass(frozen=True)
