@@ -87,8 +87,9 @@ def main():
         ours, vqf = rms_deg(e_ours), rms_deg(e_vqf)
         off = total_rms_deg(C, C_true[mov]), total_rms_deg(C_vqf, C_true[mov])
         ratios.append(ours / vqf)
+        inside, nees_dof = share_in_band(e_ours, C, sig)
         print(f"{d.name:40s} {ours:6.3f} {vqf:6.3f} {ours / vqf:6.3f}  {off[0]:15.3f}/{off[1]:.3f}"
-              f"{'':10s}  {'%.3f (NEES/dof %.2f)' % share_in_band(e_ours, C, sig)}")
+              f"{'':10s}  {inside:.3f} (NEES/dof {nees_dof:.2f})")
     print(f"mean ratio {np.mean(ratios):.3f}, max {np.max(ratios):.3f} (tpos below VQF where < 1)")
     return 0
 
