@@ -575,11 +575,10 @@ def _declination(session: Session, obs_lla, ctx: RunContext, summary: dict) -> f
 
 
 def _coarse_noise(session: Session, p: TargetFkfParams):
-    """(acc m/s^2, mag uT) white noise for the first alignment, before the figures are resolved."""
-    n = session.meta.imu_noise
-    acc = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
-    mag = n.mag_noise_ut if n.mag_noise_ut is not None else p.mag_noise_ut
-    return acc * 1e-3 * G0_MPS2, mag
+    """(acc m/s^2, mag uT) white noise for the first alignment, before the still window's own figures
+    are known (`imu_noise.resolve_imu_noise` without measured values)."""
+    fig = resolve_imu_noise(p, session.meta.imu_noise, keys=("acc_noise_mg", "mag_noise_ut"))
+    return fig["acc_noise_mg"] * 1e-3 * G0_MPS2, fig["mag_noise_ut"]
 
 
 def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: FilterNoise, start: End, field,
