@@ -357,7 +357,8 @@ def _fit_motion(setups: Setups, p: TargetFkfParams, t, gyro_sol: AttitudeSolutio
     only reaches frequencies below the fitted band."""
     acc_n = np.einsum("nij,nj->ni", gyro_sol.C_nb, acc_b)
     try:
-        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz))
+        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz),
+                                    acc_noise_mps2=setups.forward.noise.acc_noise_mps2)
     except ProcessingError as e:
         ctx.warn(f"{e}; using the fixed bounded-motion epochs (motion_sd_mps, motion_sd_m)")
         return setups
