@@ -25,7 +25,7 @@ from tpos_cli.pipeline import process_session
 from tpos_cli.sim.target import simulate_target
 from tpos_cli.sim.writer import write_session
 
-GRADES = ("paper", "mems")  # the grades `tpos simulate target` offers
+GRADES = tuple(sys.argv[2].split(",")) if len(sys.argv) > 2 else ("paper", "mems")  # the grades `tpos simulate target` offers
 SOLUTIONS = ("fkf", "fkf_cal", "lf1", "lf2")
 
 

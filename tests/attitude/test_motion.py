@@ -90,3 +90,16 @@ def test_displacement_variance_is_the_closed_form_of_a_white_driven_oscillator()
     w0 = 2 * np.pi * 0.5
     assert vp == pytest.approx(2.0 / (4 * 0.7071 * w0**3), rel=1e-12)
     assert vv == pytest.approx(w0**2 * vp, rel=1e-12)
+
+
+def test_fit_takes_the_accelerometer_noise_floor_out_of_the_hand_motion():
+    # a small hand motion (2 mm) under loud accelerometer noise (0.1 m/s^2 per sample): fitted as one
+    # oscillator the noise inflates the hand's displacement by ~45 %; with the noise as a known floor
+    # the fit lands on the true SD (same 60 Welch segments, same ~15 % tolerance as above)
+    t, _, a = _oscillator_path(0.6, 0.4, 0.002, 1200.0, 0.01, seed=3)
+    a_meas = a + np.random.default_rng(4).normal(0, 0.1, a.shape)
+    loud = fit_oscillator(t, a_meas, np.ones(t.size, bool))
+    fit = fit_oscillator(t, a_meas, np.ones(t.size, bool), acc_noise_mps2=0.1)
+    assert loud.sd_m > 1.3 * 0.002
+    assert fit.sd_m == pytest.approx(0.002, rel=0.15)
+    assert fit.freq_hz == pytest.approx(0.6, rel=0.10)

@@ -126,3 +126,39 @@ def test_an_hour_long_imu_gap_is_refused_with_a_one_line_message(tmp_path):
     assert any("imu: a gap of 3600.0 s" in m and "split the log" in m for m in msg), res.output
     assert "Traceback" not in res.output
     assert not (tmp_path / "run").exists()  # no partial output
+
+
+def _mems_target_nees(tmp_path, seeds, solution):
+    from scipy.stats import chi2
+    nees = []
+    for seed in seeds:
+        sim = simulate_target(90.0, seed=seed, grade="mems")
+        d = write_session(sim, tmp_path / f"s{seed}", overwrite=True)
+        rs = process_session(d, "target-fkf", tmp_path / f"run{seed}")
+        tg = pd.read_parquet(rs.run_dir / "targets.parquet")
+        truth = dict(zip(sim.targets.ids, sim.targets.lla))
+        for r in tg[(tg.solution == solution) & tg.id.isin(truth)].itertuples():
+            e = geodetic.lla_to_ned(np.array([r.lat, r.lon, r.h]), truth[r.id])
+            P = np.array([[r.sigma_n**2, r.cov_ne_m2, -r.cov_nu_m2], [r.cov_ne_m2, r.sigma_e**2, -r.cov_eu_m2],
+                          [-r.cov_nu_m2, -r.cov_eu_m2, r.sigma_u**2]])
+            nees.append(float(e @ np.linalg.solve(P, e)))
+    nees = np.array(nees)
+    return np.mean(nees < chi2.ppf(0.95, 3)), nees.mean() / 3
+
+
+@pytest.mark.parametrize("solution", ["fkf", "fkf_cal"])
+def test_mems_grade_target_sigmas_are_never_over_confident(tmp_path, solution):
+    # issue 12: consumer-MEMS sessions (10 mg accelerometer bias: half a degree of levelling error and,
+    # through the dip, about a degree and a half of magnetic heading) give 0.2-0.5 m target errors; each
+    # target's own covariance (targets.parquet, full 3x3) must hold them: >= 80 % inside the 95 %
+    # ellipsoid and mean NEES per dof <= 2 (the issue's criterion), 3 sessions, 21 targets
+    inside, nees_dof = _mems_target_nees(tmp_path, (31, 32, 33), solution)
+    assert inside >= 0.8 and nees_dof <= 2.0, (inside, nees_dof)
+
+
+@pytest.mark.xfail(reason="known gap (issue 12): the levelling consider term treats the accelerometer bias as "
+                          "never observed; MEMS fkf is conservative (mean NEES/dof 0.27 over 10 sessions, "
+                          "benchmarks/target_nees.py), fkf_cal more so (0.06)", strict=False)
+def test_mems_grade_target_sigmas_are_not_conservative(tmp_path):
+    _, nees_dof = _mems_target_nees(tmp_path, (31, 32, 33), "fkf")
+    assert nees_dof >= 0.3

@@ -110,8 +110,9 @@ def fit_window(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, i0, i1, *, var_r
 def _reference(wins, prior, cluster_ut=3.0, cluster_dip_rad=0.05236, min_share=0.1):
     """(norm, dip, member windows) of the Earth field: the median over the windows. With a `prior` (norm uT, dip rad;
     the IGRF at the log's place and date), the median over the cluster of windows (field within
-    `cluster_ut` and `cluster_dip_rad` (3 deg) of one another, at least `min_share` of the windows) nearest
-    the prior: a disturbance that covers most of the log must not become the reference."""
+    `cluster_ut` and `cluster_dip_rad` (3 deg) of one another, at least `min_share` of the windows or
+    within those tolerances of the prior) nearest the prior: a disturbance that covers most of the log
+    must not become the reference."""
     nw = np.array([w.norm_ut for w in wins])
     dw = np.array([w.dip_rad for w in wins])
     every = np.ones(nw.size, dtype=bool)
@@ -119,7 +120,10 @@ def _reference(wins, prior, cluster_ut=3.0, cluster_dip_rad=0.05236, min_share=0
         return float(np.median(nw)), float(np.median(dw)), every
     members = (np.abs(nw[:, None] - nw[None, :]) <= cluster_ut) & (np.abs(dw[:, None] - dw[None, :]) <= cluster_dip_rad)
     support = members.sum(axis=1)
-    cand = np.flatnonzero(support >= max(2, min_share * nw.size))
+    # a cluster qualifies by its size, or, however small (a clean stretch before a disturbance that
+    # lasts to the end), by agreeing with the prior within the cluster tolerance
+    near = (np.abs(nw - prior[0]) <= cluster_ut) & (np.abs(dw - prior[1]) <= cluster_dip_rad)
+    cand = np.flatnonzero((support >= max(2, min_share * nw.size)) | near)
     if cand.size == 0:
         return float(np.median(nw)), float(np.median(dw)), every
     dist = np.hypot((nw[cand] - prior[0]) / cluster_ut, (dw[cand] - prior[1]) / cluster_dip_rad)

@@ -52,13 +52,16 @@ def oscillator_psd(f_hz, freq_hz, damping, q):
     return 2.0 * q * w**4 / ((w0**2 - w**2) ** 2 + (2.0 * damping * w0 * w) ** 2)
 
 
-def fit_oscillator(t_s, acc_ned_mps2, moving, band_hz=(0.3, 5.0), damping=None, segment_s=20.0) -> OscillatorFit:
+def fit_oscillator(t_s, acc_ned_mps2, moving, band_hz=(0.3, 5.0), damping=None, segment_s=20.0,
+                   acc_noise_mps2: float = 0.0) -> OscillatorFit:
     """Least-squares fit (in log PSD) of the oscillator to the NED kinematic acceleration (N,3).
 
     `moving` (N,) bool marks the samples outside detected still periods; the PSD of the whole log is
     divided by their fraction (a still device contributes no acceleration), so q is the intensity
     while the device moves. The mean PSD over the three axes is fitted over frequency and damping
-    (`damping` given: held fixed). Raises ProcessingError when the log is too short, never moves, or
+    (`damping` given: held fixed). The accelerometer's white noise (`acc_noise_mps2` per sample) is a
+    floor under the hand's PSD (one-sided, 2 sigma^2 dt, reduced by the moving fraction like the rest)
+    that the filter already counts, so the fit is q shape + floor. Raises ProcessingError when the log is too short, never moves, or
     the best frequency lies at the edge of `FREQ_RANGE_HZ` (no oscillator shape in the band).
     """
     t = np.asarray(t_s, dtype=float)
@@ -77,11 +80,19 @@ def fit_oscillator(t_s, acc_ned_mps2, moving, band_hz=(0.3, 5.0), damping=None, 
     grid = np.exp(np.linspace(np.log(FREQ_RANGE_HZ[0]), np.log(FREQ_RANGE_HZ[1]), 150))
     zetas = np.array([damping]) if damping is not None else np.exp(np.linspace(*np.log(DAMPING_RANGE), 25))
     best = None
+    floor = 2.0 * acc_noise_mps2**2 * dt / frac
     for z in zetas:
         for fn in grid:
             shape = np.log(oscillator_psd(lf, fn, z, 1.0))
-            lq = float(np.mean(lS - shape))  # the best q for this shape, in closed form
-            cost = float(np.sum((lS - shape - lq) ** 2))
+            lq = float(np.mean(lS - shape))  # the best q for this shape without a floor, in closed form
+            if floor > 0.0:
+                # with the floor: the best q on a log grid below that (the floor only lowers it)
+                qs = np.exp(lq + np.linspace(-12.0, 0.5, 126))
+                costs = np.sum((lS[None] - np.log(qs[:, None] * np.exp(shape)[None] + floor)) ** 2, axis=1)
+                i = int(np.argmin(costs))
+                cost, lq = float(costs[i]), float(np.log(qs[i]))
+            else:
+                cost = float(np.sum((lS - shape - lq) ** 2))
             if best is None or cost < best[0]:
                 best = (cost, fn, z, np.exp(lq))
     _, fn, z, q = best

@@ -26,11 +26,15 @@ from tpos_cli.attitude.local import AttitudeSolution, FilterSetup, run_full
 from tpos_cli.frames.rotation import dcm_to_rotvec
 
 
-def fb_scale(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10) -> tuple[float, float]:
-    """(tilt, heading) mean of d^T (P_f + P_b)^-1 d per dof over the samples (every `stride`-th)."""
+def fb_scale(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10, diff_cov=None) -> tuple[float, float]:
+    """(tilt, heading) mean of d^T (P_f + P_b + D)^-1 d per dof over the samples (every `stride`-th);
+    D (3,3) the covariance of a difference the runs' own covariances leave out by design (a consider
+    term, e.g. the two ends' different levelling errors from one accelerometer bias), default none."""
     sl = slice(None, None, max(1, stride))
     d = dcm_to_rotvec(fwd.C_nb[sl] @ np.swapaxes(bwd.C_nb[sl], 1, 2))
     S = fwd.P_att[sl] + bwd.P_att[sl]
+    if diff_cov is not None:
+        S = S + np.asarray(diff_cov, dtype=float)[None]
     St = S[:, 0:2, 0:2]
     dt = d[:, 0:2]
     tilt = np.einsum("ni,ni->n", dt, np.linalg.solve(St, dt[..., None])[..., 0]) / 2.0
@@ -54,15 +58,17 @@ def _fuse_diag(a, va, b, vb):
 
 
 def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: FilterSetup, use: int,
-                backward_setup: FilterSetup, still=None, forward: AttitudeSolution | None = None) -> AttitudeSolution:
+                backward_setup: FilterSetup, still=None, forward: AttitudeSolution | None = None,
+                diff_cov=None) -> AttitudeSolution:
     """Smoothed `run_full` solution (module docstring). `backward_setup` holds the backward run's own
     initial state at the last sample (C0, bias0_rps, P0); `forward` may pass an already computed forward
-    run with `setup`. `nis` are the forward run's; `mag_ok` is True where both runs accepted the field."""
+    run with `setup`. `nis` are the forward run's; `mag_ok` is True where both runs accepted the field.
+    `diff_cov`: see `fb_scale`."""
     fwd = forward if forward is not None else run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup, use,
                                                         still=still)
     bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, backward_setup, use, backward=True, still=still)
     s = master.fuse(name, [fwd, bwd])
-    lt, lh = fb_scale(fwd, bwd)
+    lt, lh = fb_scale(fwd, bwd, diff_cov=diff_cov)
     P = scale_covariance(s.P_att, max(1.0, lt), max(1.0, lh))
     vb = np.concatenate([fwd.var_bias, bwd.var_bias], axis=1)
     bg, vg = _fuse_diag(fwd.bias_rps, vb[:, 0:3], bwd.bias_rps, vb[:, 6:9])

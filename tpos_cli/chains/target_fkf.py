@@ -357,7 +357,8 @@ def _fit_motion(setups: Setups, p: TargetFkfParams, t, gyro_sol: AttitudeSolutio
     only reaches frequencies below the fitted band."""
     acc_n = np.einsum("nij,nj->ni", gyro_sol.C_nb, acc_b)
     try:
-        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz))
+        fit = motion.fit_oscillator(t, acc_n, ~still, band_hz=tuple(p.motion_fit_band_hz),
+                                    acc_noise_mps2=setups.forward.noise.acc_noise_mps2)
     except ProcessingError as e:
         ctx.warn(f"{e}; using the fixed bounded-motion epochs (motion_sd_mps, motion_sd_m)")
         return setups
@@ -368,8 +369,9 @@ def _fit_motion(setups: Setups, p: TargetFkfParams, t, gyro_sol: AttitudeSolutio
 
 
 def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, beams: Beams, ends, noise, decl,
-                  ctx: RunContext, summary: dict) -> dict:
-    """gyro, lf1 and (with beams) lf2, each smoothed by independent forward and backward runs."""
+                  ctx: RunContext, summary: dict, fb_diff_cov=None) -> dict:
+    """gyro, lf1 and (with beams) lf2, each smoothed by independent forward and backward runs
+    (`fb_diff_cov`: the runs' expected difference their covariances leave out, `smoother.fb_scale`)."""
     imu = session.imu
     t = imu.t_s
     with ctx.stage("local filters"):
@@ -389,7 +391,7 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
             def run(name, mag_, rd, use):
                 if p.smooth:
                     return smooth_full(name, t, imu.gyro_b_rps, imu.acc_b_mps2, mag_, rd, setups.forward, use,
-                                       setups.backward, still=still)
+                                       setups.backward, still=still, diff_cov=fb_diff_cov)
                 return run_full(name, t, imu.gyro_b_rps, imu.acc_b_mps2, mag_, rd, setups.forward, use, still=still)
 
             sols["lf1"] = run("lf1", mag, None, K.USE_ACC | mot | (K.USE_MAG if mag is not None else 0))
@@ -434,9 +436,51 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
     return sols
 
 
+def levelling_map(C_nb, gravity_mps2: float, dip_rad: float | None, decl_rad: float) -> np.ndarray:
+    """(..., 3, 3) map M = L J from the body-frame accelerometer bias b_a to the NED attitude error it
+    leaves in a solution levelled at attitude C_nb: phi = L J b_a (`levelling_consider_cov`)."""
+    C = np.asarray(C_nb, dtype=float)
+    L = np.zeros((3, 2))
+    L[0:2, 0:2] = np.eye(2)
+    if dip_rad is not None:
+        L[2] = np.tan(dip_rad) * np.array([np.cos(decl_rad), np.sin(decl_rad)])
+    J = np.stack([C[..., 1, :], -C[..., 0, :]], axis=-2) / gravity_mps2
+    return L @ J
+
+
+def levelling_consider_cov(maps, noise: FilterNoise) -> tuple[np.ndarray, np.ndarray]:
+    """(P, D): (3,3) NED covariances (rad^2) of the levelling error that the accelerometer bias leaves in
+    every solution (P, the mean over the two ends) and of its difference between the forward and the
+    backward run (D, for their consistency test, `smoother.fb_scale`).
+
+    An alignment takes f_b = C^T f_up + b_a for gravity, so its tilt is off by phi_h = J b_a with
+    J = [[C_E], [-C_N]] / g (C the alignment's attitude). The local filters start from a tight tilt
+    (the levelling correlation as a prior is measured harmful on real hand-held logs,
+    `_initial_covariance`), and a device that barely turns (a target session) never makes b_a
+    observable; so its effect is carried as a consider term, added to every solution after the fusion
+    (LF1 and LF2 share the accelerometer: the term is common to both and must not be fused as
+    independent). A magnetic heading levelled with that tilt is off too: the field's horizontal part
+    seen through a tilt phi_h turns the heading by tan(dip) (u_h . phi_h), u_h the field's horizontal
+    direction (Eq. 8 with a tilted levelling); the alignment's heading, and the wall normal LF2 takes
+    from it, inherit it. So phi = L J b_a with L = [I2; tan(dip) u_h^T] (`levelling_map`). A device held
+    still at a new attitude is levelled anew (phi follows J(C)), but for an isotropic bias prior
+    J J^T = I / g^2 at any attitude, so P holds at every sample."""
+    sb2 = noise.acc_bias_mps2**2
+    P = sum(M @ M.T for M in maps) * sb2 / len(maps)
+    dM = maps[0] - maps[-1]
+    return P, dM @ dM.T * sb2
+
+
+def with_levelling(sol: AttitudeSolution, P_lev: np.ndarray) -> AttitudeSolution:
+    """`sol` with the levelling consider covariance added to its attitude covariance."""
+    return replace(sol, P_att=sol.P_att + P_lev[None])
+
+
 def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, start: End, noise: FilterNoise,
-                     ctx: RunContext, summary: dict):
-    """Target rows of every solution for every shot, `fkf_cal` from reference shots, and the target pairs."""
+                     ctx: RunContext, summary: dict, base_fkf: AttitudeSolution | None = None, P_lev=None):
+    """Target rows of every solution for every shot, `fkf_cal` from reference shots (calibrating `base_fkf`,
+    default `sols["fkf"]`, without the levelling consider covariance `P_lev`, which fkf_cal then gets), and
+    the target pairs."""
     t = session.imu.t_s
     rows, pairs = [], []
     with ctx.stage("targeting"):
@@ -447,12 +491,22 @@ def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, 
             return None, {}
         d1 = _d1_on_imu(session, t)
         fixes = {name: _geolocate_shots(sol, shots, t, d1, obs_lla, noise.range_sigma_m) for name, sol in sols.items()}
-        cal = _calibrate(session, shots, fixes.get("fkf"), obs_lla)
+        # the reference shots calibrate fkf's own pitch/heading offsets, which take up the levelling error
+        # (`levelling_consider_cov`): the fit and fkf_cal use fkf without that consider term
+        fkf_base = base_fkf if base_fkf is not None else sols.get("fkf")
+        cal = None
+        if fkf_base is not None:
+            cal = _calibrate(session, shots, _geolocate_shots(fkf_base, shots, t, d1, obs_lla, noise.range_sigma_m), obs_lla)
         if cal is not None:
             summary["calibration"] = {"dpitch_deg": np.degrees(cal.dpitch_rad), "dyaw_deg": np.degrees(cal.dyaw_rad),
                                       "sigma_deg": np.degrees(np.sqrt(np.diag(cal.cov_rad2))).tolist(),
                                       "residual_rms_m": cal.residual_rms_m, "shots": cal.n_shots}
-            sols["fkf_cal"] = _apply_offsets(sols["fkf"], cal)
+            sols["fkf_cal"] = _apply_offsets(fkf_base, cal)
+            if P_lev is not None:
+                # the offsets take up the levelling error at the reference shots only: it changes with the
+                # device's attitude and as the filters learn the bias (measured: removing the reference
+                # shots' share leaves MEMS fkf_cal over-confident, NEES/dof 6), so all of it is kept
+                sols["fkf_cal"] = with_levelling(sols["fkf_cal"], P_lev)
             fixes["fkf_cal"] = _geolocate_shots(sols["fkf_cal"], shots, t, d1, obs_lla, noise.range_sigma_m)
         for name, (df, lla, cov) in fixes.items():
             rows.append(df.assign(t_start=df.t_start + session.t0_s, t_end=df.t_end + session.t0_s))
@@ -498,9 +552,15 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
     setups = filter_setups(session, p, obs_lla, decl, (start, end), noise, field)
     beams = beam_geometry(session, start, noise, float(setups.forward.P0[2, 2]), ctx, summary)
     setups = with_wall(setups, beams)
-    sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary)
+    mag_ref = setups.forward.mag_ref
+    lev = (mag_ref[1] if mag_ref[0] > 0 else None, decl)
+    P_lev, D_lev = levelling_consider_cov([levelling_map(e.align.C_nb, e.gravity_mps2, *lev) for e in (start, end)], noise)
+    sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, fb_diff_cov=D_lev)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
-    targets, tables = position_targets(session, p, sols, obs_lla, start, noise, ctx, summary)
+    summary["levelling_consider_sigma_deg"] = np.degrees(np.sqrt(np.diag(P_lev))).round(4).tolist()
+    fkf = sols["fkf"]
+    sols = {k: with_levelling(v, P_lev) for k, v in sols.items()}
+    targets, tables = position_targets(session, p, sols, obs_lla, start, noise, ctx, summary, base_fkf=fkf, P_lev=P_lev)
     traj = _trajectory(sols, session.imu.t_s + session.t0_s, obs_lla)
     summary["solutions"] = list(sols)
     return ChainOutput(trajectory=traj, targets=targets, tables=tables, summary=summary)
@@ -516,11 +576,10 @@ def _declination(session: Session, obs_lla, ctx: RunContext, summary: dict) -> f
 
 
 def _coarse_noise(session: Session, p: TargetFkfParams):
-    """(acc m/s^2, mag uT) white noise for the first alignment, before the figures are resolved."""
-    n = session.meta.imu_noise
-    acc = n.acc_noise_mg if n.acc_noise_mg is not None else p.acc_noise_mg
-    mag = n.mag_noise_ut if n.mag_noise_ut is not None else p.mag_noise_ut
-    return acc * 1e-3 * G0_MPS2, mag
+    """(acc m/s^2, mag uT) white noise for the first alignment, before the still window's own figures
+    are known (`imu_noise.resolve_imu_noise` without measured values)."""
+    fig = resolve_imu_noise(p, session.meta.imu_noise, keys=("acc_noise_mg", "mag_noise_ut"))
+    return fig["acc_noise_mg"] * 1e-3 * G0_MPS2, fig["mag_noise_ut"]
 
 
 def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: FilterNoise, start: End, field,
