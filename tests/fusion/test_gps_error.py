@@ -8,9 +8,9 @@ import pytest
 
 from tpos_cli.chains.drive_smooth import process_drive
 from tpos_cli.config import DriveSmoothParams
-from tpos_cli.fusion.layout import Block
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.fusion.engine import epoch_of
+from tpos_cli.fusion.layout import Block
 from tpos_cli.session import load_session
 from tpos_cli.sim.drive import simulate_drive
 
@@ -42,7 +42,8 @@ def test_white_simulated_gps_keeps_the_15_state_filter():
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate_drive(600.0, seed=1, outages=(OUTAGE,))
         ses = load_session(sim.write(Path(tmp) / "s"))
-    res = process_drive(ses, DriveSmoothParams(gps_sigma_vel_mps=0.05, gps_error_model="gauss_markov"), None, names=("forward", "backward", "smoothed"))
+    p = DriveSmoothParams(gps_sigma_vel_mps=0.05, gps_error_model="gauss_markov")
+    res = process_drive(ses, p, None, names=("forward", "backward", "smoothed"))
     ge = res.info["gps_error_states"]
     assert ge["sigma_h_m"] == 0.0 and ge["sigma_v_m"] == 0.0
     assert res.forward.layout.offset(Block.GPS_ERROR) == -1

@@ -24,8 +24,7 @@ from tpos_cli.config import DriveSmoothParams
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
-from tpos_cli.frames.rotation import dcm_to_euler
-from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
 from tpos_cli.fusion.constraints import detect_stops, nhc_measurements, stop_measurements, travel_direction
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
@@ -197,8 +196,8 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
         gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
-        info["gps_noise"] = {"method": "covariance matching on decimated filter passes; the receiver's own SDs only raised (fusion.gps_noise)",
-                             **gn.summary()}
+        info["gps_noise"] = {"method": "covariance matching on decimated filter passes; the receiver's own SDs only "
+                                       "raised (fusion.gps_noise)", **gn.summary()}
         info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + t0_s, 2) for v in gn.window_s]
     else:
         info["gps_noise"] = {"method": "given (log SDs or pipeline defaults)",
