@@ -109,6 +109,8 @@ class DriveSmoothParams(Section):
     gps_sigma_v_m: Positive = 2.5
     gps_sigma_vel_mps: Positive = 0.1
     use_gps_velocity: bool = True
+    gps_vel_latency_s: NonNegative | None = None  # how late the logged velocity is (s); None: from the
+    # log's own positions (`fusion.insgps.velocity_latency_s`: receivers that difference positions)
     gps_noise: Literal["estimate", "given"] = "estimate"  # estimate: scale the GPS SDs by covariance
     # matching on a first decimated pass (`fusion.gps_noise`); given: the log's SDs or the defaults
     gps_noise_span_s: NonNegative = 900.0  # log time the estimation passes cover (0 = all)

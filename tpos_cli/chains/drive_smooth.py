@@ -30,7 +30,7 @@ from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measur
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
-from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps
+from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
 from tpos_cli.fusion.layout import Block, StateLayout, mounting_block
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
@@ -87,8 +87,9 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     vel[~np.isfinite(vel[:, :2]).all(axis=1)] = np.nan  # vd may be absent alone (speed/course receivers)
     t = np.array(gps.t_s[ok], dtype=float)
     keep = decimate_times(t, p.gps_max_rate_hz)
-    return GpsFixes(t[keep], np.array(gps.lla[ok], dtype=float)[keep], vel[keep], sig[keep],
-                    np.full((int(keep.size), 3), p.gps_sigma_vel_mps), from_receiver)
+    fixes = GpsFixes(t, np.array(gps.lla[ok], dtype=float), vel, sig, np.full((t.size, 3), p.gps_sigma_vel_mps), from_receiver)
+    lag, _ = velocity_latency_s(fixes) if p.gps_vel_latency_s is None else (p.gps_vel_latency_s, None)
+    return GpsFixes(t[keep], fixes.lla[keep], vel[keep], sig[keep], fixes.sigma_vel_mps[keep], from_receiver, lag)
 
 
 def decimate_times(t_s, max_rate_hz) -> np.ndarray:
@@ -175,7 +176,7 @@ def align(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, cf
         else:
             info["heading"] += f"; confirmed against {ys.scores.size - 1} other yaws"
         info["yaw_search"] = {"t_s": list(ys.window_s), "yaw_deg": np.degrees(ys.hypotheses_rad).round(1).tolist(),
-                              "score": [round(float(v), 1) for v in ys.scores]}
+                              "score": [round(float(v), 1) for v in ys.scores], "prior_kept": bool(ys.chose_prior)}
     return init, info
 
 
@@ -255,7 +256,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     if platform == "auto" or (platform in WHEELED and C_vb is None):
         zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps) if platform in WHEELED else None
         first = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=False, extra=zu)
-        td = travel_direction(first)
+        td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb)
         if td is not None:
             if C_vb is None:
                 C_vb = td.C_vb
@@ -287,7 +288,10 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
                                   layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
-        after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else -np.inf
+        # a yaw the search had to pick over the course may be tens of degrees off until the GPS
+        # has turned it: NHC waits for the end of the search then (a confirmed course does not)
+        ysr = info.get("yaw_search")
+        after = ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
         out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
         parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))
     parts = [m for m in parts if m is not None and len(m)]
@@ -366,6 +370,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     cfg = filter_config(p, nz, session.meta.lever_arm_b_m, imu.rate_hz)
     with stage("alignment"):
         init, info = align(imu, session, p, fixes, cfg, sig, nz)
+    info["gps_vel_latency_s"] = {"value": fixes.vel_latency_s,
+                                 "source": "pipeline" if p.gps_vel_latency_s is not None else "the log's positions"}
     with stage("gps_noise"):
         fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s)
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tpos_cli.frames.rotation import euler_to_dcm
-from tpos_cli.fusion.engine import FilterRun, Measurements
+from tpos_cli.fusion.engine import Measurements
 from tpos_cli.fusion.measurements import Kind
 
 # constraints are gated without a counter of consecutive rejections (slot -1): when they keep
@@ -162,26 +162,28 @@ class TravelDirection:
                 "steadiness": round(self.steadiness, 4), "moving_s": round(self.moving_s, 1)}
 
 
-def travel_direction(run: FilterRun, *, min_speed_mps: float = 3.0, block_s: float = 10.0) -> TravelDirection | None:
-    """Mounting from the direction of the run's velocity in body axes while faster than
-    min_speed_mps. u = C_nb^T v / |v|; with v_vehicle = Rz(yaw) Ry(pitch) v_body along x:
-    u = (cos p cos y, -sin y, sin p cos y), so pitch = atan2(u_z, u_x), yaw = atan2(-u_y, |u_xz|).
-    SDs: scatter of 10 s block means over sqrt(number of blocks)."""
-    v = run.nav[:, 3:6]
+def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, block_s: float = 10.0) -> TravelDirection | None:
+    """Mounting from the direction of a solution's velocity in body axes (t_s (K,), vel_ned_mps
+    (K, 3), C_nb (K, 3, 3)) while faster than min_speed_mps. u = C_nb^T v / |v|; with v_vehicle =
+    Rz(yaw) Ry(pitch) v_body along x: u = (cos p cos y, -sin y, sin p cos y), so pitch =
+    atan2(u_z, u_x), yaw = atan2(-u_y, |u_xz|). SDs: scatter of 10 s block means over sqrt(number
+    of blocks)."""
+    v = np.asarray(vel_ned_mps, dtype=float)
+    t_all = np.asarray(t_s, dtype=float)
     sp = np.linalg.norm(v, axis=1)
     m = sp > min_speed_mps
     if m.sum() < 10:
         return None
-    u = np.einsum("kji,kj->ki", run.C_nb[m], v[m]) / sp[m, None]
+    u = np.einsum("kji,kj->ki", np.asarray(C_nb)[m], v[m]) / sp[m, None]
     mean = u.mean(axis=0)
     steadiness = float(np.linalg.norm(mean))
     d = mean / steadiness
     pitch = np.degrees(np.arctan2(d[2], d[0]))
     yaw = np.degrees(np.arctan2(-d[1], np.hypot(d[0], d[2])))
-    t = run.t_s[m]
+    t = t_all[m]
     blk = np.floor((t - t[0]) / block_s).astype(np.int64)
     ids = np.unique(blk)
-    dt = float(np.median(np.diff(run.t_s))) if run.t_s.size > 1 else 0.0
+    dt = float(np.median(np.diff(t_all))) if t_all.size > 1 else 0.0
     if ids.size >= 3:
         bm = np.array([u[blk == i].mean(axis=0) for i in ids])
         bp = np.degrees(np.arctan2(bm[:, 2], bm[:, 0]))

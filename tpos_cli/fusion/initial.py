@@ -261,7 +261,8 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
 def fixes_before(fixes: GpsFixes, t_end_s: float) -> GpsFixes:
     """The fixes at or before `t_end_s`."""
     m = fixes.t_s <= t_end_s
-    return GpsFixes(fixes.t_s[m], fixes.lla[m], fixes.vel_ned_mps[m], fixes.sigma_pos_ned_m[m], fixes.sigma_vel_mps[m])
+    return GpsFixes(fixes.t_s[m], fixes.lla[m], fixes.vel_ned_mps[m], fixes.sigma_pos_ned_m[m], fixes.sigma_vel_mps[m],
+                    fixes.from_receiver, fixes.vel_latency_s)
 
 
 def with_yaw(init: InitialState, yaw_rad: float, sigma_yaw_rad: float) -> InitialState:

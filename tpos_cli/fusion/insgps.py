@@ -33,6 +33,7 @@ class GpsFixes:
     # per group (pos_h, pos_v, vel_h, vel_v): SDs the receiver logged (not pipeline defaults);
     # noise matching may raise those but never lower them
     from_receiver: tuple = (False, False, False, False)
+    vel_latency_s: float = 0.0  # the logged velocity is the platform's velocity this long before t_s
 
 
 @dataclass(frozen=True)
@@ -85,11 +86,40 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) 
     for dim, sel in ((3, has_v & ~np.isnan(vel[:, 2])), (2, has_v & np.isnan(vel[:, 2]))):
         # receivers that log speed and course give no vertical velocity: a 2-dim update
         R = var_v[sel][:, :dim, None] * np.eye(dim)
-        rows.append(Measurements.rows(t_fix[sel], Kind.GPS_VELOCITY, np.nan_to_num(vel[sel]), R, dim=dim,
+        rows.append(Measurements.rows(t_fix[sel] - fixes.vel_latency_s, Kind.GPS_VELOCITY, np.nan_to_num(vel[sel]), R, dim=dim,
                                       gated=gated[sel], slot=_SLOT_VELOCITY, par=g[sel]))
     allm = Measurements.merge(*rows)
-    # per fix: position then velocity (merge sorts by time only)
+    # per fix: position then velocity (merge sorts by time only; a late velocity row comes first)
     return allm.take(np.lexsort((allm.kind, allm.par)))
+
+
+def velocity_latency_s(fixes: GpsFixes, grid_s=np.arange(0.0, 0.5001, 0.025), min_gain: float = 0.3) -> tuple[float, dict]:
+    """How late the logged GPS velocity is against the fixes' own positions (s, >= 0), from the GPS
+    alone: many receivers log the backward difference of positions, the velocity of half an
+    interval earlier (issue 11: 0.125 s at 4 Hz). The lag that best matches the logged horizontal
+    velocity to the central differences of the positions, if it cuts their RMS difference by at
+    least `min_gain` against no lag; else 0. Returns (lag_s, figures)."""
+    v = np.asarray(fixes.vel_ned_mps, dtype=float)
+    ok = np.isfinite(v[:, 0]) & np.isfinite(v[:, 1])
+    if ok.sum() < 20:
+        return 0.0, {"fixes": int(ok.sum())}
+    t = np.asarray(fixes.t_s, dtype=float)
+    lat = np.radians(fixes.lla[:, 0])
+    n_m = (lat - lat[0]) * (6378137.0 + fixes.lla[:, 2])
+    e_m = np.radians(fixes.lla[:, 1] - fixes.lla[0, 1]) * (6378137.0 + fixes.lla[:, 2]) * np.cos(lat)
+    dt = np.diff(t)
+    good = (dt > 0) & (dt < 1.5 * np.median(dt))
+    tm = 0.5 * (t[1:] + t[:-1])[good]
+    vc = np.column_stack([np.diff(n_m)[good] / dt[good], np.diff(e_m)[good] / dt[good]])
+    rms = []
+    for tau in grid_s:
+        m = ok & (t - tau > tm[0]) & (t - tau < tm[-1])
+        vi = np.column_stack([np.interp(t[m] - tau, tm, vc[:, i]) for i in range(2)])
+        rms.append(float(np.sqrt(np.mean((v[m, :2] - vi) ** 2))))
+    rms = np.array(rms)
+    best = int(np.argmin(rms))
+    lag = float(grid_s[best]) if rms[best] < (1.0 - min_gain) * rms[0] else 0.0
+    return lag, {"lag_s": lag, "rms_mps_at_lag": round(float(rms[best]), 4), "rms_mps_at_0": round(float(rms[0]), 4)}
 
 
 def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig,
