@@ -93,7 +93,10 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) 
     return allm.take(np.lexsort((allm.kind, allm.par)))
 
 
-def velocity_latency_s(fixes: GpsFixes, grid_s=np.arange(0.0, 0.5001, 0.025), min_gain: float = 0.3) -> tuple[float, dict]:
+LAG_GRID_S = np.arange(0.0, 0.5001, 0.025)  # velocity lags tried (s)
+
+
+def velocity_latency_s(fixes: GpsFixes, grid_s=LAG_GRID_S, min_gain: float = 0.3) -> tuple[float, dict]:
     """How late the logged GPS velocity is against the fixes' own positions (s, >= 0), from the GPS
     alone: many receivers log the backward difference of positions, the velocity of half an
     interval earlier (issue 11: 0.125 s at 4 Hz). The lag that best matches the logged horizontal
