@@ -162,12 +162,19 @@ class TravelDirection:
                 "steadiness": round(self.steadiness, 4), "moving_s": round(self.moving_s, 1)}
 
 
+def _pitch_yaw_deg(u):
+    """Pitch in [-90, 90] and yaw (deg) of Rz(yaw) Ry(pitch) whose vehicle x axis is the body-frame
+    direction u = (cos p cos y, -sin y, sin p cos y) (axis 0 of u)."""
+    p = np.arctan2(u[2] * np.sign(u[0]), np.abs(u[0]))  # cos p >= 0: u_x carries the sign of cos y
+    cy = u[0] / np.cos(p)
+    return np.degrees(p), np.degrees(np.arctan2(-u[1], cy))
+
+
 def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, block_s: float = 10.0) -> TravelDirection | None:
     """Mounting from the direction of a solution's velocity in body axes (t_s (K,), vel_ned_mps
     (K, 3), C_nb (K, 3, 3)) while faster than min_speed_mps. u = C_nb^T v / |v|; with v_vehicle =
-    Rz(yaw) Ry(pitch) v_body along x: u = (cos p cos y, -sin y, sin p cos y), so pitch =
-    atan2(u_z, u_x), yaw = atan2(-u_y, |u_xz|). SDs: scatter of 10 s block means over sqrt(number
-    of blocks)."""
+    Rz(yaw) Ry(pitch) v_body along x: u = (cos p cos y, -sin y, sin p cos y) (`_pitch_yaw_deg`).
+    SDs: scatter of 10 s block means over sqrt(number of blocks)."""
     v = np.asarray(vel_ned_mps, dtype=float)
     t_all = np.asarray(t_s, dtype=float)
     sp = np.linalg.norm(v, axis=1)
@@ -178,16 +185,15 @@ def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, bloc
     mean = u.mean(axis=0)
     steadiness = float(np.linalg.norm(mean))
     d = mean / steadiness
-    pitch = np.degrees(np.arctan2(d[2], d[0]))
-    yaw = np.degrees(np.arctan2(-d[1], np.hypot(d[0], d[2])))
+    pitch, yaw = _pitch_yaw_deg(d)
     t = t_all[m]
     blk = np.floor((t - t[0]) / block_s).astype(np.int64)
     ids = np.unique(blk)
     dt = float(np.median(np.diff(t_all))) if t_all.size > 1 else 0.0
     if ids.size >= 3:
         bm = np.array([u[blk == i].mean(axis=0) for i in ids])
-        bp = np.degrees(np.arctan2(bm[:, 2], bm[:, 0]))
-        by = np.degrees(np.arctan2(-bm[:, 1], np.hypot(bm[:, 0], bm[:, 2])))
+        bp, by = _pitch_yaw_deg(bm.T)
+        by = (by - yaw + 180.0) % 360.0 - 180.0  # spread about the mean, across +-180
         sp_, sy_ = (float(np.std(x, ddof=1) / np.sqrt(ids.size)) for x in (bp, by))
     else:
         sp_ = sy_ = float("nan")

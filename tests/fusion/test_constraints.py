@@ -1,0 +1,93 @@
+"""Vehicle motion constraints (issue 11): stops, mounting from the travel direction, GPS velocity lag."""
+
+import numpy as np
+import pytest
+
+from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.fusion.constraints import detect_stops, nhc_measurements, stop_measurements, travel_direction
+from tpos_cli.fusion.insgps import GpsFixes, velocity_latency_s
+from tpos_cli.fusion.measurements import Kind
+
+
+def test_stops_from_gps_speed_and_odometer():
+    t = np.arange(0.0, 60.0, 0.25)
+    v = np.zeros((t.size, 3))
+    v[:, 0] = 5.0
+    v[(t >= 10.0) & (t < 20.0), 0] = 0.02  # a 10 s stop
+    v[(t >= 30.0) & (t < 31.0), 0] = 0.0  # 1 s: too short
+    odo_t = np.arange(0.0, 60.0, 0.1)
+    odo = np.where((odo_t >= 40.0) & (odo_t < 45.0), 0.0, 5.0)
+    st = detect_stops(t, v, odo_t, odo)
+    # each stop trimmed by 0.5 s at both ends; the last slow sample of the GPS stop is 19.75 s
+    np.testing.assert_allclose(st.intervals_s, [[10.5, 19.25], [40.5, 44.4]], atol=1e-9)
+    assert st.sources == {"gps": 1, "odometry": 1}
+    assert st.contains([15.0, 25.0, 42.0]).tolist() == [True, False, True]
+
+
+def test_zaru_rows_are_the_mean_gyro_of_each_block():
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, 20.0, 0.01)
+    bias = np.array([1e-3, -2e-3, 5e-4])
+    gyro = bias + 1e-3 * rng.standard_normal((t.size, 3))
+    st = detect_stops(np.arange(0.0, 20.0, 0.25), np.zeros((80, 3)))
+    m = stop_measurements(t, gyro, st, zupt_sigma_mps=0.02)
+    zaru = m.kind == Kind.ZARU
+    assert (m.kind == Kind.ZUPT).sum() == zaru.sum() > 30
+    # 50-sample means: the scatter about the bias is 1e-3 / sqrt(50) per axis; the rows' SDs are
+    # twice that (vibration allowance), so every row is within 5 of its own SDs
+    sd = np.sqrt(np.diagonal(m.R[zaru], axis1=1, axis2=2))
+    assert np.all(np.abs(m.z[zaru] - bias) < 5 * sd)
+    assert np.allclose(sd, 2e-3 / np.sqrt(50), rtol=0.3)
+
+
+def test_nhc_rows_skip_stops_and_the_yaw_search():
+    t = np.arange(0.0, 30.0, 0.01)
+    st = detect_stops(np.arange(0.0, 30.0, 0.25), np.where((np.arange(120) >= 40) & (np.arange(120) < 80), 0.0, 5.0)[:, None]
+                      * np.array([1.0, 0.0, 0.0]))
+    m = nhc_measurements(t, st, rate_hz=10.0, sigma_mps=0.1, after_s=5.0)
+    assert m.t_s.min() >= 5.0 and not st.contains(m.t_s).any()
+    assert np.all(m.dim == 2) and np.allclose(m.R[:, :2, :2], 0.01 * np.eye(2))
+
+
+@pytest.mark.parametrize("rpy_deg", [(0.0, -3.0, 91.0), (0.0, 2.0, -45.0), (0.0, 0.0, 180.0)])
+def test_travel_direction_recovers_the_mounting(rpy_deg):
+    """A vehicle moving along its own x axis, seen by an IMU turned by `rpy_deg` (roll is not
+    observable this way): the estimate is the exact pitch and yaw, steadiness 1."""
+    rng = np.random.default_rng(1)
+    n = 3000
+    t = np.arange(n) * 0.1
+    yaw_v = np.cumsum(rng.normal(0, 0.02, n))  # the vehicle turning
+    C_nv = euler_to_dcm(np.zeros(n), 0.02 * np.sin(t / 20), yaw_v)
+    C_vb = euler_to_dcm(*np.radians(rpy_deg))
+    C_nb = C_nv @ C_vb
+    vel = 10.0 * C_nv[:, :, 0]
+    td = travel_direction(t, vel, C_nb)
+    assert td.pitch_deg == pytest.approx(rpy_deg[1], abs=1e-9)
+    assert (td.yaw_deg - rpy_deg[2] + 180) % 360 - 180 == pytest.approx(0.0, abs=1e-9)
+    assert td.steadiness == pytest.approx(1.0, abs=1e-12)
+    # C_vb of the estimate takes the body-frame velocity onto the vehicle's x axis
+    v_b = np.einsum("kji,kj->ki", C_nb, vel)
+    v_v = v_b @ td.C_vb.T
+    np.testing.assert_allclose(v_v[:, 1:], 0.0, atol=1e-9)
+
+
+def test_velocity_latency_of_a_backward_difference_receiver():
+    """Logged velocity = backward difference of the positions over one 0.25 s interval: the
+    velocity of 0.125 s earlier; found on the 0.025 s grid."""
+    t = np.arange(0.0, 300.0, 0.25)
+    north_m = 50.0 * np.sin(t / 15.0) + 3.0 * t
+    east_m = 40.0 * np.cos(t / 11.0)
+    lla = np.column_stack([45.0 + np.degrees(north_m / 6378137.0),
+                           7.0 + np.degrees(east_m / (6378137.0 * np.cos(np.radians(45.0)))), np.full(t.size, 100.0)])
+    vel = np.full((t.size, 3), np.nan)
+    vel[1:, 0] = np.diff(north_m) / 0.25
+    vel[1:, 1] = np.diff(east_m) / 0.25
+    f = GpsFixes(t, lla, vel, np.ones((t.size, 3)), np.ones((t.size, 3)))
+    lag, fig = velocity_latency_s(f)
+    assert lag == pytest.approx(0.125, abs=0.0126)  # the grid step over 2
+    # a receiver with true velocities: no lag
+    vel2 = vel.copy()
+    vel2[:, 0] = 3.0 + 50.0 / 15.0 * np.cos(t / 15.0)
+    vel2[:, 1] = -40.0 / 11.0 * np.sin(t / 11.0)
+    lag2, _ = velocity_latency_s(GpsFixes(t, lla, vel2, np.ones((t.size, 3)), np.ones((t.size, 3))))
+    assert lag2 == 0.0
