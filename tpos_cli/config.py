@@ -136,6 +136,10 @@ class DriveSmoothParams(Section):
     mounting_sigma_given_deg: Positive = 0.5  # prior SD of the residual misalignment states (pitch,
     # yaw) when the session gives the mounting, and the least for an estimated one
     mounting_sigma_assumed_deg: Positive = 3.0  # ... when it is assumed aligned
+    use_odometry: bool = True  # the session's odometry table as forward-speed updates (wheeled platforms)
+    odometer_sigma_mps: Positive = 0.1  # odometer speed SD (CAN speed: quantization, latency, wheel slip)
+    odometer_rate_hz: Positive = 1.0  # odometer rows per second at most (its errors are correlated in time)
+    odometer_scale_sigma: Positive = 0.05  # prior SD of the odometer scale-factor error (a state)
     zupt_sigma_mps: Positive = 0.02  # velocity SD on a detected stop
     stop_max_speed_mps: Positive = 0.1  # GPS or odometer speed below this for stop_min_duration_s = a stop
     stop_min_duration_s: Positive = 2.0

@@ -19,6 +19,8 @@ from tpos_cli.fusion.measurements import (
     measure,
     nhc_jacobian,
     nhc_residual,
+    odometer_jacobian,
+    odometer_residual,
     range_jacobian,
     range_residual,
     zaru_jacobian,
@@ -152,3 +154,20 @@ def test_nhc_and_zaru_jacobians_against_perturbation():
     Hz = np.zeros((3, 15))
     zaru_jacobian(Hz)
     np.testing.assert_allclose(z, Hz @ dx, atol=1e-15)
+
+
+def test_odometer_jacobian_against_perturbation():
+    """Odometer: (1 + k) x the vehicle's forward velocity; the scale error's column is that velocity."""
+    nav, C = _nominal()
+    C_vb = euler_to_dcm(*np.radians([0.5, -3.0, 4.0]))
+    dx = np.concatenate([[0.3, -0.2, 0.1], [0.05, 0.02, -0.03], [2e-3, -1e-3, 3e-3], [0, 0, 0], [0, 0, 0]])
+    nav_t, C_t, b_t = nav.copy(), C.copy(), np.zeros(6)
+    apply_feedback(nav_t, C_t, b_t, dx)
+    k_est, dk = 0.02, 0.004
+    H = np.zeros((1, 15))
+    odometer_jacobian(nav, C, C_vb, k_est, H)
+    v_fwd = (C_vb @ (C.T @ nav[3:6]))[0]
+    z_e = odometer_residual(nav, C, C_vb, k_est, 10.0)
+    z_t = odometer_residual(nav_t, C_t, C_vb, k_est - dk, 10.0)
+    # quadratic: |phi| |dv| + |phi|^2 |v| + dk |dv| ~ 4e-4
+    np.testing.assert_allclose(z_e - z_t, H[0] @ dx + v_fwd * dk, rtol=0, atol=5e-4)

@@ -25,13 +25,19 @@ from tpos_cli.errors import ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
-from tpos_cli.fusion.constraints import detect_stops, nhc_measurements, stop_measurements, travel_direction
+from tpos_cli.fusion.constraints import (
+    detect_stops,
+    nhc_measurements,
+    odometer_measurements,
+    stop_measurements,
+    travel_direction,
+)
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
-from tpos_cli.fusion.layout import Block, StateLayout, mounting_block
+from tpos_cli.fusion.layout import Block, StateLayout, mounting_block, odometer_block
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
@@ -294,6 +300,10 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         after = ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
         out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
         parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))
+    if platform in WHEELED and odo is not None and p.use_odometry and odo.t_s.size > 1:
+        parts.append(odometer_measurements(odo.t_s, odo.speed_mps, rate_hz=p.odometer_rate_hz, sigma_mps=p.odometer_sigma_mps))
+        cfg = dataclasses.replace(cfg, layout=StateLayout((*cfg.layout.blocks, odometer_block(p.odometer_scale_sigma))))
+        out["odometry"] = {"samples": int(odo.t_s.size), "scale_prior_sigma": p.odometer_scale_sigma}
     parts = [m for m in parts if m is not None and len(m)]
     return cfg, (Measurements.merge(*parts) if parts else None)
 
@@ -302,7 +312,7 @@ def constraint_summary(run: FilterRun) -> dict:
     """Per constraint kind of a run: rows, rejected, mean NIS of the accepted ones against its band."""
     out = {}
     meas = run.measurements
-    for kind, name in ((Kind.NHC, "nhc"), (Kind.ZUPT, "zupt"), (Kind.ZARU, "zaru")):
+    for kind, name in ((Kind.NHC, "nhc"), (Kind.ZUPT, "zupt"), (Kind.ZARU, "zaru"), (Kind.ODOMETER, "odometer")):
         r = meas.kind == kind
         if not r.any():
             continue
@@ -318,6 +328,11 @@ def constraint_summary(run: FilterRun) -> dict:
         out["residual_misalignment_deg"] = {"pitch_yaw": [round(float(v), 3) for v in np.degrees(m[:2])],
                                             "sigma": [round(float(v), 3) for v in np.degrees(sd[:2])]}
         out["nhc_point_behind_imu_m"] = {"estimate": round(float(m[2]), 3), "sigma": round(float(sd[2]), 3)}
+    o = run.layout.offset(Block.ODOMETER)
+    if o >= 0:
+        j = 0 if run.backward else -1
+        out["odometer_scale_error"] = {"estimate": round(float(run.extra(Block.ODOMETER)[j, 0]), 5),
+                                       "sigma": round(float(np.sqrt(run.ep_P[j][o, o])), 5)}
     return out
 
 

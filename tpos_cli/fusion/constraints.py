@@ -138,6 +138,19 @@ def nhc_measurements(t_imu_s, stops: Stops, *, rate_hz: float, sigma_mps: float,
                              gated=True, slot=_SLOT_NHC)
 
 
+def odometer_measurements(odo_t_s, speed_mps, *, rate_hz: float, sigma_mps: float) -> Measurements:
+    """Odometer rows (`Kind.ODOMETER`), at most rate_hz: z = speed (m/s), R = sigma^2."""
+    t = np.asarray(odo_t_s, dtype=float)
+    v = np.asarray(speed_mps, dtype=float)
+    keep = np.ones(t.size, dtype=bool)
+    if t.size > 1 and rate_hz > 0:
+        step = max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(t)))))))
+        keep[:] = False
+        keep[::step] = True
+    n = int(keep.sum())
+    return Measurements.rows(t[keep], Kind.ODOMETER, v[keep], np.full(n, sigma_mps**2), dim=1, gated=True, slot=-1)
+
+
 @dataclass(frozen=True)
 class TravelDirection:
     """The IMU-to-vehicle rotation from the travel direction in body axes: pitch_deg, yaw_deg with

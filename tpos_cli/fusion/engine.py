@@ -36,7 +36,7 @@ from tpos_cli.fusion.measurements import Kind
 from tpos_cli.ins.mechanization import reverse_imu
 
 # residuals odd in time (velocities, rates): their measured value and residual flip sign in reversed time
-_VELOCITY_KINDS = (Kind.GPS_VELOCITY, Kind.ZUPT, Kind.NHC, Kind.ZARU)
+_VELOCITY_KINDS = (Kind.GPS_VELOCITY, Kind.ZUPT, Kind.NHC, Kind.ZARU, Kind.ODOMETER)
 
 
 @dataclass(frozen=True)

@@ -38,6 +38,7 @@ class Block(IntEnum):
     CALIBRATION = 3  # A: residual bias of each anchor's calibrated range, m (constants; follows FLOOR)
     MOUNTING = 4  # 3: residual misalignment [pitch, yaw] (rad) of the IMU on the vehicle, distance (m) from
     # the IMU forward to the point where the non-holonomic constraint holds, negative behind (constants)
+    ODOMETER = 5  # 1: scale-factor error of the odometer speed (random constant)
 
 
 N_BLOCKS = len(Block)
@@ -123,6 +124,12 @@ def mounting_block(sigma_rad: float, sigma_axle_m: float) -> ExtraBlock:
     with the forward speed and the distance with the yaw rate; without them an error in the
     mounting would be enforced on the attitude as if it were exact."""
     return ExtraBlock(Block.MOUNTING, 3, 0.0, np.zeros(3), np.diag([float(sigma_rad) ** 2] * 2 + [float(sigma_axle_m) ** 2]))
+
+
+def odometer_block(sigma_scale: float) -> ExtraBlock:
+    """The odometer's scale-factor error k (speed read = (1 + k) x true speed), a random constant
+    of prior SD sigma_scale (tyre wear and pressure: a few per cent)."""
+    return ExtraBlock(Block.ODOMETER, 1, 0.0, np.zeros(1), np.array([[float(sigma_scale) ** 2]]))
 
 
 def backward_sign(n_states: int = N_NAV) -> np.ndarray:

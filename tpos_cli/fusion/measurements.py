@@ -38,6 +38,7 @@ class Kind(IntEnum):
     ZUPT = 5  # z = 0: NED velocity of the IMU while it stands still
     NHC = 6  # z = 0: lateral and vertical velocity of a wheeled vehicle in its own axes (dim 2)
     ZARU = 7  # z = mean raw gyro rate over a stop (rad/s): the gyro bias plus the Earth's rate
+    ODOMETER = 8  # z = odometer speed (m/s): the vehicle's forward speed times (1 + scale error)
 
 
 @njit(cache=True)
@@ -185,6 +186,24 @@ def nhc_jacobian(nav, C, C_vb, H):
 
 
 @njit(cache=True)
+def odometer_residual(nav, C, C_vb, scale_err, speed_mps):
+    """z = (1 + k) x forward velocity of the vehicle (row 0 of C_vb C_nb^T v_ned) - odometer speed, m/s."""
+    return (1.0 + scale_err) * (C_vb @ (C.T @ nav[3:6]))[0] - speed_mps
+
+
+@njit(cache=True)
+def odometer_jacobian(nav, C, C_vb, scale_err, H):
+    """Row 0 of H for `odometer_residual` on the navigation errors (as `nhc_jacobian`, row 0, times 1 + k)."""
+    A = C_vb @ C.T
+    B = -(A @ skew(nav[3:6]))
+    for j in range(N_NAV):
+        H[0, j] = 0.0
+    for j in range(3):
+        H[0, VEL + j] = (1.0 + scale_err) * A[0, j]
+        H[0, ATT + j] = (1.0 + scale_err) * B[0, j]
+
+
+@njit(cache=True)
 def zaru_residual(nav, C, bias, earth_sign, gyro_mean_rps, z):
     """z = (gyro bias + Earth rate in body) - mean raw gyro rate over a stop, rad/s (the nominal's
     prediction of the standing gyro minus what it read); earth_sign -1 in reversed time."""
@@ -284,6 +303,13 @@ def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
             H[1, om] = s
             H[0, om + 2] = -w_v[2]
             H[1, om + 2] = w_v[1]
+    elif kind == Kind.ODOMETER:
+        ok = lay[Block.ODOMETER]
+        k_s = bias[6 + ok - N_NAV] if ok >= 0 else 0.0
+        z[0] = odometer_residual(nav, C, aid.C_vb, k_s, ev.z[e, 0])
+        odometer_jacobian(nav, C, aid.C_vb, k_s, H)
+        if ok >= 0:
+            H[0, ok] = (aid.C_vb @ (C.T @ nav[3:6]))[0]
     elif kind == Kind.ZARU:
         zaru_residual(nav, C, bias, aid.earth_sign, ev.z[e], z)
         zaru_jacobian(H)
