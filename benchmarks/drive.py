@@ -242,7 +242,8 @@ def _windows(name: str, sdir: Path, truth: pd.DataFrame) -> list:
 
 def real_logs() -> None:
     """The default pipeline on the real drive logs, GPS withheld in 30 s windows while moving, with
-    the motion constraints on (default `platform = "auto"`) and off (`platform = "none"`)."""
+    the motion constraints on (default `platform = "auto"`) and off (`platform = "none"`), and on a
+    log with odometry also without it (`auto-odo`)."""
     from tpos_cli.pipeline import process_session
 
     print("\nreal logs, default drive-smooth pipeline, GPS withheld in 30 s windows while moving")
@@ -263,10 +264,13 @@ def real_logs() -> None:
         inside = np.zeros(tt.size, bool)
         for a, b in wins:
             inside |= (tt >= a) & (tt < b)
-        for platform in ("none", "auto"):
+        variants = [("none", {"drive_smooth.platform": "none"}), ("auto", {})]
+        if (sdir / "odometry.csv").exists() or (sdir / "odometry.parquet").exists():
+            variants.insert(1, ("auto-odo", {"drive_smooth.use_odometry": False}))  # constraints, odometry off
+        for platform, ov in variants:
             with tempfile.TemporaryDirectory() as tmp:
                 out = process_session(sdir, "drive-smooth", Path(tmp) / "run", mask_gps_windows=wins,
-                                      overrides={"drive_smooth.output_rate_hz": 0.0, "drive_smooth.platform": platform})
+                                      overrides={"drive_smooth.output_rate_hz": 0.0, **ov})
                 traj = pd.read_parquet(out.run_dir / "trajectory.parquet")
                 summ = json.loads((out.run_dir / "summary.json").read_text())
             label = f"{name[:26]}"
