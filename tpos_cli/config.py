@@ -131,7 +131,7 @@ class DriveSmoothParams(Section):
     auto_min_steadiness: Probability = 0.97  # auto: mean resultant length of the body-frame travel
     # directions above which the platform is wheeled (0.97 ~ a 14 deg angular spread)
     nhc_sigma_mps: Positive = 0.1  # lateral and vertical velocity of a wheeled vehicle (SD)
-    nhc_rate_hz: Positive = 10.0  # NHC rows per second
+    nhc_rate_hz: Positive = 5.0  # NHC rows per second (slip and vibration errors are correlated over ~0.2 s)
     nhc_axle_sigma_m: Positive = 2.0  # prior SD of the distance from the IMU back to the rear axle (a state)
     mounting_sigma_given_deg: Positive = 0.5  # prior SD of the residual misalignment states (pitch,
     # yaw) when the session gives the mounting, and the least for an estimated one

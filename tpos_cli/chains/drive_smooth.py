@@ -261,7 +261,9 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["mounting"] = {"source": "session", "mounting_rpy_deg": [float(v) for v in mounting]}
     if platform == "auto" or (platform in WHEELED and C_vb is None):
         zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps) if platform in WHEELED else None
-        first = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=False, extra=zu)
+        # a coarse pass (1 s covariance steps) serves the travel direction at a third of the cost
+        coarse = dataclasses.replace(cfg, cov_step=max(cfg.cov_step, int(round(imu.rate_hz))))
+        first = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, coarse, store_rts=False, extra=zu)
         td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb)
         if td is not None:
             if C_vb is None:
