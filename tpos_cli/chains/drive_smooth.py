@@ -40,6 +40,7 @@ from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, g
 from tpos_cli.fusion.layout import Block, StateLayout, mounting_block, odometer_block
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
+from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
@@ -81,7 +82,9 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     gps = session.gps
     if gps is None:
         raise ProcessingError("gps: the drive pipeline needs a gps table")
-    ok = gps.valid
+    ok = gps.valid.copy()
+    wild = wild_fixes(gps.t_s[ok], gps.lla[ok], np.asarray(gps.sigma_neu_m[ok], dtype=float)[:, :2].max(axis=1))
+    ok[np.flatnonzero(ok)[wild]] = False  # counted by the chain (`drive_summary`: gps_fixes_wild)
     sig = np.array(gps.sigma_neu_m[ok], dtype=float)
     default = np.array([p.gps_sigma_h_m, p.gps_sigma_h_m, p.gps_sigma_v_m])
     logged = np.isfinite(sig) & (sig > 0)
@@ -95,7 +98,8 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     keep = decimate_times(t, p.gps_max_rate_hz)
     fixes = GpsFixes(t, np.array(gps.lla[ok], dtype=float), vel, sig, np.full((t.size, 3), p.gps_sigma_vel_mps), from_receiver)
     lag, _ = velocity_latency_s(fixes) if p.gps_vel_latency_s is None else (p.gps_vel_latency_s, None)
-    return GpsFixes(t[keep], fixes.lla[keep], vel[keep], sig[keep], fixes.sigma_vel_mps[keep], from_receiver, lag)
+    return GpsFixes(t[keep], fixes.lla[keep], vel[keep], sig[keep], fixes.sigma_vel_mps[keep], from_receiver, lag,
+                    int(wild.sum()))
 
 
 def decimate_times(t_s, max_rate_hz) -> np.ndarray:
@@ -494,6 +498,9 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     """`summary.json` results: alignment, fixes and rejections, forward NIS against its band,
     outages, flagged fraction, mounting check; counts and the mounting warning go to ctx."""
     ctx.count("gps_fixes_used", int(res.fixes.t_s.size))
+    if res.fixes.n_wild:
+        ctx.count("gps_fixes_wild", res.fixes.n_wild)
+        ctx.warn(f"{res.fixes.n_wild} GPS fix(es) far from where their neighbours place them were left out (fusion.screening)")
     rejected = {}
     for run_name in ("forward", "backward"):
         gi = res.innovations(run_name)

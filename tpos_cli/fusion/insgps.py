@@ -34,6 +34,7 @@ class GpsFixes:
     # noise matching may raise those but never lower them
     from_receiver: tuple = (False, False, False, False)
     vel_latency_s: float = 0.0  # the logged velocity is the platform's velocity this long before t_s
+    n_wild: int = 0  # fixes left out before the filter (`fusion.screening.wild_fixes`)
 
 
 @dataclass(frozen=True)
