@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy.special import chdtri, ndtri  # scipy.stats costs about a second to import
 
 from tpos_cli import consistency, conventions, quality, timebase
 from tpos_cli.errors import TposError
@@ -27,7 +27,7 @@ from tpos_cli.quality import Finding, Quality
 
 WINDOW_S = 300.0  # the part of a long log that is re-run for a candidate fix
 MARGIN_S = 20.0  # extra log before the window: the re-run's start-up (alignment, heading search)
-Z_ACCEPT = float(stats.norm.isf(1.0 - 0.99865))  # 3.0: one-sided 0.135 %
+Z_ACCEPT = float(-ndtri(1.0 - 0.99865))  # 3.0: one-sided 0.135 %
 LEVER_MATERIAL_SIGMAS = 3.0  # a lever-arm flip is suggested only when it moves the antenna by more
 # than this many of the solution's own horizontal position sigmas
 
@@ -191,7 +191,7 @@ class _Runner:
         return f"{self.win[0]:.0f}-{self.win[1]:.0f} s of the log"
 
 
-CLOCK_Z = float(stats.norm.isf(0.0005))  # 3.29: two-sided 99.9 %
+CLOCK_Z = float(-ndtri(0.0005))  # 3.29: two-sided 99.9 %
 
 
 def clock_signature(output) -> dict | None:
@@ -333,7 +333,7 @@ def lever_arm_advice(session, output, runner: _Runner) -> list[Finding]:
     if sig is None:
         return []
     lever = np.asarray(session.meta.lever_arm_b_m, dtype=float)
-    thr = float(stats.chi2.isf(1.0 - 0.999, 3))
+    thr = float(chdtri(3, 1.0 - 0.999))
     flip = -2.0 * lever  # the correction a flipped sign needs
     # fired: significant in a run, and pointing the way a flipped sign would (a positive share of -2 l)
     fired = [s for s, v in sig.items() if v["chi2"] > thr and float(np.dot(v["correction_m"], flip)) > 0]
@@ -402,7 +402,7 @@ def _range_score(innovations: pd.DataFrame | None) -> float:
         return float("inf")
     r = innovations[innovations["kind"].isin(RANGE_KINDS)]["nis"].to_numpy(float)
     r = r[np.isfinite(r)]
-    return float(np.median(r) / stats.chi2.median(1)) if r.size else float("inf")
+    return float(np.median(r) / chdtri(1, 0.5)) if r.size else float("inf")
 
 
 def _without_anchor(session, i: int):
@@ -459,7 +459,7 @@ def locate_anchor(session, output, i: int, model: Mapping | None):
 
     scale = max(1.4826 * float(np.median(np.abs(res(a0[:2]) - np.median(res(a0[:2]))))), 0.01)
     fit = least_squares(res, a0[:2], loss="soft_l1", f_scale=scale)
-    s2 = float(np.median(fit.fun**2)) / stats.chi2.median(1)
+    s2 = float(np.median(fit.fun**2)) / chdtri(1, 0.5)
     try:
         cov = np.linalg.inv(fit.jac.T @ fit.jac) * s2 * r.size / consistency.effective_sample_size(fit.fun)
     except np.linalg.LinAlgError:

@@ -79,7 +79,7 @@ class DriveSmoothParams(Section):
 
     smoother: Literal["rts", "two_filter", "simplified"] = "rts"  # the `smoothed` solution
     compare: bool = False  # also write every smoother under its own name
-    cov_step_s: Positive = 0.1  # covariance propagation / storage step
+    cov_step_s: Positive = 0.2  # covariance propagation / storage step (NHC rows come at 5 Hz)
     output_rate_hz: NonNegative = 10.0  # rows per second per solution; 0 = every IMU sample
     gate_probability: Probability = 0.9999  # chi-square gate on GPS innovations
     flag_probability: Probability = 0.999  # forward/backward disagreement flag

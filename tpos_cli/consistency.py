@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special  # the distributions' functions: scipy.stats costs about a second to import
 
 SUSPECT_PROB = 0.999  # two-sided bands: a consistent run falls outside one with probability 0.1 %
 
@@ -32,10 +32,10 @@ def truncated_chi2_moments(dof: float, gate_probability: float | None = None) ->
     """Mean and variance of chi-square(dof) conditioned on being below chi2.ppf(gate_probability, dof)."""
     if gate_probability is None or gate_probability >= 1.0:
         return float(dof), 2.0 * float(dof)
-    c = stats.chi2.ppf(gate_probability, dof)
-    f0 = stats.chi2.cdf(c, dof)
-    m1 = dof * stats.chi2.cdf(c, dof + 2) / f0
-    m2 = dof * (dof + 2) * stats.chi2.cdf(c, dof + 4) / f0
+    c = special.chdtri(dof, 1.0 - gate_probability)  # chi2.ppf
+    f0 = special.chdtr(dof, c)
+    m1 = dof * special.chdtr(dof + 2, c) / f0
+    m2 = dof * (dof + 2) * special.chdtr(dof + 4, c) / f0
     return float(m1), float(max(m2 - m1 * m1, 1e-300))
 
 
@@ -53,7 +53,7 @@ def mean_nis_band(dof, gate_probability: float | None = None, prob: float = SUSP
     var = float((mom[:, 1] * counts).sum())
     shape, scale = mean * mean / var, var / mean  # gamma with the sum's mean and variance
     a = (1.0 - prob) / 2.0
-    lo, hi = stats.gamma.ppf([a, 1.0 - a], shape, scale=scale)
+    lo, hi = special.gammaincinv(shape, np.array([a, 1.0 - a])) * scale  # gamma.ppf
     return mean / n, float(lo) / n, float(hi) / n
 
 
@@ -61,14 +61,14 @@ def binomial_excess(k: int, n: int, p0: float) -> float:
     """One-sided p-value P(X >= k) for X ~ Binomial(n, p0): how unlikely so many events are."""
     if n <= 0 or k <= 0:
         return 1.0
-    return float(stats.binom.sf(k - 1, n, p0))
+    return float(special.bdtrc(k - 1, n, p0))  # binom.sf
 
 
 def rate_lower_bound(k: int, n: int, prob: float = SUSPECT_PROB) -> float:
     """One-sided Clopper-Pearson lower bound on a binomial rate (0 when k = 0)."""
     if n <= 0 or k <= 0:
         return 0.0
-    return float(stats.beta.ppf(1.0 - prob, k, n - k + 1))
+    return float(special.betaincinv(k, n - k + 1, 1.0 - prob))  # beta.ppf
 
 
 def effective_sample_size(x) -> float:
@@ -161,4 +161,4 @@ def block_log_ratio_z(base, cand, *, min_block: int = 10, max_blocks: int = 30) 
     if not sd > 0:
         return float(np.sign(-lr.mean()) * np.inf) if lr.mean() != 0 else 0.0
     t = -float(lr.mean()) / (sd / np.sqrt(n_blocks))
-    return float(stats.norm.isf(stats.t.sf(t, n_blocks - 1)))
+    return float(-special.ndtri(special.stdtr(n_blocks - 1, -t)))  # norm.isf(t.sf)

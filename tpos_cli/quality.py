@@ -117,11 +117,11 @@ def nis_findings(innovations: pd.DataFrame | None, gate_probability: float | Non
     out = []
     high, low, rej = [], [], []
     p_rej = 1.0 - gate_probability if gate_probability is not None else 0.0
+    nis_all = inn["nis"].to_numpy(float)
+    acc_all = inn["accepted"].fillna(False).to_numpy(bool) if "accepted" in inn else np.ones(len(inn), bool)
     for (sol, kind), idx in inn.groupby(["solution", "kind"], sort=False).groups.items():
         i = np.asarray(idx, dtype=np.int64)
-        nis = inn["nis"].to_numpy(float)[i]
-        dof = dof_all[i]
-        acc = inn["accepted"].fillna(False).to_numpy(bool)[i] if "accepted" in inn else np.ones(i.size, bool)
+        nis, dof, acc = nis_all[i], dof_all[i], acc_all[i]
         ok = np.isfinite(nis) & np.isfinite(dof) & (dof > 0)
         n, a = int(ok.sum()), ok & acc
         if n == 0:

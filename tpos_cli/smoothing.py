@@ -38,25 +38,30 @@ from tpos_cli.trajectory import Solution
 
 @njit(cache=True)
 def rts_closed_loop(Phi, Ppred, Pfilt, dx):
-    """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n), Ps (E,n,n)).
+    """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n),
+    Ps9 (E,9,9)), Ps9 the navigation block (all of it below 9 states) of the smoothed covariance (the recursion keeps the
+    full one of the next epoch only: the full history would be the largest array of a run).
 
     xs_pre[e] = xs_post[e] + dx[e] is the smoothed error about the pre-update nominal.
     """
     E, n = dx.shape
     xs_post = np.zeros((E, n))
     xs_pre = np.zeros((E, n))
-    Ps = np.empty((E, n, n))
-    Ps[E - 1] = Pfilt[E - 1]
+    m = min(n, 9)
+    Ps9 = np.empty((E, m, m))
+    Ps = Pfilt[E - 1].copy()
+    Ps9[E - 1] = Ps[:m, :m]
     xs_pre[E - 1] = dx[E - 1]
     for e in range(E - 2, -1, -1):
         # A^T = (P^-_{e+1})^-1 Phi_{e+1} P_e, by a solve (P^- symmetric)
         At = np.linalg.solve(Ppred[e + 1], Phi[e + 1] @ Pfilt[e])
         A = At.T
         xs_post[e] = A @ xs_pre[e + 1]
-        Pn = Pfilt[e] + A @ (Ps[e + 1] - Ppred[e + 1]) @ At
-        Ps[e] = 0.5 * (Pn + Pn.T)
+        Pn = Pfilt[e] + A @ (Ps - Ppred[e + 1]) @ At
+        Ps = 0.5 * (Pn + Pn.T)
+        Ps9[e] = Ps[:m, :m]
         xs_pre[e] = xs_post[e] + dx[e]
-    return xs_post, xs_pre, Ps
+    return xs_post, xs_pre, Ps9
 
 
 @njit(cache=True)
@@ -69,7 +74,7 @@ def _corrected_into(nav, C, bias, x, o_nav, o_C, o_bias):
 
 
 @njit(cache=True)
-def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps, o_nav, o_C, o_bias, o_P9):
+def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps9, o_nav, o_C, o_bias, o_P9):
     e = 0
     E = ep_idx.shape[0]
     for k in range(out_idx.shape[0]):
@@ -82,7 +87,7 @@ def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps, o_na
             a = (t[j] - ep_t[e]) / (ep_t[e + 1] - ep_t[e])
             xs = (1.0 - a) * xs_post[e] + a * xs_pre[e + 1]
         _corrected_into(nav[j], C[j], bias[j], xs, o_nav[k], o_C[k], o_bias[k])
-        o_P9[k] = Ps[e, :9, :9]
+        o_P9[k] = Ps9[e]
 
 
 def rts(run: FilterRun, out_idx) -> Solution:
@@ -90,12 +95,12 @@ def rts(run: FilterRun, out_idx) -> Solution:
     run-local sample indices `out_idx`; `Solution.bias` holds the smoothed IMU biases and extra states."""
     if run.ep_Phi is None:
         raise ValueError("`run` holds no RTS history (run the forward filter with store_rts=True)")
-    xs_post, xs_pre, Ps = rts_closed_loop(run.ep_Phi, run.ep_Ppred, run.ep_P, run.ep_dx)
+    xs_post, xs_pre, Ps9 = rts_closed_loop(run.ep_Phi, run.ep_Ppred, run.ep_P, run.ep_dx)
     K = out_idx.size
     o_nav, o_C, o_P9 = np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, 9, 9))
     o_bias = np.empty((K, run.bias.shape[1]))
     t_s = run.t_s
-    _rts_apply(out_idx, run.ep_idx, t_s[run.ep_idx], t_s, run.nav, run.C_nb, run.bias, xs_post, xs_pre, Ps,
+    _rts_apply(out_idx, run.ep_idx, t_s[run.ep_idx], t_s, run.nav, run.C_nb, run.bias, xs_post, xs_pre, Ps9,
                o_nav, o_C, o_bias, o_P9)
     return Solution("rts", out_idx, o_nav, o_C, o_P9, o_bias)
 

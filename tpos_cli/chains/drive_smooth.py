@@ -42,6 +42,7 @@ from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
+from tpos_cli.ins.mechanization import decimate_imu
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
@@ -243,6 +244,7 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
 
 
 WHEELED = ("car", "rover")
+COARSE_RATE_HZ = 25.0  # IMU rate of the first pass that finds the mounting
 
 
 def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState,
@@ -265,9 +267,12 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["mounting"] = {"source": "session", "mounting_rpy_deg": [float(v) for v in mounting]}
     if platform == "auto" or (platform in WHEELED and C_vb is None):
         zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps) if platform in WHEELED else None
-        # a coarse pass (1 s covariance steps) serves the travel direction at a third of the cost
-        coarse = dataclasses.replace(cfg, cov_step=max(cfg.cov_step, int(round(imu.rate_hz))))
-        first = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, coarse, store_rts=False, extra=zu)
+        # a coarse pass (IMU at about 25 Hz, 1 s covariance steps, as the GPS noise passes) serves
+        # the travel direction, a degree-level figure, at a tenth of the cost of a full one
+        factor = max(1, int(round(imu.rate_hz / COARSE_RATE_HZ)))
+        td, gd, ad = decimate_imu(imu.t, imu.gyro, imu.acc, factor)
+        coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(imu.rate_hz / factor))))
+        first = run_insgps(td, gd, ad, fixes, init, coarse, store_rts=False, extra=zu)
         td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb)
         if td is not None:
             if C_vb is None:

@@ -204,7 +204,8 @@ def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, bloc
     ids = np.unique(blk)
     dt = float(np.median(np.diff(t_all))) if t_all.size > 1 else 0.0
     if ids.size >= 3:
-        bm = np.array([u[blk == i].mean(axis=0) for i in ids])
+        starts = np.searchsorted(blk, ids)  # blk is sorted: block means by reduceat
+        bm = np.add.reduceat(u, starts, axis=0) / np.diff(np.append(starts, blk.size))[:, None]
         bp, by = _pitch_yaw_deg(bm.T)
         by = (by - yaw + 180.0) % 360.0 - 180.0  # spread about the mean, across +-180
         sp_, sy_ = (float(np.std(x, ddof=1) / np.sqrt(ids.size)) for x in (bp, by))

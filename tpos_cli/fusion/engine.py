@@ -251,7 +251,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                      meas.gated[order].astype(np.bool_), meas.slot[order].astype(np.int64),
                      meas.par[order].astype(np.int64))
     aid = _aiding(cfg, meas, backward)
-    n_ep = n // max(cfg.cov_step, 1) + np.unique(k_o).size + 3
+    n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), np.unique(k_o))
     nr = n_ep if store_rts else 1
     out = History(np.empty((n, 6)), np.empty((n, 3, 3)), np.empty((n, nb)), np.zeros(n_ep, np.int64),
                   np.empty((nr, ns, ns)), np.empty((nr, ns, ns)), np.empty((n_ep, ns, ns)), np.empty((n_ep, ns)))
@@ -263,6 +263,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                   chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
     n_used, status = error_state_kernel(ImuArrays(t, gyro, acc), start, P0, st, ev, aid, out, res)
+    if status == 0 and n_used != n_ep:
+        raise AssertionError(f"covariance epochs: {n_used} used, {n_ep} allocated")
     if status != 0:
         tk = t[status - 1] * (-1.0 if backward else 1.0)
         raise ProcessingError(f"filter: innovation covariance not positive definite at t_s = {tk:.3f}")
@@ -291,6 +293,19 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, ep_P,
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
                      lay, meas, nu, pvar, nis, logdet, accepted)
+
+
+def epoch_count(n: int, cov_step: int, k_meas) -> int:
+    """Covariance epochs of `error_state_kernel` over n samples: sample 0, every sample with a
+    measurement (k_meas: sorted unique, 1 <= k < n), after every `cov_step` samples without one,
+    and the last sample. Exact, so the stored covariances are allocated once at their size (they
+    are the largest arrays of a run)."""
+    k = np.asarray(k_meas, dtype=np.int64)
+    prev = np.concatenate(([0], k[:-1]))
+    steps = int(np.sum((k - 1 - prev) // cov_step)) + k.size  # step epochs strictly between, then the measurement
+    last = int(k[-1]) if k.size else 0
+    tail = (n - 1 - last + cov_step - 1) // cov_step  # step epochs after it, the last sample included
+    return 1 + steps + tail
 
 
 def _check(cfg: FilterConfig, meas: Measurements) -> None:

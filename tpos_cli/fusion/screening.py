@@ -16,23 +16,30 @@ from tpos_cli.frames.geodetic import lla_to_ned
 
 
 def _misses(t, ned, usable, cand, k, max_span_s) -> np.ndarray:
-    """Horizontal miss (m) of each candidate fix by the median prediction of its usable neighbours."""
+    """Horizontal miss (m) of each candidate fix (usable ones) by the median prediction of its
+    usable neighbours: the k on either side within max_span_s, all candidates at once (rows of
+    2k neighbours, NaN where one is missing)."""
     miss = np.zeros(t.size)
     idx = np.flatnonzero(usable)
-    pos = np.searchsorted(idx, cand)
-    for i, p in zip(cand, pos):
-        nb = idx[max(0, p - k): p + k + 1]
-        nb = nb[(nb != i) & (np.abs(t[nb] - t[i]) <= max_span_s)]
-        if nb.size < 2:
-            continue
-        a, b = np.triu_indices(nb.size, 1)
-        dt = t[nb[b]] - t[nb[a]]
-        m = dt > 0
-        if not m.any():
-            continue
-        v = np.median((ned[nb[b[m]], :2] - ned[nb[a[m]], :2]) / dt[m, None], axis=0)
-        pred = np.median(ned[nb, :2] + np.outer(t[i] - t[nb], v), axis=0)
-        miss[i] = np.hypot(*(ned[i, :2] - pred))
+    if not cand.size or idx.size < 3:
+        return miss
+    offs = np.concatenate((np.arange(-k, 0), np.arange(1, k + 1)))
+    j = np.searchsorted(idx, cand)[:, None] + offs
+    valid = (j >= 0) & (j < idx.size)
+    nb = idx[np.clip(j, 0, idx.size - 1)]
+    valid &= np.abs(t[nb] - t[cand, None]) <= max_span_s
+    a, b = np.triu_indices(offs.size, 1)  # pairs in time order
+    dt = t[nb[:, b]] - t[nb[:, a]]
+    pair = valid[:, a] & valid[:, b] & (dt > 0)
+    rows = (valid.sum(axis=1) >= 2) & pair.any(axis=1)
+    if not rows.any():
+        return miss
+    nb, valid, pair, dt, c = nb[rows], valid[rows], pair[rows], dt[rows], cand[rows]
+    vel = (ned[nb[:, b], :2] - ned[nb[:, a], :2]) / np.where(pair, dt, 1.0)[..., None]
+    v = np.nanmedian(np.where(pair[..., None], vel, np.nan), axis=1)
+    pred = ned[nb, :2] + (t[c, None] - t[nb])[..., None] * v[:, None, :]
+    pred = np.nanmedian(np.where(valid[..., None], pred, np.nan), axis=1)
+    miss[c] = np.hypot(*(ned[c, :2] - pred).T)
     return miss
 
 
