@@ -85,7 +85,7 @@ def test_error_states_are_fitted_on_correlated_gps(correlated_runs):
 
 
 def test_error_states_are_consistent_forward_and_backward(correlated_runs):
-    """The estimated fix error (bias[:, 6:9]) of both runs against the exact simulated error, in
+    """The estimated fix error (the GPS_ERROR block) of both runs against the exact simulated error, in
     units of its own SD: the mean square per horizontal axis is about 1 (0.5-3.0 per run, 1.35 over
     the six; a wrong sign in the backward run would give about 4 sigma_gm^2 / P ~ 8)."""
     z2 = []
@@ -98,8 +98,9 @@ def test_error_states_are_consistent_forward_and_backward(correlated_runs):
         # backward from the end of the log
         for run, m in ((r.forward, t > 60.0), (r.backward, t < sim.truth.t_s[-1] - 60.0)):
             e = epoch_of(run, k[m])  # the covariance of the nearest epoch on the data side
-            sd = np.sqrt(np.diagonal(run.ep_P[e][:, 15:17, 15:17], axis1=1, axis2=2))
-            z = (run.bias[k[m], 6:8] - b_true[m, :2]) / sd
+            o = run.layout.offset(Block.GPS_ERROR)
+            sd = np.sqrt(np.diagonal(run.ep_P[e][:, o:o + 2, o:o + 2], axis1=1, axis2=2))
+            z = (run.extra(Block.GPS_ERROR)[k[m], :2] - b_true[m, :2]) / sd
             assert np.mean(np.abs(z) < 2.0) > 0.6  # one run is ~10 correlation times: a loose floor
             z2.append(np.mean(z**2))
     # six runs of ~10 effective samples per axis: the mean of z^2 is 1 to about +-0.4 (2 SD)

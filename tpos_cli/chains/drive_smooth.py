@@ -199,13 +199,15 @@ def raise_only(gn: GpsNoise, fixes: GpsFixes) -> GpsNoise:
 
 
 def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
-             t0_s: float) -> tuple[GpsFixes, FilterConfig]:
-    """GPS noise (covariance matching, `fusion.gps_noise`) and GPS error states (`fusion.gps_error`);
-    records what was found in `info`. Returns the fixes with their SDs scaled and the settings."""
+             t0_s: float, extra: Measurements | None = None) -> tuple[GpsFixes, FilterConfig]:
+    """GPS noise (covariance matching, `fusion.gps_noise`) and GPS error states (`fusion.gps_error`),
+    on passes of the final filter (`cfg`, with the constraint rows `extra`); records what was
+    found in `info`. Returns the fixes with their SDs scaled and the settings."""
     after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
     gn = None
     if p.gps_noise == "estimate":
-        gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+        gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s,
+                                extra=extra)
         gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
         info["gps_noise"] = {"method": "covariance matching on decimated filter passes; the receiver's own SDs only "
@@ -220,7 +222,8 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
         return fixes, cfg
     if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
         taus = (p.gps_gm_tau_s,) if p.gps_gm_tau_s is not None else TAU_GRID_S
-        fit = fit_gps_error(imu.t, imu.gyro, imu.acc, fixes, init, cfg, taus_s=taus, after_s=after, span_s=p.gps_noise_span_s)
+        fit = fit_gps_error(imu.t, imu.gyro, imu.acc, fixes, init, cfg, taus_s=taus, after_s=after, span_s=p.gps_noise_span_s,
+                            extra=extra)
         sd, tau = fit.sigma_gm_ned_m.copy(), fit.tau_s
         info["gps_error_states"] = fit.summary()
     else:
@@ -231,12 +234,13 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     if p.gps_gm_sigma_v_m is not None:
         sd[2] = p.gps_gm_sigma_v_m
     info["gps_error_states"].update(sigma_h_m=round(float(sd[0]), 4), sigma_v_m=round(float(sd[2]), 4))
-    cfg = dataclasses.replace(cfg, layout=gps_error_layout(sd, tau))
-    if gn is not None and cfg.n_states > 15:
+    cfg = dataclasses.replace(cfg, layout=gps_error_layout(sd, tau, cfg.layout))
+    if gn is not None and cfg.layout.offset(Block.GPS_ERROR) >= 0:
         # the white part again, with the error states on: they now carry the share of the
         # fix-to-fix scatter that the wander makes
         fixes = scaled_fixes(fixes, 1.0 / gn.scale)
-        gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s)
+        gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s,
+                                extra=extra)
         gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
         info["gps_noise"].update(gn.summary())
@@ -398,13 +402,13 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         init, info = align(imu, session, p, fixes, cfg, sig, nz)
     info["gps_vel_latency_s"] = {"value": fixes.vel_latency_s,
                                  "source": "pipeline" if p.gps_vel_latency_s is not None else "the log's positions"}
+    with stage("constraints"):
+        cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
     with stage("gps_noise"):
-        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s)
+        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra)
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))
     if extra_idx is not None and len(extra_idx):
         out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
-    with stage("constraints"):
-        cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     sols = {}
     with stage("forward"):

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.fusion.engine import FilterConfig, InitialState
+from tpos_cli.fusion.engine import FilterConfig, InitialState, Measurements
 from tpos_cli.fusion.gps_noise import pass_window
 from tpos_cli.fusion.insgps import GpsFixes, gps_error_layout, gps_innovations, run_insgps
 
@@ -80,12 +80,14 @@ def innovation_loglik(run, count, gate_1: float = 15.137) -> float:
 
 def fit_gps_error(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                   taus_s=TAU_GRID_S, after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
-                  grid=RATIO_GRID, test_probability: float = 0.99) -> GpsErrorFit:
+                  grid=RATIO_GRID, test_probability: float = 0.99, extra: Measurements | None = None) -> GpsErrorFit:
     """Fit the correlated-error SD and time constant by maximum likelihood (module docstring).
     `fixes` carry the white SDs (as matched); the correlated SD per axis is r times the fixes'
     median white SD. `grid` must start with 0 (the white model, the reference of the profile).
     The states are kept (r > 0) only when the best log L beats the white model's by more than
-    half the chi-square quantile `test_probability` at 2 d.o.f. (a likelihood-ratio test)."""
+    half the chi-square quantile `test_probability` at 2 d.o.f. (a likelihood-ratio test).
+    `extra`: the motion-constraint rows of the final filter (its layout in `cfg`), so that the
+    passes see the innovations that filter will see."""
     from scipy.special import chdtri  # not scipy.stats (import time)
 
     min_gain = 0.5 * float(chdtri(2, 1.0 - test_probability))
@@ -97,8 +99,8 @@ def fit_gps_error(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialSta
         raise ValueError("`grid` must start with 0")
 
     def loglik(r, tau):
-        pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), layout=gps_error_layout(r * sw, tau))
-        return innovation_loglik(run_insgps(td, gd, ad, fixes, init, pcfg, store_rts=False), count)
+        pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), layout=gps_error_layout(r * sw, tau, cfg.layout))
+        return innovation_loglik(run_insgps(td, gd, ad, fixes, init, pcfg, store_rts=False, extra=extra), count)
 
     ll0 = loglik(0.0, taus[0])  # the white model: tau plays no part
     ll = np.full((taus.size, grid.size), np.nan)

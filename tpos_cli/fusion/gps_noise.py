@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.fusion.engine import FilterConfig, InitialState
+from tpos_cli.fusion.engine import FilterConfig, InitialState, Measurements
 from tpos_cli.fusion.initial import fixes_before
 from tpos_cli.fusion.insgps import GpsFixes, gps_innovations, run_insgps
 from tpos_cli.ins.mechanization import decimate_imu
@@ -138,7 +138,8 @@ def pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, after_s: float | N
 
 def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                        after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
-                       max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0)) -> GpsNoise:
+                       max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0),
+                       extra: Measurements | None = None) -> GpsNoise:
     """Scales of the fixes' SDs per group from decimated forward passes (see the module docstring).
 
     Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
@@ -148,6 +149,9 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     heading may still be converging before); ignored when fewer than 30 fixes would remain.
     `span_s`: the passes stop `span_s` after that (0 = whole log): 900 s give some 1800
     horizontal components, a variance to about 3%, and keep the passes cheap on long logs.
+    `extra`: the motion-constraint rows of the final filter (its layout in `cfg`): matched on a
+    filter without them, R would take the share of the innovations that the constraints remove
+    (the final filter's GPS NIS then falls below its band).
     """
     td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
     pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))))
@@ -159,7 +163,7 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     passes = 0
     for passes in range(1, max_passes + 1):
         fx = scaled_fixes(fixes, np.exp(log_s))
-        run = run_insgps(td, gd, ad, fx, init, pcfg, store_rts=False)
+        run = run_insgps(td, gd, ad, fx, init, pcfg, store_rts=False, extra=extra)
         var = np.column_stack([fx.sigma_pos_ned_m, fx.sigma_vel_mps])[count] ** 2
         gi = gps_innovations(run, count.size)
         nu, hph = gi.innovation[count], gi.pvar[count]

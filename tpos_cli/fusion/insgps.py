@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, run_filter
-from tpos_cli.fusion.layout import StateLayout, gps_error_block
+from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block
 from tpos_cli.fusion.measurements import Kind
 
 _SLOT_POSITION, _SLOT_VELOCITY = 0, 1
@@ -52,12 +52,13 @@ class GpsInnovations:
     dof: np.ndarray
 
 
-def gps_error_layout(sigma_ned_m, tau_s: float) -> StateLayout:
-    """The filter's extra states for time-correlated GPS errors: three Gauss-Markov states
-    (`fusion.gps_error`) when any SD is > 0, else none (white fixes, 15 states)."""
+def gps_error_layout(sigma_ned_m, tau_s: float, base: StateLayout | None = None) -> StateLayout:
+    """`base`'s blocks (none by default) with the extra states for time-correlated GPS errors:
+    three Gauss-Markov states (`fusion.gps_error`) when any SD is > 0, else none (white fixes)."""
+    kept = tuple(b for b in (base.blocks if base is not None else ()) if b.block != Block.GPS_ERROR)
     if sigma_ned_m is None or not np.any(np.asarray(sigma_ned_m, dtype=float) > 0):
-        return StateLayout()
-    return StateLayout((gps_error_block(sigma_ned_m, tau_s),))
+        return StateLayout(kept)
+    return StateLayout((*kept, gps_error_block(sigma_ned_m, tau_s)))
 
 
 def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) -> Measurements:
