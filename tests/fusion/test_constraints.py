@@ -71,6 +71,27 @@ def test_travel_direction_recovers_the_mounting(rpy_deg):
     np.testing.assert_allclose(v_v[:, 1:], 0.0, atol=1e-9)
 
 
+def test_travel_direction_leaves_out_samples_far_from_fixes():
+    """A yaw drift of 5 deg inside a 60 s stretch without fixes (a GPS outage of the first pass)
+    biases the estimate when counted; with the fix times given only the samples up to 1 s after a
+    fix count (a forward run is corrected at each fix) and the estimate is the exact mounting again."""
+    n = 3000
+    t = np.arange(n) * 0.1
+    yaw_v = 0.3 * np.sin(t / 30.0)
+    C_nv = euler_to_dcm(np.zeros(n), np.zeros(n), yaw_v)
+    C_vb = euler_to_dcm(0.0, np.radians(1.0), np.radians(3.0))
+    outage = (t >= 100.0) & (t < 160.0)
+    drift = np.where(outage, np.radians(5.0) * (t - 100.0) / 60.0, 0.0)  # the INS yaw error grows
+    C_nb = euler_to_dcm(np.zeros(n), np.zeros(n), drift) @ C_nv @ C_vb
+    vel = 10.0 * C_nv[:, :, 0]
+    fix_t = t[::10][~outage[::10]]  # 1 Hz fixes, none in the outage
+    biased = travel_direction(t, vel, C_nb)
+    td = travel_direction(t, vel, C_nb, fix_t_s=fix_t, max_fix_gap_s=1.0)
+    assert abs(biased.yaw_deg - 3.0) > 0.3  # the drift leaks in when counted
+    assert td.yaw_deg == pytest.approx(3.0, abs=1e-9)
+    assert td.pitch_deg == pytest.approx(1.0, abs=1e-9)
+
+
 def test_velocity_latency_of_a_backward_difference_receiver():
     """Logged velocity = backward difference of the positions over one 0.25 s interval: the
     velocity of 0.125 s earlier; found on the 0.025 s grid."""

@@ -269,15 +269,17 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     if mounting is not None:
         C_vb = euler_to_dcm(*np.radians(np.asarray(mounting, dtype=float)))
         out["mounting"] = {"source": "session", "mounting_rpy_deg": [float(v) for v in mounting]}
+    zu_rows = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps)
     if platform == "auto" or (platform in WHEELED and C_vb is None):
-        zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps) if platform in WHEELED else None
+        zu = zu_rows if platform in WHEELED else None
         # a coarse pass (IMU at about 25 Hz, 1 s covariance steps, as the GPS noise passes) serves
         # the travel direction, a degree-level figure, at a tenth of the cost of a full one
         factor = max(1, int(round(imu.rate_hz / COARSE_RATE_HZ)))
         td, gd, ad = decimate_imu(imu.t, imu.gyro, imu.acc, factor)
         coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(imu.rate_hz / factor))))
         first = run_insgps(td, gd, ad, fixes, init, coarse, store_rts=False, extra=zu)
-        td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb)
+        gap_s = max(1.0, 1.5 * float(np.median(np.diff(fixes.t_s)))) if fixes.t_s.size > 1 else 1.0
+        td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb, fix_t_s=fixes.t_s, max_fix_gap_s=gap_s)
         if td is not None:
             if C_vb is None:
                 C_vb = td.C_vb
@@ -293,7 +295,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     info["constraints"] = out
     parts = []
     if platform in WHEELED or platform == "pedestrian":
-        zu = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps)
+        zu = zu_rows
         if zu is not None and platform == "pedestrian":
             zu = zu.select(zu.kind == Kind.ZUPT)  # a standing walker still turns: no ZARU
         parts.append(zu)
@@ -335,20 +337,25 @@ def constraint_summary(run: FilterRun) -> dict:
         acc = ok & run.ev_accepted
         out[name] = {"rows": int(ok.sum()), "rejected": int((ok & ~run.ev_accepted).sum()),
                      "nis": nis_band(run.ev_nis[acc], run.ev_nu[acc])}
-    o = run.layout.offset(Block.MOUNTING)
-    if o >= 0:  # at the run's end in its own direction (where it has seen the whole log)
-        j = 0 if run.backward else -1
-        m = run.extra(Block.MOUNTING)[j]
-        sd = np.sqrt(np.diagonal(run.ep_P[j])[o:o + 3])
+    m, sd = _block_at_end(run, Block.MOUNTING, 3)
+    if m is not None:
         out["residual_misalignment_deg"] = {"pitch_yaw": [round(float(v), 3) for v in np.degrees(m[:2])],
                                             "sigma": [round(float(v), 3) for v in np.degrees(sd[:2])]}
         out["nhc_point_behind_imu_m"] = {"estimate": round(float(m[2]), 3), "sigma": round(float(sd[2]), 3)}
-    o = run.layout.offset(Block.ODOMETER)
-    if o >= 0:
-        j = 0 if run.backward else -1
-        out["odometer_scale_error"] = {"estimate": round(float(run.extra(Block.ODOMETER)[j, 0]), 5),
-                                       "sigma": round(float(np.sqrt(run.ep_P[j][o, o])), 5)}
+    m, sd = _block_at_end(run, Block.ODOMETER, 1)
+    if m is not None:
+        out["odometer_scale_error"] = {"estimate": round(float(m[0]), 5), "sigma": round(float(sd[0]), 5)}
     return out
+
+
+def _block_at_end(run: FilterRun, block: Block, size: int):
+    """(estimate, SD) of an extra block at the run's end in its own direction (where it has seen
+    the whole log), or (None, None) when the run has no such block."""
+    o = run.layout.offset(block)
+    if o < 0:
+        return None, None
+    j = 0 if run.backward else -1
+    return run.extra(block)[j], np.sqrt(np.diagonal(run.ep_P[j])[o:o + size])
 
 
 def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothParams, names, sols: dict):

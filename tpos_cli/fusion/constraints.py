@@ -183,15 +183,25 @@ def _pitch_yaw_deg(u):
     return np.degrees(p), np.degrees(np.arctan2(-u[1], cy))
 
 
-def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, block_s: float = 10.0) -> TravelDirection | None:
+def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, block_s: float = 10.0,
+                     fix_t_s=None, max_fix_gap_s: float = 1.0) -> TravelDirection | None:
     """Mounting from the direction of a solution's velocity in body axes (t_s (K,), vel_ned_mps
     (K, 3), C_nb (K, 3, 3)) while faster than min_speed_mps. u = C_nb^T v / |v|; with v_vehicle =
     Rz(yaw) Ry(pitch) v_body along x: u = (cos p cos y, -sin y, sin p cos y) (`_pitch_yaw_deg`).
-    SDs: scatter of 10 s block means over sqrt(number of blocks)."""
+    With `fix_t_s` (a forward run's fixes), only samples at most max_fix_gap_s after a fix count:
+    inside a GPS outage a filter's velocity and yaw drift apart, and that drift would read as
+    mounting (2.7 deg of yaw on part 1 with two 30 s windows withheld). SDs: scatter of 10 s block means over sqrt(number
+    of blocks)."""
     v = np.asarray(vel_ned_mps, dtype=float)
     t_all = np.asarray(t_s, dtype=float)
     sp = np.linalg.norm(v, axis=1)
     m = sp > min_speed_mps
+    if fix_t_s is not None:
+        tf = np.sort(np.asarray(fix_t_s, dtype=float))
+        if tf.size == 0:
+            return None
+        j = np.searchsorted(tf, t_all, side="right") - 1  # the last fix at or before each sample
+        m &= (j >= 0) & (t_all - tf[np.maximum(j, 0)] <= max_fix_gap_s)
     if m.sum() < 10:
         return None
     u = np.einsum("kji,kj->ki", np.asarray(C_nb)[m], v[m]) / sp[m, None]

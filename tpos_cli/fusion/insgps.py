@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, run_filter
 from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block
 from tpos_cli.fusion.measurements import Kind
@@ -109,9 +110,8 @@ def velocity_latency_s(fixes: GpsFixes, grid_s=LAG_GRID_S, min_gain: float = 0.3
     if ok.sum() < 20:
         return 0.0, {"fixes": int(ok.sum())}
     t = np.asarray(fixes.t_s, dtype=float)
-    lat = np.radians(fixes.lla[:, 0])
-    n_m = (lat - lat[0]) * (6378137.0 + fixes.lla[:, 2])
-    e_m = np.radians(fixes.lla[:, 1] - fixes.lla[0, 1]) * (6378137.0 + fixes.lla[:, 2]) * np.cos(lat)
+    ned = lla_to_ned(fixes.lla, fixes.lla[0])
+    n_m, e_m = ned[:, 0], ned[:, 1]
     dt = np.diff(t)
     good = (dt > 0) & (dt < 1.5 * np.median(dt))
     tm = 0.5 * (t[1:] + t[:-1])[good]
