@@ -496,16 +496,21 @@ def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, 
         fkf_base = base_fkf if base_fkf is not None else sols.get("fkf")
         cal = None
         if fkf_base is not None:
-            cal = _calibrate(session, shots, _geolocate_shots(fkf_base, shots, t, d1, obs_lla, noise.range_sigma_m), obs_lla)
+            # the offsets' own uncertainty comes from what is not attitude (range noise): the
+            # attitude error at the reference shots is what they estimate, not noise on them
+            df_b, lla_b, _ = _geolocate_shots(fkf_base, shots, t, d1, obs_lla, noise.range_sigma_m)
+            _, _, cov_r = _geolocate_shots(fkf_base, shots, t, d1, obs_lla, noise.range_sigma_m, attitude=False)
+            cal, t_ref = _calibrate(session, shots, (df_b, lla_b, cov_r), obs_lla)
         if cal is not None:
             summary["calibration"] = {"dpitch_deg": np.degrees(cal.dpitch_rad), "dyaw_deg": np.degrees(cal.dyaw_rad),
                                       "sigma_deg": np.degrees(np.sqrt(np.diag(cal.cov_rad2))).tolist(),
                                       "residual_rms_m": cal.residual_rms_m, "shots": cal.n_shots}
-            sols["fkf_cal"] = _apply_offsets(fkf_base, cal)
+            sols["fkf_cal"] = _apply_offsets(fkf_base, cal, t_ref, noise, session.meta.rate_hz)
             if P_lev is not None:
                 # the offsets take up the levelling error at the reference shots only: it changes with the
-                # device's attitude and as the filters learn the bias (measured: removing the reference
-                # shots' share leaves MEMS fkf_cal over-confident, NEES/dof 6), so all of it is kept
+                # device's attitude and as the filters learn the bias (measured on MEMS simulations: its
+                # change re-levelled at each attitude, (M(t) - M(t_ref)) b_a, leaves fkf_cal over-confident,
+                # NEES/dof 6), so all of it is kept
                 sols["fkf_cal"] = with_levelling(sols["fkf_cal"], P_lev)
             fixes["fkf_cal"] = _geolocate_shots(sols["fkf_cal"], shots, t, d1, obs_lla, noise.range_sigma_m)
         for name, (df, lla, cov) in fixes.items():
@@ -647,7 +652,9 @@ def _sigma_columns(cov_ned_m2) -> dict:
             "cov_ne_m2": c[0, 1], "cov_nu_m2": -c[0, 2], "cov_eu_m2": -c[1, 2]}
 
 
-def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r):
+def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r, attitude: bool = True):
+    """(rows, lla (S,3), cov (S,3,3)) of every shot; `attitude` False: covariances of the range
+    noise alone (the attitude taken as exact)."""
     ids, ta, tb = shots
     rows, llas, covs = [], [], []
     for sid, a, b in zip(ids, ta, tb):
@@ -662,7 +669,7 @@ def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r):
             continue
         Cm, Pm = _window_attitude(sol, slice(i0, i1))
         d = float(r.mean())
-        fx = targeting.geolocate(obs_lla, Cm[None], np.array([d]), P_att_rad2=Pm[None],
+        fx = targeting.geolocate(obs_lla, Cm[None], np.array([d]), P_att_rad2=(Pm if attitude else 0.0 * Pm)[None],
                                  sigma_range_m=sigma_r / np.sqrt(r.size))
         rows.append({"id": sid, "t_start": a, "t_end": b, "range_m": d, "lat": fx.lla[0, 0], "lon": fx.lla[0, 1],
                      "h": fx.lla[0, 2], "solution": sol.name, **_sigma_columns(fx.cov_ned_m2[0])})
@@ -672,32 +679,58 @@ def _geolocate_shots(sol: AttitudeSolution, shots, t, d1, obs_lla, sigma_r):
 
 
 def _calibrate(session: Session, shots, fkf_fix, obs_lla):
-    """Paper 001 Eq. 31-38 on every shot at a `reference` target; None when there is none."""
+    """Paper 001 Eq. 31-38 on every shot at a `reference` target: (Calibration, mid-times (R,) s of
+    the reference shots), (None, None) when there is none. `fkf_fix` = (rows, lla, cov) with the
+    covariances of what the offsets do not estimate (range noise)."""
     tg = session.targets
     if tg is None or fkf_fix is None:
-        return None
+        return None, None
     ref = {i: tg.lla[k] for k, i in enumerate(tg.ids) if tg.role[k] == "reference"}
     df, lla, cov = fkf_fix
     sel = [k for k, i in enumerate(df.id) if i in ref and np.isfinite(lla[k, 0])]
     if not sel:
-        return None
+        return None, None
     ned = geodetic.lla_to_ned(lla[sel], obs_lla)
     d = np.linalg.norm(ned, axis=1)
     pitch = np.arcsin(-ned[:, 2] / d)
     yaw = np.arctan2(ned[:, 1], ned[:, 0])
-    return targeting.calibrate_offsets(obs_lla, pitch, yaw, d, np.array([ref[df.id[k]] for k in sel]), cov_ned_m2=cov[sel])
+    cal = targeting.calibrate_offsets(obs_lla, pitch, yaw, d, np.array([ref[df.id[k]] for k in sel]), cov_ned_m2=cov[sel])
+    return cal, 0.5 * (df.t_start.to_numpy(float)[sel] + df.t_end.to_numpy(float)[sel])
 
 
-def _apply_offsets(sol: AttitudeSolution, cal) -> AttitudeSolution:
-    """Subtract the pitch/heading offsets (paper 001 Eq. 35) from every attitude of `sol`; the offsets'
-    own uncertainty (`Calibration.cov_rad2`, from the reference shots' covariances) is added to the
-    attitude covariance (their errors are treated as independent of the target shot's)."""
+def attitude_change_variance(sol: AttitudeSolution, t_ref_s, noise: FilterNoise, rate_hz: float) -> np.ndarray:
+    """(N,) variance (rad^2, per axis) of the change of the solution's attitude error between the
+    nearest reference shot and each sample: what the reference-point offsets leave. The gyro's
+    angle random walk q |dt| (q = per-sample SD^2 / rate), its residual bias (the solution's own
+    bias variance at the reference) over dt, and its scale error over the rotation between the
+    two attitudes; never more than the two errors independent, (tr P(t) + tr P(t_ref)) / 3."""
+    t = sol.t_s
+    tr = np.sort(np.asarray(t_ref_s, dtype=float))
+    j = np.clip(np.searchsorted(tr, t), 1, tr.size - 1) if tr.size > 1 else np.zeros(t.size, dtype=np.int64)
+    if tr.size > 1:
+        j = np.where(np.abs(t - tr[j - 1]) < np.abs(tr[j] - t), j - 1, j)
+    dt = np.abs(t - tr[j])
+    k_ref = np.clip(np.searchsorted(t, tr), 0, t.size - 1)[j]
+    vb = (sol.var_bias[k_ref, :3].max(axis=1) if sol.var_bias is not None
+          else np.full(t.size, noise.gyro_bias_rps**2))
+    turn = np.linalg.norm(dcm_to_rotvec(sol.C_nb @ np.swapaxes(sol.C_nb[k_ref], 1, 2)), axis=1)
+    var = noise.gyro_noise_rps**2 / rate_hz * dt + vb * dt**2 + (noise.gyro_scale_sd * turn) ** 2
+    cap = (np.trace(sol.P_att, axis1=1, axis2=2) + np.trace(sol.P_att[k_ref], axis1=1, axis2=2)) / 3.0
+    return np.minimum(var, cap)
+
+
+def _apply_offsets(sol: AttitudeSolution, cal, t_ref_s, noise: FilterNoise, rate_hz: float) -> AttitudeSolution:
+    """Subtract the pitch/heading offsets (paper 001 Eq. 35) from every attitude of `sol`. The offsets
+    remove the attitude error of the reference shots, so the covariance left is that of the error's
+    change since then (`attitude_change_variance`, on each axis) plus the offsets' own uncertainty
+    (`Calibration.cov_rad2`, from the reference shots' range noise)."""
     r, pch, y = dcm_to_euler(sol.C_nb)
     C = euler_to_dcm(r, pch - cal.dpitch_rad, y - cal.dyaw_rad)
     Pe = np.zeros((3, 3))
     Pe[1:, 1:] = cal.cov_rad2
     Mx = euler_error_map(C)
-    return AttitudeSolution("fkf_cal", sol.t_s, C, sol.P_att + Mx @ Pe @ np.swapaxes(Mx, 1, 2))
+    drift = attitude_change_variance(sol, t_ref_s, noise, rate_hz)[:, None, None] * np.eye(3)
+    return AttitudeSolution("fkf_cal", sol.t_s, C, drift + Mx @ Pe @ np.swapaxes(Mx, 1, 2))
 
 
 def _trajectory(sols: dict, t_logger, obs_lla) -> pd.DataFrame:
