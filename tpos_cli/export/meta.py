@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.bounded import read_toml
 from tpos_cli.report.projection import UtmZone
 
 # units and meaning of the exported columns (CSV header names, GeoJSON properties, KML data, GPX extensions)
@@ -115,13 +116,13 @@ def read_start_utc(session_dir: Path | None) -> datetime | None:
     """`[session] start_utc` of a session (UTC of t = 0), or None when absent or unreadable."""
     if session_dir is None:
         return None
-    try:
-        raw = tomllib.loads((Path(session_dir) / "session.toml").read_text(encoding="utf-8"))
+    try:  # bounded: a FIFO or a huge file named session.toml must not block an export
+        raw = read_toml(Path(session_dir) / "session.toml", "session.toml")
         v = raw.get("session", {}).get("start_utc")
         if v is None:
             return None
         dt = v if isinstance(v, datetime) else datetime.fromisoformat(str(v).replace("Z", "+00:00"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, ValueError, AttributeError):
+    except (OSError, InvalidInputError, ValueError, AttributeError):
         return None
     return dt.replace(tzinfo=UTC) if dt.tzinfo is None else dt.astimezone(UTC)
 
