@@ -13,7 +13,6 @@ import json
 import os
 import shutil
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -28,6 +27,7 @@ from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
+from tpos_cli.io.bounded import read_toml
 from tpos_cli.io.run_dir import (
     check_run_dir,
     claim_run_dir,
@@ -103,9 +103,9 @@ def _resolve_before_reading(session_dir, pipeline, overrides) -> ResolvedConfig 
     session's own loading reports what is wrong with it first)."""
     if pipeline is not None:
         return resolve_config(resolve_pipeline(pipeline, ""), overrides)
-    try:
-        head = tomllib.loads((Path(session_dir) / "session.toml").read_text(encoding="utf-8")).get("session", {})
-    except (OSError, ValueError):
+    try:  # bounded: a FIFO or a deep nest is refused at the door, never read
+        head = read_toml(Path(session_dir) / "session.toml", "session.toml").get("session", {})
+    except InvalidInputError:
         return None
     kind = head.get("kind") if isinstance(head, dict) else None
     return resolve_config(resolve_pipeline(None, kind), overrides) if isinstance(kind, str) else None

@@ -22,6 +22,8 @@ MAX_TABLE_ROWS = 20_000_000
 # session.toml and pipeline files are a few kB; nesting deeper than this is not metadata.
 MAX_TOML_BYTES = 1 << 20
 MAX_TOML_DEPTH = 16
+# A receiver or logger file to import is read whole; larger ones are imported in parts (several SRC).
+MAX_SOURCE_BYTES = 512 << 20
 
 
 def regular_file_size(path: Path, what: str, limit: int) -> int:
@@ -50,6 +52,24 @@ def read_bytes_bounded(path: Path, what: str, limit: int) -> bytes:
     if len(data) > limit:
         raise InvalidInputError(f"{what}: more than the {limit}-byte limit for this file")
     return data
+
+
+def read_source_bytes(path: Path, what: str | None = None, *, text: bool, limit: int = MAX_SOURCE_BYTES) -> bytes:
+    """A source file to import: regular, at most `limit` bytes; a text format (`text`) must not start
+    with NUL bytes (a sparse or binary file), checked on the first 64 KiB before the whole is read."""
+    what = what or str(path)
+    if not os.path.lexists(path):
+        raise InvalidInputError(f"{what}: file not found")
+    regular_file_size(path, what, limit)
+    if text:
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(65536)
+        except OSError as exc:
+            raise InvalidInputError(f"{what}: cannot be read ({exc.strerror})") from None
+        if b"\x00" in head:
+            raise InvalidInputError(f"{what}: contains NUL bytes: a binary or sparse file, not text")
+    return read_bytes_bounded(path, what, limit)
 
 
 def toml_depth(value, limit: int = MAX_TOML_DEPTH) -> int:

@@ -135,6 +135,7 @@ def _read_csv(path: Path) -> pd.DataFrame:
     except UnicodeDecodeError as exc:
         if exc.start < len(head) - 4:  # not merely a character cut by the 64 KiB window
             _fail(path, "not UTF-8 text (is it a binary or Parquet file named .csv?)")
+    _scan_csv(path)
     header = head.split(b"\n", 1)[0].decode("utf-8", "replace").strip().lstrip("\ufeff")
     if "," not in header:
         for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "pipes")):
@@ -158,6 +159,24 @@ def _read_csv(path: Path) -> pd.DataFrame:
     df.columns = [str(c).strip() for c in df.columns]
     _check_last_line(path, n_header, len(df))
     return df
+
+
+def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
+    """One pass over the bytes before pandas decodes them: the line count against MAX_TABLE_ROWS (a
+    2 GB file of short lines decodes to many GB of float64) and NUL bytes anywhere (a sparse hole
+    after a valid start), each refused with the row where it is."""
+    lines = 0
+    try:
+        with open(path, "rb") as fh:
+            while chunk := fh.read(chunk_bytes):
+                nul = chunk.find(b"\x00")
+                if nul >= 0:
+                    _fail(path, "contains NUL bytes: a binary or sparse file, not CSV text", row=max(lines + chunk.count(b"\n", 0, nul), 1))
+                lines += chunk.count(b"\n")
+                if lines > MAX_TABLE_ROWS + 1:
+                    _fail(path, f"more than {MAX_TABLE_ROWS} rows, the row limit for a table")
+    except OSError as exc:
+        _fail(path, f"cannot be read ({exc.strerror})")
 
 
 def _check_last_line(path: Path, n_header: int, n_rows: int) -> None:
