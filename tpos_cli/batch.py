@@ -53,7 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from tpos_cli.errors import InvalidInputError, TposError
-from tpos_cli.io.bounded import read_toml
+from tpos_cli.io.bounded import read_json_bounded, read_toml
 
 STATUS_OK = "ok"
 STATUS_SKIPPED = "skipped"
@@ -261,10 +261,13 @@ def plan_batch(
 
 
 def _read_summary(run_dir: Path) -> dict | None:
+    """The run's summary.json, or None when absent or not a bounded, readable JSON file (a FIFO, a
+    deep nest: the session is then processed again)."""
+    if not (run_dir / SUMMARY_FILE).exists():
+        return None
     try:
-        with open(run_dir / SUMMARY_FILE, encoding="utf-8") as f:
-            summary = json.load(f)
-    except (OSError, ValueError):
+        summary = read_json_bounded(run_dir / SUMMARY_FILE)
+    except InvalidInputError:
         return None
     return summary if isinstance(summary, dict) else None
 

@@ -78,6 +78,7 @@ class DriveSmoothParams(Section):
     (`tpos_cli.fusion.imu_noise`)."""
 
     smoother: Literal["rts", "two_filter", "simplified"] = "rts"  # the `smoothed` solution
+    imu_gap_max_s: Positive = 1.0  # refuse a log with a longer IMU gap: the INS cannot be carried across it
     compare: bool = False  # also write every smoother under its own name
     cov_step_s: Positive = 0.1  # covariance propagation / storage step
     output_rate_hz: NonNegative = 10.0  # rows per second per solution; 0 = every IMU sample
@@ -187,6 +188,7 @@ class RangingParams(Section):
     """`[ranging_fatci]` (paper 002); see pipelines/README.md for each key."""
 
     solutions: Annotated[tuple[RangingSolution, ...], Field(min_length=1)] = ("lc", "tc", "fatci")
+    imu_gap_max_s: Positive = 1.0  # refuse a log with a longer IMU gap: the INS cannot be carried across it
     smoothed: bool = True
     smooth_source: RangingSolution = "fatci"
     smoother: Literal["rts", "two_filter"] = "rts"

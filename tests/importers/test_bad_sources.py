@@ -78,7 +78,8 @@ def test_source_that_is_not_a_regular_text_file_is_refused_before_reading(tmp_pa
 def test_mapping_that_is_a_fifo_is_refused(tmp_path):
     (tmp_path / "g.txt").write_text(GOOD_ROWS)
     _fifo(tmp_path / "map.toml")
-    res = _import_in_child(["import", "csv", str(tmp_path / "g.txt"), "--map", str(tmp_path / "map.toml"), "-o", str(tmp_path / "s")], tmp_path)
+    args = ["import", "csv", str(tmp_path / "g.txt"), "--map", str(tmp_path / "map.toml"), "-o", str(tmp_path / "s")]
+    res = _import_in_child(args, tmp_path)
     assert res.returncode == 2 and "map.toml: is a FIFO" in res.stderr and not (tmp_path / "s").exists()
 
 

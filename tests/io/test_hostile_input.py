@@ -416,3 +416,58 @@ def test_disk_full_while_writing_outputs_is_a_plain_exit_1_naming_the_run(tmp_pa
     assert f"cannot write the run directory {out}" in res.output and "No space left" in res.output, res.output
     assert "internal error" not in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # no partial run, lock or temporary directory
+
+
+# ------------------------------------------------------------------ run directories read back (report, batch)
+
+@pytest.mark.parametrize("command", ["report", "export"])
+@pytest.mark.parametrize("make", ["fifo", "deep"])
+def test_report_and_export_refuse_a_summary_json_that_is_a_fifo_or_nested_without_end(tmp_path, make, command):
+    run = tmp_path / "run"
+    run.mkdir()
+    if make == "fifo":
+        os.mkfifo(run / "summary.json")
+    else:
+        (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000)
+    res, _ = _run_cli_bounded([command, str(run)], tmp_path, timeout_s=60.0)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1 and "summary.json" in lines[0], res.stderr
+    assert sorted(p.name for p in run.iterdir()) == ["summary.json"]
+
+
+def test_batch_does_not_block_on_a_fifo_summary_json_of_an_earlier_run(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    (tmp_path / "out" / "s").mkdir(parents=True)
+    os.mkfifo(tmp_path / "out" / "s" / "summary.json")  # not a finished run: processed again
+    res, _ = _run_cli_bounded(["batch", str(s), "-o", str(tmp_path / "out"), "-p", "ingest", "-j", "1", "-q"], tmp_path, timeout_s=120.0)
+    assert res.returncode == 0, (res.stdout, res.stderr)
+    assert (tmp_path / "out" / "s" / "summary.json").is_file()
+
+
+# ------------------------------------------------------------------ an IMU gap no INS can cross
+
+def _imu_gap(s: Path, gap_s: float, tables: tuple[str, ...]) -> None:
+    for name in tables:
+        df = pd.read_csv(s / f"{name}.csv")
+        df.assign(t=np.where(df.t > 1005.0, df.t + gap_s, df.t)).to_csv(s / f"{name}.csv", index=False)
+
+
+@pytest.mark.parametrize("pipeline, opts, tables", [
+    ("drive-smooth", {}, ("imu", "gps")),
+    ("ranging-fatci", {"with_anchors": True}, ("imu", "anchor_ranges")),
+])
+def test_hour_long_imu_gap_is_refused_before_the_work(tmp_path, pipeline, opts, tables):
+    s = write_minimal_session(tmp_path / "s", **opts)
+    _imu_gap(s, 3600.0, tables)
+    res = runner.invoke(app, ["process", str(s), "-p", pipeline, "-o", str(tmp_path / "run")])
+    section = pipeline.replace("-", "_")
+    assert res.exit_code == 2 and "a gap of 3600.0 s after sample 501" in res.output, res.output
+    assert f"{section}.imu_gap_max_s = 1 s" in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # refused before the run directory was claimed
+
+
+def test_short_imu_gap_is_still_processed(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    _imu_gap(s, 0.5, ("imu", "gps"))
+    res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output

@@ -22,6 +22,8 @@ MAX_TABLE_ROWS = 20_000_000
 # session.toml and pipeline files are a few kB; nesting deeper than this is not metadata.
 MAX_TOML_BYTES = 1 << 20
 MAX_TOML_DEPTH = 16
+# summary.json and batch.json are kB to a few MB.
+MAX_JSON_BYTES = 64 << 20
 # A receiver or logger file to import is read whole; larger ones are imported in parts (several SRC).
 MAX_SOURCE_BYTES = 512 << 20
 
@@ -70,6 +72,23 @@ def read_source_bytes(path: Path, what: str | None = None, *, text: bool, limit:
         if b"\x00" in head:
             raise InvalidInputError(f"{what}: contains NUL bytes: a binary or sparse file, not text")
     return read_bytes_bounded(path, what, limit)
+
+
+def read_json_bounded(path: Path, what: str | None = None, limit: int = MAX_JSON_BYTES):
+    """A JSON file tpos wrote (summary.json, batch.json), read as untrusted: regular, at most `limit`
+    bytes, UTF-8, nested no deeper than the parser's recursion allows; else InvalidInputError."""
+    import json
+
+    what = what or str(path)
+    data = read_bytes_bounded(path, what, limit)
+    try:
+        return json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{what}: not UTF-8 text") from None
+    except RecursionError:
+        raise InvalidInputError(f"{what}: nested too deeply to be a tpos JSON file") from None
+    except ValueError as exc:
+        raise InvalidInputError(f"{what}: not readable JSON ({exc})") from None
 
 
 def toml_depth(value, limit: int = MAX_TOML_DEPTH) -> int:
