@@ -76,6 +76,24 @@ def nul_hole_after_valid_rows(s):
         fh.truncate(fh.tell() + (1 << 30))
 
 
+def header_line_past_64_kib(s):
+    n = 20_000  # pandas takes minutes to set up 3 million columns; a header this long is not a contract table
+    (s / "imu.csv").write_text(",".join(f"c{i}" for i in range(n)) + "\n" + ",".join("0" for _ in range(n)) + "\n")
+
+
+def csv_with_1500_columns(s):
+    df = pd.read_csv(s / "imu.csv")
+    extra = pd.DataFrame(np.zeros((len(df), 1500)), columns=[f"x{i}" for i in range(1500)])
+    pd.concat([df, extra], axis=1).to_csv(s / "imu.csv", index=False)
+
+
+def parquet_with_1500_columns(s):
+    df = pd.read_csv(s / "imu.csv")
+    (s / "imu.csv").unlink()
+    pq.write_table(pa.table({**{c: df[c].to_numpy() for c in df.columns}, **{f"x{i}": np.zeros(len(df)) for i in range(1500)}}),
+                   s / "imu.parquet")
+
+
 def parquet_with_many_rows(s):
     (s / "imu.csv").unlink()
     n = 25_000_000  # above the row limit; a constant column compresses to almost nothing
@@ -218,6 +236,9 @@ CASES = [
     (dev_zero_imu, {}, "imu.csv", "device"),
     (sparse_nul_imu, {}, "imu.csv", "NUL bytes"),
     (parquet_with_many_rows, {}, "imu.parquet", "row limit"),
+    (header_line_past_64_kib, {}, "imu.csv", "header line is longer than 64 KiB"),
+    (csv_with_1500_columns, {}, "imu.csv", "more than 1000 columns"),
+    (parquet_with_1500_columns, {}, "imu.parquet", "1507 columns: more than 1000"),
     (bad_pandas_metadata, {}, "gps.parquet", "not a readable Parquet file"),
     (deep_toml, {}, "session.toml", "nested too deeply"),
     (deep_tables, {}, "session.toml", "nested too deeply"),

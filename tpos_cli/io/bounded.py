@@ -19,6 +19,8 @@ from tpos_cli.errors import InvalidInputError
 # rows are capped so that no table decodes to more than a few GB of float64 columns.
 MAX_TABLE_BYTES = 2 << 30
 MAX_TABLE_ROWS = 20_000_000
+# A contract table has a dozen columns; thousands of them (a 30 MB header) take pandas minutes to set up.
+MAX_TABLE_COLUMNS = 1000
 # session.toml and pipeline files are a few kB; nesting deeper than this is not metadata.
 MAX_TOML_BYTES = 1 << 20
 MAX_TOML_DEPTH = 16

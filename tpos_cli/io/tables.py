@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_ROWS, regular_file_size
+from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,6 +112,8 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
     if meta.num_rows > MAX_TABLE_ROWS:
         _fail(path, f"{meta.num_rows} rows is more than the {MAX_TABLE_ROWS}-row limit for a table")
+    if meta.num_columns > MAX_TABLE_COLUMNS:
+        _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
     columns = [c for c in names if c in wanted]
     try:
         table = pq.read_table(path, columns=columns)
@@ -135,6 +137,10 @@ def _read_csv(path: Path) -> pd.DataFrame:
     except UnicodeDecodeError as exc:
         if exc.start < len(head) - 4:  # not merely a character cut by the 64 KiB window
             _fail(path, "not UTF-8 text (is it a binary or Parquet file named .csv?)")
+    if len(head) == 65536 and b"\n" not in head:
+        _fail(path, "the header line is longer than 64 KiB: not a contract table")
+    if head.split(b"\n", 1)[0].count(b",") + 1 > MAX_TABLE_COLUMNS:
+        _fail(path, f"the header has more than {MAX_TABLE_COLUMNS} columns: not a contract table")
     _scan_csv(path)
     header = head.split(b"\n", 1)[0].decode("utf-8", "replace").strip().lstrip("\ufeff")
     if "," not in header:
