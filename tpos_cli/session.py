@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +39,26 @@ SOFT_IRON_MAX_COND = 1e3
 # Median ranges beyond this are not a handheld laser rangefinder's or a ranging anchor's metres
 # (they are millimetres: a wall at 12 m logged as 12000).
 RANGE_MAX_PLAUSIBLE_M = 3000.0
+# session.toml figures beyond these are not the quantity in the contract's units (a 1e308 baseline
+# overflowed the target chain; a negative SD is no SD): (section, key) -> (lowest, highest).
+PLAUSIBLE_SESSION_VALUES = {
+    ("imu", "rate_hz"): (0.0, 100_000.0),
+    ("imu", "gyro_noise_dps"): (0.0, 10.0),  # per-sample SD; consumer MEMS: 0.005-0.1 deg/s
+    ("imu", "gyro_bias_dph"): (0.0, 36_000.0),  # 10 deg/s
+    ("imu", "acc_noise_mg"): (0.0, 1_000.0),
+    ("imu", "acc_bias_mg"): (0.0, 1_000.0),
+    ("imu", "mag_noise_ut"): (0.0, 100.0),  # the Earth's field is 25-65 µT
+    ("rangefinders", "baseline_12_m"): (0.0, 10.0),  # rangefinders on one rig
+    ("rangefinders", "baseline_13_m"): (0.0, 10.0),
+    ("rangefinders", "sigma_m"): (0.0, 100.0),
+}
+# A GPS antenna more than this from the IMU is not on the same vehicle.
+LEVER_ARM_MAX_M = 100.0
+# A clock offset beyond 1e10 s (about 300 years) is no clock's: and t + offset in float64 keeps
+# milliseconds only up to about 1e12 s.
+TIME_OFFSET_MAX_S = 1e10
+# A log's start: not before the GPS epoch, not in the 22nd century.
+START_UTC_RANGE = (datetime(1980, 1, 6, tzinfo=UTC), datetime(2100, 1, 1, tzinfo=UTC))
 
 
 @dataclass(frozen=True)
@@ -240,6 +260,11 @@ def _number(c: _Collector, section: dict, key: str, where: str, required=False, 
     if positive and v <= 0:
         c.problem("session.toml", f"[{where}] {key} must be positive, got {v!r}")
         return None
+    lo, hi = PLAUSIBLE_SESSION_VALUES.get((where, key), (-math.inf, math.inf))
+    if not lo <= v <= hi:
+        c.problem("session.toml", f"[{where}] {key} = {v!r} is outside {lo:g} to {hi:g}: not this quantity in the "
+                  "contract's units (docs/log-format.md)")
+        return None
     return float(v)
 
 
@@ -294,6 +319,12 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
             start_utc = v if isinstance(v, datetime) else datetime.fromisoformat(str(v).replace("Z", "+00:00"))
         except ValueError:
             c.problem("session.toml", f"[session] start_utc is not an ISO-8601 time: {v!r}")
+        aware = None if start_utc is None else start_utc.replace(tzinfo=UTC) if start_utc.tzinfo is None else start_utc
+        if aware is not None:
+            if not START_UTC_RANGE[0] <= aware <= START_UTC_RANGE[1]:
+                c.problem("session.toml", f"[session] start_utc {start_utc.isoformat()} is outside "
+                          f"{START_UTC_RANGE[0]:%Y-%m-%d} (the GPS epoch) to {START_UTC_RANGE[1]:%Y-%m-%d}: not a log's start")
+                start_utc = None
     axes = imu.get("axes")
     if not isinstance(axes, str):
         c.problem("session.toml", f"[imu] axes must be three letters such as \"FRD\", got {axes!r}")
@@ -334,14 +365,20 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
     lever = np.zeros(3)
     gps = raw.get("gps", {})
     if "lever_arm_m" in gps:
-        if _is_matrix(gps["lever_arm_m"], (3,)):
+        if _is_matrix(gps["lever_arm_m"], (3,)) and np.abs(gps["lever_arm_m"]).max() > LEVER_ARM_MAX_M:
+            c.problem("session.toml", f"[gps] lever_arm_m {gps['lever_arm_m']!r:.80} has a component beyond "
+                      f"{LEVER_ARM_MAX_M:g} m: not an antenna on the vehicle (millimetres?)")
+        elif _is_matrix(gps["lever_arm_m"], (3,)):
             lever = np.asarray(gps["lever_arm_m"], dtype=float)
         else:
             c.problem("session.toml", "[gps] lever_arm_m must be three numbers (m, in the IMU's logged axes)")
     offsets = {}
     for k in raw.get("time", {}):
         val = _number(c, raw["time"], k, "time")
-        if val is not None:
+        if val is not None and abs(val) > TIME_OFFSET_MAX_S:
+            c.problem("session.toml", f"[time] {k} {val:g} s is not a clock offset (at most {TIME_OFFSET_MAX_S:g} s, "
+                      "about 300 years; beyond it float64 times lose their milliseconds)")
+        elif val is not None:
             offsets[k] = val
     observer = _lla_section(c, raw, "observer")
     local = _lla_section(c, raw, "local")
