@@ -102,3 +102,16 @@ def test_simulate_refuses_numbers_that_are_no_log(tmp_path, args, option):
     res = CliRunner().invoke(app, ["simulate", "drive", str(tmp_path / "d"), *args])
     assert res.exit_code == 2 and option in res.output and "internal error" not in res.output, res.output
     assert not (tmp_path / "d").exists()
+
+
+def test_noise_plot_default_path_never_follows_the_session_name(tmp_path, monkeypatch):
+    s = write_minimal_session(tmp_path / "s", seconds=150.0)  # static
+    (tmp_path / "victim").mkdir()
+    text = (s / "session.toml").read_text().replace('name = "minimal"', 'name = "../victim/evil"')
+    (s / "session.toml").write_text(text)
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    res = runner.invoke(app, ["noise", str(s)])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "cwd").iterdir()) == ["s_allan.png"]
+    assert not list((tmp_path / "victim").iterdir())
