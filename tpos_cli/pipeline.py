@@ -9,6 +9,7 @@ complete, so a failed or killed run leaves no partial output.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import os
 import shutil
@@ -23,7 +24,6 @@ import pandas as pd
 
 from tpos_cli import __version__, timebase
 from tpos_cli.advice import review
-from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
@@ -40,15 +40,21 @@ from tpos_cli.io.run_dir import (
 )
 from tpos_cli.session import GpsData, Session, load_session
 
-# Chain name (as written in a pipeline file) -> its `run(session, params, ctx)`. A fixed table: a
-# pipeline file can only choose among these, and nothing it names is imported. The model of each
-# chain's parameter table is `tpos_cli.config.SECTIONS[name]`.
-CHAINS: dict[str, Callable[[Session, Section, RunContext], ChainOutput]] = {
-    "ingest": ingest.run,
-    "target_fkf": target_fkf.run,
-    "drive_smooth": drive_smooth.run,
-    "ranging_fatci": ranging_fatci.run,
+# Chain name (as written in a pipeline file) -> the module whose `run(session, params, ctx)` it runs.
+# A fixed table: a pipeline file can only choose among these keys, and nothing it names is imported;
+# only the chain of the run is imported (a drive does not pay the ranging chain's imports). The model
+# of each chain's parameter table is `tpos_cli.config.SECTIONS[name]`.
+CHAINS: dict[str, str] = {
+    "ingest": "tpos_cli.chains.ingest",
+    "target_fkf": "tpos_cli.chains.target_fkf",
+    "drive_smooth": "tpos_cli.chains.drive_smooth",
+    "ranging_fatci": "tpos_cli.chains.ranging_fatci",
 }
+
+
+def chain_runner(chain: str) -> Callable[[Session, Section, RunContext], ChainOutput]:
+    """The `run` function of a chain of the fixed table CHAINS (KeyError for any other name)."""
+    return importlib.import_module(CHAINS[chain]).run
 
 ACCURACY_NOTE = (
     "A zero exit code means processing completed; it is not a claim of accuracy. "
@@ -155,7 +161,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     check_imu_gaps(session, pipe.chain, getattr(cfg.params, "imu_gap_max_s", None))
     out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
     claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
-    run = CHAINS[pipe.chain]
+    run = chain_runner(pipe.chain)
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows))
     try:

@@ -117,9 +117,13 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
     columns = [c for c in names if c in wanted]
     try:
         table = pq.read_table(path, columns=columns)
-        return table.to_pandas(ignore_metadata=True)
+        df = table.to_pandas(ignore_metadata=True)
     except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
+    del table
+    # pyarrow's memory pool keeps the decoded buffers otherwise (an hour's drive: RSS 497 -> 399 MB after ingest)
+    pa.default_memory_pool().release_unused()
+    return df
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
