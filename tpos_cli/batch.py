@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from tpos_cli.errors import InvalidInputError, TposError
+from tpos_cli.io.bounded import read_json_bounded, read_toml
 
 STATUS_OK = "ok"
 STATUS_SKIPPED = "skipped"
@@ -260,10 +261,13 @@ def plan_batch(
 
 
 def _read_summary(run_dir: Path) -> dict | None:
+    """The run's summary.json, or None when absent or not a bounded, readable JSON file (a FIFO, a
+    deep nest: the session is then processed again)."""
+    if not (run_dir / SUMMARY_FILE).exists():
+        return None
     try:
-        with open(run_dir / SUMMARY_FILE, encoding="utf-8") as f:
-            summary = json.load(f)
-    except (OSError, ValueError):
+        summary = read_json_bounded(run_dir / SUMMARY_FILE)
+    except InvalidInputError:
         return None
     return summary if isinstance(summary, dict) else None
 
@@ -274,8 +278,6 @@ def run_is_current(session_dir: Path, pipeline: str | None, summary: Mapping[str
     `inputs`, and the pipeline resolved now (defaults included) has the recorded config hash, under
     the same tpos version.
     """
-    import tomllib
-
     from tpos_cli import __version__
     from tpos_cli.config import resolve_pipeline
     from tpos_cli.pipeline import resolve_config
@@ -283,7 +285,8 @@ def run_is_current(session_dir: Path, pipeline: str | None, summary: Mapping[str
 
     if session_file_hashes(session_dir) != summary.get("inputs"):
         return False
-    kind = tomllib.loads((session_dir / "session.toml").read_text(encoding="utf-8")).get("session", {}).get("kind")
+    head = read_toml(session_dir / "session.toml", "session.toml").get("session", {})
+    kind = head.get("kind") if isinstance(head, dict) else None
     cfg = resolve_config(resolve_pipeline(pipeline, str(kind)))
     return summary.get("tpos_version") == __version__ and summary.get("config_sha256") == cfg.sha256
 
@@ -299,7 +302,7 @@ def finished_summary(task: SessionTask, is_current: CurrentFn | None = None) -> 
         return None
     try:
         current = (is_current or run_is_current)(Path(task.session_dir), task.pipeline, summary)
-    except (TposError, OSError, ValueError):  # tomllib.TOMLDecodeError is a ValueError
+    except (TposError, OSError, ValueError):
         return None
     return summary if current else None
 

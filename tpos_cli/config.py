@@ -17,7 +17,6 @@ import difflib
 import hashlib
 import importlib.resources
 import json
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.bounded import read_toml
 from tpos_cli.ranging.fuzzy import uncovered_input
 
 # value types with their bounds (all floats finite: the models set allow_inf_nan=False)
@@ -78,6 +78,7 @@ class DriveSmoothParams(Section):
     (`tpos_cli.fusion.imu_noise`)."""
 
     smoother: Literal["rts", "two_filter", "simplified"] = "rts"  # the `smoothed` solution
+    imu_gap_max_s: Positive = 1.0  # refuse a log with a longer IMU gap: the INS cannot be carried across it
     compare: bool = False  # also write every smoother under its own name
     cov_step_s: Positive = 0.2  # covariance propagation / storage step (NHC rows come at 5 Hz)
     output_rate_hz: NonNegative = 10.0  # rows per second per solution; 0 = every IMU sample
@@ -187,6 +188,7 @@ class RangingParams(Section):
     """`[ranging_fatci]` (paper 002); see pipelines/README.md for each key."""
 
     solutions: Annotated[tuple[RangingSolution, ...], Field(min_length=1)] = ("lc", "tc", "fatci")
+    imu_gap_max_s: Positive = 1.0  # refuse a log with a longer IMU gap: the INS cannot be carried across it
     smoothed: bool = True
     smooth_source: RangingSolution = "fatci"
     smoother: Literal["rts", "two_filter"] = "rts"
@@ -373,12 +375,7 @@ def resolve_pipeline(name_or_path: str | Path | None, kind: str) -> PipelineFile
 
 def load_pipeline_file(path: Path) -> PipelineFile:
     """Read a pipeline TOML and validate its `[pipeline]` table (the chain's table: `resolve_config`)."""
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise InvalidInputError(f"{path.name}: not valid TOML ({exc})") from None
-    except OSError as exc:
-        raise InvalidInputError(f"{path}: cannot be read ({exc.strerror})") from None
+    raw = read_toml(path, path.name)  # regular file, size and depth bounded: a FIFO or a deep nest is refused
     head_raw = raw.get("pipeline")
     if not isinstance(head_raw, dict):
         raise InvalidInputError(f"{path.name}: [pipeline] section with name, description, chain is required")

@@ -9,11 +9,11 @@ complete, so a failed or killed run leaves no partial output.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import os
 import shutil
 import time
-import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -24,10 +24,10 @@ import pandas as pd
 
 from tpos_cli import __version__, timebase
 from tpos_cli.advice import review
-from tpos_cli.chains import drive_smooth, ingest, ranging_fatci, target_fkf
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
+from tpos_cli.io.bounded import read_toml
 from tpos_cli.io.run_dir import (
     check_run_dir,
     claim_run_dir,
@@ -40,15 +40,21 @@ from tpos_cli.io.run_dir import (
 )
 from tpos_cli.session import GpsData, Session, load_session
 
-# Chain name (as written in a pipeline file) -> its `run(session, params, ctx)`. A fixed table: a
-# pipeline file can only choose among these, and nothing it names is imported. The model of each
-# chain's parameter table is `tpos_cli.config.SECTIONS[name]`.
-CHAINS: dict[str, Callable[[Session, Section, RunContext], ChainOutput]] = {
-    "ingest": ingest.run,
-    "target_fkf": target_fkf.run,
-    "drive_smooth": drive_smooth.run,
-    "ranging_fatci": ranging_fatci.run,
+# Chain name (as written in a pipeline file) -> the module whose `run(session, params, ctx)` it runs.
+# A fixed table: a pipeline file can only choose among these keys, and nothing it names is imported;
+# only the chain of the run is imported (a drive does not pay the ranging chain's imports). The model
+# of each chain's parameter table is `tpos_cli.config.SECTIONS[name]`.
+CHAINS: dict[str, str] = {
+    "ingest": "tpos_cli.chains.ingest",
+    "target_fkf": "tpos_cli.chains.target_fkf",
+    "drive_smooth": "tpos_cli.chains.drive_smooth",
+    "ranging_fatci": "tpos_cli.chains.ranging_fatci",
 }
+
+
+def chain_runner(chain: str) -> Callable[[Session, Section, RunContext], ChainOutput]:
+    """The `run` function of a chain of the fixed table CHAINS (KeyError for any other name)."""
+    return importlib.import_module(CHAINS[chain]).run
 
 ACCURACY_NOTE = (
     "A zero exit code means processing completed; it is not a claim of accuracy. "
@@ -103,12 +109,29 @@ def _resolve_before_reading(session_dir, pipeline, overrides) -> ResolvedConfig 
     session's own loading reports what is wrong with it first)."""
     if pipeline is not None:
         return resolve_config(resolve_pipeline(pipeline, ""), overrides)
-    try:
-        head = tomllib.loads((Path(session_dir) / "session.toml").read_text(encoding="utf-8")).get("session", {})
-    except (OSError, ValueError):
+    try:  # bounded: a FIFO or a deep nest is refused at the door, never read
+        head = read_toml(Path(session_dir) / "session.toml", "session.toml").get("session", {})
+    except InvalidInputError:
         return None
     kind = head.get("kind") if isinstance(head, dict) else None
     return resolve_config(resolve_pipeline(None, kind), overrides) if isinstance(kind, str) else None
+
+
+def check_imu_gaps(session: Session, section: str, gap_max_s: float | None) -> None:
+    """InvalidInputError (exit 2, before the work) for an IMU gap longer than `[section] imu_gap_max_s`:
+    the gyro and accelerometer did not record the motion during it, so no attitude or position after
+    it can be honest (a drive with an hour-long gap: a track 1.5 km off with 0.6 m sigmas); the user
+    splits the log. No limit (None) for chains that do not integrate the IMU."""
+    gaps = np.asarray(session.imu_gaps_s, dtype=float).reshape(-1, 2)
+    if gap_max_s is None or gaps.size == 0:
+        return
+    length = gaps[:, 1] - gaps[:, 0]
+    k = int(np.argmax(length))
+    if length[k] > gap_max_s:
+        row = int(np.searchsorted(session.imu.t_s, gaps[k, 0], side="right"))
+        raise InvalidInputError(
+            f"imu: a gap of {length[k]:.1f} s after sample {row} (t = {gaps[k, 0] + session.t0_s:.3f} s); the attitude "
+            f"cannot be carried across an IMU gap longer than {section}.imu_gap_max_s = {gap_max_s:g} s: split the log at the gap")
 
 
 def process_session(
@@ -135,9 +158,10 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     if cfg is None:
         cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
     pipe = cfg.pipeline
+    check_imu_gaps(session, pipe.chain, getattr(cfg.params, "imu_gap_max_s", None))
     out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
     claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
-    run = CHAINS[pipe.chain]
+    run = chain_runner(pipe.chain)
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows))
     try:

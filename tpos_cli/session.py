@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +21,7 @@ from tpos_cli import schema, timebase
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import axes_to_dcm
+from tpos_cli.io import plausibility
 from tpos_cli.io.bounded import MAX_TABLE_BYTES, read_toml, regular_file_size
 from tpos_cli.io.tables import Problem, find_table, read_table
 
@@ -38,6 +39,26 @@ SOFT_IRON_MAX_COND = 1e3
 # Median ranges beyond this are not a handheld laser rangefinder's or a ranging anchor's metres
 # (they are millimetres: a wall at 12 m logged as 12000).
 RANGE_MAX_PLAUSIBLE_M = 3000.0
+# session.toml figures beyond these are not the quantity in the contract's units (a 1e308 baseline
+# overflowed the target chain; a negative SD is no SD): (section, key) -> (lowest, highest).
+PLAUSIBLE_SESSION_VALUES = {
+    ("imu", "rate_hz"): (0.0, 100_000.0),
+    ("imu", "gyro_noise_dps"): (0.0, 10.0),  # per-sample SD; consumer MEMS: 0.005-0.1 deg/s
+    ("imu", "gyro_bias_dph"): (0.0, 36_000.0),  # 10 deg/s
+    ("imu", "acc_noise_mg"): (0.0, 1_000.0),
+    ("imu", "acc_bias_mg"): (0.0, 1_000.0),
+    ("imu", "mag_noise_ut"): (0.0, 100.0),  # the Earth's field is 25-65 µT
+    ("rangefinders", "baseline_12_m"): (0.0, 10.0),  # rangefinders on one rig
+    ("rangefinders", "baseline_13_m"): (0.0, 10.0),
+    ("rangefinders", "sigma_m"): (0.0, 100.0),
+}
+# A GPS antenna more than this from the IMU is not on the same vehicle.
+LEVER_ARM_MAX_M = 100.0
+# A clock offset beyond 1e10 s (about 300 years) is no clock's: and t + offset in float64 keeps
+# milliseconds only up to about 1e12 s.
+TIME_OFFSET_MAX_S = 1e10
+# A log's start: not before the GPS epoch, not in the 22nd century.
+START_UTC_RANGE = (datetime(1980, 1, 6, tzinfo=UTC), datetime(2100, 1, 1, tzinfo=UTC))
 
 
 @dataclass(frozen=True)
@@ -239,6 +260,11 @@ def _number(c: _Collector, section: dict, key: str, where: str, required=False, 
     if positive and v <= 0:
         c.problem("session.toml", f"[{where}] {key} must be positive, got {v!r}")
         return None
+    lo, hi = PLAUSIBLE_SESSION_VALUES.get((where, key), (-math.inf, math.inf))
+    if not lo <= v <= hi:
+        c.problem("session.toml", f"[{where}] {key} = {v!r} is outside {lo:g} to {hi:g}: not this quantity in the "
+                  "contract's units (docs/log-format.md)")
+        return None
     return float(v)
 
 
@@ -255,6 +281,10 @@ def _lla_section(c: _Collector, raw: dict, name: str) -> np.ndarray | None:
     if abs(vals[0]) > 90 or abs(vals[1]) > 180:
         c.problem("session.toml", f"[{name}] lat/lon out of range ({vals[0]}, {vals[1]})")
         return None
+    if plausibility.first_bad_height(np.array([vals[2]])) is not None:
+        c.problem("session.toml", f"[{name}] h {vals[2]:g} m is not an ellipsoidal height on Earth "
+                  f"({plausibility.H_MIN_M:g} to {plausibility.H_MAX_M:g} m): feet, or a wrong column?")
+        return None
     return np.array(vals)
 
 
@@ -270,7 +300,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
         return None
     n0 = len(c.problems)
     for sec in ("session", "imu"):
-        if not isinstance(raw.get(sec), dict):
+        if sec not in raw:  # present but not a table: said once, below
             c.problem("session.toml", f"[{sec}] section is required (a table, e.g. [{sec}] on its own line)")
     for sec in SECTIONS:
         if sec in raw and not isinstance(raw[sec], dict):
@@ -289,6 +319,12 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
             start_utc = v if isinstance(v, datetime) else datetime.fromisoformat(str(v).replace("Z", "+00:00"))
         except ValueError:
             c.problem("session.toml", f"[session] start_utc is not an ISO-8601 time: {v!r}")
+        aware = None if start_utc is None else start_utc.replace(tzinfo=UTC) if start_utc.tzinfo is None else start_utc
+        if aware is not None:
+            if not START_UTC_RANGE[0] <= aware <= START_UTC_RANGE[1]:
+                c.problem("session.toml", f"[session] start_utc {start_utc.isoformat()} is outside "
+                          f"{START_UTC_RANGE[0]:%Y-%m-%d} (the GPS epoch) to {START_UTC_RANGE[1]:%Y-%m-%d}: not a log's start")
+                start_utc = None
     axes = imu.get("axes")
     if not isinstance(axes, str):
         c.problem("session.toml", f"[imu] axes must be three letters such as \"FRD\", got {axes!r}")
@@ -329,14 +365,20 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
     lever = np.zeros(3)
     gps = raw.get("gps", {})
     if "lever_arm_m" in gps:
-        if _is_matrix(gps["lever_arm_m"], (3,)):
+        if _is_matrix(gps["lever_arm_m"], (3,)) and np.abs(gps["lever_arm_m"]).max() > LEVER_ARM_MAX_M:
+            c.problem("session.toml", f"[gps] lever_arm_m {gps['lever_arm_m']!r:.80} has a component beyond "
+                      f"{LEVER_ARM_MAX_M:g} m: not an antenna on the vehicle (millimetres?)")
+        elif _is_matrix(gps["lever_arm_m"], (3,)):
             lever = np.asarray(gps["lever_arm_m"], dtype=float)
         else:
             c.problem("session.toml", "[gps] lever_arm_m must be three numbers (m, in the IMU's logged axes)")
     offsets = {}
     for k in raw.get("time", {}):
         val = _number(c, raw["time"], k, "time")
-        if val is not None:
+        if val is not None and abs(val) > TIME_OFFSET_MAX_S:
+            c.problem("session.toml", f"[time] {k} {val:g} s is not a clock offset (at most {TIME_OFFSET_MAX_S:g} s, "
+                      "about 300 years; beyond it float64 times lose their milliseconds)")
+        elif val is not None:
             offsets[k] = val
     observer = _lla_section(c, raw, "observer")
     local = _lla_section(c, raw, "local")
@@ -406,11 +448,15 @@ def _check_time(c: _Collector, fname: str, t: np.ndarray, key: str) -> np.ndarra
     return ~dup
 
 
-def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray):
+def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray, h: np.ndarray | None = None):
     for col, v, lim in (("lat", lat, 90.0), ("lon", lon, 180.0)):
         bad = np.flatnonzero(np.abs(v) > lim)
         if bad.size:
             c.problem(fname, f"{_v(v[bad[0]])} is outside ±{lim:g} degrees", col, int(bad[0]) + 1)
+    i = None if h is None else plausibility.first_bad_height(h)
+    if i is not None:
+        c.problem(fname, f"{_v(h[i])} m is not an ellipsoidal height on Earth ({plausibility.H_MIN_M:g} to "
+                  f"{plausibility.H_MAX_M:g} m): feet, millimetres or a wrong column?", "h", i + 1)
 
 
 def _load_imu(c: _Collector, meta: SessionMeta):
@@ -508,7 +554,15 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
         return None
     fix = fix.astype(np.int64)
     lla = df[["lat", "lon", "h"]].to_numpy()
-    _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+    _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
+    if "vn" in df.columns and "ve" in df.columns and not any(p.file == fname for p in c.problems):
+        moving = keep & (fix > 0)
+        ev = plausibility.latlon_swap_evidence(t[moving], lla[moving, 0], lla[moving, 1],
+                                               df["vn"].to_numpy()[moving], df["ve"].to_numpy()[moving])
+        if ev is not None:
+            c.problem(fname, f"lat and lon look exchanged: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) read "
+                      f"the other way round, {ev[0]:.1f} m as given; swap the lat and lon columns", "lat", 1)
+            return None
     no_pos = (fix > 0) & ~np.isfinite(lla).all(axis=1)
     if no_pos.any():
         c.count("gps_fix_without_position", int(no_pos.sum()))
@@ -626,7 +680,7 @@ def _load_anchors(c: _Collector, meta: SessionMeta):
     origin = meta.local_origin_lla
     if has_lla:
         lla = df[["lat", "lon", "h"]].to_numpy()
-        _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+        _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
         nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
         if nan.size:
             c.problem(fname, "anchor position is incomplete", "lat", int(nan[0]) + 1)
@@ -727,13 +781,31 @@ def _load_targets(c: _Collector):
         c.problem(fname, f"target id {_v(ids[i])} appears twice (rows {ids.index(ids[i]) + 1} and {i + 1}); "
                   "a surveyed point has one position", "id", i + 1)
     lla = df[["lat", "lon", "h"]].to_numpy()
-    _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+    _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
     nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
     if nan.size:
         c.problem(fname, "target position is incomplete", "lat", int(nan[0]) + 1)
     if any(p.file == fname for p in c.problems):
         return None
     return Targets(ids=ids, lla=lla, role=roles)
+
+
+def _check_targets_near_observer(c: _Collector, targets: Targets, observer_lla: np.ndarray) -> None:
+    """A surveyed target is within a rangefinder's reach of [observer]; one thousands of km away is a
+    lat/lon swap (in targets.csv or in [observer]) or another site's file."""
+    d = plausibility.distances_from_m(targets.lla, observer_lla)
+    far = np.flatnonzero(d > plausibility.TARGET_MAX_DISTANCE_M)
+    if not far.size:
+        return
+    i = int(far[0])
+    hint = "a target file of another site?"
+    # exchanging lat and lon in either place brings the two together: geometry cannot say which one
+    if min(plausibility.distances_from_m(targets.lla[i, [1, 0, 2]], observer_lla)[0],
+           plausibility.distances_from_m(targets.lla[i], observer_lla[[1, 0, 2]])[0]) <= plausibility.TARGET_MAX_DISTANCE_M:
+        hint = "lat and lon are exchanged, in targets.csv or in [observer] of session.toml (the one not at the site)"
+    c.problem("targets.csv", f"target {targets.ids[i]!r} is {d[i] / 1000:.0f} km from [observer] ({observer_lla[0]:g}, "
+              f"{observer_lla[1]:g}), beyond any rangefinder's {plausibility.TARGET_MAX_DISTANCE_M / 1000:g} km: {hint}",
+              "lat", i + 1)
 
 
 def _load_shots(c: _Collector, t0: float):
@@ -795,7 +867,7 @@ def _load_truth(c: _Collector, t0: float):
         return np.column_stack([df[k].to_numpy() if k in df.columns else np.full(len(df), np.nan) for k in cols])
 
     lla = opt(["lat", "lon", "h"])
-    _check_latlon(c, fname, lla[:, 0], lla[:, 1])
+    _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
     if any(p.file == fname for p in c.problems):
         return None
     del df_all
@@ -828,6 +900,8 @@ def load_session(path: str | Path) -> Session:
     truth = _load_truth(c, t0)
     if shots is not None and targets is not None:
         pass  # a shot on a new name is an unknown point: allowed by the contract
+    if targets is not None and meta.observer_lla is not None:
+        _check_targets_near_observer(c, targets, meta.observer_lla)
     if c.problems or imu is None:
         _raise(c)
     t, gyro_b, acc_b, mag_b, gaps = imu

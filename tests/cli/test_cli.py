@@ -87,3 +87,31 @@ def test_partial_output_of_a_killed_run_is_cleaned(tmp_path):
     res = runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
     assert not stale.exists() and (tmp_path / "run" / "summary.json").exists()
+
+
+@pytest.mark.parametrize("args, option", [
+    (["--duration", "1e9"], "--duration"),  # asked numpy for 894 GiB: "internal error: MemoryError"
+    (["--rate", "1e9"], "--rate"),
+    (["--duration", "nan"], "--duration"),
+    (["--seed", "-1"], "--seed"),
+    (["--t0", "1e308"], "--t0"),
+    (["--outage", "nan:3"], "--outage"),
+    (["--duration", "20000", "--rate", "2000"], "--duration"),  # 40 million samples: past the table row limit
+])
+def test_simulate_refuses_numbers_that_are_no_log(tmp_path, args, option):
+    res = CliRunner().invoke(app, ["simulate", "drive", str(tmp_path / "d"), *args])
+    assert res.exit_code == 2 and option in res.output and "internal error" not in res.output, res.output
+    assert not (tmp_path / "d").exists()
+
+
+def test_noise_plot_default_path_never_follows_the_session_name(tmp_path, monkeypatch):
+    s = write_minimal_session(tmp_path / "s", seconds=150.0)  # static
+    (tmp_path / "victim").mkdir()
+    text = (s / "session.toml").read_text().replace('name = "minimal"', 'name = "../victim/evil"')
+    (s / "session.toml").write_text(text)
+    (tmp_path / "cwd").mkdir()
+    monkeypatch.chdir(tmp_path / "cwd")
+    res = runner.invoke(app, ["noise", str(s)])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "cwd").iterdir()) == ["s_allan.png"]
+    assert not list((tmp_path / "victim").iterdir())

@@ -89,6 +89,7 @@ def test_cli_refuses_an_implausible_geoid_separation(tmp_path):
     (POS_ROW.replace("45.500000000", "95.500000000"), "line 3: latitude 95.5 is not a latitude"),
     (POS_ROW.replace("   2.0000\n", "\n"), "line 3: 9 fields where the header has 10"),
     (POS_ROW.replace("30.0000", "abc"), r"line 3: height\(m\) 'abc' is not a number"),
+    (POS_ROW.replace("30.0000", "1e9"), r"line 3: height 1e\+09 is not a height on Earth"),
 ])
 def test_damaged_pos_row_refused_at_the_door(tmp_path, row, message):
     p = _write(tmp_path, "a.pos", POS_HEAD + POS_ROW + row + POS_ROW.replace("00.000", "01.000"))
@@ -103,6 +104,7 @@ def test_damaged_pos_row_refused_at_the_door(tmp_path, row, message):
     (_nmea("GPGGA,990000.00,4530.0000,N,07333.0000,W,1,09,0.8,30.0,M,-32.5,M,,"), "time '990000.00' is not hhmmss.ss"),
     (_nmea("GPRMC,120000.00,A,4530.0000,N,07333.0000,W,0.0,0.0,151321,,,D"), "date '151321' is not ddmmyy"),
     (_nmea("GPGGA,120000.00,4575.0000,N,07333.0000,W,1,09,0.8,30.0,M,-32.5,M,,"), "latitude '4575.0000' 'N' is not"),
+    (_nmea("GPGGA,120000.00,4530.0000,N,07333.0000,W,1,09,0.8,1e9,M,-32.5,M,,"), r"altitude 1e\+09 m is not a height on Earth"),
 ])
 def test_damaged_nmea_sentence_refused_at_the_door(tmp_path, sentence, message):
     good = _nmea("GPGGA,120000.00,4530.0000,N,07333.0000,W,1,09,0.8,30.0,M,-32.5,M,,")
@@ -111,9 +113,9 @@ def test_damaged_nmea_sentence_refused_at_the_door(tmp_path, sentence, message):
         import_nmea(p)
 
 
-def _pvt(lat_e7=400966916, month=8, hour=17):
+def _pvt(lat_e7=400966916, month=8, hour=17, height_mm=1580048):
     p = struct.pack("<IHBBBBBBIiBBBBiiiiIIiiiiiIIHBBi", 408639750, 2025, month, 28, hour, 30, 21, 0x07, 20, 750_000_000,
-                    3, 0x03, 0, 25, -1051471665, lat_e7, 1580048, 1601435, 14, 10, 1, -2, -27,
+                    3, 0x03, 0, 25, -1051471665, lat_e7, height_mm, 1601435, 14, 10, 1, -2, -27,
                     0, 0, 50, 0, 100, 0, 0, 0) + bytes(8)
     return _ubx_frame(0x01, 0x07, p)
 
@@ -122,6 +124,7 @@ def _pvt(lat_e7=400966916, month=8, hour=17):
     (_pvt(lat_e7=955000000), "lat 95.5 is not a latitude"),
     (_pvt(month=13), "month 13 is not a month"),
     (_pvt(hour=99), "hour 99 is not an hour"),
+    (_pvt(height_mm=2_000_000_000), "height 2000000000 is not a height on Earth"),
 ])
 def test_damaged_ubx_message_refused_at_the_door(tmp_path, frame, message):
     (tmp_path / "a.ubx").write_bytes(_pvt() + frame)

@@ -169,6 +169,36 @@ def bad_mounting(s):
     (s / "session.toml").write_text((s / "session.toml").read_text().replace("[imu]\n", "[imu]\nmounting_rpy_deg = [0.0, 0.0]\n"))
 
 
+def _toml_replace(s, old, new):
+    text = (s / "session.toml").read_text()
+    assert old in text
+    (s / "session.toml").write_text(text.replace(old, new, 1))
+
+
+def start_before_gps_epoch(s):
+    _toml_replace(s, 'kind = "drive"', 'kind = "drive"\nstart_utc = 1500-01-01T00:00:00Z')
+
+
+def clock_offset_1e308(s):
+    (s / "session.toml").write_text((s / "session.toml").read_text() + "\n[time]\ngps_offset_s = 1e308\n")
+
+
+def acc_noise_1e308(s):
+    _toml_replace(s, "[imu]\n", "[imu]\nacc_noise_mg = 1e308\n")
+
+
+def negative_bias_sd(s):
+    _toml_replace(s, "[imu]\n", "[imu]\ngyro_bias_dph = -5.0\n")
+
+
+def baseline_1e308(s):
+    _toml_replace(s, "baseline_12_m = 0.2", "baseline_12_m = 1e308")  # overflowed the target chain: internal error
+
+
+def lever_arm_in_mm(s):
+    (s / "session.toml").write_text((s / "session.toml").read_text() + "\n[gps]\nlever_arm_m = [1500.0, 0.0, 0.0]\n")
+
+
 # (case, session options, file the message must name, column it must name or None)
 CASES = [
     (truncated_csv, {}, "imu.csv", None),
@@ -204,6 +234,12 @@ CASES = [
     (bad_lever_arm, {}, "session.toml", None),
     (negative_odometry_speed, {"with_odometry": True}, "odometry.csv", "speed_mps"),
     (bad_mounting, {}, "session.toml", None),
+    (start_before_gps_epoch, {}, "session.toml", None),
+    (clock_offset_1e308, {}, "session.toml", None),
+    (acc_noise_1e308, {}, "session.toml", None),
+    (negative_bias_sd, {}, "session.toml", None),
+    (baseline_1e308, {"with_ranges": True}, "session.toml", None),
+    (lever_arm_in_mm, {}, "session.toml", None),
 ]
 
 
@@ -233,3 +269,18 @@ def test_broken_session_is_rejected_cleanly(tmp_path, case, opts, fname, column)
 
 def test_corpus_has_at_least_twenty_kinds():
     assert len(CASES) >= 20
+
+
+@pytest.mark.parametrize("case, opts, message", [
+    (start_before_gps_epoch, {}, "[session] start_utc 1500-01-01T00:00:00+00:00 is outside 1980-01-06"),
+    (clock_offset_1e308, {}, "[time] gps_offset_s 1e+308 s is not a clock offset"),
+    (acc_noise_1e308, {}, "[imu] acc_noise_mg = 1e+308 is outside 0 to 1000"),
+    (negative_bias_sd, {}, "[imu] gyro_bias_dph = -5.0 is outside 0 to 36000"),
+    (baseline_1e308, {"with_ranges": True}, "[rangefinders] baseline_12_m = 1e+308 is outside 0 to 10"),
+    (lever_arm_in_mm, {}, "[gps] lever_arm_m [1500.0, 0.0, 0.0] has a component beyond 100 m"),
+], ids=lambda v: v.__name__ if callable(v) else None)
+def test_session_toml_nonsense_is_named(tmp_path, case, opts, message):
+    s = write_minimal_session(tmp_path / "s", **opts)
+    case(s)
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and message in res.stderr, res.stderr

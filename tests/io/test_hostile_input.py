@@ -70,6 +70,30 @@ def sparse_nul_imu(s):
         fh.truncate(1 << 30)  # 1 GiB of NULs, no disk used
 
 
+def nul_hole_after_valid_rows(s):
+    with open(s / "imu.csv", "r+b") as fh:  # valid rows, then a 1 GiB hole: pandas would decode it as one huge field
+        fh.seek(0, 2)
+        fh.truncate(fh.tell() + (1 << 30))
+
+
+def header_line_past_64_kib(s):
+    n = 20_000  # pandas takes minutes to set up 3 million columns; a header this long is not a contract table
+    (s / "imu.csv").write_text(",".join(f"c{i}" for i in range(n)) + "\n" + ",".join("0" for _ in range(n)) + "\n")
+
+
+def csv_with_1500_columns(s):
+    df = pd.read_csv(s / "imu.csv")
+    extra = pd.DataFrame(np.zeros((len(df), 1500)), columns=[f"x{i}" for i in range(1500)])
+    pd.concat([df, extra], axis=1).to_csv(s / "imu.csv", index=False)
+
+
+def parquet_with_1500_columns(s):
+    df = pd.read_csv(s / "imu.csv")
+    (s / "imu.csv").unlink()
+    pq.write_table(pa.table({**{c: df[c].to_numpy() for c in df.columns}, **{f"x{i}": np.zeros(len(df)) for i in range(1500)}}),
+                   s / "imu.parquet")
+
+
 def parquet_with_many_rows(s):
     (s / "imu.csv").unlink()
     n = 25_000_000  # above the row limit; a constant column compresses to almost nothing
@@ -138,11 +162,83 @@ def overlapping_shots(s):
     pd.DataFrame({"id": ["T1", "T2"], "t_start": [1001.0, 1003.0], "t_end": [1004.0, 1006.0]}).to_csv(s / "shots.csv", index=False)
 
 
+def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False) -> None:
+    """20 s of 1 Hz fixes on a curving 15-25 m/s track with the velocities that go with it."""
+    t = 1000.0 + np.arange(10.0)
+    heading = np.deg2rad(30.0 + 12.0 * np.arange(10.0))
+    speed = 15.0 + np.arange(10.0)
+    vn, ve = speed * np.cos(heading), speed * np.sin(heading)
+    north = np.concatenate([[0.0], np.cumsum(0.5 * (vn[1:] + vn[:-1]))])
+    east = np.concatenate([[0.0], np.cumsum(0.5 * (ve[1:] + ve[:-1]))])
+    lat = 45.0 + north / 111_132.0 + 2e-6 * np.sin(np.arange(10.0))  # a few decimetres of fix noise
+    lon = -73.0 + east / (111_320.0 * np.cos(np.deg2rad(45.0)))
+    if swap_latlon:
+        lat, lon = lon, lat
+    if swap_velocity:
+        vn, ve = ve, vn
+    pd.DataFrame({"t": t, "lat": lat, "lon": lon, "h": 50.0, "fix": 2, "vn": vn, "ve": ve, "vd": 0.0}).to_csv(s / "gps.csv", index=False)
+
+
+def gps_latlon_swapped(s):
+    _moving_gps(s, swap_latlon=True)
+
+
+def gps_moving_as_given(s):
+    _moving_gps(s)
+
+
+def gps_velocity_columns_swapped(s):
+    _moving_gps(s, swap_velocity=True)  # not a lat/lon swap: the check must not call it one
+
+
+def gps_height_1e9(s):
+    df = pd.read_csv(s / "gps.csv")
+    df.assign(h=np.where(np.arange(len(df)) == 4, 1e9, df.h)).to_csv(s / "gps.csv", index=False)
+
+
+def _targets_and_observer(s: Path, swap_targets: bool, swap_observer: bool) -> None:
+    obs = (45.4946, -73.5622) if not swap_observer else (-73.5622, 45.4946)
+    _toml_add(s, f"[observer]\nlat = {obs[0]}\nlon = {obs[1]}\nh = 40.0")
+    lat, lon = np.array([45.49467, 45.49472]), np.array([-73.56207, -73.56218])
+    if swap_targets:
+        lat, lon = lon, lat
+    targets = pd.DataFrame({"id": ["T1", "T2"], "lat": lat, "lon": lon, "h": [42.5, 45.0], "role": ["truth"] * 2})
+    targets.to_csv(s / "targets.csv", index=False)
+
+
+def targets_latlon_swapped(s):
+    _targets_and_observer(s, swap_targets=True, swap_observer=False)
+
+
+def observer_latlon_swapped(s):
+    _targets_and_observer(s, swap_targets=False, swap_observer=True)
+
+
+def targets_near_observer(s):
+    _targets_and_observer(s, swap_targets=False, swap_observer=False)
+
+
+def observer_height_in_mm(s):
+    _toml_add(s, "[observer]\nlat = 45.4946\nlon = -73.5622\nh = 40000000.0")
+
+
 CASES = [
     (fifo_imu, {}, "imu.csv", "FIFO"),
+    (nul_hole_after_valid_rows, {}, "imu.csv, row 1001", "NUL bytes"),
+    (gps_latlon_swapped, {}, "gps.csv: column 'lat'", "lat and lon look exchanged"),
+    (gps_moving_as_given, {}, None, None),
+    (gps_velocity_columns_swapped, {}, None, None),
+    (gps_height_1e9, {}, "gps.csv: column 'h', row 5", "not an ellipsoidal height"),
+    (targets_latlon_swapped, {}, "targets.csv: column 'lat', row 1", "lat and lon are exchanged"),
+    (observer_latlon_swapped, {}, "targets.csv: column 'lat', row 1", "lat and lon are exchanged"),
+    (targets_near_observer, {}, None, None),
+    (observer_height_in_mm, {}, "session.toml", "[observer] h 4e+07 m is not an ellipsoidal height"),
     (dev_zero_imu, {}, "imu.csv", "device"),
     (sparse_nul_imu, {}, "imu.csv", "NUL bytes"),
     (parquet_with_many_rows, {}, "imu.parquet", "row limit"),
+    (header_line_past_64_kib, {}, "imu.csv", "header line is longer than 64 KiB"),
+    (csv_with_1500_columns, {}, "imu.csv", "more than 1000 columns"),
+    (parquet_with_1500_columns, {}, "imu.parquet", "1507 columns: more than 1000"),
     (bad_pandas_metadata, {}, "gps.parquet", "not a readable Parquet file"),
     (deep_toml, {}, "session.toml", "nested too deeply"),
     (deep_tables, {}, "session.toml", "nested too deeply"),
@@ -269,3 +365,130 @@ def test_import_refuses_before_writing_anything(tmp_path):
     res = runner.invoke(app, ["import", "rtklib-pos", str(tmp_path / "a.pos"), "-o", str(s)])
     assert res.exit_code == 2 and "Traceback" not in res.output
     assert {p.name: p.read_bytes() for p in s.iterdir()} == before
+
+
+# ------------------------------------------------------------------ TOML read by `process` before the session
+
+def test_fifo_session_toml_is_refused_by_process_with_the_default_pipeline(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    (s / "session.toml").unlink()
+    os.mkfifo(s / "session.toml")  # the default pipeline comes from [session] kind: read before the session
+    res, _ = _run_cli_bounded(["process", str(s), "-o", str(tmp_path / "run")], tmp_path, timeout_s=60.0)
+    assert res.returncode == 2 and "session.toml: is a FIFO" in res.stderr, res.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_fifo_pipeline_file_is_refused(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    os.mkfifo(tmp_path / "p.toml")
+    res, _ = _run_cli_bounded(["process", str(s), "-p", str(tmp_path / "p.toml"), "-o", str(tmp_path / "run")], tmp_path, timeout_s=60.0)
+    assert res.returncode == 2 and "p.toml: is a FIFO" in res.stderr, res.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_pipeline_file_nested_too_deeply_is_invalid_input(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    pipe = tmp_path / "deep.toml"
+    pipe.write_text('[pipeline]\nname = "deep"\nchain = "ingest"\n[ingest]\nx = ' + "[" * 600 + "]" * 600 + "\n")
+    res = runner.invoke(app, ["process", str(s), "-p", str(pipe), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "deep.toml: nested too deeply" in res.output and "internal error" not in res.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_set_value_nested_too_deeply_is_a_usage_error(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    res = runner.invoke(app, ["process", str(s), "-p", "ingest", "--set", "ingest.x=" + "[" * 600 + "]" * 600, "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "nested too deeply" in res.output and "internal error" not in res.output
+    assert not (tmp_path / "run").exists()
+
+
+# ------------------------------------------------------------------ CSV rows counted before decoding
+
+def test_csv_with_more_rows_than_the_limit_is_refused_before_decoding(tmp_path, monkeypatch):
+    import tpos_cli.io.tables as tables
+
+    s = write_minimal_session(tmp_path / "s")  # 1000 IMU rows
+    monkeypatch.setattr(tables, "MAX_TABLE_ROWS", 500)
+    real_read_csv = tables.pd.read_csv
+
+    def read_csv(path, *a, **k):
+        assert Path(path).name != "imu.csv", "imu.csv decoded before its rows were counted"
+        return real_read_csv(path, *a, **k)
+
+    monkeypatch.setattr(tables.pd, "read_csv", read_csv)
+    res = runner.invoke(app, ["validate", str(s)])
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.exit_code == 2 and len(lines) == 1 and "imu.csv" in lines[0] and "more than 500 rows" in lines[0], lines
+
+
+# ------------------------------------------------------------------ a disk that fills during the writing
+
+def test_disk_full_while_writing_outputs_is_a_plain_exit_1_naming_the_run(tmp_path, monkeypatch):
+    s = write_minimal_session(tmp_path / "s")
+    import tpos_cli.io.run_dir as rd
+
+    def full(*a, **k):  # what pyarrow raises: an OSError with no file name
+        raise OSError("Error writing bytes to file. Detail: [errno 28] No space left on device")
+
+    monkeypatch.setattr(rd.pq, "write_table", full)
+    out = tmp_path / "out"
+    res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(out)])
+    assert res.exit_code == 1, res.output
+    assert f"cannot write the run directory {out}" in res.output and "No space left" in res.output, res.output
+    assert "internal error" not in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # no partial run, lock or temporary directory
+
+
+# ------------------------------------------------------------------ run directories read back (report, batch)
+
+@pytest.mark.parametrize("command", ["report", "export"])
+@pytest.mark.parametrize("make", ["fifo", "deep"])
+def test_report_and_export_refuse_a_summary_json_that_is_a_fifo_or_nested_without_end(tmp_path, make, command):
+    run = tmp_path / "run"
+    run.mkdir()
+    if make == "fifo":
+        os.mkfifo(run / "summary.json")
+    else:
+        (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000)
+    res, _ = _run_cli_bounded([command, str(run)], tmp_path, timeout_s=60.0)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(lines) == 1 and "summary.json" in lines[0], res.stderr
+    assert sorted(p.name for p in run.iterdir()) == ["summary.json"]
+
+
+def test_batch_does_not_block_on_a_fifo_summary_json_of_an_earlier_run(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    (tmp_path / "out" / "s").mkdir(parents=True)
+    os.mkfifo(tmp_path / "out" / "s" / "summary.json")  # not a finished run: processed again
+    res, _ = _run_cli_bounded(["batch", str(s), "-o", str(tmp_path / "out"), "-p", "ingest", "-j", "1", "-q"], tmp_path, timeout_s=120.0)
+    assert res.returncode == 0, (res.stdout, res.stderr)
+    assert (tmp_path / "out" / "s" / "summary.json").is_file()
+
+
+# ------------------------------------------------------------------ an IMU gap no INS can cross
+
+def _imu_gap(s: Path, gap_s: float, tables: tuple[str, ...]) -> None:
+    for name in tables:
+        df = pd.read_csv(s / f"{name}.csv")
+        df.assign(t=np.where(df.t > 1005.0, df.t + gap_s, df.t)).to_csv(s / f"{name}.csv", index=False)
+
+
+@pytest.mark.parametrize("pipeline, opts, tables", [
+    ("drive-smooth", {}, ("imu", "gps")),
+    ("ranging-fatci", {"with_anchors": True}, ("imu", "anchor_ranges")),
+])
+def test_hour_long_imu_gap_is_refused_before_the_work(tmp_path, pipeline, opts, tables):
+    s = write_minimal_session(tmp_path / "s", **opts)
+    _imu_gap(s, 3600.0, tables)
+    res = runner.invoke(app, ["process", str(s), "-p", pipeline, "-o", str(tmp_path / "run")])
+    section = pipeline.replace("-", "_")
+    assert res.exit_code == 2 and "a gap of 3600.0 s after sample 501" in res.output, res.output
+    assert f"{section}.imu_gap_max_s = 1 s" in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # refused before the run directory was claimed
+
+
+def test_short_imu_gap_is_still_processed(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    _imu_gap(s, 0.5, ("imu", "gps"))
+    res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output

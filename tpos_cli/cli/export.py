@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from tpos_cli.cli._common import exit_on_error
+from tpos_cli.io.bounded import read_json_bounded
 
 
 def export(
@@ -43,6 +44,8 @@ def export(
     if fmt not in FORMATS:
         raise typer.BadParameter(f"expected one of {', '.join(FORMATS)}, got {format_!r}", param_hint="--format")
     with exit_on_error():
+        if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
+            read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
         res = export_run(run, fmt, solution=solution, rate_hz=rate, out=out, trajectory=trajectory)
     if res.path is None:
         return

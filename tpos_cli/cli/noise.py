@@ -42,7 +42,8 @@ def noise(
         if still.mean() < 0.95:
             raise InvalidInputError(f"{session}: only {100 * still.mean():.0f}% of the window is at rest; Allan analysis needs a static log (choose one with --static T0:T1)")
         nf = identify_noise(t[sel], s.imu.gyro_b_rps[sel], s.imu.acc_b_mps2[sel])
-        out = plot or Path(f"{s.meta.name}_allan.png")
+        # the session directory's own name, never [session] name: a name holding '../' would write elsewhere
+        out = plot or Path(f"{Path(session).resolve().name}_allan.png")
         allan_page(nf).savefig(out, dpi=120)  # the same figure as the report's Allan page
     typer.echo(dumps_toml({"imu": nf.toml_keys()}).rstrip())
     typer.echo(f"# Allan deviation plot: {out}")

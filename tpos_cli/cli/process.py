@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from tpos_cli.cli._common import exit_on_error, parse_window, show_progress
+from tpos_cli.io.bounded import MAX_TOML_DEPTH, toml_depth
 
 
 def _parse_set(items: list[str]) -> dict:
@@ -20,6 +21,10 @@ def _parse_set(items: list[str]) -> dict:
             out[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             out[key.strip()] = value.strip()  # a bare word is a string
+        except RecursionError:
+            raise typer.BadParameter(f"{key.strip()}: value nested too deeply", param_hint="--set") from None
+        if toml_depth(out[key.strip()]) > MAX_TOML_DEPTH:
+            raise typer.BadParameter(f"{key.strip()}: value nested more than {MAX_TOML_DEPTH} levels", param_hint="--set")
     return out
 
 

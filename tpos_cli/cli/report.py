@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from tpos_cli.cli._common import exit_on_error, working
+from tpos_cli.io.bounded import read_json_bounded
 
 
 def report(
@@ -31,6 +32,8 @@ def report(
 
     try:
         with exit_on_error(), terminate_as_interrupt(), working(f"tpos report {run}"):
+            if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
+                read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
             res = make_report(run, truth, full=full)
     except KeyboardInterrupt:
         typer.echo("tpos report: interrupted; the run's earlier report files, if any, are unchanged", err=True)

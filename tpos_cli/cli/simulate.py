@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import typer
 
 from tpos_cli.cli._common import exit_on_error, show_progress
+from tpos_cli.io.bounded import MAX_TABLE_ROWS
 
 _ONLY = {
     "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range"),
@@ -20,9 +22,32 @@ def _floats(text: str, n: int, option: str) -> list[float]:
     try:
         if len(parts) != n:
             raise ValueError
-        return [float(p) for p in parts]
+        values = [float(p) for p in parts]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError
+        return values
     except ValueError:
         raise typer.BadParameter(f"expected {n} numbers separated by ':', got {text!r}", param_hint=option) from None
+
+
+# (lowest, highest) of the numeric options: beyond them a simulation is no log (a duration of 1e9 s
+# asked for 894 GiB; NaN and negative seeds ended in internal errors).
+_RANGES = {
+    "--seed": (0, 2**32 - 1), "--trajectory-seed": (0, 2**32 - 1), "--duration": (1.0, 86_400.0), "--rate": (1.0, 10_000.0),
+    "--t0": (-1e10, 1e10), "--gps-sigma-h": (0.0, 1_000.0), "--gps-sigma-v": (0.0, 1_000.0), "--gps-sigma-vel": (0.0, 100.0),
+    "--shots": (0, 10_000), "--shot-range": (0.1, 10_000.0), "--wall-distance": (0.1, 1_000.0),
+    "--mag-disturbance-ut": (0.0, 10_000.0), "--mag-disturbance-start": (0.0, 86_400.0),
+    "--mag-disturbance-end": (0.0, 86_400.0), "--nlos-prob": (0.0, 1.0),
+}
+MAX_SAMPLES = MAX_TABLE_ROWS
+
+
+def _check_ranges(values: dict) -> None:
+    """Each given numeric option finite and within _RANGES, else a usage error (exit 2)."""
+    for option, v in values.items():
+        lo, hi = _RANGES[option]
+        if v is not None and not (math.isfinite(v) and lo <= v <= hi):
+            raise typer.BadParameter(f"{v!r} is outside {lo:g} to {hi:g}", param_hint=option)
 
 
 def simulate(
@@ -68,6 +93,14 @@ def simulate(
     for k in given:
         if k not in _ONLY[scenario]:
             raise typer.BadParameter(f"does not apply to scenario {scenario!r}", param_hint="--" + k.replace("_", "-"))
+    _check_ranges({"--seed": seed, "--trajectory-seed": trajectory_seed, "--duration": duration, "--rate": rate, "--t0": t0,
+                   "--gps-sigma-h": gps_sigma_h, "--gps-sigma-v": gps_sigma_v, "--gps-sigma-vel": gps_sigma_vel,
+                   "--shots": shots, "--shot-range": shot_range, "--wall-distance": wall_distance,
+                   "--mag-disturbance-ut": mag_disturbance_ut, "--mag-disturbance-start": mag_disturbance_start,
+                   "--mag-disturbance-end": mag_disturbance_end, "--nlos-prob": nlos_prob})
+    if duration is not None and duration * rate > MAX_SAMPLES:
+        raise typer.BadParameter(f"{duration:g} s at {rate:g} Hz is more than {MAX_SAMPLES} IMU samples, the row limit of a "
+                                 "session table", param_hint="--duration")
     kw: dict = {"seed": seed, "rate_hz": rate, "t0_s": t0, "name": name or out.name}
     if duration is not None:
         kw["duration_s"] = duration

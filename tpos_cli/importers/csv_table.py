@@ -21,6 +21,8 @@ from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, unix_to_clock
 from tpos_cli.importers.mapping import CsvMapping
 from tpos_cli.importers.result import ImportResult
 from tpos_cli.importers.units import TIME_S
+from tpos_cli.io.bounded import read_source_bytes
+from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 
 def _data_lines(raw: bytes, m: CsvMapping, path: Path):
@@ -67,13 +69,28 @@ def _parse(data: list[bytes], names: list[str], m: CsvMapping, path: Path) -> pd
     return df
 
 
+# (contract column, lowest, highest, what it must be) of positions, after the unit conversion
+_POSITION_RANGES = (("lat", -90.0, 90.0, "a latitude (±90 deg)"), ("lon", -180.0, 180.0, "a longitude (±180 deg)"),
+                    ("h", H_MIN_M, H_MAX_M, f"a height on Earth ({H_MIN_M:g} to {H_MAX_M:g} m)"))
+
+
+def _check_positions(path: Path, cols: dict, line_idx: np.ndarray) -> None:
+    """An impossible latitude, longitude or height (wrong column or unit in the mapping, a damaged
+    line) is refused naming its line: nothing is written."""
+    for name, lo, hi, what in _POSITION_RANGES:
+        if name not in cols:
+            continue
+        v = np.asarray(cols[name], float)
+        bad = np.flatnonzero(np.isfinite(v) & ~((v >= lo) & (v <= hi)))
+        if bad.size:
+            raise InvalidInputError(f"{path}: line {int(line_idx[bad[0]]) + 1}: {name} {v[bad[0]]:g} is not {what} "
+                                    "(the mapping's column or unit, or a damaged line?); nothing written")
+
+
 def import_csv(path: Path, m: CsvMapping) -> ImportResult:
     """Read one delimited file with mapping `m` into a contract table."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path}: file not found") from None
+    raw = read_source_bytes(path, text=True)
     header, data, line_idx, lengths = _data_lines(raw, m, path)
     names = list(m.names) if m.names else header
     if names is None:
@@ -153,6 +170,7 @@ def import_csv(path: Path, m: CsvMapping) -> ImportResult:
         else:
             col = numeric[spec.source][keep] * spec.factor
         out[spec.name] = col
+    _check_positions(path, out, line_idx[keep])
     tables_cols = out
     if m.table == "imu":
         t_k = tables_cols["t"]

@@ -6,7 +6,6 @@ every key and value and raises InvalidInputError naming `file: [section] key`.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +15,7 @@ from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.rotation import axes_to_dcm, euler_to_dcm
 from tpos_cli.importers import units
 from tpos_cli.importers.gpstime import CLOCKS
+from tpos_cli.io.bounded import read_toml
 
 TABLE_COLUMNS = {
     "imu": ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z"),
@@ -120,12 +120,9 @@ def _unit_factor(path, name, unit, table):
 def load_mapping(path: Path) -> CsvMapping:
     """Parse and check a CSV mapping TOML."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path}: mapping file not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InvalidInputError(f"{path}: not valid TOML ({exc})") from None
+    if not path.exists():
+        raise InvalidInputError(f"{path}: mapping file not found")
+    doc = read_toml(path)  # regular file, size and depth bounded
     _check_keys(path, "top level", doc, ("table", "source", "time", "columns", "axes", "session_toml"))
     table = _get(path, "top level", doc, "table", str)
     if table not in TABLE_COLUMNS:

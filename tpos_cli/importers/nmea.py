@@ -27,6 +27,7 @@ import pynmea2
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.importers.gpstime import leap_table_note, utc_calendar_to_clock
 from tpos_cli.importers.result import ImportResult, read_source
+from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 KNOT_MPS = 1852.0 / 3600.0
 GGA_QUALITY_TO_FIX = {0: 0, 1: 1, 2: 2, 3: 1, 4: 2, 5: 2, 6: 0, 7: 0, 8: 0}
@@ -119,6 +120,9 @@ def parse_nmea(data: bytes, name: str = "NMEA") -> tuple[pd.DataFrame, dict]:
         try:
             if kind == "GGA" and msg.data[0]:
                 lat, lon = _position(msg)
+                alt = _f(msg.altitude)
+                if math.isfinite(alt) and not H_MIN_M <= alt <= H_MAX_M:
+                    raise _BadField(f"altitude {alt:g} m is not a height on Earth ({H_MIN_M:g} to {H_MAX_M:g} m)")
                 cur = {
                     "sod": _sod(msg), "date": date, "lat": lat, "lon": lon,
                     "quality": int(_f(msg.gps_qual)) if math.isfinite(_f(msg.gps_qual)) else 0,

@@ -9,6 +9,7 @@ import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.importers.gpstime import CLOCKS
+from tpos_cli.io.bounded import read_source_bytes
 
 
 @dataclass(frozen=True)
@@ -18,11 +19,9 @@ class ImportResult:
     notes: tuple[str, ...] = ()  # what was dropped, assumed or fitted (printed by the CLI)
 
 
-def read_source(path: Path, clock: str) -> bytes:
-    """The bytes of a receiver log to import onto `clock`; a bad clock or a missing file exits 2."""
+def read_source(path: Path, clock: str, *, text: bool = True) -> bytes:
+    """The bytes of a receiver log to import onto `clock`; a bad clock, a missing file, or one that is
+    not a regular file of bounded size (a FIFO, /dev/zero; NULs in a text format) exits 2."""
     if clock not in CLOCKS:
         raise InvalidInputError(f"clock must be one of {', '.join(CLOCKS)}, got {clock!r}")
-    try:
-        return Path(path).read_bytes()
-    except FileNotFoundError:
-        raise InvalidInputError(f"{path}: file not found") from None
+    return read_source_bytes(Path(path), text=text)

@@ -29,6 +29,7 @@ from tpos_cli.importers.gpstime import (
     utc_calendar_to_clock,
 )
 from tpos_cli.importers.result import ImportResult, read_source
+from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 Q_TO_FIX = {0: 0, 1: 2, 2: 2, 3: 2, 4: 2, 5: 1, 6: 2}
 _DATE = re.compile(r"^(\d{4})/(\d{1,2})/(\d{1,2})$")
@@ -172,6 +173,8 @@ def import_rtklib_pos(path: Path, *, clock: str = "gps_tow", geoid_sep_m: float 
         raise InvalidInputError(f"{path}: no Q column")
     check("latitude", col("latitude(deg)"), -90.0, 90.0, "a latitude (±90 deg)")
     check("longitude", col("longitude(deg)"), -180.0, 180.0, "a longitude (±180 deg)")
+    if col("height(m)") is not None:
+        check("height", col("height(m)"), H_MIN_M, H_MAX_M, f"a height on Earth ({H_MIN_M:g} to {H_MAX_M:g} m)")
     fix = np.array([Q_TO_FIX.get(int(v), 0) if np.isfinite(v) else 0 for v in q], np.int64)
     out = {
         "t": np.asarray(t, float),

@@ -19,6 +19,7 @@ import numpy as np
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.importers.gpstime import GPS_EPOCH_UNIX_S
+from tpos_cli.io.bounded import read_source_bytes
 
 HEADER_LEN = 60
 
@@ -48,7 +49,7 @@ class ClockFit:
 
 def read_time_tags(path: Path) -> TimeTags:
     """Parse an RTKLIB .tag file; InvalidInputError if it is not one."""
-    data = Path(path).read_bytes()
+    data = read_source_bytes(Path(path), text=False)
     if len(data) < HEADER_LEN + 16 or not data.startswith(b"TIMETAG"):
         raise InvalidInputError(f"{path}: not an RTKLIB time-tag file (no 'TIMETAG' header)")
     _tick_f, t_sec = struct.unpack("<II", data[HEADER_LEN : HEADER_LEN + 8])

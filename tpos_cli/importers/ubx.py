@@ -23,12 +23,14 @@ from pyubx2 import ERR_LOG, UBX_PROTOCOL, VALCKSUM, UBXReader
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, leap_table_note, utc_calendar_to_clock
 from tpos_cli.importers.result import ImportResult, read_source
+from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 # (field, lowest, highest, what it must be) of the NAV-PVT values used (u-blox interface description)
 _RANGES = (("lat", -90.0, 90.0, "a latitude (±90 deg)"), ("lon", -180.0, 180.0, "a longitude (±180 deg)"),
            ("month", 1, 12, "a month (1-12)"), ("day", 1, 31, "a day (1-31)"), ("hour", 0, 23, "an hour (0-23)"),
            ("min", 0, 59, "a minute (0-59)"), ("second", 0, 60, "a second (0-60)"),
-           ("iTOW", 0, WEEK_S * 1e3, "milliseconds of a GPS week"))
+           ("iTOW", 0, WEEK_S * 1e3, "milliseconds of a GPS week"),
+           ("height", H_MIN_M * 1e3, H_MAX_M * 1e3, f"a height on Earth in mm ({H_MIN_M:g} to {H_MAX_M:g} m)"))
 
 
 def read_nav_pvt(data: bytes, name: str = "UBX") -> tuple[pd.DataFrame, int]:
@@ -51,7 +53,7 @@ def read_nav_pvt(data: bytes, name: str = "UBX") -> tuple[pd.DataFrame, int]:
                                              "hAcc", "vAcc", "velN", "velE", "velD")}
         resolved = rec["validDate"] and rec["validTime"] and rec["fullyResolved"]
         for field, lo, hi, what in _RANGES:
-            if field in ("lat", "lon") and not rec["gnssFixOk"]:
+            if field in ("lat", "lon", "height") and not rec["gnssFixOk"]:
                 continue  # no position: the receiver may leave anything there
             if field in ("month", "day", "hour", "min", "second") and not resolved:
                 continue
@@ -65,7 +67,7 @@ def read_nav_pvt(data: bytes, name: str = "UBX") -> tuple[pd.DataFrame, int]:
 def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
     """Read the NAV-PVT messages of a u-blox log into a contract `gps` table."""
     path = Path(path)
-    data = read_source(path, clock)
+    data = read_source(path, clock, text=False)
     r, bad = read_nav_pvt(data, str(path))
     if r.empty:
         raise InvalidInputError(f"{path}: no UBX NAV-PVT messages (enable UBX-NAV-PVT output on the receiver)")

@@ -19,9 +19,15 @@ from tpos_cli.errors import InvalidInputError
 # rows are capped so that no table decodes to more than a few GB of float64 columns.
 MAX_TABLE_BYTES = 2 << 30
 MAX_TABLE_ROWS = 20_000_000
+# A contract table has a dozen columns; thousands of them (a 30 MB header) take pandas minutes to set up.
+MAX_TABLE_COLUMNS = 1000
 # session.toml and pipeline files are a few kB; nesting deeper than this is not metadata.
 MAX_TOML_BYTES = 1 << 20
 MAX_TOML_DEPTH = 16
+# summary.json and batch.json are kB to a few MB.
+MAX_JSON_BYTES = 64 << 20
+# A receiver or logger file to import is read whole; larger ones are imported in parts (several SRC).
+MAX_SOURCE_BYTES = 512 << 20
 
 
 def regular_file_size(path: Path, what: str, limit: int) -> int:
@@ -50,6 +56,41 @@ def read_bytes_bounded(path: Path, what: str, limit: int) -> bytes:
     if len(data) > limit:
         raise InvalidInputError(f"{what}: more than the {limit}-byte limit for this file")
     return data
+
+
+def read_source_bytes(path: Path, what: str | None = None, *, text: bool, limit: int = MAX_SOURCE_BYTES) -> bytes:
+    """A source file to import: regular, at most `limit` bytes; a text format (`text`) must not start
+    with NUL bytes (a sparse or binary file), checked on the first 64 KiB before the whole is read."""
+    what = what or str(path)
+    if not os.path.lexists(path):
+        raise InvalidInputError(f"{what}: file not found")
+    regular_file_size(path, what, limit)
+    if text:
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(65536)
+        except OSError as exc:
+            raise InvalidInputError(f"{what}: cannot be read ({exc.strerror})") from None
+        if b"\x00" in head:
+            raise InvalidInputError(f"{what}: contains NUL bytes: a binary or sparse file, not text")
+    return read_bytes_bounded(path, what, limit)
+
+
+def read_json_bounded(path: Path, what: str | None = None, limit: int = MAX_JSON_BYTES):
+    """A JSON file tpos wrote (summary.json, batch.json), read as untrusted: regular, at most `limit`
+    bytes, UTF-8, nested no deeper than the parser's recursion allows; else InvalidInputError."""
+    import json
+
+    what = what or str(path)
+    data = read_bytes_bounded(path, what, limit)
+    try:
+        return json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{what}: not UTF-8 text") from None
+    except RecursionError:
+        raise InvalidInputError(f"{what}: nested too deeply to be a tpos JSON file") from None
+    except ValueError as exc:
+        raise InvalidInputError(f"{what}: not readable JSON ({exc})") from None
 
 
 def toml_depth(value, limit: int = MAX_TOML_DEPTH) -> int:

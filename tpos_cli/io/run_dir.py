@@ -105,6 +105,7 @@ class RunDirBusy(TposError):
 class _Claim:
     lock_path: Path
     fd: int
+    out_dir: Path
 
     def release(self) -> None:
         with contextlib.suppress(OSError):
@@ -129,7 +130,8 @@ def run_dir_claims():
     try:
         yield
     except OSError as exc:
-        raise _plain(exc, Path(exc.filename or "?").parent) from None
+        # name the directory being written (a library's OSError may carry no file name)
+        raise _plain(exc, claims[-1].out_dir if claims else Path(exc.filename or "?").parent) from None
     finally:
         _ACTIVE.reset(token)
         for c in reversed(claims):
@@ -159,7 +161,7 @@ def claim_run_dir(out_dir: Path) -> None:
             if same:
                 break
             os.close(fd)  # the previous holder removed it as we opened it: take the new one
-        claim = _Claim(lock_path, fd)
+        claim = _Claim(lock_path, fd, out_dir)
         if claims is None:
             import atexit
 

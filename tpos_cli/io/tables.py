@@ -15,7 +15,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_ROWS, regular_file_size
+from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,12 +112,18 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
     if meta.num_rows > MAX_TABLE_ROWS:
         _fail(path, f"{meta.num_rows} rows is more than the {MAX_TABLE_ROWS}-row limit for a table")
+    if meta.num_columns > MAX_TABLE_COLUMNS:
+        _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
     columns = [c for c in names if c in wanted]
     try:
         table = pq.read_table(path, columns=columns)
-        return table.to_pandas(ignore_metadata=True)
+        df = table.to_pandas(ignore_metadata=True)
     except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
+    del table
+    # pyarrow's memory pool keeps the decoded buffers otherwise (an hour's drive: RSS 497 -> 399 MB after ingest)
+    pa.default_memory_pool().release_unused()
+    return df
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
@@ -135,6 +141,11 @@ def _read_csv(path: Path) -> pd.DataFrame:
     except UnicodeDecodeError as exc:
         if exc.start < len(head) - 4:  # not merely a character cut by the 64 KiB window
             _fail(path, "not UTF-8 text (is it a binary or Parquet file named .csv?)")
+    if len(head) == 65536 and b"\n" not in head:
+        _fail(path, "the header line is longer than 64 KiB: not a contract table")
+    if head.split(b"\n", 1)[0].count(b",") + 1 > MAX_TABLE_COLUMNS:
+        _fail(path, f"the header has more than {MAX_TABLE_COLUMNS} columns: not a contract table")
+    _scan_csv(path)
     header = head.split(b"\n", 1)[0].decode("utf-8", "replace").strip().lstrip("\ufeff")
     if "," not in header:
         for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "pipes")):
@@ -158,6 +169,24 @@ def _read_csv(path: Path) -> pd.DataFrame:
     df.columns = [str(c).strip() for c in df.columns]
     _check_last_line(path, n_header, len(df))
     return df
+
+
+def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
+    """One pass over the bytes before pandas decodes them: the line count against MAX_TABLE_ROWS (a
+    2 GB file of short lines decodes to many GB of float64) and NUL bytes anywhere (a sparse hole
+    after a valid start), each refused with the row where it is."""
+    lines = 0
+    try:
+        with open(path, "rb") as fh:
+            while chunk := fh.read(chunk_bytes):
+                nul = chunk.find(b"\x00")
+                if nul >= 0:
+                    _fail(path, "contains NUL bytes: a binary or sparse file, not CSV text", row=max(lines + chunk.count(b"\n", 0, nul), 1))
+                lines += chunk.count(b"\n")
+                if lines > MAX_TABLE_ROWS + 1:
+                    _fail(path, f"more than {MAX_TABLE_ROWS} rows, the row limit for a table")
+    except OSError as exc:
+        _fail(path, f"cannot be read ({exc.strerror})")
 
 
 def _check_last_line(path: Path, n_header: int, n_rows: int) -> None:

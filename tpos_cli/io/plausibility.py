@@ -1,0 +1,85 @@
+"""Plausibility of positions in a session: heights, lat/lon written in each other's column, targets
+too far from the observer to have been aimed at.
+
+Each check is a plain function over arrays that returns the evidence (figures) or None; the
+session loader turns evidence into a refusal naming file, column and row.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tpos_cli.frames import geodetic
+
+# Ellipsoidal heights outside this band are not a platform tpos navigates: the lowest land surface
+# (Dead Sea, about -430 m above the geoid, geoid +20 m) and the geoid low (-107 m) stay above
+# -1000 m; 100 km is the edge of space.
+H_MIN_M = -1000.0
+H_MAX_M = 100_000.0
+# A target aimed at with a laser rangefinder is within a few km of the observer; 50 km is past any
+# handheld rangefinder's reach by a factor of ten.
+TARGET_MAX_DISTANCE_M = 50_000.0
+# Lat/lon swap test on GPS fixes with velocities: fixes at most this far apart in time, a track of
+# at least this length, and the swapped reading must fit this many times better than the given one
+# (and better than reading vn/ve exchanged, which is the other way to mismatch).
+SWAP_MAX_DT_S = 5.0
+SWAP_MIN_TRACK_M = 100.0
+SWAP_FIT_RATIO = 3.0
+SWAP_LAG = 10
+
+_M_PER_RAD_DEG = 6_371_000.0 * np.pi / 180.0  # metres per degree of arc on a sphere of the Earth's mean radius
+
+
+def first_bad_height(h_m: np.ndarray) -> int | None:
+    """Index of the first finite height outside [H_MIN_M, H_MAX_M], or None."""
+    bad = np.flatnonzero(np.isfinite(h_m) & ((h_m < H_MIN_M) | (h_m > H_MAX_M)))
+    return int(bad[0]) if bad.size else None
+
+
+def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, float] | None:
+    """(median mismatch as given, median mismatch with lat and lon exchanged), metres, when the fixes'
+    displacements match the logged velocities clearly better with the columns exchanged; else None.
+
+    Over spans of SWAP_LAG fixes (consecutive fixes at most SWAP_MAX_DT_S apart, so that the
+    displacement outgrows the fixes' own noise), the displacement between fixes i and j is compared
+    with the trapezoid integral of the velocities, d_v = sum (v_k + v_k+1) dt_k / 2, under three readings:
+      given:      dN = dlat R, dE = dlon R cos(lat)
+      swapped:    dN = dlon R, dE = dlat R cos(lon)      (lat and lon columns exchanged)
+      vel. swap:  positions as given against (ve, vn)    (velocity columns exchanged)
+    R is a spherical Earth's metres per radian: the readings differ by factors, not by the flattening.
+    The swap is reported only when the swapped reading fits SWAP_FIT_RATIO times better than both
+    others and the velocities add up to a track of at least SWAP_MIN_TRACK_M (a static log cannot tell).
+    """
+    t, lat, lon, vn, ve = (np.asarray(x, dtype=float) for x in (t_s, lat_deg, lon_deg, vn_mps, ve_mps))
+    ok = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(vn) & np.isfinite(ve)
+    t, lat, lon, vn, ve = t[ok], lat[ok], lon[ok], vn[ok], ve[ok]
+    if t.size < 5:
+        return None
+    dt = np.diff(t)
+    step_ok = (dt > 0) & (dt <= SWAP_MAX_DT_S)
+    n_vel = np.concatenate([[0.0], np.cumsum(0.5 * (vn[1:] + vn[:-1]) * dt)])
+    e_vel = np.concatenate([[0.0], np.cumsum(0.5 * (ve[1:] + ve[:-1]) * dt)])
+    if np.hypot(np.diff(n_vel), np.diff(e_vel))[step_ok].sum() < SWAP_MIN_TRACK_M:
+        return None
+    lag = max(1, min(SWAP_LAG, t.size // 4))
+    bad_steps = np.concatenate([[0], np.cumsum(~step_ok)])
+    i = np.arange(t.size - lag)
+    i = i[bad_steps[i + lag] == bad_steps[i]]  # no gap or reversal inside the span
+    if i.size < 4:
+        return None
+    j = i + lag
+    dvn, dve = n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
+    dlat, dlon = (lat[j] - lat[i]) * _M_PER_RAD_DEG, (lon[j] - lon[i]) * _M_PER_RAD_DEG
+    given = np.hypot(dlat - dvn, dlon * np.cos(np.deg2rad(lat[i])) - dve)
+    swapped = np.hypot(dlon - dvn, dlat * np.cos(np.deg2rad(lon[i])) - dve)
+    vel_swap = np.hypot(dlat - dve, dlon * np.cos(np.deg2rad(lat[i])) - dvn)
+    m_given, m_swapped, m_vel = (float(np.median(x)) for x in (given, swapped, vel_swap))
+    if m_swapped * SWAP_FIT_RATIO < min(m_given, m_vel):
+        return m_given, m_swapped
+    return None
+
+
+def distances_from_m(lla: np.ndarray, origin_lla: np.ndarray) -> np.ndarray:
+    """Straight-line distance (m) of each row of `lla` (deg, deg, m) from `origin_lla`."""
+    ned = geodetic.lla_to_ned(np.atleast_2d(np.asarray(lla, dtype=float)), np.asarray(origin_lla, dtype=float))
+    return np.linalg.norm(ned, axis=1)
