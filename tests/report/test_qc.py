@@ -134,3 +134,8 @@ def test_track_points_keep_the_extremes_of_both_axes_and_the_ends():
     i = track_points(lla)
     assert i.size <= 2 * L.MAX_POINTS + 2
     assert {0, n - 1, 54_321} <= set(i.tolist())
+
+
+def test_decade_labels_are_plain_text():
+    assert [L.decade_label(v) for v in (0.01, 1.0, 10.0, 1000.0)] == ["10⁻²", "10⁰", "10¹", "10³"]
+    assert L.decade_label(2.0) == "2" and L.decade_label(0.0) == "" and L.decade_label(np.nan) == ""
