@@ -18,6 +18,7 @@ arrays (one pass each, no per-row Python).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -53,7 +54,7 @@ class Series:
     def has_position_sigma(self) -> bool:
         return bool(np.isfinite(self.sigma_neu_m[:, :2]).any())
 
-    @property
+    @cached_property
     def is_static(self) -> bool:
         """A fixed point (a tripod observer): its plan view is one point, not a trajectory."""
         p = self.lla[np.isfinite(self.lla).all(axis=1)]

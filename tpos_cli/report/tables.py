@@ -101,11 +101,14 @@ def shots_section(ctx: ReportContext) -> Section | None:
     if ctx.targets is None or ctx.run.targets is None:
         return None
     sh = ctx.run.targets[ctx.run.targets["solution"] == ctx.target_solution].reset_index(drop=True)
-    comb = ctx.targets.set_index("id")
+    points = dict(zip(ctx.targets["id"].astype(str), ctx.targets[["lat", "lon", "h"]].to_numpy(float)))
+    ids = sh["id"].astype(str).to_numpy()
+    lla = sh[["lat", "lon", "h"]].to_numpy(float)
     d = np.full((len(sh), 3), np.nan)
-    for i, r in enumerate(sh.itertuples()):  # one row per shot: tens, not a time series
-        if r.id in comb.index and np.isfinite(comb.loc[r.id, "lat"]):
-            d[i] = lla_to_ned(np.array([r.lat, r.lon, r.h]), comb.loc[r.id, ["lat", "lon", "h"]].to_numpy(float))
+    for tid in dict.fromkeys(ids):  # the shots of each target about its combined point, at once
+        p = points.get(tid)
+        if p is not None and np.isfinite(p[0]):
+            d[ids == tid] = lla_to_ned(lla[ids == tid], p)
     d[:, 2] *= -1.0
     unit, sc, dec = length_unit(np.r_[d.ravel(), sh["sigma_n"].to_numpy(float) if "sigma_n" in sh else []])
     empty = [""] * len(sh)
