@@ -1,16 +1,25 @@
-"""Benchmark of `tpos report` (issues 14 and 16): speed of the report of hour-long logs.
+"""Benchmark of `tpos report` (issues 14 and 16): speed of the report of hour-long logs, each
+stage's share, and a check that its accuracy figures are those of a plain full-rate computation.
 
-    python benchmarks/report.py              # drive hour and target hour (about 3-5 minutes on 2 cores)
+    python benchmarks/report.py              # drive hour and target hour (about 6-10 minutes on 2 shared cores)
     python benchmarks/report.py --only drive # or: target
 
 Drive: a simulated one-hour drive (100 Hz IMU, 1 Hz GPS, three outages) is processed, then
 `tpos report` runs on it in a subprocess, as a user types it (interpreter start, imports, the
-session load and input check, accuracy against truth, the PDF); its wall time is divided by the
-bare numba reference loop of `benchmarks/drive.py` timed in the same run (goal <= 1.5).
-Target: a simulated one-hour target log (100 Hz IMU, shots every few seconds); the report's wall
-time is divided by the `tpos process` wall time of the same log (goal <= 2).
-Each time is the median of three runs (this machine is shared and noisy); the stage shares come
-from one in-process run.
+session load and input check, accuracy against truth, the PDF). Its time is divided by the bare
+numba reference loop of `benchmarks/drive.py` (goal <= 1.5), the two timed alternately in the same
+run, three times each: the median wall time and the median CPU time (user + system of the process;
+steadier than wall time on a machine other jobs share) of each.
+Target: a simulated one-hour target log (100 Hz IMU, shots every few seconds); `tpos process` and
+`tpos report` of it timed alternately, three times each; the report's median time divided by the
+process's (goal <= 2).
+Stages: one in-process report after a first one (which pays the lazy imports and font loading);
+CPU seconds and share of each stage (`tpos_cli.report.stages`): loading, accuracy tables, each
+figure, PDF writing. The CLI's interpreter start and imports are timed on their own.
+Accuracy: every solution's errors recomputed here at full rate in the plainest way (truth at the
+solution's epochs, pymap3d's geodetic2ned about the truth point, wrapped Euler differences) and
+compared with the report's accuracy.parquet (segment `all`): the largest relative difference is
+printed, and must stay at rounding level.
 """
 
 from __future__ import annotations
@@ -18,6 +27,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import resource
 import statistics
 import subprocess
 import sys
@@ -25,44 +35,129 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+import pymap3d
+
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 RUNS = 3
+ACCURACY_RTOL = 1e-9  # rounding level: the report and this check sum the same numbers in another order
 
 
-def _wall(cmd, cwd) -> tuple[float, str]:
+def _child_cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def _run(cmd, cwd) -> tuple[float, float, str]:
+    """Wall and CPU seconds (user + system) of one subprocess, and its stdout."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    t0 = time.perf_counter()
+    c0, t0 = _child_cpu_s(), time.perf_counter()
     p = subprocess.run(cmd, check=True, env=env, cwd=cwd, capture_output=True, text=True)
-    return time.perf_counter() - t0, p.stdout
+    return time.perf_counter() - t0, _child_cpu_s() - c0, p.stdout
 
 
-def _median_wall(cmd, cwd) -> tuple[float, str]:
-    res = [_wall(cmd, cwd) for _ in range(RUNS)]
-    return statistics.median(r[0] for r in res), res[-1][1]
+def _median(xs) -> float:
+    return statistics.median(xs)
 
 
-def _stages(run_dir: Path) -> str:
-    """One in-process report twice: the first pays the lazy imports and font loading every
-    `tpos report` pays; the second shows the work itself (context: run, session, input check,
-    accuracy, health; PDF: the pages)."""
-    from tpos_cli.report.build import build_context, build_summary
-    from tpos_cli.report.pdf import write_pdf
+def _pages(out: str) -> str:
+    m = re.search(r"(\d+) PDF pages", out)
+    return m.group(1) if m else "?"
 
-    out = []
-    for _ in range(2):
-        t0 = time.perf_counter()
-        ctx = build_context(run_dir)
-        t1 = time.perf_counter()
-        summary = build_summary(ctx)
-        with tempfile.TemporaryDirectory() as tmp:
-            pages = write_pdf(Path(tmp) / "r.pdf", ctx, summary)
-        t2 = time.perf_counter()
-        out.append((t1 - t0, t2 - t1, len(pages)))
-    (c0, p0, n), (c1, p1, _) = out
-    return f"in process: context {c1:.2f} s, PDF {p1:.2f} s for {n} pages (first run {c0:.2f} s and {p0:.2f} s: lazy imports, fonts)"
+
+# ------------------------------------------------------------------------------------- stages
+
+
+def _stage_group(name: str) -> str:
+    if name.startswith("load:"):
+        return "loading"
+    if name.startswith("figure:") or name.startswith("allan"):
+        return "figures"
+    return name
+
+
+def stages(run_dir: Path) -> None:
+    """CPU seconds and share of each stage of a warm in-process report (the fastest of three)."""
+    from tpos_cli.report.build import make_report
+    from tpos_cli.report.stages import StageClock
+
+    make_report(run_dir)  # lazy imports, fonts
+    runs = []
+    for _ in range(RUNS):  # the fastest of three: the least disturbed by other jobs
+        clock = StageClock()
+        t0 = time.process_time()
+        make_report(run_dir, clock=clock)
+        runs.append((time.process_time() - t0, clock))
+    total, clock = min(runs, key=lambda r: r[0])
+    groups: dict[str, float] = {}
+    for name, s in clock.cpu_s.items():
+        groups[_stage_group(name)] = groups.get(_stage_group(name), 0.0) + s
+    print(f"  stages of a warm in-process report (fastest of {RUNS}), CPU {total:.2f} s:")
+    for g, s in groups.items():
+        print(f"    {g:28s} {s:6.3f} s {100 * s / total:5.1f} %")
+        if g == "figures":
+            for name, f in clock.cpu_s.items():
+                if _stage_group(name) == "figures" and f >= 0.0005:
+                    label = name.removeprefix("figure: ")
+                    print(f"      {label:26s} {f:6.3f} s {100 * f / total:5.1f} %")
+    rest = total - sum(groups.values())
+    print(f"    {'other':28s} {rest:6.3f} s {100 * rest / total:5.1f} %")
+
+
+# ----------------------------------------------------------------------------------- accuracy
+
+
+def _truth_at(session, t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """Truth lla and roll/pitch/yaw (deg) at logger-clock epochs `t`: the truth row of the same
+    stamp (the simulator writes the solutions' epochs on the truth's grid), NaN elsewhere."""
+    tr = session.truth
+    tt = np.asarray(tr.t_s, dtype=float) + session.t0_s
+    j = np.clip(np.searchsorted(tt, t), 0, tt.size - 1)
+    j = np.where(np.abs(tt[np.maximum(j - 1, 0)] - t) < np.abs(tt[j] - t), np.maximum(j - 1, 0), j)
+    same = np.abs(tt[j] - t) <= 1e-6
+    lla = np.where(same[:, None], np.asarray(tr.lla, dtype=float)[j], np.nan)
+    rpy = None
+    if tr.rpy_deg is not None and np.isfinite(tr.rpy_deg).any():
+        rpy = np.where(same[:, None], np.asarray(tr.rpy_deg, dtype=float)[j], np.nan)
+    return lla, rpy
+
+
+def accuracy_check(run_dir: Path, session_dir: Path) -> None:
+    """The report's accuracy.parquet (segment `all`) against a plain full-rate recomputation."""
+    from tpos_cli.session import load_session
+
+    session = load_session(session_dir)
+    traj = pd.read_parquet(run_dir / "trajectory.parquet")
+    acc = pd.read_parquet(run_dir / "accuracy.parquet")
+    acc = acc[(acc["segment"] == "all") & (acc["target"] == "")].set_index(["solution", "quantity"])
+    worst, where, n_cells = 0.0, "", 0
+    for sol, d in traj.groupby("solution", sort=False, observed=True):
+        t = d["t"].to_numpy(float)
+        lla, rpy = _truth_at(session, t)
+        n, e, dn = pymap3d.geodetic2ned(d["lat"].to_numpy(), d["lon"].to_numpy(), d["h"].to_numpy(), lla[:, 0], lla[:, 1], lla[:, 2])
+        errs = {"pos_h_m": np.hypot(n, e), "pos_v_m": -dn, "pos_3d_m": np.sqrt(n * n + e * e + dn * dn)}
+        if rpy is not None:
+            for k, q in enumerate(("roll_deg", "pitch_deg", "yaw_deg")):
+                errs[q] = (d[["roll", "pitch", "yaw"]].to_numpy(float)[:, k] - rpy[:, k] + 180.0) % 360.0 - 180.0
+        for q, x in errs.items():
+            x = x[np.isfinite(x)]
+            mine = {"n": x.size, "rms": np.sqrt(np.mean(x * x)), "max_abs": np.max(np.abs(x)), "p95": np.percentile(np.abs(x), 95)}
+            for stat, v in mine.items():
+                r = float(acc.loc[(str(sol), q), stat])
+                rel = abs(r - v) / max(abs(v), 1e-12)
+                n_cells += 1
+                if rel > worst:
+                    worst, where = rel, f"{sol} {q} {stat}: report {r:.12g}, full-rate {v:.12g}"
+    verdict = "unchanged" if worst <= ACCURACY_RTOL else "DIFFERENT"
+    print(f"  accuracy figures {verdict}: {n_cells} cells (n, RMS, max, p95 per solution and quantity) against a plain full-rate")
+    print(f"    recomputation, largest relative difference {worst:.1e}" + (f" ({where})" if where else "") + f" (limit {ACCURACY_RTOL:g})")
+
+
+# ---------------------------------------------------------------------------------------- runs
 
 
 def drive(tmp: Path) -> None:
@@ -75,21 +170,30 @@ def drive(tmp: Path) -> None:
     n = sim.imu.t_s.size
     del sim
     run = tmp / "drive_run"
-    _wall([sys.executable, "-m", "tpos_cli", "process", str(session), "-o", str(run), "-q"], tmp)
+    _run([sys.executable, "-m", "tpos_cli", "process", str(session), "-o", str(run), "-q"], tmp)
     cmd = [sys.executable, "-m", "tpos_cli", "report", str(run)]
-    _wall(cmd, tmp)  # warm the file cache
-    wall, out = _median_wall(cmd, tmp)
-    ref = statistics.median(reference_loop(n, 100) for _ in range(RUNS))
-    pages = re.search(r"(\d+) PDF pages", out)
-    print(
-        f"drive hour ({n} IMU samples): tpos report {wall:.2f} s, reference loop {ref:.2f} s, "
-        f"ratio {wall / ref:.2f} (goal <= 1.5); {pages.group(1) if pages else '?'} pages"
-    )
-    imports, _ = _median_wall(
-        [sys.executable, "-c", "import tpos_cli.cli, tpos_cli.report.pdf, tpos_cli.session, matplotlib.backends.backend_pdf"], tmp
-    )
-    print(f"  interpreter start and imports alone: {imports:.2f} s ({imports / ref:.2f} of the reference)")
-    print("  " + _stages(run))
+    _run(cmd, tmp)  # warm the file cache
+    reference_loop(n, 100)  # compile
+    rep_wall, rep_cpu, ref_wall, ref_cpu = [], [], [], []
+    out = ""
+    for _ in range(RUNS):  # alternately: both see the same load
+        w, c, out = _run(cmd, tmp)
+        rep_wall.append(w)
+        rep_cpu.append(c)
+        c0 = time.process_time()
+        ref_wall.append(reference_loop(n, 100))
+        ref_cpu.append(time.process_time() - c0)
+    w, c, rw, rc = (_median(x) for x in (rep_wall, rep_cpu, ref_wall, ref_cpu))
+    print(f"drive hour ({n} IMU samples), {_pages(out)} pages; medians of {RUNS}:")
+    print(f"  tpos report  wall {w:5.2f} s, CPU {c:5.2f} s")
+    print(f"  reference    wall {rw:5.2f} s, CPU {rc:5.2f} s")
+    print(f"  ratio report/reference: wall {w / rw:.2f}, CPU {c / rc:.2f} (goal <= 1.5)")
+    imports = "import tpos_cli.cli, tpos_cli.report.build, tpos_cli.report.pdf, matplotlib.backends.backend_pdf"
+    imp = [_run([sys.executable, "-c", imports], tmp) for _ in range(RUNS)]
+    iw, ic = _median(x[0] for x in imp), _median(x[1] for x in imp)
+    print(f"  interpreter start and imports alone: wall {iw:.2f} s, CPU {ic:.2f} s ({ic / c:.0%} of the report's CPU)")
+    stages(run)
+    accuracy_check(run, session)
 
 
 def target(tmp: Path) -> None:
@@ -99,16 +203,24 @@ def target(tmp: Path) -> None:
     session = write_session(simulate_target(3600.0, seed=11), tmp / "target_1h")
     run = tmp / "target_run"
     proc_cmd = [sys.executable, "-m", "tpos_cli", "process", str(session), "-o", str(run), "-q"]
-    _wall(proc_cmd, tmp)  # numba cache
-    proc, _ = _median_wall(proc_cmd, tmp)
     cmd = [sys.executable, "-m", "tpos_cli", "report", str(run)]
-    wall, out = _median_wall(cmd, tmp)
-    pages = re.search(r"(\d+) PDF pages", out)
-    print(
-        f"target hour: tpos process {proc:.2f} s, tpos report {wall:.2f} s, ratio {wall / proc:.2f} (goal <= 2); "
-        f"{pages.group(1) if pages else '?'} pages"
-    )
-    print("  " + _stages(run))
+    _run(proc_cmd, tmp)  # numba cache
+    proc_wall, proc_cpu, rep_wall, rep_cpu = [], [], [], []
+    out = ""
+    for _ in range(RUNS):
+        w, c, _ = _run(proc_cmd, tmp)
+        proc_wall.append(w)
+        proc_cpu.append(c)
+        w, c, out = _run(cmd, tmp)
+        rep_wall.append(w)
+        rep_cpu.append(c)
+    pw, pc, w, c = (_median(x) for x in (proc_wall, proc_cpu, rep_wall, rep_cpu))
+    print(f"target hour, {_pages(out)} pages; medians of {RUNS}:")
+    print(f"  tpos process wall {pw:5.2f} s, CPU {pc:5.2f} s")
+    print(f"  tpos report  wall {w:5.2f} s, CPU {c:5.2f} s")
+    print(f"  ratio report/process: wall {w / pw:.2f}, CPU {c / pc:.2f} (goal <= 2)")
+    stages(run)
+    accuracy_check(run, session)
 
 
 def main() -> None:

@@ -189,3 +189,25 @@ def test_no_truth_is_a_quality_control_report(tmp_path):
     # circular-enough: the 95 % ellipse semi-major axis is sqrt(chi2_2(0.95)) sigma_max; vertical 1.96 sigma
     assert_allclose(est["h95_median_m"], np.sqrt(stats.chi2.ppf(0.95, 2)) * 0.4, rtol=1e-9)
     assert_allclose(est["v95_median_m"], stats.norm.ppf(0.975) * 1.0, rtol=1e-9)
+
+
+def test_solutions_sharing_positions_share_nothing_else(tmp_path):
+    # three solutions at the same epochs: a and b at the same positions (their position errors and
+    # statistics are computed once), c elsewhere; every row equals that of a run of the solution alone
+    s = synth.write_session(tmp_path / "s", movement=True)
+    t10 = np.arange(0.0, 20.0 + 1e-9, 0.1)
+    rows = {
+        "a": synth.trajectory_rows("a", t10, [3.0, 4.0, -1.0], (0.5, -0.3, 2.0)),
+        "b": synth.trajectory_rows("b", t10, [3.0, 4.0, -1.0], (0.1, 0.2, -1.0)),
+        "c": synth.trajectory_rows("c", t10, [1.0, -2.0, 0.5], (0.5, -0.3, 2.0)),
+    }
+    outages = [[1003.0, 1006.0]]
+    together = make_report(synth.write_run(tmp_path / "all", s, pd.concat(rows.values()), gps_outages=outages), pdf=False)
+    t = together.accuracy.table.set_index(["solution", "target", "segment", "quantity"]).sort_index()
+    for name, df in rows.items():
+        alone = make_report(synth.write_run(tmp_path / name, s, df, gps_outages=outages), pdf=False).accuracy.table
+        alone = alone.set_index(["solution", "target", "segment", "quantity"]).sort_index()
+        pd.testing.assert_frame_equal(t.loc[[name]], alone, check_exact=False, rtol=1e-12, atol=1e-12)
+    a, b = (next(se for se in together.accuracy.solutions if se.solution == n) for n in "ab")
+    assert a.err_ned_m is b.err_ned_m  # shared, not recomputed
+    assert not np.allclose(a.att_err_deg["yaw_deg"], b.att_err_deg["yaw_deg"])

@@ -89,3 +89,58 @@ def test_disagreement_flags_beyond_sigma():
 @pytest.mark.parametrize("prob,k", [(0.95, 2.4477), (0.39346934, 1.0)])
 def test_ellipse_scale(prob, k):
     assert_allclose(metrics.ellipse_scale(prob), k, rtol=1e-4)  # table values to 5 digits
+
+
+def test_euler_to_quat_is_the_dcm_of_the_euler_angles():
+    from tpos_cli.frames.rotation import euler_to_dcm, quat_to_dcm
+
+    rng = np.random.default_rng(3)
+    rpy = np.column_stack([rng.uniform(-180, 180, 50), rng.uniform(-89, 89, 50), rng.uniform(-180, 180, 50)])
+    q = metrics.euler_to_quat(rpy)
+    assert_allclose(np.linalg.norm(q, axis=0), 1.0, **EXACT)
+    assert_allclose(quat_to_dcm(q.T), euler_to_dcm(*np.radians(rpy).T), rtol=0, atol=1e-12)
+
+
+def test_total_attitude_angle_against_the_rotation_matrices():
+    # independent oracle: the angle of C_truth^T C_sol from its trace (away from 0 and 180 deg,
+    # where the arccos is well conditioned), for random attitudes and random errors up to 170 deg
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    rng = np.random.default_rng(4)
+    tru = np.column_stack([rng.uniform(-180, 180, 200), rng.uniform(-85, 85, 200), rng.uniform(-180, 180, 200)])
+    sol = tru + rng.uniform(-60, 60, (200, 3))
+    C = np.einsum("nji,njk->nik", euler_to_dcm(*np.radians(tru).T), euler_to_dcm(*np.radians(sol).T))
+    angle = np.degrees(np.arccos(np.clip((np.trace(C, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    ok = (angle > 1.0) & (angle < 170.0)
+    e = metrics.attitude_errors_deg(sol, tru)
+    assert_allclose(e["att_deg"][ok], angle[ok], rtol=0, atol=1e-9)
+    shared = metrics.attitude_errors_deg(sol, tru, truth_quat=metrics.euler_to_quat(tru))
+    assert_allclose(shared["att_deg"], e["att_deg"], **EXACT)
+
+
+def test_total_attitude_angle_small_and_nan():
+    e = metrics.attitude_errors_deg([[1e-7, 0.0, 0.0], [np.nan, 0.0, 0.0]], [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    assert_allclose(e["att_deg"][0], 1e-7, rtol=1e-9)  # no digits lost near zero
+    assert np.isnan(e["att_deg"][1])
+
+
+def test_cep_of_many_rows_equals_each_row_alone():
+    # the rows solved together (several chunks of Newton steps) give what each gives alone; the
+    # bracketing bisection takes over for extreme ellipses
+    rng = np.random.default_rng(5)
+    sn = np.r_[rng.uniform(0.01, 5.0, 300), 2.0, 3.0, 0.0, np.nan, -1.0, 1.0]
+    se = np.r_[rng.uniform(0.01, 5.0, 300), 2.0, 1e-12, 0.0, 1.0, 1.0, 1e-6]
+    many = metrics.cep_from_sigmas(sn, se, 0.9)
+    one = np.array([metrics.cep_from_sigmas(a, b, 0.9) for a, b in zip(sn, se)])
+    assert_allclose(many, one, rtol=1e-11, equal_nan=True)  # Newton stops at steps under 1e-12 s1
+    assert_allclose(many[300], 2.0 * np.sqrt(2 * np.log(10)), rtol=1e-9)
+    assert_allclose(many[301], 3.0 * stats.norm.ppf(0.95), rtol=1e-12)  # 1-D limit
+    assert many[302] == 0.0 and np.isnan(many[303]) and np.isnan(many[304])
+    assert isinstance(metrics.cep_from_sigmas(1.0, 2.0), float)
+
+
+def test_cep_correlated_is_cep_of_the_principal_sds():
+    # rho rotates the ellipse: the CEP is that of its principal SDs
+    sn, se, rho = 2.0, 1.0, 0.6
+    ev = np.linalg.eigvalsh([[sn * sn, rho * sn * se], [rho * sn * se, se * se]])
+    assert_allclose(metrics.cep_from_sigmas(sn, se, 0.5, rho), metrics.cep_from_sigmas(*np.sqrt(ev[::-1]), 0.5), rtol=1e-12)

@@ -104,3 +104,38 @@ def test_compose_fills_pages_in_order_and_floats_tables_into_free_room():
     assert len(pages) == 3
     for _, top, bottom in drawn:
         assert 0.0 < bottom < top < 1.0
+
+
+def test_solution_series_of_interleaved_and_grouped_rows():
+    # load_run groups the rows by solution (slices of one array); any other order is split as well
+    t = np.arange(6.0)
+    a, b = _traj("a", t, 10.0 * t), _traj("b", t, -t, sigma=(4.0, 5.0, 6.0))
+    grouped = qc.solution_series(pd.concat([a, b], ignore_index=True))
+    inter = pd.concat([a, b]).sort_values("t", kind="stable").reset_index(drop=True)
+    inter["flag"] = inter["solution"] == "b"
+    mixed = qc.solution_series(inter)
+    for s in (grouped, mixed):
+        assert list(s) == ["a", "b"]
+        np.testing.assert_array_equal(s["a"].t, t)
+        np.testing.assert_allclose(s["b"].sigma_neu_m, np.tile([4.0, 5.0, 6.0], (6, 1)))
+        np.testing.assert_allclose(s["a"].lla, a[["lat", "lon", "h"]].to_numpy())
+    assert mixed["b"].flag.all() and not mixed["a"].flag.any()
+    assert not grouped["a"].flag.any() and not grouped["a"].outage.any()
+
+
+def test_track_points_keep_the_extremes_of_both_axes_and_the_ends():
+    from tpos_cli.report.planview import track_points
+
+    n = 100_000
+    lat = np.linspace(45.0, 45.1, n)  # straight north, with one eastward spike of a single epoch
+    lon = np.full(n, -73.0)
+    lon[54_321] = -72.9
+    lla = np.column_stack([lat, lon, np.zeros(n)])
+    i = track_points(lla)
+    assert i.size <= 2 * L.MAX_POINTS + 2
+    assert {0, n - 1, 54_321} <= set(i.tolist())
+
+
+def test_decade_labels_are_plain_text():
+    assert [L.decade_label(v) for v in (0.01, 1.0, 10.0, 1000.0)] == ["10⁻²", "10⁰", "10¹", "10³"]
+    assert L.decade_label(2.0) == "2" and L.decade_label(0.0) == "" and L.decade_label(np.nan) == ""

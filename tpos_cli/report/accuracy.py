@@ -61,7 +61,8 @@ class Accuracy:
 
 
 def _stat_row(solution, target, segment, quantity, err) -> dict:
-    s = metrics.error_stats(err).as_dict()
+    """One accuracy-table row: the statistics of `err`, or `err` itself when it holds them (a dict)."""
+    s = err if isinstance(err, dict) else metrics.error_stats(err).as_dict()
     horiz = quantity == "pos_h_m"
     return {
         "solution": solution,
@@ -84,42 +85,79 @@ class TruthAt:
     rpy_deg: np.ndarray | None
     r_e: np.ndarray
     C_ne: np.ndarray
-    C_nb: np.ndarray | None
+    quat: np.ndarray | None  # (4, N) scalar-first quaternions of the truth attitude
+    movement: np.ndarray | None  # truth's movement phase at the epochs (BROAD)
+    independent: np.ndarray  # truth independent of the run at the epochs (withheld GPS fixes)
 
     @classmethod
     def at(cls, tt, t: np.ndarray) -> TruthAt:
         lla = interpolate_positions(tt.t, tt.lla, t, tt.max_gap_s)
         rpy = interpolate_attitude(tt.t, tt.rpy_deg, t, tt.max_gap_s) if tt.rpy_deg is not None else None
-        C_nb = euler_to_dcm(*np.radians(rpy).T) if rpy is not None else None
-        return cls(t, lla, rpy, lla_to_ecef(lla), ecef_to_ned_dcm(lla[:, 0], lla[:, 1]), C_nb)
+        quat = metrics.euler_to_quat(rpy) if rpy is not None else None
+        movement = interpolate_flag(tt.t, tt.movement, t, tt.max_gap_s) if tt.movement is not None else None
+        indep = interpolate_flag(tt.t, tt.independent.astype(float), t, tt.max_gap_s)
+        return cls(t, lla, rpy, lla_to_ecef(lla), ecef_to_ned_dcm(lla[:, 0], lla[:, 1]), quat, movement, indep)
 
 
-def solution_errors(run: RunData, truth: ReportTruth, series: Series, truth_at: TruthAt | None = None) -> SolutionErrors:
+def solution_errors(
+    run: RunData, truth: ReportTruth, series: Series, truth_at: TruthAt | None = None, previous: SolutionErrors | None = None
+) -> SolutionErrors:
     """Errors of one trajectory solution against `truth.trajectory` at its own epochs (`truth_at`
-    when it was built for exactly these epochs)."""
+    when it was built for exactly these epochs). The position errors of `previous`, a solution at
+    the same epochs, are shared when the positions are the same (a tripod log's attitude solutions
+    all hold the one surveyed point) and no lever arm makes them depend on the attitude."""
     t, lla, rpy = series.t, series.lla, series.rpy_deg
     tt = truth.trajectory
     if truth_at is None or not np.array_equal(truth_at.t, t):
         truth_at = TruthAt.at(tt, t)
     truth_lla, truth_rpy = truth_at.lla, truth_at.rpy_deg
     offset = None
-    if np.any(tt.lever_arm_b_m != 0.0):
+    lever = bool(np.any(tt.lever_arm_b_m != 0.0))
+    if lever:
         # truth is the GPS antenna: move the solution from the IMU point to it, r_a = r + C_nb l_b
         C_nb = euler_to_dcm(*np.radians(rpy).T)
         offset = C_nb @ tt.lever_arm_b_m
-    err = metrics.position_errors_ned(lla, truth_lla, offset, truth_r_e=truth_at.r_e, truth_C_ne=truth_at.C_ne)
-    att = metrics.attitude_errors_deg(rpy, truth_rpy, truth_C_nb=truth_at.C_nb) if truth_rpy is not None else None
+    same_epochs = previous is not None and (previous.t is t or np.array_equal(previous.t, t))
+    if not lever and same_epochs and np.array_equal(previous.lla, lla, equal_nan=True):
+        err = previous.err_ned_m
+    else:
+        err = metrics.position_errors_ned(lla, truth_lla, offset, truth_r_e=truth_at.r_e, truth_C_ne=truth_at.C_ne)
+    att = metrics.attitude_errors_deg(rpy, truth_rpy, truth_quat=truth_at.quat) if truth_rpy is not None else None
     idx = np.full(t.size, -1)
     for k, w in enumerate(run.outage_windows):
         idx[in_intervals(t, w[None, :])] = k  # [start, end), as timebase defines outages
     in_out = (idx >= 0) | series.outage  # and the chain's own outage flag, when it wrote one
-    movement = interpolate_flag(tt.t, tt.movement, t, tt.max_gap_s) if tt.movement is not None else None
-    indep = interpolate_flag(tt.t, tt.independent.astype(float), t, tt.max_gap_s)
-    return SolutionErrors(series.name, t, lla, rpy, truth_lla, truth_rpy, err, att, idx, in_out, movement, indep)
+    return SolutionErrors(series.name, t, lla, rpy, truth_lla, truth_rpy, err, att, idx, in_out, truth_at.movement, truth_at.independent)
 
 
-def _trajectory_rows(run: RunData, se: SolutionErrors, gps_truth: bool) -> list[dict]:
-    series = metrics.split_position_errors(se.err_ned_m)
+class _StatsMemo:
+    """Statistics of position errors already computed, for solutions that share them (the same
+    error array and segment mask give the same statistics)."""
+
+    def __init__(self) -> None:
+        self._by_err: dict[int, tuple[np.ndarray, dict, list]] = {}
+
+    def split(self, err_ned_m: np.ndarray) -> dict[str, np.ndarray]:
+        hit = self._by_err.get(id(err_ned_m))
+        if hit is None:
+            hit = self._by_err[id(err_ned_m)] = (err_ned_m, metrics.split_position_errors(err_ned_m), [])
+        return dict(hit[1])
+
+    def stats(self, err_ned_m: np.ndarray, segment: np.ndarray, quantity: str, e: np.ndarray) -> dict:
+        done = self._by_err[id(err_ned_m)][2] if quantity in POS_QUANTITIES else None
+        if done is not None:
+            for mask, q, st in done:
+                if q == quantity and (mask is segment or np.array_equal(mask, segment)):
+                    return st
+        st = metrics.error_stats(np.where(segment, e, np.nan)).as_dict()
+        if done is not None:
+            done.append((segment, quantity, st))
+        return st
+
+
+def _trajectory_rows(run: RunData, se: SolutionErrors, gps_truth: bool, memo: _StatsMemo | None = None) -> list[dict]:
+    memo = memo if memo is not None else _StatsMemo()
+    series = memo.split(se.err_ned_m)
     if se.att_err_deg is not None:
         series.update(se.att_err_deg)
     segments = {"all": np.ones(se.t.size, dtype=bool)}
@@ -135,7 +173,7 @@ def _trajectory_rows(run: RunData, se: SolutionErrors, gps_truth: bool) -> list[
     rows = []
     for seg, m in segments.items():
         for q, e in series.items():
-            rows.append(_stat_row(se.solution, "", seg, q, np.where(m, e, np.nan)))
+            rows.append(_stat_row(se.solution, "", seg, q, memo.stats(se.err_ned_m, m, q, e)))
     return rows
 
 
@@ -164,7 +202,7 @@ def target_errors(run: RunData, truth: ReportTruth) -> pd.DataFrame | None:
     )
     for c in ("sigma_n", "sigma_e", "sigma_u"):
         out[c + "_m"] = df[c].to_numpy(float) if c in df else np.nan
-    out["cep_pred_m"] = [metrics.cep_from_sigmas(a, b) for a, b in zip(out["sigma_n_m"], out["sigma_e_m"])]
+    out["cep_pred_m"] = metrics.cep_from_sigmas(out["sigma_n_m"].to_numpy(float), out["sigma_e_m"].to_numpy(float))
     return out
 
 
@@ -186,30 +224,39 @@ def _target_rows(te: pd.DataFrame) -> list[dict]:
     return rows
 
 
-def _get(table: pd.DataFrame, solution, target, segment, quantity, stat) -> float:
-    m = (table["solution"] == solution) & (table["target"] == target) & (table["segment"] == segment) & (table["quantity"] == quantity)
-    v = table.loc[m, stat]
-    return float(v.iloc[0]) if len(v) else float("nan")
+class _Lookup:
+    """Cells of the accuracy table by (solution, target, segment, quantity): one pass to index it,
+    then dictionary look-ups (the paper tables read a few hundred cells)."""
+
+    def __init__(self, table: pd.DataFrame) -> None:
+        keys = zip(*(table[k].astype(str) for k in ROW_KEYS))
+        self._row = {k: i for i, k in reversed(list(enumerate(keys)))}  # the first row of a key wins
+        self._table = table
+
+    def __call__(self, solution, target, segment, quantity, stat) -> float:
+        i = self._row.get((solution, target, segment, quantity))
+        return float("nan") if i is None else float(self._table[stat].iat[i])
 
 
 def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.DataFrame]:
     """The accuracy table reshaped like the papers' tables, where the run reproduces one."""
     out: dict[str, pd.DataFrame] = {}
+    _get = _Lookup(table)
     tgt = table[table["target"] == "all"]
     if len(tgt):
         sols = ordered_solutions(tgt["solution"])
         out["paper000_table4"] = pd.DataFrame(
             {
                 "solution": sols,
-                "mean_m": [_get(table, s, "all", "all", "pos_3d_m", "mean") for s in sols],
-                "sd_m": [_get(table, s, "all", "all", "pos_3d_m", "sd") for s in sols],
-                "n": [_get(table, s, "all", "all", "pos_3d_m", "n") for s in sols],
+                "mean_m": [_get(s, "all", "all", "pos_3d_m", "mean") for s in sols],
+                "sd_m": [_get(s, "all", "all", "pos_3d_m", "sd") for s in sols],
+                "n": [_get(s, "all", "all", "pos_3d_m", "n") for s in sols],
             }
         )
     traj = table[table["target"] == ""]
     if len(traj) and kind == "ranging":
         sols = ordered_solutions(traj["solution"])
-        g = lambda s, q, st: _get(table, s, "", "all", q, st)  # noqa: E731
+        g = lambda s, q, st: _get(s, "", "all", q, st)  # noqa: E731
         out["paper002_table1"] = pd.DataFrame(
             {
                 "solution": sols,
@@ -228,7 +275,7 @@ def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.D
         for k, (a, b) in enumerate(run.outage_windows):
             for s in ordered_solutions(traj["solution"]):
                 seg = f"outage_{k + 1}"
-                n = _get(table, s, "", seg, "pos_h_m", "n")
+                n = _get(s, "", seg, "pos_h_m", "n")
                 if not n:
                     continue
                 rows.append(
@@ -238,10 +285,10 @@ def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.D
                         "t1": float(b),
                         "duration_s": float(b - a),
                         "solution": s,
-                        "rms_h_m": _get(table, s, "", seg, "pos_h_m", "rms"),
-                        "max_h_m": _get(table, s, "", seg, "pos_h_m", "max"),
-                        "rms_v_m": _get(table, s, "", seg, "pos_v_m", "rms"),
-                        "max_3d_m": _get(table, s, "", seg, "pos_3d_m", "max"),
+                        "rms_h_m": _get(s, "", seg, "pos_h_m", "rms"),
+                        "max_h_m": _get(s, "", seg, "pos_h_m", "max"),
+                        "rms_v_m": _get(s, "", seg, "pos_v_m", "rms"),
+                        "max_3d_m": _get(s, "", seg, "pos_3d_m", "max"),
                     }
                 )
         if rows:
@@ -257,12 +304,14 @@ def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", se
         series = series if series is not None else solution_series(run.trajectory)
         gps_truth = truth.trajectory.source == "gps"
         truth_at = None
+        memo = _StatsMemo()
         for s in ordered_solutions(series):
             if truth_at is None or not np.array_equal(truth_at.t, series[s].t):
                 truth_at = TruthAt.at(truth.trajectory, series[s].t)
-            se = solution_errors(run, truth, series[s], truth_at)
+            previous = sols[-1] if sols else None
+            se = solution_errors(run, truth, series[s], truth_at, previous)
             sols.append(se)
-            rows += _trajectory_rows(run, se, gps_truth)
+            rows += _trajectory_rows(run, se, gps_truth, memo)
     te = target_errors(run, truth) if truth is not None else None
     if te is not None:
         rows += _target_rows(te)

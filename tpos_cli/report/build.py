@@ -24,6 +24,7 @@ from tpos_cli.report.files import staged
 from tpos_cli.report.health import Health, filter_health
 from tpos_cli.report.rundir import RunData, load_run, session_dir_of
 from tpos_cli.report.solutions import rank_solutions
+from tpos_cli.report.stages import StageClock, timed
 from tpos_cli.report.targets import combined_targets
 from tpos_cli.report.truth import ReportTruth, choose_truth
 
@@ -212,39 +213,53 @@ def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | No
             else "summary.json names no session: no truth, GPS or sensor data; give it with --truth SESSION"
         )
         return None, "session not found", "no (session not found)", notes
-    changed = check_inputs(run.summary.get("inputs"), session_file_hashes(sdir), run.path.name)
+    try:
+        session = load_session(sdir)  # records the hashes of its files: they are not hashed twice
+    except InvalidInputError:
+        check_inputs(run.summary.get("inputs"), session_file_hashes(sdir), run.path.name)  # a changed input explains it
+        raise
+    changed = check_inputs(run.summary.get("inputs"), session.file_hashes, run.path.name)
     for name in changed:
         notes.append(f"{name} changed since the run was processed: the report uses the current one")
-    session = load_session(sdir)
     if not run.summary.get("inputs"):
         notes.append("summary.json records no input hashes: the session could not be verified")
         return session, "", "no (no input hashes recorded)", notes
     return session, "", "yes", notes
 
 
-def build_context(run_dir: Path, truth_session: Path | None = None, *, full: bool = False) -> ReportContext:
-    run = load_run(Path(run_dir))
+def build_context(
+    run_dir: Path, truth_session: Path | None = None, *, full: bool = False, clock: StageClock | None = None
+) -> ReportContext:
+    """Everything the report draws, computed once; stages timed on `clock` (loading, accuracy
+    tables, filter health, quality figures)."""
+    with timed(clock, "load: run"):
+        run = load_run(Path(run_dir))
     if (run.trajectory is None or run.trajectory.empty) and (run.targets is None or run.targets.empty):
         raise InvalidInputError(
             f"{run.path.name}: nothing to report: the run has no trajectory and no targets (the pipeline wrote no solutions)"
         )
-    session, session_note, inputs_note, notes = _load_session(run, truth_session)
+    with timed(clock, "load: session"):
+        session, session_note, inputs_note, notes = _load_session(run, truth_session)
     truth = None
     if session is not None:
-        truth = choose_truth(
-            session,
-            withheld_gps=run.withheld_gps,
-            mask_windows=run.mask_windows,
-            need_targets=run.targets is not None,
-            need_trajectory=run.trajectory is not None,
-        )
+        with timed(clock, "load: truth"):
+            truth = choose_truth(
+                session,
+                withheld_gps=run.withheld_gps,
+                mask_windows=run.mask_windows,
+                need_targets=run.targets is not None,
+                need_trajectory=run.trajectory is not None,
+            )
         if session_note and truth.trajectory is not None and truth.trajectory.source == "gps":
             truth = ReportTruth(None, truth.targets, truth.session_path, truth.notes)  # another session's GPS is no truth
     kind = session.meta.kind if session is not None else str((run.summary.get("session") or {}).get("kind") or "")
-    series = qc.solution_series(run.trajectory)
-    order = rank_solutions(series)
-    acc = compute_accuracy(run, truth, kind=kind, series=series)
-    health = filter_health(run.innovations, series)
+    with timed(clock, "load: solutions"):
+        series = qc.solution_series(run.trajectory)
+        order = rank_solutions(series)
+    with timed(clock, "accuracy tables"):
+        acc = compute_accuracy(run, truth, kind=kind, series=series)
+    with timed(clock, "filter health"):
+        health = filter_health(run.innovations, series)
     t0 = (run.summary.get("session") or {}).get("t0")  # logger clock of the first IMU sample
     if t0 is not None:
         t_ref = float(t0)
@@ -253,18 +268,24 @@ def build_context(run_dir: Path, truth_session: Path | None = None, *, full: boo
     else:
         t_ref = float(min(s.t[0] for s in series.values())) if series else 0.0
     targets = target_solution = None
-    if run.targets is not None and len(run.targets):
-        target_solution = rank_solutions(run.targets["solution"])[0]
-        try:
-            targets, _ = combined_targets(run, target_solution)
-        except InvalidInputError:
-            targets = None
     own_session = session if not session_note else None
-    mag_ref = (
-        (run.summary.get("results") or {}).get("alignment", {}).get("mag_norm_ut")
-        if isinstance((run.summary.get("results") or {}).get("alignment"), dict)
-        else None
-    )
+    with timed(clock, "quality figures"):
+        if run.targets is not None and len(run.targets):
+            target_solution = rank_solutions(run.targets["solution"])[0]
+            try:
+                targets, _ = combined_targets(run, target_solution)
+            except InvalidInputError:
+                targets = None
+        mag_ref = (
+            (run.summary.get("results") or {}).get("alignment", {}).get("mag_norm_ut")
+            if isinstance((run.summary.get("results") or {}).get("alignment"), dict)
+            else None
+        )
+        gps = qc.gps_quality(own_session) if own_session is not None else None
+        mag = qc.magnetic_field(own_session, mag_ref) if own_session is not None and kind == "target" else None
+        anchors = qc.anchor_visibility(own_session) if own_session is not None else None
+        estimated = qc.estimated_accuracy(series, order)
+        shots = _shots(run, target_solution)
     verdict = run.summary.get("quality") if isinstance(run.summary.get("quality"), dict) else None
     return ReportContext(
         run=run,
@@ -277,37 +298,41 @@ def build_context(run_dir: Path, truth_session: Path | None = None, *, full: boo
         order=order,
         kind=kind,
         t_ref=t_ref,
-        shots=_shots(run, target_solution),
+        shots=shots,
         targets=targets,
         target_solution=target_solution,
         verdict=verdict,
-        gps=qc.gps_quality(own_session) if own_session is not None else None,
-        mag=qc.magnetic_field(own_session, mag_ref) if own_session is not None and kind == "target" else None,
-        anchors=qc.anchor_visibility(own_session) if own_session is not None else None,
-        estimated=qc.estimated_accuracy(series, order),
+        gps=gps,
+        mag=mag,
+        anchors=anchors,
+        estimated=estimated,
         full=full,
         inputs_note=inputs_note,
         notes=tuple(notes),
     )
 
 
-def make_report(run_dir: Path, truth_session: Path | None = None, *, pdf: bool = True, full: bool = False) -> ReportResult:
+def make_report(
+    run_dir: Path, truth_session: Path | None = None, *, pdf: bool = True, full: bool = False, clock: StageClock | None = None
+) -> ReportResult:
     """Report on a run (with truth when the session has some); write accuracy.parquet, accuracy.json
     and report.pdf into it, all or none, readable under the umask.
 
     Raises InvalidInputError (exit 2) when the run is not one, has no solutions, or its session's
-    processing inputs changed since it was processed.
+    processing inputs changed since it was processed. Stages are timed on `clock` when given.
     """
-    ctx = build_context(run_dir, truth_session, full=full)
-    summary = build_summary(ctx)
+    ctx = build_context(run_dir, truth_session, full=full, clock=clock)
+    with timed(clock, "accuracy tables"):
+        summary = build_summary(ctx)
     run_dir = ctx.run.path
     names = OUTPUTS if pdf else OUTPUTS[:2]
     pages: list[str] = []
     with staged([run_dir / n for n in names]) as tmp:
-        ctx.acc.table.to_parquet(tmp[run_dir / "accuracy.parquet"], index=False)
-        tmp[run_dir / "accuracy.json"].write_text(json.dumps(summary, indent=1), encoding="utf-8")
+        with timed(clock, "accuracy files"):
+            ctx.acc.table.to_parquet(tmp[run_dir / "accuracy.parquet"], index=False)
+            tmp[run_dir / "accuracy.json"].write_text(json.dumps(summary, indent=1), encoding="utf-8")
         if pdf:
             from tpos_cli.report.pdf import write_pdf
 
-            pages = write_pdf(tmp[run_dir / "report.pdf"], ctx, summary)
+            pages = write_pdf(tmp[run_dir / "report.pdf"], ctx, summary, clock)
     return ReportResult(run_dir, summary, ctx.acc, ctx.health, ctx.truth, tuple(names), tuple(pages), ctx.notes)

@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tpos_cli.frames.earth import G0_MPS2
-from tpos_cli.report.layout import COLORS, new_page
+from tpos_cli.report.layout import COLORS, log_labels, new_page
 
 
 def draw_allan(fig: Figure, nf, top: float, bottom: float) -> None:
@@ -23,6 +23,7 @@ def draw_allan(fig: Figure, nf, top: float, bottom: float) -> None:
         ax = fig.add_axes([0.12, top - (k + 1) * h - k * 0.075, 0.72, h])
         for i, a in enumerate(axes3):
             ax.loglog(a.tau_s, conv(a.adev), color=COLORS[i], label="xyz"[i])
+        log_labels(ax, "xy")
         ax.set_xlabel("averaging time τ, s", fontsize=8)
         ax.set_ylabel(label, fontsize=8)
         ax.tick_params(labelsize=7.5)

@@ -20,7 +20,7 @@ import numpy as np
 from scipy import special
 
 from tpos_cli.frames.geodetic import ecef_to_ned_dcm, lla_to_ecef
-from tpos_cli.frames.rotation import euler_to_dcm, wrap_angle_deg
+from tpos_cli.frames.rotation import wrap_angle_deg
 
 STAT_FIELDS = ("n", "mean", "sd", "rms", "min", "max", "max_abs", "p50", "p90", "p95")
 
@@ -105,61 +105,114 @@ def split_position_errors(err_ned_m) -> dict[str, np.ndarray]:
     }
 
 
-def rotation_angle_deg(C) -> np.ndarray:
-    """Angle of rotation matrices (..., 3, 3), deg: atan2(|vee(C - C^T)| / 2, (trace C - 1) / 2),
-    accurate at small and large angles alike (arccos of the trace alone loses digits near 0)."""
-    C = np.asarray(C, dtype=float)
-    v = np.stack([C[..., 2, 1] - C[..., 1, 2], C[..., 0, 2] - C[..., 2, 0], C[..., 1, 0] - C[..., 0, 1]], axis=-1)
-    return np.degrees(np.arctan2(0.5 * np.linalg.norm(v, axis=-1), 0.5 * (np.trace(C, axis1=-2, axis2=-1) - 1.0)))
+def euler_to_quat(rpy_deg) -> np.ndarray:
+    """Scalar-first unit quaternions (4, N) of C_nb = Rz(yaw) Ry(pitch) Rx(roll) from roll, pitch,
+    yaw (N, 3) in degrees: q = q_z(yaw) q_y(pitch) q_x(roll), with half angles
+    w = cr cp cy + sr sp sy, x = sr cp cy - cr sp sy, y = cr sp cy + sr cp sy, z = cr cp sy - sr sp cy.
+    Four numbers an epoch instead of a DCM's nine, and no 3x3 products for the angle between two
+    attitudes (`rotation_angle_deg`): what hour-long 100 Hz errors need."""
+    h = np.ascontiguousarray(np.radians(np.asarray(rpy_deg, dtype=float).reshape(-1, 3)).T) * 0.5
+    (cr, cp, cy), (sr, sp, sy) = np.cos(h), np.sin(h)
+    crcp, srsp, srcp, crsp = cr * cp, sr * sp, sr * cp, cr * sp
+    return np.stack([crcp * cy + srsp * sy, srcp * cy - crsp * sy, crsp * cy + srcp * sy, crcp * sy - srsp * cy])
 
 
-def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg, *, truth_C_nb=None) -> dict[str, np.ndarray]:
+def rotation_angle_deg(q_a, q_b) -> np.ndarray:
+    """Angle of the rotation between unit quaternions (4, N) `q_a` and `q_b`, deg: with
+    q = conj(q_a) q_b = (w, v), angle = 2 atan2(|v|, |w|), accurate at small and large angles alike
+    (an arccos of w alone loses digits near 0) and the same for q and -q."""
+    a0, a1, a2, a3 = q_a
+    b0, b1, b2, b3 = q_b
+    w = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3
+    x = a0 * b1 - a1 * b0 - a2 * b3 + a3 * b2
+    y = a0 * b2 - a2 * b0 - a3 * b1 + a1 * b3
+    z = a0 * b3 - a3 * b0 - a1 * b2 + a2 * b1
+    return np.degrees(2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), np.abs(w)))
+
+
+def attitude_errors_deg(sol_rpy_deg, truth_rpy_deg, *, truth_quat=None) -> dict[str, np.ndarray]:
     """Wrap-aware Euler-angle errors (solution minus truth), deg in (-180, 180], and the total
     rotation angle of C_truth^T C_sol, deg (independent of the Euler convention near gimbal lock).
-    `truth_C_nb` (N, 3, 3) may be passed when several solutions share the truth epochs."""
+    `truth_quat` (4, N), `euler_to_quat` of the truth, may be passed when several solutions share
+    the truth epochs."""
     s = np.asarray(sol_rpy_deg, dtype=float).reshape(-1, 3)
     t = np.asarray(truth_rpy_deg, dtype=float).reshape(-1, 3)
     d = wrap_angle_deg(s - t)
-    total = np.full(s.shape[0], np.nan)
-    ok = np.all(np.isfinite(s), axis=1) & np.all(np.isfinite(t), axis=1)
-    if ok.any():
-        Cs = euler_to_dcm(*np.radians(s[ok]).T)
-        Ct = euler_to_dcm(*np.radians(t[ok]).T) if truth_C_nb is None else truth_C_nb[ok]
-        total[ok] = rotation_angle_deg(np.einsum("nji,njk->nik", Ct, Cs))
+    q_t = euler_to_quat(t) if truth_quat is None else truth_quat
+    with np.errstate(invalid="ignore"):  # NaN rows stay NaN
+        total = rotation_angle_deg(q_t, euler_to_quat(s))
     return {"roll_deg": d[:, 0], "pitch_deg": d[:, 1], "yaw_deg": d[:, 2], "att_deg": total}
 
 
-def cep_from_sigmas(sigma_n_m, sigma_e_m, prob=0.5, rho=0.0) -> float:
+def _principal_sds(sigma_n_m, sigma_e_m, rho):
+    """Principal SDs (s1 >= s2) of the 2x2 covariance [[sn^2, rho sn se], [rho sn se, se^2]]:
+    eigenvalues (a + c)/2 +- sqrt(((a - c)/2)^2 + b^2); uncorrelated, the larger and smaller SD."""
+    if rho == 0.0:
+        return np.maximum(sigma_n_m, sigma_e_m), np.minimum(sigma_n_m, sigma_e_m)
+    a, c, b = sigma_n_m * sigma_n_m, sigma_e_m * sigma_e_m, rho * sigma_n_m * sigma_e_m
+    m, r = 0.5 * (a + c), np.hypot(0.5 * (a - c), b)
+    return np.sqrt(np.maximum(m + r, 0.0)), np.sqrt(np.maximum(m - r, 0.0))
+
+
+CEP_NODES = 720  # periodic trapezoid nodes over the polar angle: spectrally accurate
+
+
+def _solve_cep(s1, s2, prob) -> np.ndarray:
+    """r with P(R <= r) = prob for principal SDs s1 >= s2 > 0 (arrays): safeguarded Newton on the
+    polar integral of `cep_from_sigmas`, to |step| <= 1e-12 s1, all rows at once.
+
+    The integrand depends on theta through cos^2 and sin^2 only, so the CEP_NODES-point periodic
+    trapezoid rule equals a weighted sum over the quarter period [0, pi/2] (its end nodes stand for
+    2 nodes each, the inner ones for 4): a quarter of the exponentials, the same rule."""
+    k = np.arange(CEP_NODES // 4 + 1)
+    th = k * (2.0 * np.pi / CEP_NODES)
+    w = np.where((k == 0) | (k == CEP_NODES // 4), 2.0, 4.0) / CEP_NODES
+    q = np.cos(th) ** 2 / (s1 * s1)[:, None] + np.sin(th) ** 2 / (s2 * s2)[:, None]
+    inv_q = 1.0 / q
+    norm = 1.0 / (s1 * s2)
+    r = np.sqrt(s1 * s2 * -2.0 * np.log1p(-prob))  # the circular answer at the mean SD
+    lo, hi = np.zeros(s1.size), 10.0 * s1
+    todo = np.arange(s1.size)
+    for _ in range(100):
+        if not todo.size:
+            break
+        rr = r[todo]
+        e = np.exp(-0.5 * (rr * rr)[:, None] * q[todo])
+        f = ((1.0 - e) * inv_q[todo]) @ w * norm[todo] - prob
+        df = rr * (e @ w) * norm[todo]  # d/dr of the same sum
+        lo[todo] = np.where(f < 0, rr, lo[todo])
+        hi[todo] = np.where(f < 0, hi[todo], rr)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nxt = rr - f / df
+        inside = (nxt > lo[todo]) & (nxt < hi[todo])
+        nxt = np.where(inside, nxt, 0.5 * (lo[todo] + hi[todo]))  # bisect where Newton leaves the bracket
+        r[todo] = nxt
+        todo = todo[np.abs(nxt - rr) > 1e-12 * s1[todo]]
+    return r
+
+
+def cep_from_sigmas(sigma_n_m, sigma_e_m, prob=0.5, rho=0.0):
     """Radius of the circle about the mean holding `prob` of a zero-mean 2-D Gaussian, m.
 
     P(R <= r) = 1/(2 pi s1 s2) int_0^{2pi} (1 - exp(-r^2 q/2)) / q dtheta with
     q = cos^2/s1^2 + sin^2/s2^2 (polar integral of the density; s1, s2 the principal SDs),
     evaluated with the periodic trapezoid rule (spectrally accurate) and solved for r.
-    Circular case: sigma * sqrt(-2 ln(1 - prob)).
+    Circular case: sigma * sqrt(-2 ln(1 - prob)); 1-D limit (s2 <= 1e-9 s1): P(|x| <= r) = prob.
+    Scalars give a float; arrays (one row per target shot) an array, solved together.
     """
-    sn, se = float(sigma_n_m), float(sigma_e_m)
-    if not (np.isfinite(sn) and np.isfinite(se)) or sn < 0 or se < 0:
-        return float("nan")
-    cov = np.array([[sn * sn, rho * sn * se], [rho * sn * se, se * se]])
-    s1, s2 = np.sqrt(np.maximum(np.linalg.eigvalsh(cov), 0.0))
-    s1, s2 = max(s1, s2), min(s1, s2)
-    if s1 == 0.0:
-        return 0.0
-    if s2 <= 1e-9 * s1:
-        # degenerate to 1-D: P(|x| <= r) = prob
-        return float(s1 * special.ndtri(0.5 + prob / 2.0))
-    th = np.linspace(0.0, 2.0 * np.pi, 720, endpoint=False)
-    q = np.cos(th) ** 2 / s1**2 + np.sin(th) ** 2 / s2**2
-
-    def cdf(r):
-        return float(np.mean((1.0 - np.exp(-0.5 * r * r * q)) / q) / (s1 * s2))
-
-    hi = s1 * 10.0
-    from scipy.optimize import (
-        brentq,  # lazy: scipy.optimize costs a report's start-up 0.2 s
-    )
-
-    return float(brentq(lambda r: cdf(r) - prob, 0.0, hi, xtol=1e-12 * s1))
+    sn, se = np.asarray(sigma_n_m, dtype=float), np.asarray(sigma_e_m, dtype=float)
+    scalar = sn.ndim == 0 and se.ndim == 0
+    sn, se = np.broadcast_arrays(np.atleast_1d(sn), np.atleast_1d(se))
+    out = np.full(sn.shape, np.nan)
+    ok = np.isfinite(sn) & np.isfinite(se) & (sn >= 0) & (se >= 0)
+    s1, s2 = _principal_sds(sn[ok], se[ok], float(rho))
+    res = np.zeros(s1.size)
+    one_d = (s1 > 0) & (s2 <= 1e-9 * s1)
+    res[one_d] = s1[one_d] * special.ndtri(0.5 + prob / 2.0)
+    two_d = (s1 > 0) & ~one_d
+    res[two_d] = _solve_cep(s1[two_d], s2[two_d], float(prob))
+    out[ok] = res
+    return float(out[0]) if scalar else out
 
 
 def ellipse_scale(prob: float = 0.95, dof: int = 2) -> float:

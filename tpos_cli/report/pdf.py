@@ -11,6 +11,7 @@ from tpos_cli.report.appendix import appendix_sections
 from tpos_cli.report.context import ReportContext
 from tpos_cli.report.layout import footer
 from tpos_cli.report.sections import PAGE_BOTTOM, PAGE_TOP, Section, compose
+from tpos_cli.report.stages import StageClock, timed
 from tpos_cli.report.summary import summary_section
 
 MAX_PAGES = 8
@@ -68,31 +69,40 @@ def _allan_section(ctx: ReportContext) -> Section | None:
     )
 
 
-def write_pdf(path: Path, ctx: ReportContext, summary: dict) -> list[str]:
-    """Write the report to `path`; returns the page names in order (sections joined by "+")."""
+def write_pdf(path: Path, ctx: ReportContext, summary: dict, clock: StageClock | None = None) -> list[str]:
+    """Write the report to `path`; returns the page names in order (sections joined by "+").
+    Stages timed on `clock`: the section plan, each figure, the Allan static window, PDF writing."""
     import matplotlib
 
     matplotlib.use("Agg")
     from matplotlib.backends.backend_pdf import PdfPages
 
-    pages = compose(section_plan(ctx, summary))
-    allan = _allan_section(ctx)
-    extra = compose([allan]) if allan is not None else []
+    with timed(clock, "section plan"):
+        plan = section_plan(ctx, summary)
+    pages = compose(plan, clock)
+    with timed(clock, "allan: static window"):
+        allan = _allan_section(ctx)
+    extra = compose([allan], clock) if allan is not None else []
     if len(pages) + len(extra) <= MAX_PAGES:
         pages += extra
         extra = []
     if ctx.full:
-        pages += extra + compose(appendix_sections(ctx))
+        with timed(clock, "section plan"):
+            appendix = appendix_sections(ctx)
+        pages += extra + compose(appendix, clock)
     n = len(pages)
     s = ctx.run.summary
-    with PdfPages(
-        path,
-        metadata={
-            "Title": f"tpos report: {ctx.name}",
-            "Creator": f"tpos {summary['tpos_version']}",
-            "Subject": f"config sha256 {s.get('config_sha256')}",
-        },
-    ) as pdf:
+    with (
+        timed(clock, "PDF writing"),
+        PdfPages(
+            path,
+            metadata={
+                "Title": f"tpos report: {ctx.name}",
+                "Creator": f"tpos {summary['tpos_version']}",
+                "Subject": f"config sha256 {s.get('config_sha256')}",
+            },
+        ) as pdf,
+    ):
         for k, (_, fig) in enumerate(pages):
             footer(
                 fig,

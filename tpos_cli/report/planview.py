@@ -54,12 +54,20 @@ def _draw_ellipses(ax, e_m, n_m, major, minor, az_deg, factor, color, label):
         )
 
 
+def track_points(lla) -> np.ndarray:
+    """Indices of the track epochs the plan draws: `layout.decimate` of latitude and of longitude
+    together, so every bin's northern-, southern-, eastern- and western-most point is kept (the
+    extent and the turns of the track) and the first and last epochs; at most ~2 x MAX_POINTS."""
+    lla = np.asarray(lla, dtype=float)
+    return np.union1d(np.union1d(L.decimate(lla[:, 0]), L.decimate(lla[:, 1])), [0, len(lla) - 1])
+
+
 def plan_aspect(ctx) -> float:
     """North extent over east extent of what the plan will show (for sizing its box); 1 if unknown."""
     pts = []
     best = ctx.series.get(ctx.best) if ctx.best else None
     if best is not None and not best.is_static:
-        p = best.lla[L.decimate(best.lla[:, 0], 4000)]
+        p = best.lla[track_points(best.lla)]
         pts.append(p[np.isfinite(p).all(axis=1)])
     if ctx.targets is not None:
         pts.append(ctx.targets[["lat", "lon", "h"]].dropna().to_numpy(float))
@@ -92,17 +100,17 @@ def plan_view(ax, ctx) -> str:
     pts = []
     caption = []
     if best is not None and not static:
-        ned = lla_to_ned(best.lla, origin)
-        i = L.decimate(ned[:, 0])
-        ax.plot(ned[i, 1], ned[i, 0], color=L.COLORS[0], lw=1.2, label=f"track ({best.name})", zorder=3)
+        i = track_points(best.lla)
+        ned = lla_to_ned(best.lla[i], origin)  # only the epochs drawn: every extreme of either axis
+        ax.plot(ned[:, 1], ned[:, 0], color=L.COLORS[0], lw=1.2, label=f"track ({best.name})", zorder=3)
         if best.outage.any() or len(ctx.run.outage_windows):
             inside = best.outage.copy()
             for a, b in ctx.run.outage_windows:
                 inside |= (best.t >= a) & (best.t < b)
             if inside.any():
                 ax.plot(
-                    np.where(inside, ned[:, 1], np.nan)[i],
-                    np.where(inside, ned[:, 0], np.nan)[i],
+                    np.where(inside[i], ned[:, 1], np.nan),
+                    np.where(inside[i], ned[:, 0], np.nan),
                     color="#d62728",
                     lw=2.2,
                     label="in GPS outage",

@@ -18,6 +18,7 @@ arrays (one pass each, no per-row Python).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -53,7 +54,7 @@ class Series:
     def has_position_sigma(self) -> bool:
         return bool(np.isfinite(self.sigma_neu_m[:, :2]).any())
 
-    @property
+    @cached_property
     def is_static(self) -> bool:
         """A fixed point (a tripod observer): its plan view is one point, not a trajectory."""
         p = self.lla[np.isfinite(self.lla).all(axis=1)]
@@ -64,24 +65,37 @@ def _col(df: pd.DataFrame, name: str, fill=np.nan) -> np.ndarray:
     return df[name].to_numpy(float) if name in df.columns else np.full(len(df), fill)
 
 
+def _flag(df: pd.DataFrame, name: str) -> np.ndarray:
+    return df[name].fillna(False).to_numpy(bool) if name in df.columns else np.zeros(len(df), bool)
+
+
 def solution_series(trajectory: pd.DataFrame | None) -> dict[str, Series]:
-    """Every solution of trajectory.parquet as `Series`, split by one groupby over the table."""
+    """Every solution of trajectory.parquet as `Series`: each column converted once for the whole
+    table, then split by solution (views of contiguous rows, as `load_run` orders them)."""
     if trajectory is None or trajectory.empty:
         return {}
+    d = trajectory
+    t = d["t"].to_numpy(float)
+    lla = d[["lat", "lon", "h"]].to_numpy(float)
+    rpy = d[["roll", "pitch", "yaw"]].to_numpy(float)
+    sig_u = _col(d, "sigma_u") if "sigma_u" in d.columns else _col(d, "sigma_d")
+    sig_neu = np.column_stack([_col(d, "sigma_n"), _col(d, "sigma_e"), sig_u])
+    cov_ne = np.nan_to_num(_col(d, "cov_ne_m2", 0.0))
+    sig_rpy = np.column_stack([_col(d, "sigma_roll"), _col(d, "sigma_pitch"), _col(d, "sigma_yaw")])
+    flag, outage = _flag(d, "flag"), _flag(d, "outage")
     out = {}
-    for name, idx in trajectory.groupby("solution", sort=False, observed=True).indices.items():
-        d = trajectory.iloc[idx]
-        sig_u = _col(d, "sigma_u") if "sigma_u" in d.columns else _col(d, "sigma_d")
+    for name, idx in d.groupby("solution", sort=False, observed=True).indices.items():
+        rows = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
         out[str(name)] = Series(
             name=str(name),
-            t=d["t"].to_numpy(float),
-            lla=d[["lat", "lon", "h"]].to_numpy(float),
-            rpy_deg=d[["roll", "pitch", "yaw"]].to_numpy(float),
-            sigma_neu_m=np.column_stack([_col(d, "sigma_n"), _col(d, "sigma_e"), sig_u]),
-            cov_ne_m2=np.nan_to_num(_col(d, "cov_ne_m2", 0.0)),
-            sigma_rpy_deg=np.column_stack([_col(d, "sigma_roll"), _col(d, "sigma_pitch"), _col(d, "sigma_yaw")]),
-            flag=d["flag"].fillna(False).to_numpy(bool) if "flag" in d.columns else np.zeros(len(d), bool),
-            outage=d["outage"].fillna(False).to_numpy(bool) if "outage" in d.columns else np.zeros(len(d), bool),
+            t=t[rows],
+            lla=lla[rows],
+            rpy_deg=rpy[rows],
+            sigma_neu_m=sig_neu[rows],
+            cov_ne_m2=cov_ne[rows],
+            sigma_rpy_deg=sig_rpy[rows],
+            flag=flag[rows],
+            outage=outage[rows],
         )
     return out
 

@@ -46,7 +46,11 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
         import pyarrow.compute as pc
         import pyarrow.parquet as pq
 
-        table = pq.read_table(path)
+        schema = pq.read_schema(path)
+        labels = [
+            f.name for f in schema if f.name in ("solution", "kind") and (pa.types.is_string(f.type) or pa.types.is_large_string(f.type))
+        ]
+        table = pq.read_table(path, read_dictionary=labels)  # labels decoded once per row group, not once per row
         for col in ("solution", "kind"):
             i = table.schema.get_field_index(col)
             if i >= 0 and (pa.types.is_string(table.schema.field(i).type) or pa.types.is_large_string(table.schema.field(i).type)):

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from matplotlib.figure import Figure
 
 from tpos_cli.report import layout as L
+from tpos_cli.report.stages import StageClock, timed
 
 PAGE_TOP = 0.972
 PAGE_BOTTOM = 0.035
@@ -50,10 +51,11 @@ def _heading(fig: Figure, s: Section, top: float, first: bool) -> float:
     return y - 0.006
 
 
-def compose(sections: list[Section]) -> list[tuple[str, Figure]]:
+def compose(sections: list[Section], clock: StageClock | None = None) -> list[tuple[str, Figure]]:
     """Pages holding the sections: the fixed ones in order, each page filled from the top; then each
     floating section on the page with the most room below its content (else on a new page at the end).
-    Returns (page name = its sections' names joined by "+", figure)."""
+    Returns (page name = its sections' names joined by "+", figure). Each section's drawing is timed
+    on `clock` as "figure: NAME"."""
     pages: list[list] = []  # [names, figure, free y]
 
     def place(s: Section, page: list | None) -> None:
@@ -64,7 +66,8 @@ def compose(sections: list[Section]) -> list[tuple[str, Figure]]:
         page[0].append(s.name)
         top = _heading(page[1], s, page[2], first)
         bottom = max(top - s.height, PAGE_BOTTOM)
-        s.draw(page[1], top, bottom)
+        with timed(clock, f"figure: {s.name}"):
+            s.draw(page[1], top, bottom)
         page[2] = bottom - SECTION_GAP
 
     def fits(s: Section, page: list) -> bool:

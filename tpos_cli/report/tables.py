@@ -11,7 +11,7 @@ import textwrap
 
 import numpy as np
 import pandas as pd
-from matplotlib.patches import Ellipse
+from matplotlib.collections import EllipseCollection
 
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report import layout as L
@@ -101,11 +101,14 @@ def shots_section(ctx: ReportContext) -> Section | None:
     if ctx.targets is None or ctx.run.targets is None:
         return None
     sh = ctx.run.targets[ctx.run.targets["solution"] == ctx.target_solution].reset_index(drop=True)
-    comb = ctx.targets.set_index("id")
+    points = dict(zip(ctx.targets["id"].astype(str), ctx.targets[["lat", "lon", "h"]].to_numpy(float)))
+    ids = sh["id"].astype(str).to_numpy()
+    lla = sh[["lat", "lon", "h"]].to_numpy(float)
     d = np.full((len(sh), 3), np.nan)
-    for i, r in enumerate(sh.itertuples()):  # one row per shot: tens, not a time series
-        if r.id in comb.index and np.isfinite(comb.loc[r.id, "lat"]):
-            d[i] = lla_to_ned(np.array([r.lat, r.lon, r.h]), comb.loc[r.id, ["lat", "lon", "h"]].to_numpy(float))
+    for tid in dict.fromkeys(ids):  # the shots of each target about its combined point, at once
+        p = points.get(tid)
+        if p is not None and np.isfinite(p[0]):
+            d[ids == tid] = lla_to_ned(lla[ids == tid], p)
     d[:, 2] *= -1.0
     unit, sc, dec = length_unit(np.r_[d.ravel(), sh["sigma_n"].to_numpy(float) if "sigma_n" in sh else []])
     empty = [""] * len(sh)
@@ -230,20 +233,25 @@ def target_truth_section(ctx: ReportContext) -> Section | None:
             d = te[te["solution"] == s]
             c = ctx.color(s) if s in ctx.order else L.COLORS[sols.index(s) % len(L.COLORS)]
             ax.plot(d["err_e_m"] * sc, d["err_n_m"] * sc, "o", ms=3.5, color=c, label=s)
-            for rr in d.itertuples():
-                if np.isfinite(rr.sigma_n_m) and np.isfinite(rr.sigma_e_m):
-                    ax.add_patch(
-                        Ellipse(
-                            (rr.err_e_m * sc, rr.err_n_m * sc),
-                            2 * k95 * rr.sigma_e_m * sc,
-                            2 * k95 * rr.sigma_n_m * sc,
-                            fill=False,
-                            color=c,
-                            lw=0.6,
-                        )
+            e, n = d["err_e_m"].to_numpy(float), d["err_n_m"].to_numpy(float)
+            s_e, s_n = d["sigma_e_m"].to_numpy(float), d["sigma_n_m"].to_numpy(float)
+            ok = np.isfinite(s_n) & np.isfinite(s_e) & np.isfinite(e) & np.isfinite(n)
+            if ok.any():  # every shot's ellipse as one artist: an hour-long log has hundreds of shots
+                ax.add_collection(
+                    EllipseCollection(
+                        2 * k95 * s_e[ok] * sc,
+                        2 * k95 * s_n[ok] * sc,
+                        np.zeros(int(ok.sum())),
+                        units="xy",
+                        offsets=np.column_stack([e[ok], n[ok]]) * sc,
+                        offset_transform=ax.transData,
+                        facecolors="none",
+                        edgecolors=c,
+                        linewidths=0.6,
                     )
-                    ext = max(ext, (abs(rr.err_e_m) + k95 * rr.sigma_e_m) * sc, (abs(rr.err_n_m) + k95 * rr.sigma_n_m) * sc)
-            ext = max(ext, float(np.nanmax(np.abs(d[["err_e_m", "err_n_m"]].to_numpy(float)))) * sc)
+                )
+                ext = max(ext, float(np.max(np.abs(e[ok]) + k95 * s_e[ok])) * sc, float(np.max(np.abs(n[ok]) + k95 * s_n[ok])) * sc)
+            ext = max(ext, float(np.nanmax(np.abs(np.r_[e, n]))) * sc)
         ax.plot(0, 0, "k+", ms=12, mew=1.4, label="surveyed point")
         ext = 1.1 * ext if ext > 0 else 1.0
         ax.set_xlim(-ext, ext)
@@ -254,7 +262,8 @@ def target_truth_section(ctx: ReportContext) -> Section | None:
         ax.tick_params(labelsize=7)
         ax.grid(True, lw=0.3, color="0.88")
         ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(1.03, 1.0), frameon=False)
-        y = L.draw_table(fig, top - plot_h - 0.02, cols, fontsize=FONT)
+        # the table starts below the x tick labels and the axis label of the plot
+        y = L.draw_table(fig, top - plot_h - 0.045, cols, fontsize=FONT)
         L.note(
             fig,
             y,
@@ -265,7 +274,7 @@ def target_truth_section(ctx: ReportContext) -> Section | None:
     return Section(
         "target_truth",
         "Targets against surveyed truth, per solution",
-        plot_h + 0.02 + _h(len(r)) + 0.04,
+        plot_h + 0.045 + _h(len(r)) + 0.04,
         draw,
         "Horizontal error of every shot of the best solutions with its 95 % ellipse (from its SDs); the surveyed point is the "
         "origin. The table lists every solution.",

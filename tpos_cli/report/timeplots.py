@@ -67,6 +67,7 @@ def draw_nis(ax, ctx: ReportContext, d, color: str = L.COLORS[0], label: str = "
         rejected = f"rejected ({int((~acc).sum())})" if band else None
         ax.plot(x[~acc], nis[~acc], "x", ms=4, color="#d62728" if band else color, label=rejected)
     ax.set_yscale("log")
+    L.log_labels(ax, "y")
     mark_time(ax, ctx, legend=False)
 
 
