@@ -23,3 +23,27 @@ def test_ellipsoid_fit_recovers_iron():
     assert abs(cal.residual_sd_ut - 0.3) < 0.05  # only the white noise is left
     out = apply_mag_calibration(m, cal.hard_iron_ut, cal.soft_iron)
     assert_allclose(out, (m - cal.hard_iron_ut) @ cal.soft_iron.T)  # m_cal = S (m - b)
+
+
+def test_calibrated_copy_keeps_the_session_toml_as_written(tmp_path):
+    """Issue 18: a quoted key and a TOML datetime survive the copy (they were rewritten unquoted or
+    crashed after the copy); the source is untouched and the new keys are there."""
+    import tomllib
+
+    from tpos_cli.magcal import MagCalibration, write_calibrated_copy
+
+    src = tmp_path / "s"
+    src.mkdir()
+    text = ('[session]\nname = "s"\nkind = "target"\nstart_utc = 2015-06-11T14:02:00Z\n"operator name" = "Zoë"\n\n'
+            '[imu]\naxes = "FRD"\nrate_hz = 100.0\n')
+    (src / "session.toml").write_text(text, encoding="utf-8")
+    (src / "imu.csv").write_text("t,gyro_x\n0,0\n")
+    cal = MagCalibration(np.array([1.0, 2.0, 3.0]), np.eye(3), 50.0, 0.3, 2.0, 0.5)
+    write_calibrated_copy(src, tmp_path / "out", cal)
+    assert (src / "session.toml").read_text(encoding="utf-8") == text
+    out = (tmp_path / "out" / "session.toml").read_text(encoding="utf-8")
+    doc = tomllib.loads(out)
+    assert doc["session"]["operator name"] == "Zoë"
+    assert doc["session"]["start_utc"].year == 2015
+    assert doc["magnetic"]["hard_iron_ut"] == [1.0, 2.0, 3.0]
+    assert (tmp_path / "out" / "imu.csv").exists()

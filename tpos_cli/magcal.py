@@ -107,22 +107,22 @@ def calibrate_session(session_dir, window=None):
 
 
 def write_calibrated_copy(session_dir, out_dir, cal: MagCalibration, *, force: bool = False) -> None:
-    """Copy the session to `out_dir` with `[magnetic] hard_iron_ut`, `soft_iron` set (input untouched)."""
+    """Copy the session to `out_dir` with `[magnetic] hard_iron_ut`, `soft_iron` set (input untouched).
+    The new session.toml is built (and checked) before anything is copied, keeping the file as
+    written (quoted keys, datetimes, comments): a session it cannot rewrite leaves no output."""
     import shutil
-    import tomllib
     from pathlib import Path
 
     from tpos_cli.errors import InvalidInputError
-    from tpos_cli.importers.session_out import dumps_toml, merge_toml
+    from tpos_cli.importers.session_out import session_toml_text
 
     src, dst = Path(session_dir).resolve(), Path(out_dir).resolve()
     if src == dst:
         raise InvalidInputError(f"{out_dir}: -o must name a new directory, not the input session")
+    if dst.exists() and not force:
+        raise InvalidInputError(f"{out_dir}: exists; use --force to replace it")
+    text = session_toml_text(src / "session.toml", {"magnetic": cal.toml_keys()}, dst.name)
     if dst.exists():
-        if not force:
-            raise InvalidInputError(f"{out_dir}: exists; use --force to replace it")
         shutil.rmtree(dst)
     shutil.copytree(src, dst)
-    doc = tomllib.loads((dst / "session.toml").read_text(encoding="utf-8"))
-    doc = merge_toml(doc, {"magnetic": cal.toml_keys()})
-    (dst / "session.toml").write_text(dumps_toml(doc), encoding="utf-8")
+    (dst / "session.toml").write_text(text, encoding="utf-8")
