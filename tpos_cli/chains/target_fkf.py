@@ -522,24 +522,8 @@ def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, 
     return pd.concat(rows, ignore_index=True), ({"targets_pairs": pd.concat(pairs, ignore_index=True)} if pairs else {})
 
 
-def check_imu_gaps(session: Session, p: TargetFkfParams) -> None:
-    """InvalidInputError for an IMU gap longer than `imu_gap_max_s`: the gyro did not record the turns
-    made during it, so no attitude (and no target) after it can be honest; the user splits the log."""
-    gaps = np.asarray(session.imu_gaps_s, dtype=float).reshape(-1, 2)
-    if gaps.size == 0:
-        return
-    length = gaps[:, 1] - gaps[:, 0]
-    k = int(np.argmax(length))
-    if length[k] > p.imu_gap_max_s:
-        row = int(np.searchsorted(session.imu.t_s, gaps[k, 0], side="right"))
-        raise InvalidInputError(
-            f"imu: a gap of {length[k]:.1f} s after sample {row} (t = {gaps[k, 0] + session.t0_s:.3f} s); the attitude "
-            f"cannot be carried across an IMU gap longer than target_fkf.imu_gap_max_s = {p.imu_gap_max_s:g} s: "
-            "split the log at the gap")
-
-
 def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
-    check_imu_gaps(session, p)
+    # an IMU gap longer than imu_gap_max_s is refused before the chain (`pipeline.check_imu_gaps`)
     summary: dict = {"model": p.model}
     session = remove_mag_lag(session, p, ctx, summary)
     obs_lla, obs_src = observer_position(session)
