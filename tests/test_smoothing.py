@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from tpos_cli.smoothing import outage_weight, rts_closed_loop
+from tpos_cli.frames import rotation
+from tpos_cli.smoothing import outage_weight, rts_closed_loop, state_difference
 
 
 def _linear_problem(seed=0, n=4, m=2, K=30):
@@ -128,3 +129,23 @@ def test_smoothed_nees_inside_outages_is_consistent(tmp_path):
     half = 1.96 * np.sqrt(18.0 / len(seeds))
     for name, v in nees.items():
         assert abs(np.mean(v) - 9.0) < half, (name, np.mean(v), half)
+
+
+def test_state_difference_of_stacks_is_that_of_each_row():
+    """The vectorized difference over rows against one row at a time, and its attitude part exact."""
+    rng = np.random.default_rng(5)
+    K = 4
+    nav_f = np.column_stack([np.radians(45.0 + rng.normal(0, 1, K)), np.radians(7.0 + rng.normal(0, 1, K)),
+                             rng.normal(100, 10, K), rng.normal(0, 5, (K, 3))])
+    nav_b = nav_f + np.column_stack([rng.normal(0, 1e-6, (K, 2)), rng.normal(0, 1, K), rng.normal(0, 0.1, (K, 3))])
+    C_b = rotation.euler_to_dcm(*rng.uniform(-1, 1, (3, K)))
+    phi = rng.normal(0, 0.01, (K, 3))
+    C_f = np.swapaxes(rotation.rotvec_to_dcm(phi), 1, 2) @ C_b  # C_b C_f^T = R(phi)
+    bias_f, bias_b = rng.normal(size=(K, 9)), rng.normal(size=(K, 9))
+    d = state_difference(nav_f, C_f, bias_f, nav_b, C_b, bias_b, np.empty((K, 18)))
+    for i in range(K):
+        np.testing.assert_array_equal(d[i], state_difference(nav_f[i], C_f[i], bias_f[i], nav_b[i], C_b[i], bias_b[i],
+                                                             np.empty(18)))
+    np.testing.assert_allclose(d[:, 6:9], phi, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(d[:, 15:], bias_f[:, 6:] - bias_b[:, 6:], rtol=0, atol=0)
+    np.testing.assert_allclose(d[:, 2], nav_b[:, 2] - nav_f[:, 2], rtol=0, atol=0)

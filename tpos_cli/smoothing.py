@@ -30,159 +30,177 @@ from numba import njit
 from tpos_cli.filters.gating import (
     chi2_threshold,  # scipy.special: scipy.stats costs 0.3 s to import
 )
-from tpos_cli.frames._kernels import dcm_to_rotvec, radii_m
+from tpos_cli.filters.kalman import cho_solve_into, cholesky_into, sandwich_into, symmetrize
+from tpos_cli.frames import earth, rotation
 from tpos_cli.fusion.engine import FilterRun, epoch_of
 from tpos_cli.fusion.nav_errors import apply_feedback
 from tpos_cli.trajectory import Solution
+
+# What runs once per epoch or per output row without a recursion is numpy over all rows at once;
+# numba kernels are kept for the recursions (issue 15: each kernel compiles on a fresh install).
 
 
 @njit(cache=True)
 def rts_closed_loop(Phi, Ppred, Pfilt, dx):
     """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n),
-    Ps9 (E,9,9)), Ps9 the navigation block (all of it below 9 states) of the smoothed covariance (the recursion keeps the
-    full one of the next epoch only: the full history would be the largest array of a run).
+    Ps9 (E,m,m)), Ps9 the leading m = min(n, 9) block (navigation) of the smoothed covariance: the
+    recursion keeps the full one of the next epoch only (the full history would be the largest array
+    of a run).
 
+    Phi, Ppred, Pfilt (E, n, n) and dx (E, n) of the forward run's covariance epochs.
     xs_pre[e] = xs_post[e] + dx[e] is the smoothed error about the pre-update nominal.
+    Element loops and Cholesky solves (`filters.kalman`): see there for why.
     """
     E, n = dx.shape
+    m = min(n, 9)
     xs_post = np.zeros((E, n))
     xs_pre = np.zeros((E, n))
-    m = min(n, 9)
     Ps9 = np.empty((E, m, m))
-    Ps = Pfilt[E - 1].copy()
-    Ps9[E - 1] = Ps[:m, :m]
-    xs_pre[E - 1] = dx[E - 1]
+    Ps = np.empty((n, n))  # smoothed covariance of epoch e + 1, then of e
+    A = np.empty((n, n))
+    D = np.empty((n, n))
+    L = np.empty((n, n))
+    PPhit = np.empty((n, n))
+    for i in range(n):
+        xs_pre[E - 1, i] = dx[E - 1, i]
+        for j in range(n):
+            Ps[i, j] = Pfilt[E - 1, i, j]
+    for i in range(m):
+        for j in range(m):
+            Ps9[E - 1, i, j] = Ps[i, j]
     for e in range(E - 2, -1, -1):
-        # A^T = (P^-_{e+1})^-1 Phi_{e+1} P_e, by a solve (P^- symmetric)
-        At = np.linalg.solve(Ppred[e + 1], Phi[e + 1] @ Pfilt[e])
-        A = At.T
-        xs_post[e] = A @ xs_pre[e + 1]
-        Pn = Pfilt[e] + A @ (Ps - Ppred[e + 1]) @ At
-        Ps = 0.5 * (Pn + Pn.T)
-        Ps9[e] = Ps[:m, :m]
-        xs_pre[e] = xs_post[e] + dx[e]
+        # A = P_e Phi_{e+1}^T (P^-_{e+1})^-1: row i solves P^- a = (P_e Phi^T)[i] (both symmetric)
+        if not cholesky_into(Ppred[e + 1], L):
+            raise ValueError("rts: a predicted covariance is not positive definite")
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for k in range(n):
+                    s += Pfilt[e, i, k] * Phi[e + 1, j, k]
+                PPhit[i, j] = s
+            cho_solve_into(L, PPhit[i], A[i])
+        for i in range(n):
+            s = 0.0
+            for k in range(n):
+                s += A[i, k] * xs_pre[e + 1, k]
+            xs_post[e, i] = s
+            xs_pre[e, i] = s + dx[e, i]
+            for j in range(n):
+                D[i, j] = Ps[i, j] - Ppred[e + 1, i, j]
+        sandwich_into(A, D, Ps)
+        for i in range(n):
+            for j in range(n):
+                Ps[i, j] += Pfilt[e, i, j]
+        symmetrize(Ps)
+        for i in range(m):
+            for j in range(m):
+                Ps9[e, i, j] = Ps[i, j]
     return xs_post, xs_pre, Ps9
 
 
 @njit(cache=True)
-def _corrected_into(nav, C, bias, x, o_nav, o_C, o_bias):
-    """The nominal (nav, C, bias) corrected by the error estimate x, written to o_* (inputs kept)."""
-    o_nav[:] = nav
-    o_C[:, :] = C
-    o_bias[:] = bias
-    apply_feedback(o_nav, o_C, o_bias, x)
-
-
-@njit(cache=True)
-def _rts_apply(out_idx, ep_idx, ep_t, t, nav, C, bias, xs_post, xs_pre, Ps9, o_nav, o_C, o_bias, o_P9):
-    e = 0
-    E = ep_idx.shape[0]
+def _corrected_rows(out_idx, nav, C, bias, xs, o_nav, o_C, o_bias):
+    """Row k of o_*: the nominal (nav, C, bias) at sample out_idx[k] corrected by the error estimate xs[k]."""
     for k in range(out_idx.shape[0]):
         j = out_idx[k]
-        while e + 1 < E and ep_idx[e + 1] <= j:
-            e += 1
-        if ep_idx[e] == j or e + 1 >= E:
-            xs = xs_post[e].copy()
-        else:
-            a = (t[j] - ep_t[e]) / (ep_t[e + 1] - ep_t[e])
-            xs = (1.0 - a) * xs_post[e] + a * xs_pre[e + 1]
-        _corrected_into(nav[j], C[j], bias[j], xs, o_nav[k], o_C[k], o_bias[k])
-        o_P9[k] = Ps9[e]
+        for i in range(6):
+            o_nav[k, i] = nav[j, i]
+        for i in range(3):
+            for m in range(3):
+                o_C[k, i, m] = C[j, i, m]
+        for i in range(bias.shape[1]):
+            o_bias[k, i] = bias[j, i]
+        apply_feedback(o_nav[k], o_C[k], o_bias[k], xs[k])
+
+
+def _corrected(run: FilterRun, out_idx, xs):
+    """(nav, C, bias) of `run` at `out_idx` corrected by the error estimates xs (K, n)."""
+    K = out_idx.size
+    o_nav, o_C, o_bias = np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, run.bias.shape[1]))
+    _corrected_rows(np.ascontiguousarray(out_idx, dtype=np.int64), run.nav, run.C_nb, run.bias,
+                    np.ascontiguousarray(xs, dtype=float), o_nav, o_C, o_bias)
+    return o_nav, o_C, o_bias
 
 
 def rts(run: FilterRun, out_idx) -> Solution:
     """RTS-smoothed forward run (needs a forward `FilterRun` stored with `store_rts`) at the
-    run-local sample indices `out_idx`; `Solution.bias` holds the smoothed IMU biases and extra states."""
+    run-local sample indices `out_idx`; `Solution.bias` holds the smoothed IMU biases and extra states.
+    Between epochs the smoothed error is interpolated linearly in time."""
     if run.ep_Phi is None:
         raise ValueError("`run` holds no RTS history (run the forward filter with store_rts=True)")
     xs_post, xs_pre, Ps9 = rts_closed_loop(run.ep_Phi, run.ep_Ppred, run.ep_P, run.ep_dx)
-    K = out_idx.size
-    o_nav, o_C, o_P9 = np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, 9, 9))
-    o_bias = np.empty((K, run.bias.shape[1]))
+    ep = run.ep_idx
+    E = ep.size
+    e = np.clip(np.searchsorted(ep, out_idx, side="right") - 1, 0, E - 1)  # the last epoch at or before
+    nxt = np.minimum(e + 1, E - 1)
     t_s = run.t_s
-    _rts_apply(out_idx, run.ep_idx, t_s[run.ep_idx], t_s, run.nav, run.C_nb, run.bias, xs_post, xs_pre, Ps9,
-               o_nav, o_C, o_bias, o_P9)
-    return Solution("rts", out_idx, o_nav, o_C, o_P9, o_bias)
+    on_epoch = (ep[e] == out_idx) | (e + 1 >= E)
+    span = np.where(on_epoch, 1.0, t_s[ep[nxt]] - t_s[ep[e]])
+    a = np.where(on_epoch, 0.0, (t_s[out_idx] - t_s[ep[e]]) / span)[:, None]
+    xs = np.where(on_epoch[:, None], xs_post[e], (1.0 - a) * xs_post[e] + a * xs_pre[nxt])
+    o_nav, o_C, o_bias = _corrected(run, out_idx, xs)
+    return Solution("rts", out_idx, o_nav, o_C, Ps9[e], o_bias)
 
 
-@njit(cache=True)
 def state_difference(nav_f, C_f, bias_f, nav_b, C_b, bias_b, d):
-    """d (n,) = state b expressed as an error of nominal f (f minus b, attitude on SO(3)); n > 15:
-    the extra states are the differences of the extra bias entries (bias[6:], e.g. GPS errors)."""
-    lat = nav_f[0]
-    h = nav_f[2]
-    rn, re = radii_m(lat)
-    d[0] = (nav_f[0] - nav_b[0]) * (rn + h)
-    d[1] = (nav_f[1] - nav_b[1]) * (re + h) * np.cos(lat)
-    d[2] = -(nav_f[2] - nav_b[2])
-    for i in range(3):
-        d[3 + i] = nav_f[3 + i] - nav_b[3 + i]
-    phi = dcm_to_rotvec(C_b @ C_f.T)  # C_f = (I - [phi x]) C_b
-    for i in range(3):
-        d[6 + i] = phi[i]
-    for i in range(6):
-        d[9 + i] = bias_f[i] - bias_b[i]
-    for i in range(d.shape[0] - 15):
-        d[15 + i] = bias_f[6 + i] - bias_b[6 + i]
+    """d (..., n) = state b expressed as an error of nominal f (f minus b, attitude on SO(3)), for
+    one row or stacks of rows (nav (..., 6), C (..., 3, 3), bias (..., 6 + extra)); n > 15: the
+    extra states are the differences of the extra bias entries (bias[6:], e.g. GPS errors). Returns d."""
+    lat = nav_f[..., 0]
+    h = nav_f[..., 2]
+    d[..., 0] = (nav_f[..., 0] - nav_b[..., 0]) * (earth.meridian_radius_m(lat) + h)
+    d[..., 1] = (nav_f[..., 1] - nav_b[..., 1]) * (earth.transverse_radius_m(lat) + h) * np.cos(lat)
+    d[..., 2] = -(nav_f[..., 2] - nav_b[..., 2])
+    d[..., 3:6] = nav_f[..., 3:6] - nav_b[..., 3:6]
+    d[..., 6:9] = rotation.dcm_to_rotvec(C_b @ np.swapaxes(C_f, -1, -2))  # C_f = (I - [phi x]) C_b
+    d[..., 9:15] = bias_f[..., :6] - bias_b[..., :6]
+    n_extra = d.shape[-1] - 15
+    d[..., 15:] = bias_f[..., 6 : 6 + n_extra] - bias_b[..., 6 : 6 + n_extra]
+    return d
+
+
+def _pairs(fwd: FilterRun, bwd: FilterRun, out_idx):
+    """For each output sample: (the forward epoch at or before it, the backward epoch at or after it,
+    the backward state as an error of the forward nominal (K, n))."""
+    ef = np.clip(np.searchsorted(fwd.ep_idx, out_idx, side="right") - 1, 0, fwd.ep_idx.size - 1)
+    eb = np.minimum(np.searchsorted(bwd.ep_idx, out_idx, side="left"), bwd.ep_idx.size - 1)
+    d = state_difference(fwd.nav[out_idx], fwd.C_nb[out_idx], fwd.bias[out_idx], bwd.nav[out_idx],
+                         bwd.C_nb[out_idx], bwd.bias[out_idx], np.empty((out_idx.size, fwd.ep_P.shape[1])))
+    return ef, eb, d
+
+
+def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability):
+    """(flag (K,), nis (K,)): d[:9]^T (P_f + P_b)[:9, :9]^-1 d[:9] against chi-square (9 d.o.f.)."""
+    S9 = fwd.ep_P[ef, :9, :9] + bwd.ep_P[eb, :9, :9]
+    d9 = d[:, :9]
+    nis = np.einsum("ki,ki->k", d9, np.linalg.solve(S9, d9[:, :, None])[:, :, 0])
+    return nis > float(chi2_threshold(flag_probability, 9)[9]), nis
 
 
 @njit(cache=True)
-def _quadratic_form(d, A):
-    """d[:m]^T A d[:m] for A (m, m), by loops (no temporary, any memory layout)."""
-    m = A.shape[0]
-    v = 0.0
-    for i in range(m):
-        a = 0.0
-        for j in range(m):
-            a += A[i, j] * d[j]
-        v += d[i] * a
-    return v
-
-
-@njit(cache=True)
-def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep, b_P,
-             out_w, flag_thr, o_nav, o_C, o_P9, o_flag, o_nis, mode):
-    """mode 0: two-filter (full covariances); 1: simplified (paper 003); 2: flag and NIS only.
-    out_w (K,): weight of the backward solution inside outages, NaN outside."""
-    ef = 0
-    eb = 0
-    Ef = f_ep.shape[0]
-    Eb = b_ep.shape[0]
+def _combine(ef, eb, f_P, b_P, d, out_w, o_xs, o_P9, mode):
+    """Error estimates o_xs (K, n) about the forward nominal and their covariances o_P9 (K, 9, 9).
+    mode 0: two-filter (full covariances); 1: simplified (paper 003). out_w (K,): weight of the
+    backward solution inside outages, NaN outside."""
     last_f = -1
     last_b = -1
     n = f_P.shape[1]
     K = np.zeros((n, n))
     Pc = np.zeros((n, n))
-    S9i = np.zeros((9, 9))
-    d = np.empty(n)
-    for k in range(out_idx.shape[0]):
-        j = out_idx[k]
-        while ef + 1 < Ef and f_ep[ef + 1] <= j:
-            ef += 1
-        while eb < Eb - 1 and b_ep[eb] < j:
-            eb += 1
-        Pf = f_P[ef]
-        Pb = b_P[eb]
-        if ef != last_f or eb != last_b:
-            S = Pf + Pb
-            if mode == 0:
+    for k in range(ef.shape[0]):
+        Pf = f_P[ef[k]]
+        Pb = b_P[eb[k]]
+        if mode == 0:
+            if ef[k] != last_f or eb[k] != last_b:
+                S = Pf + Pb
                 K = np.ascontiguousarray(np.linalg.solve(S, Pf).T)  # P_f S^-1 (both symmetric)
                 Pc = Pf - K @ Pf
                 Pc = 0.5 * (Pc + Pc.T)
-            S9i = np.linalg.inv(np.ascontiguousarray(S[:9, :9]))
-            last_f = ef
-            last_b = eb
-        state_difference(f_nav[j], f_C[j], f_bias[j], b_nav[j], b_C[j], b_bias[j], d)
-        nis = _quadratic_form(d, S9i)
-        o_nis[k] = nis
-        o_flag[k] = nis > flag_thr
-        if mode == 2:  # flag only
-            continue
-        if mode == 0:
-            xs = K @ d
+                last_f = ef[k]
+                last_b = eb[k]
+            o_xs[k] = K @ d[k]
             o_P9[k] = Pc[:9, :9]
         else:
-            xs = np.empty(n)
             w = out_w[k]
             o_P9[k] = 0.0
             for i in range(n):
@@ -192,22 +210,19 @@ def _combine(out_idx, t, f_nav, f_C, f_bias, f_ep, f_P, b_nav, b_C, b_bias, b_ep
                 else:
                     wi = w
                     var = (1.0 - w) ** 2 * Pf[i, i] + w * w * Pb[i, i]
-                xs[i] = wi * d[i]
+                o_xs[k, i] = wi * d[k, i]
                 if i < 9:
                     o_P9[k, i, i] = var
-        _corrected_into(f_nav[j], f_C[j], f_bias[j], xs, o_nav[k], o_C[k], np.empty(f_bias.shape[1]))
 
 
-def _run_combine(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, flag_probability, mode):
+def _run_combine(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, mode):
+    ef, eb, d = _pairs(fwd, bwd, out_idx)
     Kn = out_idx.size
-    o_nav, o_C, o_P9 = np.empty((Kn, 6)), np.empty((Kn, 3, 3)), np.empty((Kn, 9, 9))
-    o_flag = np.zeros(Kn, dtype=np.bool_)
-    o_nis = np.empty(Kn)
-    t_s = fwd.t_s
-    w = outage_weight(t_s[out_idx], outages_s)
-    _combine(out_idx, t_s, fwd.nav, fwd.C_nb, fwd.bias, fwd.ep_idx, fwd.ep_P, bwd.nav, bwd.C_nb, bwd.bias,
-             bwd.ep_idx, bwd.ep_P, w, float(chi2_threshold(flag_probability, 9)[9]), o_nav, o_C, o_P9, o_flag, o_nis, mode)
-    return o_nav, o_C, o_P9, o_flag, o_nis
+    o_xs, o_P9 = np.empty((Kn, d.shape[1])), np.empty((Kn, 9, 9))
+    w = outage_weight(fwd.t_s[out_idx], outages_s)
+    _combine(ef, eb, fwd.ep_P, bwd.ep_P, d, w, o_xs, o_P9, mode)
+    o_nav, o_C, _ = _corrected(fwd, out_idx, o_xs)
+    return o_nav, o_C, o_P9, (ef, eb, d)
 
 
 def outage_weight(t_s, outages_s) -> np.ndarray:
@@ -221,19 +236,19 @@ def outage_weight(t_s, outages_s) -> np.ndarray:
 
 def two_filter(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,))."""
-    nav, C, P9, flag, nis = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), flag_probability, 0)
+    nav, C, P9, pairs = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), 0)
+    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability)
     return Solution("two_filter", out_idx, nav, C, P9), flag, nis
 
 
 def disagreement(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """(flag (K,), nis (K,)): forward/backward NIS of the 9 navigation states against chi-square."""
-    _, _, _, flag, nis = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), flag_probability, 2)
-    return flag, nis
+    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability)
 
 
 def simplified(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s) -> Solution:
     """Paper 003's simplified two-filter smoother (graded weights in outages, variance weights elsewhere)."""
-    nav, C, P9, _, _ = _run_combine(fwd, bwd, out_idx, outages_s, 0.999, 1)
+    nav, C, P9, _ = _run_combine(fwd, bwd, out_idx, outages_s, 1)
     return Solution("simplified", out_idx, nav, C, P9)
 
 

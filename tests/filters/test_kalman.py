@@ -5,7 +5,16 @@ from scipy.linalg import expm
 from scipy.stats import chi2
 
 from tpos_cli.filters.gating import chi2_threshold
-from tpos_cli.filters.kalman import discretize, nis_of, predict, update
+from tpos_cli.filters.kalman import (
+    cholesky_into,
+    discretize,
+    forward_substitute,
+    nis_of,
+    predict,
+    quadratic_form,
+    sandwich_into,
+    update,
+)
 
 
 def test_scalar_update_closed_form():
@@ -40,6 +49,33 @@ def test_update_reports_non_pd():
     x = np.zeros(2)
     P = np.zeros((2, 2))
     assert update(x, P, np.zeros(1), np.array([[1.0, 0.0]]), np.array([[0.0]])) == -1.0
+
+
+def test_nis_of_reports_non_pd():
+    """An indefinite S (positive diagonal) gives -1 from both, not an exception: `update` reports it."""
+    x, P = np.zeros(2), np.array([[1.0, 2.0], [2.0, 1.0]])
+    H, R, z = np.eye(2), np.zeros((2, 2)), np.ones(2)
+    assert nis_of(x, P, z, H, R) == -1.0
+    assert update(x, P, z, H, R) == -1.0
+
+
+def test_linear_algebra_kernels_against_numpy():
+    rng = np.random.default_rng(4)
+    n, m = 7, 3
+    A = rng.standard_normal((n, n))
+    S = A @ A.T + n * np.eye(n)
+    L = np.empty((n, n))
+    assert cholesky_into(S, L)
+    np.testing.assert_allclose(L, np.linalg.cholesky(S), rtol=1e-13, atol=1e-13)
+    b, w = rng.standard_normal(n), np.empty(n)
+    forward_substitute(L, b, w)
+    np.testing.assert_allclose(L @ w, b, rtol=1e-13, atol=1e-13)
+    M, out = rng.standard_normal((m, n)), np.empty((m, m))
+    sandwich_into(M, S, out)
+    np.testing.assert_allclose(out, M @ S @ M.T, rtol=1e-13, atol=1e-12)
+    a, c = rng.standard_normal(n), rng.standard_normal(n)
+    np.testing.assert_allclose(quadratic_form(S, a, c), a @ S @ c, rtol=1e-13)
+    assert not cholesky_into(-S, L)
 
 
 def test_predict():

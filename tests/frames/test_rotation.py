@@ -60,3 +60,13 @@ def test_invalid_axes(axes):
 
 def test_wrap():
     assert_allclose(r.wrap_angle_deg([181.0, -181.0, 360.0, 180.0]), [-179.0, 179.0, 0.0, 180.0])
+
+
+def test_3x3_products_match_numpy():
+    """The element-loop products of `_kernels` against `@`, on non-symmetric operands."""
+    rng = np.random.default_rng(3)
+    A, B, v = rng.normal(size=(3, 3)), rng.normal(size=(3, 3)), rng.normal(size=3)
+    assert_allclose(k.mat_vec3(A, v), A @ v, rtol=0, atol=1e-15)
+    assert_allclose(k.matT_vec3(A, v), A.T @ v, rtol=0, atol=1e-15)
+    assert_allclose(k.mat_mat3(A, B), A @ B, rtol=0, atol=1e-15)
+    assert_allclose(k.mat_matT3(A, B), A @ B.T, rtol=0, atol=1e-15)

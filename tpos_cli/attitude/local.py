@@ -180,7 +180,9 @@ def _reverse(t, gyro, acc, mag, rd, st):
     a = np.empty_like(acc)
     a[1:] = acc[::-1][:-1]
     a[0] = acc[-1]
-    return -t[::-1], g, a, mag[::-1], rd[::-1], st[::-1]
+    # copies, not reversed views: a view is another memory layout, for which numba would compile the
+    # whole kernel a second time (and `@` on it warns)
+    return -t[::-1], g, a, np.ascontiguousarray(mag[::-1]), np.ascontiguousarray(rd[::-1]), np.ascontiguousarray(st[::-1])
 
 
 def _hand(setup: FilterSetup, dt_mean: float, share: float) -> K.Hand:

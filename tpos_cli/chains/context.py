@@ -32,14 +32,22 @@ class RunContext:
         self.warnings: list[str] = []
         self._progress = progress
         self._status = None
+        self._stage = ""
+        self._compiling = 0
         self._t0 = time.perf_counter()
+
+    def _show(self) -> None:
+        """The status line: the stage, the time since the start, and whether numba is compiling."""
+        if self._status is not None:
+            doing = " - compiling kernels (first run only)" if self._compiling else ""
+            self._status.update(f"[bold]{self._stage}[/bold] ({time.perf_counter() - self._t0:.1f} s){doing}")
 
     @contextlib.contextmanager
     def stage(self, name: str):
         """Time a stage into summary.json; with progress on, show it on a status line."""
         t = time.perf_counter()
-        if self._status is not None:
-            self._status.update(f"[bold]{name.replace('_', ' ')}[/bold] ({time.perf_counter() - self._t0:.1f} s)")
+        self._stage = name.replace("_", " ")
+        self._show()
         try:
             yield
         finally:
@@ -47,13 +55,16 @@ class RunContext:
 
     @contextlib.contextmanager
     def live(self, label: str):
-        """A status line (rich) for the whole run when progress is on; nothing otherwise."""
+        """A status line (rich) for the whole run when progress is on; nothing otherwise. While
+        numba compiles (the first run after an install; the kernels are cached after it) the line
+        says so, from numba's compile events."""
         if not self._progress:
             yield
             return
+        from numba.core import event
         from rich.console import Console
 
-        with Console(stderr=True).status(label) as status:
+        with Console(stderr=True).status(label) as status, event.install_listener("numba:compile", _compile_notice(self)):
             self._status = status
             try:
                 yield
@@ -73,3 +84,23 @@ class RunContext:
         from rich.progress import track
 
         return track(iterable, total=total, description=label or "working")
+
+
+
+def _compile_notice(ctx: RunContext):
+    """A numba event listener that counts the compiles in progress (nested: a kernel compiles the
+    kernels it calls) and refreshes `ctx`'s status line when the outermost starts and ends."""
+    from numba.core import event
+
+    class CompileNotice(event.Listener):
+        def on_start(self, ev) -> None:
+            ctx._compiling += 1
+            if ctx._compiling == 1:
+                ctx._show()
+
+        def on_end(self, ev) -> None:
+            ctx._compiling -= 1
+            if ctx._compiling == 0:
+                ctx._show()
+
+    return CompileNotice()

@@ -1,7 +1,9 @@
 """numba twins of the Earth-model and rotation functions, for use inside compiled kernels.
 
 Scalars and small fixed-size float64 arrays only; tested against `earth.py` and
-`rotation.py`, which document the equations.
+`rotation.py`, which document the equations. The 3x3 products (`mat_vec3`, ...) are element
+loops rather than `@`: numba compiles each `@` through its BLAS dispatch, once per memory layout
+of the operands (a transpose is another layout), for a 3x3 that costs more than it computes.
 """
 
 from __future__ import annotations
@@ -146,3 +148,41 @@ def dcm_to_euler(C):
 def orthonormalize(C):
     """Nearest-rotation correction of a DCM that drifted from orthonormality (first-order)."""
     return 1.5 * C - 0.5 * (C @ C.T @ C)
+
+
+@njit(cache=True)
+def mat_vec3(A, v):
+    """A v for A (3, 3) and v (3,), as a new array."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = A[i, 0] * v[0] + A[i, 1] * v[1] + A[i, 2] * v[2]
+    return out
+
+
+@njit(cache=True)
+def matT_vec3(A, v):
+    """A^T v for A (3, 3) and v (3,), as a new array."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = A[0, i] * v[0] + A[1, i] * v[1] + A[2, i] * v[2]
+    return out
+
+
+@njit(cache=True)
+def mat_mat3(A, B):
+    """A B for A, B (3, 3), as a new array."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+    return out
+
+
+@njit(cache=True)
+def mat_matT3(A, B):
+    """A B^T for A, B (3, 3), as a new array."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[j, 0] + A[i, 1] * B[j, 1] + A[i, 2] * B[j, 2]
+    return out

@@ -1,0 +1,37 @@
+"""RunContext's status line: stage, elapsed time, and a notice while numba compiles."""
+
+import numpy as np
+from numba import njit
+from numba.core import event
+
+from tpos_cli.chains.context import RunContext, _compile_notice
+
+
+class _Status:
+    """Stands in for rich's status: records what the line was set to."""
+
+    def __init__(self):
+        self.lines = []
+
+    def update(self, text):
+        self.lines.append(text)
+
+
+def test_status_line_says_when_numba_compiles():
+    ctx = RunContext()
+    ctx._status = _Status()
+    with ctx.stage("alignment"):
+        pass
+
+    @njit  # a new function (no cache): compiles on its first call
+    def twice(x):
+        return 2.0 * x
+
+    with event.install_listener("numba:compile", _compile_notice(ctx)):
+        assert twice(np.float64(1.5)) == 3.0
+        assert twice(np.float64(2.5)) == 5.0  # compiled: no notice
+    lines = ctx._status.lines
+    assert lines[0].startswith("[bold]alignment[/bold] (") and "compiling" not in lines[0]
+    assert lines[1].endswith(" - compiling kernels (first run only)")
+    assert "compiling" not in lines[2]
+    assert len(lines) == 3
