@@ -81,7 +81,7 @@ def test_measure_adds_the_extra_states_columns():
     bias = np.array([0, 0, 0, 0, 0, 0, 0.2, -0.1, 0.3])
     fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
     z, H, R = np.empty(3), np.zeros((3, 18)), np.zeros((3, 3))
-    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, nav, C, bias, np.zeros(3), lay.offsets(), z, H, R)
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), lay.offsets(), z, H, R)
     z0 = np.empty(3)
     gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
     assert_allclose(z - z0, bias[6:9], atol=0)
@@ -92,7 +92,7 @@ def test_measure_adds_the_extra_states_columns():
     bias[6 + lay.offset(Block.RANGE_BIAS) - 15] = 0.3
     bias[6 + lay.offset(Block.CALIBRATION) - 15 + 1] = -0.1
     z, H, R = np.empty(1), np.zeros((1, lay.n_states)), np.zeros((1, 1))
-    measure(0, _events(Kind.RANGE, [25.0, 0, 0], np.eye(3) * 0.01, 1, par=1), aid, nav, C, bias, np.zeros(3),
+    measure(0, _events(Kind.RANGE, [25.0, 0, 0], np.eye(3) * 0.01, 1, par=1), aid, True, nav, C, bias, np.zeros(3),
             lay.offsets(), z, H, R)
     p = lla_to_local_ned(nav[0], nav[1], nav[2], aid.r0_e, aid.C_ne0)
     assert_allclose(z[0], np.linalg.norm(p - aid.anchors_ned[1]) + 0.3 - 0.1 - 25.0, atol=1e-9)

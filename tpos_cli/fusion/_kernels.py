@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import discretize, nis_of, predict, update
+from tpos_cli.filters.kalman import cholesky_into, discretize, nis_of, predict, quadratic_form, symmetrize, update
 from tpos_cli.fusion.layout import N_NAV
 from tpos_cli.fusion.measurements import measure
 from tpos_cli.fusion.nav_errors import apply_feedback, corrected_increments, error_dynamics, process_noise
@@ -134,30 +134,41 @@ def mechanize_sample(k, imu, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_pre
 
 
 @njit(cache=True)
-def _log_det(S):
-    """log det of a symmetric positive definite matrix (NaN if it is not)."""
-    Ss = 0.5 * (S + S.T)
-    for i in range(Ss.shape[0]):
-        if not Ss[i, i] > 0.0:
-            return np.nan
-    L = np.linalg.cholesky(Ss)
+def _log_det(P, H, R):
+    """log det S of S = H P H^T + R (symmetrized; NaN if it is not positive definite)."""
+    m = H.shape[0]
+    S = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = quadratic_form(P, H[i], H[j]) + R[i, j]
+    symmetrize(S)
+    L = np.empty((m, m))
+    if not cholesky_into(S, L):
+        return np.nan
     v = 0.0
-    for i in range(L.shape[0]):
+    for i in range(m):
         v += 2.0 * np.log(L[i, i])
     return v
 
 
 @njit(cache=True)
-def _row_dot(H, PHt, i):
-    """(H P H^T)_ii from H (m, n) and P H^T (n, m)."""
-    v = 0.0
-    for j in range(H.shape[1]):
-        v += H[i, j] * PHt[j, i]
-    return v
+def _store(dst, k, src):
+    """dst[k] = src for dst (N, n) and src (n,), by elements (an array assignment compiles a
+    formatted shape-mismatch error with it, 2 s of the first run)."""
+    for i in range(src.shape[0]):
+        dst[k, i] = src[i]
 
 
 @njit(cache=True)
-def error_state_kernel(imu, start, P0, st, ev, aid, out, res):
+def _store2(dst, k, src):
+    """dst[k] = src for dst (N, n, m) and src (n, m), by elements."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[k, i, j] = src[i, j]
+
+
+@njit(cache=True)
+def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
     Per IMU sample: mechanize (`mechanize_sample`). Every `cov_step` samples, at every sample with
@@ -195,6 +206,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, out, res):
     R1, R2, R3 = np.zeros((1, 1)), np.zeros((2, 2)), np.zeros((3, 3))
     f_n = np.empty(3)
     f_sum = np.zeros(3)
+    f_mean = np.empty(3)
     dth = np.empty(3)
     dv = np.empty(3)
     dth_prev = np.zeros(3)
@@ -207,16 +219,18 @@ def error_state_kernel(imu, start, P0, st, ev, aid, out, res):
         n_slots = max(n_slots, ev.slot[e] + 1)
     consecutive = np.zeros(n_slots, np.int64)
     # covariance epoch 0 is the prior at sample 0 (what the smoothers start from)
-    ep = 0
-    out.ep_idx[0] = 0
-    out.ep_P[0] = P
-    out.ep_dx[0] = 0.0
+    ep = 0  # (indexed by `ep`, not by the literal 0: numba would compile the stores once more for it)
+    out.ep_idx[ep] = 0
+    _store2(out.ep_P, ep, P)
+    out.ep_dx[ep] = 0.0
     if st.store_rts:
-        out.ep_Phi[0] = np.eye(n)
-        out.ep_Ppred[0] = P
-    out.nav[0] = nav
-    out.C[0] = C
-    out.bias[0] = bias
+        out.ep_Phi[ep] = 0.0
+        for i in range(n):
+            out.ep_Phi[ep, i, i] = 1.0
+        _store2(out.ep_Ppred, ep, P)
+    _store(out.nav, ep, nav)
+    _store2(out.C, ep, C)
+    _store(out.bias, ep, bias)
     e = 0
     while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
         e += 1
@@ -229,14 +243,16 @@ def error_state_kernel(imu, start, P0, st, ev, aid, out, res):
         dt_sum += dt
         has_ev = e < n_ev and ev.k[e] == k
         if has_ev or k - last >= st.cov_step or k == n_t - 1:
-            error_dynamics(nav, C, f_sum / dt_sum, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
+            for i in range(3):
+                f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
+            error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
             discretize(F, Qc, dt_sum, Phi, Qd)
             predict(x, P, Phi, Qd)
             ep += 1
             out.ep_idx[ep] = k
             if st.store_rts:
-                out.ep_Phi[ep] = Phi
-                out.ep_Ppred[ep] = P
+                _store2(out.ep_Phi, ep, Phi)
+                _store2(out.ep_Ppred, ep, P)
             for i in range(n_extra):
                 if st.extra_tau_s[i] > 0.0:  # the nominal of a Gauss-Markov state follows its mean
                     bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
@@ -248,33 +264,33 @@ def error_state_kernel(imu, start, P0, st, ev, aid, out, res):
                     z, H, R = z2, H2, R2
                 else:
                     z, H, R = z3, H3, R3
-                measure(e, ev, aid, nav, C, bias, w_ib, st.layout, z, H, R)
-                PHt = P @ H.T
+                measure(e, ev, aid, ranging, nav, C, bias, w_ib, st.layout, z, H, R)
+                s = nis_of(x, P, z, H, R)
                 for i in range(m):
                     res.nu[e, i] = z[i]
-                    res.pvar[e, i] = _row_dot(H, PHt, i)
-                s = nis_of(x, P, z, H, R)
+                    res.pvar[e, i] = quadratic_form(P, H[i], H[i])
                 res.nis[e] = s
-                res.logdet[e] = _log_det(H @ PHt + R)
+                res.logdet[e] = _log_det(P, H, R)
                 slot = ev.slot[e]
                 accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and consecutive[slot] >= st.max_reject)
                 if accept:
                     if update(x, P, z, H, R) < 0.0:
                         return ep + 1, 1 + k
                     apply_feedback(nav, C, bias, x)
-                    dx_sum += x
-                    x[:] = 0.0
+                    for i in range(n):
+                        dx_sum[i] += x[i]
+                        x[i] = 0.0
                 if slot >= 0:
                     consecutive[slot] = 0 if accept else consecutive[slot] + 1
                 res.accepted[e] = accept
                 e += 1
-            out.ep_dx[ep] = dx_sum  # x stays 0 between epochs (closed loop: Phi 0 = 0)
+            _store(out.ep_dx, ep, dx_sum)  # x stays 0 between epochs (closed loop: Phi 0 = 0)
             dx_sum[:] = 0.0
-            out.ep_P[ep] = P
+            _store2(out.ep_P, ep, P)
             last = k
             f_sum[:] = 0.0
             dt_sum = 0.0
-        out.nav[k] = nav
-        out.C[k] = C
-        out.bias[k] = bias
+        _store(out.nav, k, nav)
+        _store2(out.C, k, C)
+        _store(out.bias, k, bias)
     return ep + 1, 0

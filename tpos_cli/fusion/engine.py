@@ -262,7 +262,9 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
                   chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
-    n_used, status = error_state_kernel(ImuArrays(t, gyro, acc), start, P0, st, ev, aid, out, res)
+    # None when no row needs the ranging models: numba then compiles the kernel without them
+    ranging = True if np.isin(meas.kind, [Kind.RANGE, Kind.FIX_NE, Kind.FLOOR]).any() else None
+    n_used, status = error_state_kernel(ImuArrays(t, gyro, acc), start, P0, st, ev, aid, ranging, out, res)
     if status == 0 and n_used != n_ep:
         raise AssertionError(f"covariance epochs: {n_used} used, {n_ep} allocated")
     if status != 0:

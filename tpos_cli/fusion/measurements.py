@@ -21,7 +21,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import earth_rate_ned, radii_m, skew
+from tpos_cli.frames._kernels import earth_rate_ned, mat_mat3, mat_matT3, mat_vec3, matT_vec3, radii_m, skew
 from tpos_cli.frames.earth import A_M, E2
 from tpos_cli.fusion.layout import ATT, BG, N_NAV, POS, VEL, Block
 from tpos_cli.ins._kernels import cross
@@ -57,7 +57,7 @@ def gps_position_residual(nav, C, lever_b, lla_rad, lag_s, z):
     """
     lat, h = nav[0], nav[2]
     rn, re = radii_m(lat)
-    Cl = C @ lever_b
+    Cl = mat_vec3(C, lever_b)
     z[0] = (lat - lla_rad[0]) * (rn + h) + Cl[0] - nav[3] * lag_s
     z[1] = (nav[1] - lla_rad[1]) * (re + h) * np.cos(lat) + Cl[1] - nav[4] * lag_s
     z[2] = (lla_rad[2] - h) + Cl[2] - nav[5] * lag_s
@@ -66,7 +66,7 @@ def gps_position_residual(nav, C, lever_b, lla_rad, lag_s, z):
 @njit(cache=True)
 def gps_position_jacobian(nav, C, lever_b, lag_s, H, row):
     """H rows row..row+2 for `gps_position_residual` (clears the first 15 columns of those rows)."""
-    Cl = C @ lever_b
+    Cl = mat_vec3(C, lever_b)
     for i in range(3):
         for j in range(15):
             H[row + i, j] = 0.0
@@ -78,7 +78,7 @@ def gps_position_jacobian(nav, C, lever_b, lag_s, H, row):
 @njit(cache=True)
 def gps_velocity_residual(nav, C, lever_b, w_ib_b, vel_ned, z):
     """z = INS antenna velocity - GPS velocity, m/s (paper Eq. 12)."""
-    u = C @ cross(w_ib_b, lever_b)
+    u = mat_vec3(C, cross(w_ib_b, lever_b))
     for i in range(3):
         z[i] = nav[3 + i] + u[i] - vel_ned[i]
 
@@ -86,12 +86,12 @@ def gps_velocity_residual(nav, C, lever_b, w_ib_b, vel_ned, z):
 @njit(cache=True)
 def gps_velocity_jacobian(C, lever_b, w_ib_b, H, row):
     """H rows row..row+2 for `gps_velocity_residual` (clears the first 15 columns of those rows)."""
-    u = C @ cross(w_ib_b, lever_b)
+    u = mat_vec3(C, cross(w_ib_b, lever_b))
     for i in range(3):
         for j in range(15):
             H[row + i, j] = 0.0
         H[row + i, VEL + i] = 1.0
-    _put(H, row, BG, C @ skew(lever_b))  # C [l x] dbg: the lever arm's rate error
+    _put(H, row, BG, mat_mat3(C, skew(lever_b)))  # C [l x] dbg: the lever arm's rate error
     _put(H, row, ATT, skew(u))
 
 
@@ -110,7 +110,7 @@ def lla_rad_to_ecef(lat, lon, h):
 @njit(cache=True)
 def lla_to_local_ned(lat, lon, h, r0_e, C_ne0):
     """NED position (m) relative to the origin with ECEF position r0_e and ECEF->NED DCM C_ne0."""
-    return C_ne0 @ (lla_rad_to_ecef(lat, lon, h) - r0_e)
+    return mat_vec3(C_ne0, lla_rad_to_ecef(lat, lon, h) - r0_e)
 
 
 @njit(cache=True)
@@ -163,7 +163,7 @@ def zupt_jacobian(H):
 def nhc_residual(nav, C, C_vb, z):
     """z = (lateral, vertical) velocity of the vehicle in its own axes, m/s: rows 1, 2 of
     C_vb C_nb^T v_ned (Groves 2013 Sec. 15.4.3 non-holonomic constraints; measured value 0)."""
-    v_v = C_vb @ (C.T @ nav[3:6])
+    v_v = mat_vec3(C_vb, matT_vec3(C, nav[3:6]))
     z[0] = v_v[1]
     z[1] = v_v[2]
 
@@ -175,8 +175,8 @@ def nhc_jacobian(nav, C, C_vb, H):
     With C_est = (I - [phi x]) C_true: v_b,est - v_b,true = C^T dv - C^T [v x] phi (first order),
     so H_vel = (C_vb C^T)[1:3] and H_att = -(C_vb C^T [v x])[1:3].
     """
-    A = C_vb @ C.T
-    B = -(A @ skew(nav[3:6]))
+    A = mat_matT3(C_vb, C)
+    B = -mat_mat3(A, skew(nav[3:6]))
     for i in range(2):
         for j in range(N_NAV):
             H[i, j] = 0.0
@@ -188,14 +188,14 @@ def nhc_jacobian(nav, C, C_vb, H):
 @njit(cache=True)
 def odometer_residual(nav, C, C_vb, scale_err, speed_mps):
     """z = (1 + k) x forward velocity of the vehicle (row 0 of C_vb C_nb^T v_ned) - odometer speed, m/s."""
-    return (1.0 + scale_err) * (C_vb @ (C.T @ nav[3:6]))[0] - speed_mps
+    return (1.0 + scale_err) * mat_vec3(C_vb, matT_vec3(C, nav[3:6]))[0] - speed_mps
 
 
 @njit(cache=True)
 def odometer_jacobian(nav, C, C_vb, scale_err, H):
     """Row 0 of H for `odometer_residual` on the navigation errors (as `nhc_jacobian`, row 0, times 1 + k)."""
-    A = C_vb @ C.T
-    B = -(A @ skew(nav[3:6]))
+    A = mat_matT3(C_vb, C)
+    B = -mat_mat3(A, skew(nav[3:6]))
     for j in range(N_NAV):
         H[0, j] = 0.0
     for j in range(3):
@@ -207,7 +207,7 @@ def odometer_jacobian(nav, C, C_vb, scale_err, H):
 def zaru_residual(nav, C, bias, earth_sign, gyro_mean_rps, z):
     """z = (gyro bias + Earth rate in body) - mean raw gyro rate over a stop, rad/s (the nominal's
     prediction of the standing gyro minus what it read); earth_sign -1 in reversed time."""
-    w_ie_b = C.T @ earth_rate_ned(nav[0])
+    w_ie_b = matT_vec3(C, earth_rate_ned(nav[0]))
     for i in range(3):
         z[i] = bias[3 + i] + earth_sign * w_ie_b[i] - gyro_mean_rps[i]
 
@@ -223,7 +223,7 @@ def zaru_jacobian(H):
 
 
 @njit(cache=True)
-def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
+def measure(e, ev, aid, ranging, nav, C, bias, w_ib, lay, z, H, R):
     """Residual z (m,), rows H (m, n) and noise R (m, m) of measurement e about the nominal state.
 
     ev: the kernel's event arrays (`fusion._kernels.EventArrays`), aid: the per-kind parameters
@@ -255,38 +255,6 @@ def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
             z[i] = zv[i]
             for j in range(N_NAV):
                 H[i, j] = Hv[i, j]
-    elif kind == Kind.RANGE:
-        a = ev.par[e]
-        p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
-        ob = lay[Block.RANGE_BIAS]
-        oc = lay[Block.CALIBRATION]
-        z[0] = range_residual(p, aid.anchors_ned[a], ev.z[e, 0], bias[6 + ob - N_NAV], bias[6 + oc - N_NAV + a])
-        range_jacobian(p, aid.anchors_ned[a], lag, H, 0)
-        H[0, ob] = 1.0  # Eq. 24, last column (sign: error = estimate - truth)
-        H[0, oc + a] = 1.0
-    elif kind == Kind.FIX_NE:
-        p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
-        H3 = np.zeros((3, H.shape[1]))
-        gps_position_jacobian(nav, C, aid.zero3, lag, H3, 0)
-        of = lay[Block.FLOOR]  # the fix's sensitivity to the floor and calibration errors (FLOOR, CALIBRATION follow)
-        si = ev.par[e]
-        for i in range(2):
-            z[i] = p[i] - ev.z[e, i]
-            for j in range(N_NAV):
-                H[i, j] = H3[i, j]
-            if si >= 0:  # the fix corrected by the current floor and calibration estimates
-                for j in range(aid.sens.shape[2]):
-                    H[i, of + j] = aid.sens[si, i, j]
-                    z[i] += aid.sens[si, i, j] * bias[6 + of - N_NAV + j]
-    elif kind == Kind.FLOOR:
-        p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
-        H3 = np.zeros((3, H.shape[1]))
-        gps_position_jacobian(nav, C, aid.zero3, lag, H3, 0)
-        of = lay[Block.FLOOR]
-        for j in range(N_NAV):
-            H[0, j] = H3[2, j]
-        H[0, of] = -1.0  # the floor used is z + its nominal correction; its error enters with -1
-        z[0] = p[2] - (ev.z[e, 0] + bias[6 + of - N_NAV])
     elif kind == Kind.NHC:
         nhc_residual(nav, C, aid.C_vb, z)
         nhc_jacobian(nav, C, aid.C_vb, H)
@@ -294,8 +262,8 @@ def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
         if om >= 0:  # the residual misalignment m = [pitch, yaw] turns the vehicle axes:
             # v_vehicle = (I - [(0, m_p, m_y) x]) C_vb v_b -> lateral - s m_y, vertical + s m_p; and
             # the constraint holds at a point d behind the IMU (the rear axle): + w x (-d, 0, 0)
-            s = (aid.C_vb @ (C.T @ nav[3:6]))[0]
-            w_v = aid.C_vb @ w_ib
+            s = mat_vec3(aid.C_vb, matT_vec3(C, nav[3:6]))[0]
+            w_v = mat_vec3(aid.C_vb, w_ib)
             mp, my, d = bias[6 + om - N_NAV], bias[6 + om - N_NAV + 1], bias[6 + om - N_NAV + 2]
             z[0] += -s * my - w_v[2] * d
             z[1] += s * mp + w_v[1] * d
@@ -309,13 +277,46 @@ def measure(e, ev, aid, nav, C, bias, w_ib, lay, z, H, R):
         z[0] = odometer_residual(nav, C, aid.C_vb, k_s, ev.z[e, 0])
         odometer_jacobian(nav, C, aid.C_vb, k_s, H)
         if ok >= 0:
-            H[0, ok] = (aid.C_vb @ (C.T @ nav[3:6]))[0]
+            H[0, ok] = mat_vec3(aid.C_vb, matT_vec3(C, nav[3:6]))[0]
     elif kind == Kind.ZARU:
         zaru_residual(nav, C, bias, aid.earth_sign, ev.z[e], z)
         zaru_jacobian(H)
-    else:  # Kind.ZUPT
+    elif kind == Kind.ZUPT:
         zupt_residual(nav, z)
         for i in range(3):
             z[i] -= ev.z[e, i]
         zupt_jacobian(H)
+    elif ranging is not None:  # None: numba compiles no ranging branch (a drive has none)
+        if kind == Kind.RANGE:
+            a = ev.par[e]
+            p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+            ob = lay[Block.RANGE_BIAS]
+            oc = lay[Block.CALIBRATION]
+            z[0] = range_residual(p, aid.anchors_ned[a], ev.z[e, 0], bias[6 + ob - N_NAV], bias[6 + oc - N_NAV + a])
+            range_jacobian(p, aid.anchors_ned[a], lag, H, 0)
+            H[0, ob] = 1.0  # Eq. 24, last column (sign: error = estimate - truth)
+            H[0, oc + a] = 1.0
+        elif kind == Kind.FIX_NE:
+            p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+            H3 = np.zeros((3, H.shape[1]))
+            gps_position_jacobian(nav, C, aid.zero3, lag, H3, 0)
+            of = lay[Block.FLOOR]  # the fix's sensitivity to the floor and calibration errors (FLOOR, CALIBRATION follow)
+            si = ev.par[e]
+            for i in range(2):
+                z[i] = p[i] - ev.z[e, i]
+                for j in range(N_NAV):
+                    H[i, j] = H3[i, j]
+                if si >= 0:  # the fix corrected by the current floor and calibration estimates
+                    for j in range(aid.sens.shape[2]):
+                        H[i, of + j] = aid.sens[si, i, j]
+                        z[i] += aid.sens[si, i, j] * bias[6 + of - N_NAV + j]
+        elif kind == Kind.FLOOR:
+            p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+            H3 = np.zeros((3, H.shape[1]))
+            gps_position_jacobian(nav, C, aid.zero3, lag, H3, 0)
+            of = lay[Block.FLOOR]
+            for j in range(N_NAV):
+                H[0, j] = H3[2, j]
+            H[0, of] = -1.0  # the floor used is z + its nominal correction; its error enters with -1
+            z[0] = p[2] - (ev.z[e, 0] + bias[6 + of - N_NAV])
     return m

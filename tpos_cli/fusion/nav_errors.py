@@ -16,10 +16,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm
+from tpos_cli.frames._kernels import mat_mat3, normal_gravity, radii_m, rotvec_to_dcm_into
 from tpos_cli.frames.earth import OMEGA_IE_RPS
 from tpos_cli.fusion.layout import ATT, BA, BG, N_NAV, POS, VEL
-from tpos_cli.ins._kernels import cross
 
 
 @njit(cache=True)
@@ -59,12 +58,17 @@ def error_dynamics(nav, C, f_n, earth_sign, tau_acc_s, tau_gyro_s, F):
             F[i, j] = 0.0
     for i in range(3):
         F[POS + i, VEL + i] = 1.0
-    a = 2.0 * w_ie + w_en
+    a = np.empty(3)
+    w_in = np.empty(3)
+    for i in range(3):
+        a[i] = 2.0 * w_ie[i] + w_en[i]
+        w_in[i] = w_ie[i] + w_en[i]
     v = nav[3:6]
-    vxM = np.empty((3, 3))
+    vxM = np.empty((3, 3))  # [v x] M, column by column
     for j in range(3):
-        vxM[:, j] = cross(v, M[:, j])
-    w_in = w_ie + w_en
+        vxM[0, j] = v[1] * M[2, j] - v[2] * M[1, j]
+        vxM[1, j] = v[2] * M[0, j] - v[0] * M[2, j]
+        vxM[2, j] = v[0] * M[1, j] - v[1] * M[0, j]
     for i in range(3):
         for j in range(3):
             F[VEL + i, BA + j] = -C[i, j]
@@ -123,7 +127,11 @@ def apply_feedback(nav, C, bias, x):
         nav[3 + i] -= x[VEL + i]
         bias[i] -= x[BA + i]
         bias[3 + i] -= x[BG + i]
-    phi = x[ATT : ATT + 3].copy()
-    C[:, :] = rotvec_to_dcm(phi) @ C  # C_true = (I + [phi x]) C_est, exactly as a rotation
+    R = np.empty((3, 3))
+    rotvec_to_dcm_into(x[ATT], x[ATT + 1], x[ATT + 2], R)
+    RC = mat_mat3(R, C)  # C_true = (I + [phi x]) C_est, exactly as a rotation
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = RC[i, j]
     for i in range(x.shape[0] - N_NAV):  # states after the 15 (fusion.layout): nominal in bias[6:]
         bias[6 + i] -= x[N_NAV + i]
