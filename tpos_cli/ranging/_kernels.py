@@ -49,19 +49,24 @@ def _solve_small(A, b, x):
 
 
 @njit(cache=True)
-def _normal_matrix(anchors_ned_m, range_m, w, p, nd, N, g):
-    """N = H^T W H and g = H^T W (r - rho) at position p; H rows d rho / d (n, e[, d]) (Eq. 23).
-    False when the position coincides with an anchor."""
-    N[:, :] = 0.0
-    g[:] = 0.0
-    for i in range(range_m.shape[0]):
+def _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
+    """N = H^T W H and g = H^T W (r - rho) at position p over the first k ranges; H rows
+    d rho / d (n, e[, d]) (Eq. 23). False when the position coincides with an anchor."""
+    for a in range(nd):
+        g[a] = 0.0
+        for b in range(nd):
+            N[a, b] = 0.0
+    h = np.empty(3)
+    for i in range(k):
         d0 = p[0] - anchors_ned_m[i, 0]
         d1 = p[1] - anchors_ned_m[i, 1]
         d2 = p[2] - anchors_ned_m[i, 2]
         rho = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if rho < 1e-9:
             return False
-        h = (d0 / rho, d1 / rho, d2 / rho)
+        h[0] = d0 / rho
+        h[1] = d1 / rho
+        h[2] = d2 / rho
         nu = range_m[i] - rho
         for a in range(nd):
             g[a] += h[a] * w[i] * nu
@@ -71,24 +76,27 @@ def _normal_matrix(anchors_ned_m, range_m, w, p, nd, N, g):
 
 
 @njit(cache=True)
-def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, p, nd, max_iter, tol_m, max_pdop, cov):
-    """Weighted Gauss-Newton fix of the first `nd` (2: north, east; 3: also down) coordinates of
-    p (3,), updated in place; the others stay. cov (nd, nd) <- (H^T W H)^-1 at the solution.
+def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov):
+    """Weighted Gauss-Newton fix from the first k rows of anchors_ned_m (., 3), range_m and
+    sigma_m of the first `nd` (2: north, east; 3: also down) coordinates of p (3,), updated in
+    place; the others stay. cov (nd, nd) <- (H^T W H)^-1 at the solution.
 
     Returns (status, rms residual m): FIX_OK, FIX_FAILED (fewer than nd + 1 ranges, a range of
     zero length, singular normal matrix, no step below tol_m within max_iter) or
     FIX_POOR_GEOMETRY (sqrt(trace(cov[:2, :2])) / RMS sigma above max_pdop).
     """
-    k = range_m.shape[0]
     if k < nd + 1:
         return FIX_FAILED, np.nan
-    w = 1.0 / sigma_m**2
+    w = np.empty(k)
+    for i in range(k):
+        w[i] = 1.0 / (sigma_m[i] * sigma_m[i])
     N = np.empty((nd, nd))
+    A = np.empty((nd, nd))
     g = np.empty(nd)
     dx = np.empty(nd)
     converged = False
     for _ in range(max_iter):
-        if not _normal_matrix(anchors_ned_m, range_m, w, p, nd, N, g):
+        if not _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
             return FIX_FAILED, np.nan
         if not _solve_small(N, g, dx):
             return FIX_FAILED, np.nan
@@ -101,14 +109,15 @@ def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, p, nd, max_iter, tol_m, ma
             break
     if not converged:
         return FIX_FAILED, np.nan
-    if not _normal_matrix(anchors_ned_m, range_m, w, p, nd, N, g):
+    if not _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
         return FIX_FAILED, np.nan
-    e = np.zeros(nd)
+    e = np.empty(nd)
     col = np.empty(nd)
     for j in range(nd):  # the inverse column by column
-        A = N.copy()
-        e[:] = 0.0
-        e[j] = 1.0
+        for a in range(nd):
+            e[a] = 1.0 if a == j else 0.0
+            for b in range(nd):
+                A[a, b] = N[a, b]
         if not _solve_small(A, e, col):
             return FIX_FAILED, np.nan
         for a in range(nd):
@@ -121,7 +130,7 @@ def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, p, nd, max_iter, tol_m, ma
         d2 = p[2] - anchors_ned_m[i, 2]
         res = range_m[i] - np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         ss += res * res
-        s2 += sigma_m[i] ** 2
+        s2 += sigma_m[i] * sigma_m[i]
     pdop = np.sqrt(cov[0, 0] + cov[1, 1]) / np.sqrt(s2 / k)
     return (FIX_OK if pdop <= max_pdop else FIX_POOR_GEOMETRY), np.sqrt(ss / k)
 
@@ -144,17 +153,20 @@ def epoch_numbers(t_s, window_s):
 @njit(cache=True)
 def _subset_fix(idx, k, skip, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m, max_pdop,
                 a_sub, r_sub, s_sub, p, cov):
-    """Fix from the ranges idx[:k] except position `skip` (-1: all); fills a_sub, r_sub, s_sub
-    with the ranges used, p and cov. Returns (status, weighted residual sum of squares, n used)."""
+    """Fix from the ranges idx[:k] except position `skip` (-1: all); fills the first rows of a_sub,
+    r_sub, s_sub with the ranges used, p and cov. Returns (status, weighted residual sum of
+    squares, n used)."""
     m = 0
     for j in range(k):
         if j != skip:
-            a_sub[m] = anchors_ned_m[anchor[idx[j]]]
+            for c in range(3):
+                a_sub[m, c] = anchors_ned_m[anchor[idx[j]], c]
             r_sub[m] = range_m[idx[j]]
             s_sub[m] = sd_m[idx[j]]
             m += 1
-    p[:] = guess
-    status, _ = gauss_newton_fix(a_sub[:m], r_sub[:m], s_sub[:m], p, 2, max_iter, tol_m, max_pdop, cov)
+    for c in range(3):
+        p[c] = guess[c]
+    status, _ = gauss_newton_fix(a_sub, r_sub, s_sub, m, p, 2, max_iter, tol_m, max_pdop, cov)
     chi = 0.0
     for j in range(m):
         d0 = p[0] - a_sub[j, 0]
@@ -181,7 +193,9 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
     K = cov H^T W; returns the number of fixes.
     """
     n_anchor = anchors_ned_m.shape[0]
-    guess = guess_ned_m.copy()
+    guess = np.empty(3)
+    for c in range(3):
+        guess[c] = guess_ned_m[c]
     last = np.empty(n_anchor, np.int64)
     idx = np.empty(n_anchor, np.int64)
     a_sub = np.empty((n_anchor, 3))
@@ -191,7 +205,8 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
     p = np.empty(3)
     n_fix = 0
     for e in range(bounds.shape[0] - 1):
-        last[:] = -1
+        for a in range(n_anchor):
+            last[a] = -1
         for i in range(bounds[e], bounds[e + 1]):  # one range per anchor: the last if it answered twice
             last[anchor[i]] = i
         k = 0
@@ -223,16 +238,21 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
             k -= 1
         if status != FIX_OK:
             continue
-        guess[:] = p
+        for c in range(3):
+            guess[c] = p[c]
         t_max = -np.inf
         for j in range(k):
             t_max = max(t_max, t_s[idx[j]])
         o_t[n_fix] = t_max
         o_z[n_fix, 0] = p[0]
         o_z[n_fix, 1] = p[1]
-        o_R[n_fix] = cov
+        o_R[n_fix, 0, 0] = cov[0, 0]
+        o_R[n_fix, 0, 1] = cov[0, 1]
         o_R[n_fix, 1, 0] = cov[0, 1]  # exactly symmetric
-        o_sens[n_fix] = 0.0
+        o_R[n_fix, 1, 1] = cov[1, 1]
+        for r in range(2):
+            for c in range(1 + n_anchor):
+                o_sens[n_fix, r, c] = 0.0
         for j in range(k):
             d0 = p[0] - a_sub[j, 0]
             d1 = p[1] - a_sub[j, 1]
@@ -330,7 +350,14 @@ def mamdani_centroid(x, in_lo, in_hi, in_tri, out_tri, rule_in, rule_out, out_lo
                             if 0.0 <= mu <= 1.0:
                                 pts[m] = a0 + (a1 - a0) * mu
                                 m += 1
-        q = np.sort(pts[:m])
+        for j in range(1, m):  # insertion sort of the few breakpoints
+            v = pts[j]
+            i2 = j - 1
+            while i2 >= 0 and pts[i2] > v:
+                pts[i2 + 1] = pts[i2]
+                i2 -= 1
+            pts[i2 + 1] = v
+        q = pts
         area = 0.0
         moment = 0.0
         for j in range(m - 1):
