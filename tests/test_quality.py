@@ -184,8 +184,6 @@ def test_clean_sessions_are_ok(sims, kind):
     assert q["verdict"] == "ok", q["reasons"]
 
 
-@pytest.mark.xfail(strict=True, reason="the ranging chain's tc/lc filters are overconfident on clean simulations "
-                                       "(range NIS ~1.1x its band, lc fix NIS above band): the ranging filter's to fix (issue 12)")
 def test_clean_ranging_session_is_ok(sims):
     get, root = sims
     q = _run(get("ranging"), root)

@@ -38,6 +38,19 @@ def test_recovers_per_anchor_scale_and_bias():
     assert_allclose(model.range_sd_m(d), 0.05 + 0.01 * d, rtol=0.1, atol=0)
 
 
+def test_range_sd_beyond_the_calibrated_span_follows_the_fitted_line():
+    # calibration to 18.6 m; corridor ranges reach ~26 m. The SD law 0.05 + 0.01 d keeps growing:
+    # a clamp at the span's end understated a 25 m range's SD by ~25 %
+    rng = np.random.default_rng(6)
+    a, t, m = _calibration(rng, [1.0] * 4, [0.0] * 4, 0.05, 0.01)
+    model = fit_range_model(a, t, m, 4, scale="shared")
+    d = np.array([25.0, 30.0])
+    assert_allclose(model.range_sd_m(d), 0.05 + 0.01 * d, rtol=0.1, atol=0)
+    # inside the span the polynomial itself; below it, the tangent (still positive)
+    assert_allclose(model.range_sd_m(np.array([9.0])), np.polyval(model.sd_poly, 9.0), rtol=1e-12)
+    assert model.range_sd_m(np.array([0.0]))[0] > 0
+
+
 def test_shared_scale_matches_eq13():
     rng = np.random.default_rng(6)
     a, t, m = _calibration(rng, [1.015] * 3, [0.2, 0.0, -0.3], 0.05, 0.0)

@@ -136,3 +136,22 @@ def test_one_anchor_bridges_a_dropout_of_three(scene):
     assert np.mean(rms) < 0.5 * np.mean(rms_free)
     # consistent in the mean (2 for 2 dof; measured 1.7): the one-anchor SDs are not overconfident
     assert np.mean(nees) < 3.0
+
+
+def test_fix_events_drop_an_nlos_range_down_to_three():
+    """With four anchors and lc_min_anchors = 4 an NLOS spike on one range is dropped (the fix
+    from the other three is used); a three-range fix that still fails its residual test is not
+    used at all (it would enter the filter bent beyond its covariance)."""
+    from tpos_cli.ranging.filter import fix_events
+
+    anchors = np.array([[0.0, -3.0, -2.5], [10.0, 3.0, -2.4], [20.0, -3.0, -2.6], [30.0, 3.0, -2.5]])
+    node = np.array([12.0, 0.5, 0.0])
+    sd = np.full(4, 0.05)
+    r = np.linalg.norm(anchors - node, axis=1)
+    r[2] += 1.5  # NLOS: 30 SDs
+    ev, missing = fix_events(np.zeros(4), np.arange(4), r, sd, anchors, 0.0, 4, 0.02)
+    assert missing == 0 and len(ev) == 1
+    np.testing.assert_allclose(ev.z[0, :2], node[:2], atol=1e-6)  # the three clean ranges are exact
+    assert np.all(ev.sens[0][:, 1 + 2] == 0.0)  # the dropped anchor's bias does not move the fix
+    ev3, missing3 = fix_events(np.zeros(3), np.arange(3), r[:3], sd[:3], anchors[:3], 0.0, 3, 0.02)
+    assert missing3 == 1 and len(ev3) == 0

@@ -42,14 +42,18 @@ def test_too_few_ranges_or_bad_geometry():
 def test_fix_sensitivity_matches_finite_differences():
     """The fix rows for the FLOOR and CAL states equal the fix's change under a small floor error
     or per-anchor range bias (the LS fix is linear in them to first order)."""
-    from tpos_cli.ranging.filter import _fix_sensitivity
+    from tpos_cli.ranging.filter import fix_events
 
     anchors = np.array([[0.0, -3.0, -2.5], [10.0, 3.0, -2.4], [20.0, -3.0, -2.6], [30.0, 3.0, -2.5]])
     node = np.array([12.0, 0.5, 0.0])
     sd = np.array([0.05, 0.06, 0.07, 0.08])
     r = np.linalg.norm(anchors - node, axis=1)
     fix = ls_fix(anchors, r, sd, node + [0.3, -0.2, 0.0])
-    S = _fix_sensitivity(fix, anchors, np.arange(4), sd, 4)
+    ev, missing = fix_events(np.zeros(4), np.arange(4), r, sd, anchors, node[2], 4, 0.02)  # one epoch, one fix
+    assert missing == 0 and len(ev) == 1
+    np.testing.assert_allclose(ev.z[0, :2], fix.pos_ned_m[:2], atol=1e-9)
+    np.testing.assert_allclose(ev.R[0, :2, :2], fix.cov_ne_m2, rtol=1e-9)
+    S = ev.sens[0]
     h = 1e-4
     for i in range(4):  # bias on anchor i's range: fix moves by K[:, i] h
         rb = r.copy()

@@ -31,8 +31,11 @@ from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, run_filter
 from tpos_cli.fusion.layout import StateLayout, ranging_blocks
 from tpos_cli.fusion.measurements import Kind
+from tpos_cli.ranging._kernels import fix_epochs
 from tpos_cli.ranging.fuzzy import FuzzySystem, infer
-from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
+from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs
+
+_LS_MAX_ITER, _LS_TOL_M, _LS_MAX_PDOP = 50, 1e-6, 10.0  # the defaults of `multilateration.ls_fix`
 
 
 def ranging_layout(n_anchors: int, range_bias_sd_m: float, range_bias_q_m2ps: float, floor_sd_m: float = 0.0,
@@ -100,57 +103,26 @@ def fix_events(t_s, anchor, range_m, sd_m, anchors_ned, down_m: float, min_ancho
     its sensitivity `sens` to the floor-height error (the fix holds down at `down_m`) and to the
     calibrated-range bias of each anchor, K = (H^T W H)^-1 H^T W of the final LS step: these
     errors are constant over a run, so the filter carries them as states (`FLOOR`, `CAL`) instead
-    of white noise on each fix, which averaging over fixes would shrink.
+    of white noise on each fix, which averaging over fixes would shrink. Also beyond the paper: an
+    epoch whose weighted range residuals fail a chi-square test at `gate_probability` loses the
+    range whose omission fits best, down to three ranges; a fix that still fails is not used
+    (NLOS ranges would bend it beyond its covariance). Compiled: `_kernels.fix_epochs`.
     """
-    ep = group_epochs(t_s, window_s)
-    n_anchor = anchors_ned.shape[0]
-    ts, zs, Rs, Ss = [], [], [], []
-    n_missing = 0
-    guess = np.array([*np.mean(anchors_ned[:, :2], axis=0), down_m])
-    bounds = epoch_bounds(ep)
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        # one range per anchor per epoch: keep the last if an anchor answered twice
-        _, last = np.unique(anchor[a:b][::-1], return_index=True)
-        idx = np.arange(a, b)[::-1][last]
-        if idx.size < min_anchors:
-            n_missing += 1
-            continue
-        fix = ls_fix(anchors_ned[anchor[idx]], range_m[idx], sd_m[idx], guess)
-        # Beyond the paper: with a redundant range, drop the worst one while the weighted
-        # residuals fail a chi-square test (an NLOS spike bends the whole fix).
-        while fix.ok and idx.size > min_anchors:
-            res = (range_m[idx] - np.linalg.norm(anchors_ned[anchor[idx]] - fix.pos_ned_m, axis=1)) / sd_m[idx]
-            if res @ res <= chi2_threshold(gate_probability, idx.size - 2)[idx.size - 2]:
-                break
-            idx = np.delete(idx, np.argmax(np.abs(res)))
-            fix = ls_fix(anchors_ned[anchor[idx]], range_m[idx], sd_m[idx], guess)
-        if not fix.ok:
-            n_missing += 1
-            continue
-        guess = fix.pos_ned_m
-        ts.append(t_s[idx].max())
-        zs.append(fix.pos_ned_m[:2])
-        Rs.append([fix.cov_ne_m2[0, 0], fix.cov_ne_m2[0, 1], fix.cov_ne_m2[1, 1]])
-        Ss.append(_fix_sensitivity(fix, anchors_ned, anchor[idx], sd_m[idx], n_anchor))
-    n = len(ts)
-    Rv = np.array(Rs, float).reshape(n, 3)
-    R = np.stack([np.column_stack([Rv[:, 0], Rv[:, 1]]), np.column_stack([Rv[:, 1], Rv[:, 2]])], axis=1)
+    t = np.ascontiguousarray(t_s, dtype=float)
+    a = np.ascontiguousarray(anchor, dtype=np.int64)
+    anchors = np.ascontiguousarray(anchors_ned, dtype=float)
+    n_anchor = anchors.shape[0]
+    bounds = epoch_bounds(group_epochs(t, window_s))
+    n_ep = bounds.size - 1
+    o_t, o_z = np.empty(n_ep), np.empty((n_ep, 2))
+    o_R, o_sens = np.empty((n_ep, 2, 2)), np.empty((n_ep, 2, 1 + n_anchor))
+    guess = np.array([*np.mean(anchors[:, :2], axis=0), down_m])
+    n = fix_epochs(t, a, np.ascontiguousarray(range_m, dtype=float), np.ascontiguousarray(sd_m, dtype=float), anchors,
+                   bounds, guess, int(min_anchors), chi2_threshold(gate_probability, max(n_anchor, 1)),
+                   _LS_MAX_ITER, _LS_TOL_M, _LS_MAX_PDOP, o_t, o_z, o_R, o_sens)
     # one rejection counter for all fixes (slot A, after the anchors'); par: the row of `sens`
-    return Measurements.rows(np.array(ts, float), Kind.FIX_NE, np.array(zs, float).reshape(n, 2), R, dim=2, gated=True,
-                             slot=n_anchor, par=np.arange(n), sens=np.array(Ss, float).reshape(n, 2, 1 + n_anchor)), n_missing
-
-
-def _fix_sensitivity(fix, anchors_ned, anchor, sd_m, n_anchor: int) -> np.ndarray:
-    """(2, 1 + A): fix error = K (bias - h_d floor_error) + K noise with K = cov H^T W (Eq. 8 gain),
-    h_d the down components of the unit vectors: columns [K h_d, K per anchor] as the filter's
-    measurement rows for the FLOOR and CAL states (sign: z = INS - fix)."""
-    d = fix.pos_ned_m[None, :] - anchors_ned[anchor]
-    u = d / np.linalg.norm(d, axis=1)[:, None]
-    K = fix.cov_ne_m2 @ (u[:, :2].T / np.asarray(sd_m, float) ** 2)
-    out = np.zeros((2, 1 + n_anchor))
-    out[:, 0] = K @ u[:, 2]
-    np.add.at(out.T, 1 + anchor, K.T)
-    return out
+    return Measurements.rows(o_t[:n], Kind.FIX_NE, o_z[:n], o_R[:n], dim=2, gated=True, slot=n_anchor,
+                             par=np.arange(n), sens=o_sens[:n].copy()), n_ep - n
 
 
 def zupt_events(t_s, sd_mps: float) -> Measurements:

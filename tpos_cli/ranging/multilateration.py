@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.ranging._kernels import FIX_FAILED, FIX_OK, epoch_numbers, gauss_newton_fix
+
 
 @dataclass(frozen=True)
 class Fix:
@@ -42,58 +44,24 @@ def ls_fix(
     `ok` is False with fewer than 3 ranges (4 with `solve_down`), on non-convergence or when
     the geometry is poor (sqrt(trace(cov)) / sigma above max_pdop). `cov_ne_m2` is the
     (north, east) block; with `solve_down` the full 3x3 covariance is in `cov_ned_m2`.
+    Compiled: `_kernels.gauss_newton_fix`.
     """
-    a = np.asarray(anchors_ned_m, dtype=float)
-    r = np.asarray(range_m, dtype=float)
-    s = np.asarray(sigma_m, dtype=float)
+    a = np.ascontiguousarray(anchors_ned_m, dtype=float).reshape(-1, 3)
+    r = np.ascontiguousarray(range_m, dtype=float)
+    s = np.ascontiguousarray(sigma_m, dtype=float)
     p = np.array(guess_ned_m, dtype=float)
-    nan_fix = Fix(np.full(3, np.nan), np.full((2, 2), np.nan), np.nan, False)
     nd = 3 if solve_down else 2
-    if r.size < nd + 1:
-        return nan_fix
-    w = 1.0 / s**2
-    for _ in range(max_iter):
-        diff = p[None, :] - a
-        rho = np.linalg.norm(diff, axis=1)
-        if np.any(rho < 1e-9):
-            return nan_fix
-        H = diff[:, :nd] / rho[:, None]  # d rho / d (n, e[, d]), paper Eq. 23
-        nu = r - rho
-        N = H.T @ (w[:, None] * H)
-        try:
-            dx = np.linalg.solve(N, H.T @ (w * nu))
-        except np.linalg.LinAlgError:
-            return nan_fix
-        p[:nd] += dx
-        if np.linalg.norm(dx) < tol_m:
-            break
-    else:
-        return nan_fix
-    rho = np.linalg.norm(p[None, :] - a, axis=1)
-    diff = p[None, :] - a
-    H = diff[:, :nd] / rho[:, None]
-    try:
-        cov = np.linalg.inv(H.T @ (w[:, None] * H))
-    except np.linalg.LinAlgError:
-        return nan_fix
-    res = r - rho
-    pdop = np.sqrt(np.trace(cov[:2, :2])) / np.sqrt(np.mean(s**2))
-    return Fix(p, cov[:2, :2].copy(), float(np.sqrt(np.mean(res**2))), bool(pdop <= max_pdop),
-               cov if solve_down else None)
+    cov = np.empty((nd, nd))
+    status, rms = gauss_newton_fix(a, r, s, r.size, p, nd, int(max_iter), float(tol_m), float(max_pdop), cov)
+    if status == FIX_FAILED:
+        return Fix(np.full(3, np.nan), np.full((2, 2), np.nan), np.nan, False)
+    return Fix(p, cov[:2, :2].copy(), float(rms), status == FIX_OK, cov if solve_down else None)
 
 
 def group_epochs(t_s: np.ndarray, window_s: float) -> np.ndarray:
     """Epoch number of each (time-sorted) range: a new epoch starts more than `window_s` after
     the first range of the current one (anchors answering one poll share an epoch)."""
-    t = np.asarray(t_s, dtype=float)
-    out = np.empty(t.size, np.int64)
-    e, start = -1, -np.inf
-    for i, ti in enumerate(t):
-        if ti - start > window_s:
-            e += 1
-            start = ti
-        out[i] = e
-    return out
+    return epoch_numbers(np.ascontiguousarray(t_s, dtype=float), float(window_s))
 
 
 def epoch_bounds(epoch: np.ndarray) -> np.ndarray:
