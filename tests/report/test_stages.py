@@ -31,3 +31,21 @@ def test_report_stages_are_named(tmp_path):
     names = set(clock.cpu_s)
     assert {"load: run", "load: session", "load: truth", "accuracy tables", "filter health", "PDF writing"} <= names
     assert {f"figure: {p}" for page in res.pages for p in page.split("+")} <= names
+
+
+def test_cyclic_gc_paused_restores_the_collector():
+    import gc
+
+    from tpos_cli.report.build import cyclic_gc_paused
+
+    assert gc.isenabled()
+    with cyclic_gc_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with cyclic_gc_paused():
+            pass
+        assert not gc.isenabled()  # it was off before: left off
+    finally:
+        gc.enable()
