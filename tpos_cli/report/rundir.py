@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.bounded import read_json_bounded
 
 TRAJECTORY_REQUIRED = ("t", "lat", "lon", "h", "roll", "pitch", "yaw", "solution")
 TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
@@ -131,9 +132,9 @@ def load_run(run_dir: Path) -> RunData:
     sp = run_dir / "summary.json"
     if not run_dir.is_dir() or not sp.exists():
         raise InvalidInputError(f"{run_dir}: not a run directory (no summary.json); run `tpos process` first")
-    try:
-        summary = json.loads(sp.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+    try:  # bounded: a FIFO or a deeply nested file must not block or crash a report
+        summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
+    except (OSError, json.JSONDecodeError) as exc:
         raise InvalidInputError(f"{run_dir.name}/summary.json: not readable JSON ({exc})") from exc
     if not isinstance(summary, dict):
         raise InvalidInputError(f"{run_dir.name}/summary.json: expected a JSON object")
