@@ -79,6 +79,13 @@ def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tupl
             raise InvalidInputError(f"--mask-gps {a}:{b}: the end must be after the start")
     g = session.gps
     rel = np.array(windows_s, dtype=float) - session.t0_s
+    for (a, b), (ra, rb) in zip(windows_s, rel):
+        if not np.any((g.t_s >= ra) & (g.t_s < rb)):
+            # a window on the wrong clock (seconds from the start on a log stamped in GPS seconds
+            # of the week) would withhold nothing and the run would look like a successful test
+            raise InvalidInputError(
+                f"--mask-gps {a:g}:{b:g}: no GPS fix in that window; the fixes span {g.t_s[0] + session.t0_s:.3f} to "
+                f"{g.t_s[-1] + session.t0_s:.3f} s on the logger clock (the clock of the files' t column)")
     held = timebase.in_intervals(g.t_s, rel)
     keep = ~held
 

@@ -74,6 +74,9 @@ def test_usage_errors_exit_2(tmp_path):
     s = write_minimal_session(tmp_path / "s")
     assert runner.invoke(app, ["process", str(s), "-p", "no-such-pipeline", "-o", str(tmp_path / "r")]).exit_code == 2
     assert runner.invoke(app, ["process", str(s), "--mask-gps", "abc"]).exit_code == 2
+    # a window on the wrong clock (seconds from the start; the log's t starts at 1000) withholds nothing
+    res = runner.invoke(app, ["process", str(s), "-p", "ingest", "--mask-gps", "2:5", "-o", str(tmp_path / "r")])
+    assert res.exit_code == 2 and "--mask-gps 2:5: no GPS fix in that window" in res.output, res.output
     assert runner.invoke(app, ["process", str(s), "-p", "ingest", "--set", "ingest.bogus=1", "-o", str(tmp_path / "r")]).exit_code == 2
     assert runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(s)]).exit_code == 2  # never over an input
     assert not (tmp_path / "r").exists()
