@@ -158,7 +158,7 @@ def test_mems_grade_target_sigmas_are_never_over_confident(tmp_path, solution):
 
 @pytest.mark.xfail(reason="known gap (issue 12): the levelling consider term treats the accelerometer bias as "
                           "never observed; MEMS fkf is conservative (mean NEES/dof 0.27 over 10 sessions, "
-                          "benchmarks/target_nees.py), fkf_cal more so (0.06)", strict=False)
+                          "benchmarks/target_nees.py), fkf_cal more so (0.15)", strict=False)
 def test_mems_grade_target_sigmas_are_not_conservative(tmp_path):
     _, nees_dof = _mems_target_nees(tmp_path, (31, 32, 33), "fkf")
     assert nees_dof >= 0.3
