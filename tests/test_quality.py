@@ -42,6 +42,22 @@ def test_truncated_chi2_moments_match_integration(dof, gate):
     assert var == pytest.approx(m2 - m1 * m1, rel=1e-6)
 
 
+def test_band_carries_the_noise_models_own_uncertainty():
+    """An hour of ranges (140000 scalar updates) normalized by variances from a 2480-pair calibration:
+    R is known to sqrt(2/2480) = 2.8 %, so a variance off by that much (mean NIS 1.028) is consistent
+    with the model, while the plain band (+-1.2 % at 99.9 %) calls it off; 15 % off still fails."""
+    rng = np.random.default_rng(0)
+    x = rng.chisquare(1.0, 140000)
+    s = np.sqrt(2.0 / 2480)
+    z = stats.norm.isf(0.0005)
+    plain = consistency.mean_chi2(1.028 * x, 1.0)
+    assert not plain.inside
+    wide = consistency.mean_chi2(1.028 * x, 1.0, model_rel_sd=s)
+    assert wide.inside
+    assert wide.hi - wide.expected == pytest.approx(np.hypot(plain.hi - plain.expected, z * s), rel=1e-12)
+    assert not consistency.mean_chi2(1.15 * x, 1.0, model_rel_sd=s).inside
+
+
 def test_gated_band_holds_its_false_alarm_rate():
     # 2000 seeded runs of 200 gated 1-dof updates: the 95 % band is left about 5 % of the time
     # (Monte Carlo SD of that rate: sqrt(0.05 * 0.95 / 2000) = 0.5 %)

@@ -475,7 +475,8 @@ def anchor_advice(session, output, runner: _Runner, gate_probability: float | No
     inn = output.tables.get("innovations") if output is not None else None
     if inn is None or session.anchors is None or session.anchor_ranges is None:
         return []
-    fired = [f for f in quality.nis_findings(inn, gate_probability) if f.level != "ok" and f.check in ("nis", "rejections")]
+    rel = (getattr(output, "summary", None) or {}).get("noise_model_rel_sd")
+    fired = [f for f in quality.nis_findings(inn, gate_probability, rel) if f.level != "ok" and f.check in ("nis", "rejections")]
     score_all = _range_score(inn)
     fig: dict = {"range_score": score_all}
     if not fired or len(session.anchors.ids) < 4:

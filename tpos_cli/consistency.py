@@ -105,10 +105,14 @@ class MeanChi2:
 
 
 def mean_chi2(values, dof, *, gate_probability: float | None = None, n_eff: float | None = None,
-              prob: float = SUSPECT_PROB) -> MeanChi2:
+              prob: float = SUSPECT_PROB, model_rel_sd: float = 0.0) -> MeanChi2:
     """The mean of chi-square statistics `values` (n,) with d.o.f. `dof` (scalar or (n,)) against its
     band. `n_eff` < n widens the band for serially correlated values (the band of n_eff values of
-    the median d.o.f.)."""
+    the median d.o.f.). `model_rel_sd`: relative SD of the noise variances the statistics were
+    normalized by, when those were themselves estimated (a calibration of N pairs: sqrt(2 / N));
+    the expected mean is then uncertain by that share, added in quadrature to the band's half-widths
+    at the same probability (a long log's band would otherwise be narrower than its noise model
+    is known)."""
     x = np.asarray(values, dtype=float).ravel()
     d = np.broadcast_to(np.asarray(dof, dtype=float), x.shape)
     ok = np.isfinite(x) & np.isfinite(d) & (d > 0)
@@ -125,6 +129,10 @@ def mean_chi2(values, dof, *, gate_probability: float | None = None, n_eff: floa
     exp, lo, hi = mean_nis_band(d_band, gate_probability, prob)
     if n_eff is not None and n_eff < n:
         exp = mean_nis_band(d, gate_probability, prob)[0]
+    if model_rel_sd > 0:
+        z = float(-special.ndtri(0.5 * (1.0 - prob)))
+        lo = exp - float(np.hypot(exp - lo, z * model_rel_sd * exp))
+        hi = exp + float(np.hypot(hi - exp, z * model_rel_sd * exp))
     mean = float(x.mean())
     return MeanChi2(n, float(np.median(d)), mean, exp, lo, hi, mean / exp, bool(lo <= mean <= hi))
 

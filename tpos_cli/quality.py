@@ -107,9 +107,11 @@ def _param(config: Mapping | None, chain: str, key: str | None, default=None):
     return sec.get(key, default)
 
 
-def nis_findings(innovations: pd.DataFrame | None, gate_probability: float | None) -> list[Finding]:
+def nis_findings(innovations: pd.DataFrame | None, gate_probability: float | None,
+                 model_rel_sd: Mapping[str, float] | None = None) -> list[Finding]:
     """Mean NIS and rejections per solution and kind (module docstring); one reason line per kind
-    of failure, naming every solution and measurement kind it concerns."""
+    of failure, naming every solution and measurement kind it concerns. `model_rel_sd`: {kind:
+    relative SD of its noise variances} when the chain estimated them (`consistency.mean_chi2`)."""
     if innovations is None or innovations.empty or "nis" not in innovations:
         return []
     inn = innovations.reset_index(drop=True)
@@ -127,7 +129,8 @@ def nis_findings(innovations: pd.DataFrame | None, gate_probability: float | Non
         if n == 0:
             continue
         name = f"{sol} {kind}"
-        m = consistency.mean_chi2(nis[a], dof[a], gate_probability=gate_probability)
+        m = consistency.mean_chi2(nis[a], dof[a], gate_probability=gate_probability,
+                                  model_rel_sd=float((model_rel_sd or {}).get(kind, 0.0)))
         fig = {"n": n, "n_accepted": int(a.sum()), "dof": float(np.median(dof[ok])), "mean_nis": m.mean,
                "expected": m.expected, "band": [m.lo, m.hi], "ratio": m.ratio}
         level = "ok"
@@ -330,7 +333,7 @@ def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd
     flag_p = _param(config, chain, flag_key)
     innovations = (tables or {}).get("innovations")
     fs = list(findings)
-    fs += nis_findings(innovations, gate)
+    fs += nis_findings(innovations, gate, (results or {}).get("noise_model_rel_sd"))
     fs += flag_findings(trajectory, flag_p)
     fs += mounting_findings(results)
     fs += fusion_findings(results)

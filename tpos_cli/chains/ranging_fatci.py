@@ -113,6 +113,12 @@ def corrected_ranges(session: Session, p: RangingParams, ctx: RunContext, result
         ctx.warn(f"ranging: no range_calibration table; ranges used uncorrected (f = 1, c = 0) with "
                  f"a constant SD of {p.range_sd_m} m")
     results["range_model"] = model.summary(anchors.ids)
+    if model.fitted:
+        # the range variances come from N calibration pairs: known to sqrt(2 / N) at best, which
+        # the NIS band of a long log must allow for (`consistency.mean_chi2`); the LS fixes'
+        # covariances are built from the same variances
+        rel = float(np.sqrt(2.0 / max(int(np.sum(model.n_used)), 1)))
+        results["noise_model_rel_sd"] = {"range": rel, "fix": rel}
     ok = np.isfinite(ar.range_m)
     order = np.argsort(ar.t_s[ok], kind="stable")
     t = ar.t_s[ok][order]
