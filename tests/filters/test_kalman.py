@@ -9,6 +9,7 @@ from tpos_cli.filters.kalman import (
     cholesky_into,
     discretize,
     forward_substitute,
+    innovation_statistics,
     nis_of,
     predict,
     quadratic_form,
@@ -109,3 +110,27 @@ def test_chi2_threshold():
     assert g[0] == np.inf
     np.testing.assert_allclose(g[1:], chi2.ppf(0.95, np.arange(1, 7)), rtol=1e-12)
     np.testing.assert_allclose(g[1], 3.841458820694124, rtol=1e-12)  # textbook value
+
+
+def test_innovation_statistics_against_numpy():
+    """NIS, log det S and diag(H P H^T) of a candidate update from one S, against numpy; the state is untouched."""
+    rng = np.random.default_rng(8)
+    n, m = 18, 3
+    A = rng.standard_normal((n, n))
+    P = A @ A.T / n + 0.1 * np.eye(n)
+    H, x, z = rng.standard_normal((m, n)), rng.standard_normal(n), rng.standard_normal(m)
+    R = np.diag(rng.uniform(0.1, 1.0, m))
+    x0, P0 = x.copy(), P.copy()
+    pvar = np.full(4, np.nan)
+    nis, logdet = innovation_statistics(x, P, z, H, R, pvar)
+    S = H @ P @ H.T + R
+    nu = z - H @ x
+    np.testing.assert_allclose(nis, nu @ np.linalg.solve(S, nu), rtol=1e-12)
+    np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-12)
+    np.testing.assert_allclose(pvar[:m], np.diag(H @ P @ H.T), rtol=1e-12)
+    assert np.isnan(pvar[m])  # only the first m are written
+    np.testing.assert_array_equal(x, x0)
+    np.testing.assert_array_equal(P, P0)
+    assert nis_of(x, P, z, H, R) == nis
+    bad = innovation_statistics(x, np.array([[1.0, 2.0], [2.0, 1.0]]), np.ones(2), np.eye(2), np.zeros((2, 2)), pvar)
+    assert bad[0] == -1.0 and np.isnan(bad[1])

@@ -236,9 +236,30 @@ def update(x, P, z, H, R):
 
 
 @njit(cache=True)
+def innovation_statistics(x, P, z, H, R, pvar):
+    """A candidate update's statistics, without applying it, from one S = H P H^T + R and its
+    Cholesky factor: returns (NIS nu^T S^-1 nu, log det S) and writes pvar[:m] = diag(H P H^T)
+    (the predicted variance of each residual component, for covariance matching). NIS -1 and
+    log det NaN if S is not PD (`update` then reports it)."""
+    m, n = H.shape
+    nu, PHt, S = _innovation(x, P, z, H, R)
+    for i in range(m):
+        s = 0.0
+        for k in range(n):
+            s += H[i, k] * PHt[k, i]
+        pvar[i] = s
+    L = np.empty((m, m))
+    nis = _nis(nu, S, L)
+    if nis < 0.0:
+        return nis, np.nan
+    logdet = 0.0
+    for i in range(m):
+        logdet += 2.0 * np.log(L[i, i])
+    return nis, logdet
+
+
+@njit(cache=True)
 def nis_of(x, P, z, H, R):
     """Normalized innovation squared nu^T S^-1 nu of a candidate update, without applying it;
     -1 if S is not PD (`update` then reports it)."""
-    m = H.shape[0]
-    nu, _, S = _innovation(x, P, z, H, R)
-    return _nis(nu, S, np.empty((m, m)))
+    return innovation_statistics(x, P, z, H, R, np.empty(H.shape[0]))[0]

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import cholesky_into, discretize, nis_of, predict, quadratic_form, symmetrize, update
+from tpos_cli.filters.kalman import discretize, innovation_statistics, predict, update
 from tpos_cli.fusion.layout import N_NAV
 from tpos_cli.fusion.measurements import measure
 from tpos_cli.fusion.nav_errors import apply_feedback, corrected_increments, error_dynamics, process_noise
@@ -134,24 +134,6 @@ def mechanize_sample(k, imu, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_pre
 
 
 @njit(cache=True)
-def _log_det(P, H, R):
-    """log det S of S = H P H^T + R (symmetrized; NaN if it is not positive definite)."""
-    m = H.shape[0]
-    S = np.empty((m, m))
-    for i in range(m):
-        for j in range(m):
-            S[i, j] = quadratic_form(P, H[i], H[j]) + R[i, j]
-    symmetrize(S)
-    L = np.empty((m, m))
-    if not cholesky_into(S, L):
-        return np.nan
-    v = 0.0
-    for i in range(m):
-        v += 2.0 * np.log(L[i, i])
-    return v
-
-
-@njit(cache=True)
 def _store(dst, k, src):
     """dst[k] = src for dst (N, n) and src (n,), by elements (an array assignment compiles a
     formatted shape-mismatch error with it, 2 s of the first run)."""
@@ -265,12 +247,11 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 else:
                     z, H, R = z3, H3, R3
                 measure(e, ev, aid, ranging, nav, C, bias, w_ib, st.layout, z, H, R)
-                s = nis_of(x, P, z, H, R)
+                s, logdet = innovation_statistics(x, P, z, H, R, res.pvar[e])
                 for i in range(m):
                     res.nu[e, i] = z[i]
-                    res.pvar[e, i] = quadratic_form(P, H[i], H[i])
                 res.nis[e] = s
-                res.logdet[e] = _log_det(P, H, R)
+                res.logdet[e] = logdet
                 slot = ev.slot[e]
                 accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and consecutive[slot] >= st.max_reject)
                 if accept:
