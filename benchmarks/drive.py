@@ -252,7 +252,7 @@ def _windows(name: str, sdir: Path, truth: pd.DataFrame) -> list:
     return moving_windows(truth["t"].to_numpy(), sp, t_start=5.0 if short else 40.0, length=15.0 if short else 30.0)
 
 
-def real_logs(overrides: dict | None = None) -> None:
+def real_logs(overrides: dict | None = None, logs: tuple | None = None) -> None:
     """The default pipeline on the real drive logs, GPS withheld in 30 s windows while moving, with
     the motion constraints on (default `platform = "auto"`) and off (`platform = "none"`), and on a
     log with odometry also without it (`auto-odo`)."""
@@ -264,7 +264,7 @@ def real_logs(overrides: dict | None = None) -> None:
           f"smoothed out <= {GOALS['smoothed_out_m']} m, flagged <= {100 * GOALS['flagged']:.0f} %")
     print(f"{'session':26s} {'platform':9s} {'solution':9s} {'in RMS m':>9s} {'in max m':>9s} {'in 2sig':>8s} {'out RMS m':>10s} "
           f"{'yaw RMS deg':>12s} {'yaw median':>10s} {'NaN':>4s}")
-    for name in (PART1, "navego_canada_enav", "rtklibexplorer_walk_0827", "comma2k19_seg40"):
+    for name in logs or (PART1, "navego_canada_enav", "rtklibexplorer_walk_0827", "comma2k19_seg40"):
         sdir = REAL / name
         if not sdir.exists():
             print(f"{name}: not found under {REAL}")
@@ -327,6 +327,7 @@ def main() -> None:
     ap.add_argument("--drives", type=int, default=8, help="simulated drives per accuracy case (40: NEES to +-0.7)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="accuracy, real: a drive_smooth setting for every run (TOML value), e.g. --set cov_step_s=0.2")
+    ap.add_argument("--logs", default=None, help="real: comma-separated session names (default: the four drive logs)")
     a = ap.parse_args()
     overrides = {f"drive_smooth.{k}": tomllib.loads(f"v = {v}")["v"] for k, v in (kv.split("=", 1) for kv in a.set)}
     if a.only in (None, "speed"):
@@ -334,7 +335,7 @@ def main() -> None:
     if a.only in (None, "accuracy"):
         accuracy(a.drives, overrides)
     if a.only in (None, "real"):
-        real_logs(overrides)
+        real_logs(overrides, tuple(a.logs.split(",")) if a.logs else None)
 
 
 if __name__ == "__main__":

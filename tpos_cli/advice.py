@@ -221,15 +221,36 @@ def clock_signature(output) -> dict | None:
     return out or None
 
 
+def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
+    """The clock offset the drive filter estimated (`summary.json` gps_clock_offset: a position
+    stamped t was taken at IMU time t + d). The run already used it (and moved its output to the
+    GPS clock), so re-processing with the fix changes nothing: it is named, not tried, when it is
+    significant (`output_clock` "gps") and at least `conventions.CLOCK_MIN_S`."""
+    d, sd = float(state["estimate_s"]), float(state["sigma_s"])
+    fig = {**fig, "filter_estimate_s": d, "filter_sigma_s": sd}
+    if state.get("output_clock") != "gps" or abs(d) < conventions.CLOCK_MIN_S:
+        return [Finding("clock", "ok", None, fig)]
+    fig["suggested_gps_offset_s"] = cur + d
+    late = "late" if d < 0 else "early"
+    return [Finding("clock", "suspect",
+                    f"gps/imu: the GPS positions are time-stamped {abs(d):.3f} ± {sd:.3f} s {late} against the IMU "
+                    f"(estimated by the filter, whose output is on the GPS clock): set [time] gps_offset_s = {cur + d:.3f} "
+                    "in session.toml", fig)]
+
+
 def clock_advice(session, output, runner: _Runner, off) -> list[Finding]:
     """GPS clock offsets tried by reprocessing: from the raw-data estimate `off`
     (conventions.gps_clock_estimate: δ and δ/2) and, when both runs' innovations carry a
     significant signature of the same sign (`clock_signature`), from it (δ and 2δ: the filter
     absorbs part of an offset). The candidate that predicts the GPS best is suggested if it
-    predicts it better than the times given (`compare`)."""
+    predicts it better than the times given (`compare`). A run with clock states
+    (`clock_state_finding`) names its own estimate instead."""
     cur = conventions._current_gps_offset(session)
     f = conventions.clock_finding(off, cur)
     fig = dict(f.figures) if f is not None else {}
+    state = (getattr(output, "summary", None) or {}).get("gps_clock_offset")
+    if state is not None:  # the filter estimated the offset itself (`fusion.layout.clock_block`)
+        return clock_state_finding(state, cur, fig)
     cands = [frac * off.offset_s for frac in (1.0, 0.5)] if fig.get("candidate") else []
     sig = clock_signature(output)
     if sig is not None:

@@ -110,7 +110,13 @@ class DriveSmoothParams(Section):
     gps_sigma_v_m: Positive = 2.5
     gps_sigma_vel_mps: Positive = 0.1
     use_gps_velocity: bool = True
-    gps_vel_latency_s: NonNegative | None = None  # how late the logged velocity is (s); None: from the
+    gps_clock_sigma_s: NonNegative = 0.2  # prior SD of the IMU-GPS clock offset state (s); 0: no such state.
+    # Estimated with the fixes; output times move to the GPS clock when it is significant (`clock_offset`)
+    gps_clock_rw_s_per_sqrt_s: NonNegative = 1e-3  # random walk of the clock offsets: a logger's clock drifts
+    # against GPS time (100 ppm is 0.1 ms/s) and its buffering changes; 1e-3: 10 ms in 100 s
+    clock_apply_sd: Positive = 3.0  # output on the GPS clock when |offset| exceeds this many of its SDs
+    gps_vel_latency_s: NonNegative | None = None  # how late the logged velocity is (s); None: the clock states
+    # estimate it (gps_clock_sigma_s > 0), else from the
     # log's own positions (`fusion.insgps.velocity_latency_s`: receivers that difference positions)
     gps_noise: Literal["estimate", "given"] = "estimate"  # estimate: scale the GPS SDs by covariance
     # matching on a first decimated pass (`fusion.gps_noise`); given: the log's SDs or the defaults
@@ -129,6 +135,8 @@ class DriveSmoothParams(Section):
     platform: Literal["auto", "car", "rover", "pedestrian", "uav", "none"] = "auto"  # car/rover: NHC
     # + ZUPT/ZARU on stops; pedestrian: ZUPT on stops; uav/none: no constraint; auto: car when the
     # travel direction stays fixed in the IMU's axes on a first forward run, else pedestrian
+    travel_min_speed_sd: Positive = 10.0  # mounting from the travel direction: samples faster than this many
+    # horizontal velocity SDs of the first run (each then points to within 1/10 rad)
     auto_min_steadiness: Probability = 0.97  # auto: mean resultant length of the body-frame travel
     # directions above which the platform is wheeled (0.97 ~ a 14 deg angular spread)
     nhc_sigma_mps: Positive = 0.1  # lateral and vertical velocity of a wheeled vehicle (SD)

@@ -33,6 +33,7 @@ from tpos_cli.filters.gating import (
 from tpos_cli.filters.kalman import cho_solve_into, cholesky_into, sandwich_into, symmetrize
 from tpos_cli.frames import earth, rotation
 from tpos_cli.fusion.engine import FilterRun, epoch_of
+from tpos_cli.fusion.layout import Block
 from tpos_cli.fusion.nav_errors import apply_feedback
 from tpos_cli.trajectory import Solution
 
@@ -169,10 +170,24 @@ def _pairs(fwd: FilterRun, bwd: FilterRun, out_idx):
     return ef, eb, d
 
 
-def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability):
-    """(flag (K,), nis (K,)): d[:9]^T (P_f + P_b)[:9, :9]^-1 d[:9] against chi-square (9 d.o.f.)."""
-    S9 = fwd.ep_P[ef, :9, :9] + bwd.ep_P[eb, :9, :9]
-    d9 = d[:, :9]
+def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability, vel_ned=None):
+    """(flag (K,), nis (K,)): d[:9]^T (P_f + P_b)[:9, :9]^-1 d[:9] against chi-square (9 d.o.f.).
+
+    With an IMU-GPS clock state (`fusion.layout.clock_block`) and the velocities vel_ned (K, 3),
+    positions are compared where they are delivered, on the GPS clock: p - v d, i.e. d9 = T d
+    and S = T (P_f + P_b) T^T with T = [I_9 | -v at the clock column] (two runs that place a fix
+    at different IMU times agree on where the platform was when the fix was taken)."""
+    oc = fwd.layout.offset(Block.CLOCK)
+    if oc >= 0 and vel_ned is not None:
+        n = d.shape[1]
+        T = np.zeros((d.shape[0], 9, n))
+        T[:, np.arange(9), np.arange(9)] = 1.0
+        T[:, 0:3, oc] = -vel_ned
+        d9 = np.einsum("kij,kj->ki", T, d)
+        S9 = T @ (fwd.ep_P[ef] + bwd.ep_P[eb]) @ np.swapaxes(T, 1, 2)
+    else:
+        S9 = fwd.ep_P[ef, :9, :9] + bwd.ep_P[eb, :9, :9]
+        d9 = d[:, :9]
     nis = np.einsum("ki,ki->k", d9, np.linalg.solve(S9, d9[:, :, None])[:, :, 0])
     return nis > float(chi2_threshold(flag_probability, 9)[9]), nis
 
@@ -221,8 +236,8 @@ def _run_combine(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, mode):
     o_xs, o_P9 = np.empty((Kn, d.shape[1])), np.empty((Kn, 9, 9))
     w = outage_weight(fwd.t_s[out_idx], outages_s)
     _combine(ef, eb, fwd.ep_P, bwd.ep_P, d, w, o_xs, o_P9, mode)
-    o_nav, o_C, _ = _corrected(fwd, out_idx, o_xs)
-    return o_nav, o_C, o_P9, (ef, eb, d)
+    o_nav, o_C, o_bias = _corrected(fwd, out_idx, o_xs)
+    return o_nav, o_C, o_P9, o_bias, (ef, eb, d)
 
 
 def outage_weight(t_s, outages_s) -> np.ndarray:
@@ -236,23 +251,23 @@ def outage_weight(t_s, outages_s) -> np.ndarray:
 
 def two_filter(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,))."""
-    nav, C, P9, pairs = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), 0)
-    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability)
-    return Solution("two_filter", out_idx, nav, C, P9), flag, nis
+    nav, C, P9, bias, pairs = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), 0)
+    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability, fwd.nav[out_idx, 3:6])
+    return Solution("two_filter", out_idx, nav, C, P9, bias), flag, nis
 
 
 def disagreement(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """(flag (K,), nis (K,)): forward/backward NIS of the 9 navigation states against chi-square."""
-    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability)
+    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability, fwd.nav[out_idx, 3:6])
 
 
 def simplified(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s) -> Solution:
     """Paper 003's simplified two-filter smoother (graded weights in outages, variance weights elsewhere)."""
-    nav, C, P9, _ = _run_combine(fwd, bwd, out_idx, outages_s, 1)
-    return Solution("simplified", out_idx, nav, C, P9)
+    nav, C, P9, bias, _ = _run_combine(fwd, bwd, out_idx, outages_s, 1)
+    return Solution("simplified", out_idx, nav, C, P9, bias)
 
 
 def filter_solution(run: FilterRun, out_idx, name) -> Solution:
     """A filter run itself as a `Solution` (covariance of the nearest epoch on the data side)."""
     e = epoch_of(run, out_idx)
-    return Solution(name, out_idx, run.nav[out_idx], run.C_nb[out_idx], run.ep_P[e, :9, :9])
+    return Solution(name, out_idx, run.nav[out_idx], run.C_nb[out_idx], run.ep_P[e, :9, :9], run.bias[out_idx])

@@ -200,3 +200,27 @@ def test_mounting_warning_for_an_imu_turned_90_deg(tmp_path):
     truth_lla = np.column_stack([np.interp(t_rel, sim.truth.t_s, sim.truth.lla[:, i]) for i in range(3)])
     e = lla_to_ned(sm[["lat", "lon", "h"]].to_numpy(), truth_lla[0]) - lla_to_ned(truth_lla, truth_lla[0])
     assert np.sqrt(np.mean(np.hypot(e[:, 0], e[:, 1]) ** 2)) < 0.6  # the issue's outside-outage budget
+
+
+@pytest.mark.parametrize("d_s", [0.15, 0.0])
+def test_gps_clock_offset_estimated_and_output_on_the_gps_clock(tmp_path, d_s):
+    """A logger that stamps its GPS records d early (taken at IMU time t, stamped t - d): the
+    filter's clock states find d within 3 SD, and when it is significant the trajectory's times
+    move to the GPS clock, so a row at time T is the platform at IMU time T + d (issue 11)."""
+    sim = simulate_drive(300.0, seed=21, outages=((150.0, 30.0),), gps_clock_offset_s=d_s, gps_sigma_h_m=0.1, gps_sigma_v_m=0.2)
+    out = process_session(sim.write(tmp_path / "s"), "drive-smooth", tmp_path / "run")
+    summary = json.loads((out.run_dir / "summary.json").read_text())
+    c = summary["results"]["gps_clock_offset"]
+    assert abs(c["estimate_s"] - d_s) < 3.0 * c["sigma_s"] and abs(c["velocity_estimate_s"] - d_s) < 3.0 * c["velocity_sigma_s"]
+    assert c["sigma_s"] < 0.02  # 0.1 m fixes of a car turning and braking: the offset is observable
+    assert c["output_clock"] == ("gps" if d_s else "imu")
+    tr = pd.read_parquet(out.run_dir / "trajectory.parquet")
+    s = tr[tr["solution"] == "smoothed"]
+    t_imu = s["t"].to_numpy() + (d_s if c["output_clock"] == "gps" else 0.0)  # GPS time T is IMU time T + d
+    lla = np.column_stack([np.interp(t_imu, sim.truth.t_s + sim.t0_s, sim.truth.lla[:, i]) for i in range(3)])
+    e = lla_to_ned(s[["lat", "lon", "h"]].to_numpy(), lla[0]) - lla_to_ned(lla, lla[0])
+    z = e[:, :2] / s[["sigma_n", "sigma_e"]].to_numpy()
+    # 95 % of a consistent solution's rows lie inside 2 SD per axis (rows are correlated: 0.9 floor)
+    assert np.mean(np.abs(z) < 2.0) > 0.9, np.mean(np.abs(z) < 2.0)
+    if d_s:  # the GPS-clock rows against the truth at the same times would be metres off
+        assert summary["quality"]["verdict"] == "suspect" and any("gps_offset_s = 0.1" in r for r in summary["quality"]["reasons"])

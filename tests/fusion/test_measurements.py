@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion._kernels import Aiding, EventArrays
-from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block, ranging_blocks
+from tpos_cli.fusion.layout import Block, StateLayout, backward_sign, clock_block, gps_error_block, ranging_blocks
 from tpos_cli.fusion.measurements import (
     Kind,
     gps_position_jacobian,
@@ -81,7 +81,7 @@ def test_measure_adds_the_extra_states_columns():
     bias = np.array([0, 0, 0, 0, 0, 0, 0.2, -0.1, 0.3])
     fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
     z, H, R = np.empty(3), np.zeros((3, 18)), np.zeros((3, 3))
-    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), lay.offsets(), z, H, R)
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), np.zeros(3), lay.offsets(), z, H, R)
     z0 = np.empty(3)
     gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
     assert_allclose(z - z0, bias[6:9], atol=0)
@@ -93,11 +93,41 @@ def test_measure_adds_the_extra_states_columns():
     bias[6 + lay.offset(Block.CALIBRATION) - 15 + 1] = -0.1
     z, H, R = np.empty(1), np.zeros((1, lay.n_states)), np.zeros((1, 1))
     measure(0, _events(Kind.RANGE, [25.0, 0, 0], np.eye(3) * 0.01, 1, par=1), aid, True, nav, C, bias, np.zeros(3),
-            lay.offsets(), z, H, R)
+            np.zeros(3), lay.offsets(), z, H, R)
     p = lla_to_local_ned(nav[0], nav[1], nav[2], aid.r0_e, aid.C_ne0)
     assert_allclose(z[0], np.linalg.norm(p - aid.anchors_ned[1]) + 0.3 - 0.1 - 25.0, atol=1e-9)
     assert H[0, lay.offset(Block.RANGE_BIAS)] == 1.0 and H[0, lay.offset(Block.CALIBRATION) + 1] == 1.0
     assert H[0, lay.offset(Block.CALIBRATION)] == 0.0 and R[0, 0] == 0.01
+
+
+
+def test_clock_offset_columns():
+    """A position stamped t taken at IMU time t + d: its rows see the nominal velocity times d; a
+    velocity taken at t + d_vel: the acceleration times d_vel; each a column of H at its clock
+    state; the states are time-odd, so a backward run flips them (issue 11)."""
+    nav, C = _nominal()
+    aid = Aiding(np.zeros(3), np.zeros(3), np.zeros((2, 3)), geodetic.lla_to_ecef(np.array([48.0, 8.0, 480.0])),
+                 geodetic.ecef_to_ned_dcm(48.0, 8.0), np.zeros((1, 2, 3)), np.eye(3), 1.0)
+    lay = StateLayout((clock_block(0.2),))
+    o = lay.offset(Block.CLOCK)
+    d, d_vel = 0.15, -0.05
+    bias = np.array([0, 0, 0, 0, 0, 0, d, d_vel])
+    acc = np.array([1.5, -0.5, 0.2])
+    fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
+    z, H, R = np.empty(3), np.zeros((3, lay.n_states)), np.zeros((3, 3))
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, lay.offsets(), z, H, R)
+    z0 = np.empty(3)
+    gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
+    assert_allclose(z - z0, nav[3:6] * d, atol=1e-12)
+    assert_allclose(H[:, o], nav[3:6], atol=0)
+    assert_allclose(H[:, o + 1], 0.0, atol=0)
+    v_gps = nav[3:6] + np.array([0.1, 0.2, -0.1])
+    measure(0, _events(Kind.GPS_VELOCITY, v_gps, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, lay.offsets(), z, H, R)
+    assert_allclose(z, nav[3:6] - v_gps + acc * d_vel, atol=1e-12)
+    assert_allclose(H[:, o + 1], acc, atol=0)
+    assert_allclose(H[:, o], 0.0, atol=0)
+    sign = backward_sign(lay.n_states, lay)
+    assert sign[o] == sign[o + 1] == -1.0 and sign[3] == -1.0 and sign[0] == 1.0
 
 
 def test_gps_jacobians_against_perturbation():

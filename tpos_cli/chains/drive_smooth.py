@@ -32,12 +32,12 @@ from tpos_cli.fusion.constraints import (
     stop_measurements,
     travel_direction,
 )
-from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start
+from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
-from tpos_cli.fusion.layout import Block, StateLayout, mounting_block, odometer_block
+from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, mounting_block, odometer_block
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
 from tpos_cli.fusion.screening import wild_fixes
@@ -75,8 +75,9 @@ def filter_config(p: DriveSmoothParams, nz: ImuNoiseFigures, lever_b_m, rate_hz:
     sb_g = p.gyro_bias_inrun_dph * DEG / 3600
     q = np.array([(nz["acc_noise_mg"] * 1e-3 * G0_MPS2) ** 2 / rate_hz, (nz["gyro_noise_dps"] * DEG) ** 2 / rate_hz,
                   2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
+    layout = StateLayout((clock_block(p.gps_clock_sigma_s, p.gps_clock_rw_s_per_sqrt_s),) if p.gps_clock_sigma_s > 0 else ())
     return FilterConfig(q, p.bias_tau_s, p.bias_tau_s, max(1, int(round(p.cov_step_s * rate_hz))), p.gate_probability,
-                        p.max_consecutive_rejections, np.asarray(lever_b_m, dtype=float), p.outage_min_s)
+                        p.max_consecutive_rejections, np.asarray(lever_b_m, dtype=float), p.outage_min_s, layout)
 
 
 def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
@@ -98,7 +99,12 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     t = np.array(gps.t_s[ok], dtype=float)
     keep = decimate_times(t, p.gps_max_rate_hz)
     fixes = GpsFixes(t, np.array(gps.lla[ok], dtype=float), vel, sig, np.full((t.size, 3), p.gps_sigma_vel_mps), from_receiver)
-    lag, _ = velocity_latency_s(fixes) if p.gps_vel_latency_s is None else (p.gps_vel_latency_s, None)
+    if p.gps_vel_latency_s is not None:
+        lag = p.gps_vel_latency_s
+    elif p.gps_clock_sigma_s > 0:  # the filter's velocity clock state measures it against the IMU
+        lag = 0.0
+    else:
+        lag, _ = velocity_latency_s(fixes)
     return GpsFixes(t[keep], fixes.lla[keep], vel[keep], sig[keep], fixes.sigma_vel_mps[keep], from_receiver, lag,
                     int(wild.sum()))
 
@@ -279,7 +285,16 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(imu.rate_hz / factor))))
         first = run_insgps(td, gd, ad, fixes, init, coarse, store_rts=False, extra=zu)
         gap_s = max(1.0, 1.5 * float(np.median(np.diff(fixes.t_s)))) if fixes.t_s.size > 1 else 1.0
-        td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb, fix_t_s=fixes.t_s, max_fix_gap_s=gap_s)
+        # slow platforms count too: a sample's travel direction is good to sd_v / speed rad, so the
+        # floor is a multiple of the run's horizontal velocity SD at its covariance epochs next to
+        # fixes (the samples travel_direction keeps), not a fixed speed
+        t_ep = first.t_s[first.ep_idx]
+        j = np.clip(np.searchsorted(fixes.t_s, t_ep, side="right") - 1, 0, None)
+        near = np.abs(t_ep - fixes.t_s[j]) <= gap_s
+        var_h = first.ep_P[:, 3, 3] + first.ep_P[:, 4, 4]
+        vel_sd = float(np.sqrt(np.median(var_h[near] if near.any() else var_h)))
+        td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb, fix_t_s=fixes.t_s, max_fix_gap_s=gap_s,
+                              min_speed_mps=p.travel_min_speed_sd * vel_sd)
         if td is not None:
             if C_vb is None:
                 C_vb = td.C_vb
@@ -408,7 +423,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("alignment"):
         init, info = align(imu, session, p, fixes, cfg, sig, nz)
     info["gps_vel_latency_s"] = {"value": fixes.vel_latency_s,
-                                 "source": "pipeline" if p.gps_vel_latency_s is not None else "the log's positions"}
+                                 "source": "pipeline" if p.gps_vel_latency_s is not None else
+                                 ("the filter's velocity clock state" if p.gps_clock_sigma_s > 0 else "the log's positions")}
     with stage("constraints"):
         cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
     with stage("gps_noise"):
@@ -545,14 +561,60 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "outages_s": (res.outages_s + t0_s).tolist(),
         "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
         "mounting_check": mounting,
+        "gps_clock_offset": clock_offset(res, p),
         "constraints": {**res.info.get("constraints", {}), "forward": constraint_summary(res.forward),
                         "backward": constraint_summary(res.backward)},
     }
 
 
+def clock_track(res: DriveResult, idx) -> tuple[np.ndarray, np.ndarray] | None:
+    """(d (K, 2), sd (K, 2)): the IMU-GPS clock offsets [positions, velocities] (s) at run-local
+    samples idx, the forward and backward runs' estimates combined by their inverse variances (two
+    independent runs: `layout.clock_block`); None without clock states."""
+    o = res.forward.layout.offset(Block.CLOCK)
+    if o < 0:
+        return None
+    parts = []
+    for run in (res.forward, res.backward):
+        P = run.ep_P[epoch_of(run, idx)]
+        parts.append((run.extra(Block.CLOCK)[idx], np.stack([P[:, o, o], P[:, o + 1, o + 1]], axis=1)))
+    (df, vf), (db, vb) = parts
+    w = vb / (vf + vb)
+    return w * df + (1.0 - w) * db, np.sqrt(vf * vb / (vf + vb))
+
+
+def clock_offset(res: DriveResult, p: DriveSmoothParams) -> dict | None:
+    """Summary of the IMU-GPS clock offsets (`clock_track` at the output samples): a position
+    stamped t was taken at IMU time t + d. The output moves to the GPS clock (times t - d(t)) when
+    the offset is significant: |median d| > `clock_apply_sd` of its median SD."""
+    tr = clock_track(res, res.out_idx)
+    if tr is None:
+        return None
+    d, sd = tr
+    med, med_sd = np.median(d, axis=0), np.median(sd, axis=0)
+    return {"estimate_s": round(float(med[0]), 4), "sigma_s": round(float(med_sd[0]), 4),
+            "range_s": [round(float(d[:, 0].min()), 4), round(float(d[:, 0].max()), 4)],
+            "velocity_estimate_s": round(float(med[1]), 4), "velocity_sigma_s": round(float(med_sd[1]), 4),
+            "prior_sigma_s": p.gps_clock_sigma_s, "random_walk_s_per_sqrt_s": p.gps_clock_rw_s_per_sqrt_s,
+            "output_clock": "gps" if abs(med[0]) > p.clock_apply_sd * med_sd[0] else "imu"}
+
+
+def on_gps_clock(rows: pd.DataFrame, d_s, sd_s: float) -> pd.DataFrame:
+    """One solution's trajectory rows moved to the GPS clock: t - d (its own clock estimate per
+    row), and the offset's SD carried into the position sigmas along the velocity (an error of e
+    seconds in d puts a row v e metres off)."""
+    rows = rows.copy()
+    rows["t"] = rows["t"].to_numpy() - d_s
+    for sig, vel in (("sigma_n", "vn"), ("sigma_e", "ve"), ("sigma_d", "vd")):
+        if sig in rows and vel in rows:
+            rows[sig] = np.hypot(rows[sig].to_numpy(), rows[vel].to_numpy() * sd_s)
+    return rows
+
+
 def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, names, with_shots: bool) -> pd.DataFrame:
     """`trajectory.parquet` of the solutions `names` at the output rate (the extra rows of range
-    epochs for targeting dropped), with `outage` and `flag`."""
+    epochs for targeting dropped), with `outage` and `flag`, on the GPS clock when the estimated
+    clock offset is significant (`clock_offset`)."""
     t = res.t_s
     keep = np.ones(res.out_idx.size, dtype=bool)
     if with_shots:
@@ -563,8 +625,18 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
     for a, b in res.outages_s:
         outage |= (tt >= a) & (tt < b)
     flag = res.flag[keep]
-    return pd.concat([solution_rows(res.solutions[n].rows(keep), t, session.t0_s, outage, flag) for n in names],
-                     ignore_index=True)
+    clock = clock_offset(res, p)
+    o = res.forward.layout.offset(Block.CLOCK) - N_NAV + 6  # the position clock in a solution's bias row
+    frames = []
+    for n in names:
+        sol = res.solutions[n].rows(keep)
+        rows = solution_rows(sol, t, session.t0_s, outage, flag)
+        if clock is not None and clock["output_clock"] == "gps":
+            # each solution's own clock estimate: the one its positions were fitted with
+            d = sol.bias[:, o] if sol.bias is not None else np.full(len(rows), clock["estimate_s"])
+            rows = on_gps_clock(rows, d, clock["sigma_s"])
+        frames.append(rows)
+    return pd.concat(frames, ignore_index=True)
 
 
 def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:

@@ -11,7 +11,7 @@ from tpos_cli.cli._common import exit_on_error, show_progress
 from tpos_cli.io.bounded import MAX_TABLE_ROWS
 
 _ONLY = {
-    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range"),
+    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range", "gps_clock_offset"),
     "target": ("motion", "wall_distance", "mag_disturbance_ut", "mag_disturbance_start", "mag_disturbance_end"),
     "ranging": ("dropout", "nlos_prob"),
 }
@@ -37,7 +37,7 @@ _RANGES = {
     "--t0": (-1e10, 1e10), "--gps-sigma-h": (0.0, 1_000.0), "--gps-sigma-v": (0.0, 1_000.0), "--gps-sigma-vel": (0.0, 100.0),
     "--shots": (0, 10_000), "--shot-range": (0.1, 10_000.0), "--wall-distance": (0.1, 1_000.0),
     "--mag-disturbance-ut": (0.0, 10_000.0), "--mag-disturbance-start": (0.0, 86_400.0),
-    "--mag-disturbance-end": (0.0, 86_400.0), "--nlos-prob": (0.0, 1.0),
+    "--mag-disturbance-end": (0.0, 86_400.0), "--nlos-prob": (0.0, 1.0), "--gps-clock-offset": (-10.0, 10.0),
 }
 MAX_SAMPLES = MAX_TABLE_ROWS
 
@@ -69,6 +69,7 @@ def simulate(
     gps_sigma_vel: float = typer.Option(None, "--gps-sigma-vel", help="drive: GPS velocity noise SD per axis, m/s (default 0.05)."),
     shots: int = typer.Option(None, "--shots", help="drive: laser shots (LR1 along the body x axis) on targets ahead, spread over the drive (default 0)."),
     shot_range: float = typer.Option(None, "--shot-range", help="drive: distance to the shot targets, m (default 40)."),
+    gps_clock_offset: float = typer.Option(None, "--gps-clock-offset", help="drive: GPS records taken at IMU time t are stamped t - D, s (default 0)."),
     motion: str = typer.Option(None, "--motion", help="target: shots (aim at each target in turn) or sine (paper 000 sec. 6.1)."),
     wall_distance: float = typer.Option(None, "--wall-distance", help="target: distance to the wall, m (default 12)."),
     mag_disturbance_ut: float = typer.Option(None, "--mag-disturbance-ut", help="target: add a magnetic disturbance of this magnitude, uT (paper 000: 50)."),
@@ -97,7 +98,7 @@ def simulate(
                    "--gps-sigma-h": gps_sigma_h, "--gps-sigma-v": gps_sigma_v, "--gps-sigma-vel": gps_sigma_vel,
                    "--shots": shots, "--shot-range": shot_range, "--wall-distance": wall_distance,
                    "--mag-disturbance-ut": mag_disturbance_ut, "--mag-disturbance-start": mag_disturbance_start,
-                   "--mag-disturbance-end": mag_disturbance_end, "--nlos-prob": nlos_prob})
+                   "--mag-disturbance-end": mag_disturbance_end, "--nlos-prob": nlos_prob, "--gps-clock-offset": gps_clock_offset})
     if duration is not None and duration * rate > MAX_SAMPLES:
         raise typer.BadParameter(f"{duration:g} s at {rate:g} Hz is more than {MAX_SAMPLES} IMU samples, the row limit of a "
                                  "session table", param_hint="--duration")
@@ -114,7 +115,7 @@ def simulate(
                      ("gps_sigma_vel_mps", gps_sigma_vel), ("motion", motion), ("wall_distance_m", wall_distance),
                      ("mag_disturbance_ut", mag_disturbance_ut), ("mag_disturbance_start_s", mag_disturbance_start),
                      ("mag_disturbance_end_s", mag_disturbance_end), ("nlos_prob", nlos_prob),
-                     ("shots", shots), ("shot_range_m", shot_range)):
+                     ("shots", shots), ("shot_range_m", shot_range), ("gps_clock_offset_s", gps_clock_offset)):
         if arg is not None:
             kw[key] = arg
     with exit_on_error():

@@ -17,6 +17,7 @@ import numpy as np
 from numba import njit
 
 from tpos_cli.filters.kalman import discretize, innovation_statistics, predict, update
+from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.fusion.layout import N_NAV
 from tpos_cli.fusion.measurements import measure
 from tpos_cli.fusion.nav_errors import apply_feedback, corrected_increments, error_dynamics, process_noise
@@ -189,6 +190,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     f_n = np.empty(3)
     f_sum = np.zeros(3)
     f_mean = np.empty(3)
+    acc_ned = np.empty(3)
     dth = np.empty(3)
     dv = np.empty(3)
     dth_prev = np.zeros(3)
@@ -227,6 +229,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
         if has_ev or k - last >= st.cov_step or k == n_t - 1:
             for i in range(3):
                 f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
+                acc_ned[i] = f_mean[i]  # ... plus gravity: the platform's acceleration (time-even)
+            acc_ned[2] += G0_MPS2
             error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
             discretize(F, Qc, dt_sum, Phi, Qd)
             predict(x, P, Phi, Qd)
@@ -246,7 +250,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     z, H, R = z2, H2, R2
                 else:
                     z, H, R = z3, H3, R3
-                measure(e, ev, aid, ranging, nav, C, bias, w_ib, st.layout, z, H, R)
+                measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, st.layout, z, H, R)
                 s, logdet = innovation_statistics(x, P, z, H, R, res.pvar[e])
                 for i in range(m):
                     res.nu[e, i] = z[i]

@@ -222,7 +222,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     lay = cfg.layout
     ns = lay.n_states
     nb = 6 + lay.n_extra
-    sign = backward_sign(ns)
+    sign = backward_sign(ns, lay)
+    odd = sign[N_NAV:] < 0  # time-odd extra states (a clock offset): their nominal flips in reversed time
     nav0 = np.array(init.nav, dtype=float)
     bias0 = np.zeros(nb)
     m_b = min(nb, np.size(init.bias))
@@ -240,6 +241,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
         t, gyro, acc = reverse_imu(t, gyro, acc)
         nav0[3:] *= -1.0
         bias0[3:6] *= -1.0
+        bias0[6:][odd] *= -1.0
         P0 = P0 * np.outer(sign, sign)
         t_ev = -t_ev
     k_ev = np.searchsorted(t, t_ev, side="left")
@@ -283,6 +285,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
         C = np.ascontiguousarray(C[::-1])
         bias = np.ascontiguousarray(bias[::-1])
         bias[:, 3:6] *= -1.0
+        bias[:, 6:][:, odd] *= -1.0
         ep_idx = (n - 1 - ep_idx)[::-1]
         ep_P = ep_P[::-1]
         ep_P *= np.outer(sign, sign)  # in place: this array is the run's largest

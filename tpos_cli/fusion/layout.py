@@ -39,6 +39,8 @@ class Block(IntEnum):
     MOUNTING = 4  # 3: residual misalignment [pitch, yaw] (rad) of the IMU on the vehicle, distance (m) from
     # the IMU forward to the point where the non-holonomic constraint holds, negative behind (constants)
     ODOMETER = 5  # 1: scale-factor error of the odometer speed (random constant)
+    CLOCK = 6  # 2: IMU-GPS clock offsets (s) of the fixes' positions and of their velocities: a value
+    # stamped t holds at IMU time t + d (constants)
 
 
 N_BLOCKS = len(Block)
@@ -132,10 +134,25 @@ def odometer_block(sigma_scale: float) -> ExtraBlock:
     return ExtraBlock(Block.ODOMETER, 1, 0.0, np.zeros(1), np.array([[float(sigma_scale) ** 2]]))
 
 
-def backward_sign(n_states: int = N_NAV) -> np.ndarray:
-    """(n,) signs mapping a backward-run error state to forward-time errors: velocity and gyro
-    bias flip; the extra states keep their sign (they are stationary or constant)."""
+def clock_block(sigma_s: float, rw_s_per_sqrt_s: float = 0.0) -> ExtraBlock:
+    """The IMU-GPS clock offsets [d_pos, d_vel] (s, prior SD sigma_s each), random constants: a
+    position stamped t was taken at IMU time t + d_pos, a velocity at t + d_vel (receivers derive
+    them differently: Doppler or differenced positions, filtered or not), so the position rows see
+    v d_pos and the velocity rows a d_vel (`fusion.measurements.measure`). Loggers stamp GPS
+    records late or early by tens to hundreds of milliseconds; at 10 m/s, 0.1 s is a metre along
+    the track, and in turns the forward and backward runs then pull the heading apart. A
+    logger's clock also drifts against GPS time (tens of ppm, and buffering that changes), so the
+    offsets are random walks of rw_s_per_sqrt_s (PSD rw^2 s^2/s) rather than exact constants."""
+    return ExtraBlock(Block.CLOCK, 2, 0.0, np.full(2, float(rw_s_per_sqrt_s) ** 2), np.eye(2) * float(sigma_s) ** 2)
+
+
+def backward_sign(n_states: int = N_NAV, layout: StateLayout | None = None) -> np.ndarray:
+    """(n,) signs mapping a backward-run error state to forward-time errors: velocity, gyro bias
+    and a clock offset (time-odd: reversed time runs the other way) flip; the other extra states
+    keep their sign (they are stationary or constant)."""
     s = np.ones(n_states)
     s[VEL : VEL + 3] = -1.0
     s[BG : BG + 3] = -1.0
+    if layout is not None and layout.offset(Block.CLOCK) >= 0:
+        s[layout.offset(Block.CLOCK):layout.offset(Block.CLOCK) + 2] = -1.0
     return s

@@ -223,11 +223,12 @@ def zaru_jacobian(H):
 
 
 @njit(cache=True)
-def measure(e, ev, aid, ranging, nav, C, bias, w_ib, lay, z, H, R):
+def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
     """Residual z (m,), rows H (m, n) and noise R (m, m) of measurement e about the nominal state.
 
     ev: the kernel's event arrays (`fusion._kernels.EventArrays`), aid: the per-kind parameters
-    (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample.
+    (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample,
+    acc_ned (3,) the platform's NED acceleration there (m/s^2; the clock-offset columns).
     m = ev.dim[e] is the size of z, H and R, which the caller allocated; H is written whole.
     """
     kind = ev.kind[e]
@@ -246,6 +247,12 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, lay, z, H, R):
             for i in range(3):
                 z[i] += bias[6 + o - N_NAV + i]
                 H[i, o + i] = 1.0
+        oc = lay[Block.CLOCK]
+        if oc >= 0:  # the fix was taken at IMU time t + d: the INS moved on by v d (`layout.clock_block`)
+            d = bias[6 + oc - N_NAV]
+            for i in range(3):
+                z[i] += nav[3 + i] * d
+                H[i, oc] = nav[3 + i]
     elif kind == Kind.GPS_VELOCITY:
         zv = np.empty(3)
         gps_velocity_residual(nav, C, aid.lever_b, w_ib, ev.z[e], zv)
@@ -255,6 +262,12 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, lay, z, H, R):
             z[i] = zv[i]
             for j in range(N_NAV):
                 H[i, j] = Hv[i, j]
+        oc = lay[Block.CLOCK]
+        if oc >= 0:  # a velocity taken at IMU time t + d_vel: the INS velocity changed by a d_vel
+            d = bias[6 + oc + 1 - N_NAV]
+            for i in range(m):
+                z[i] += acc_ned[i] * d
+                H[i, oc + 1] = acc_ned[i]
     elif kind == Kind.NHC:
         nhc_residual(nav, C, aid.C_vb, z)
         nhc_jacobian(nav, C, aid.C_vb, H)

@@ -9,6 +9,7 @@ acceleration). Paper 003 shades the GPS for 30 s starting at 40 s: the default o
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,6 +127,7 @@ def simulate_drive(
     range_sigma_m: float = 0.05,
     gps_correlated_sigma_neu_m=(0.0, 0.0, 0.0),
     gps_correlated_tau_s: float = 30.0,
+    gps_clock_offset_s: float = 0.0,
 ) -> SimResult:
     """Simulate the `drive` scenario; see the module docstring.
 
@@ -136,6 +138,8 @@ def simulate_drive(
     on targets ahead of the vehicle, spread over the drive after the static start: one LR1 return
     per shot (`range_sigma_m` noise, LR2/LR3 no return), the target exactly `shot_range_m` along the
     beam at the return's time, written as targets with role "truth".
+    `gps_clock_offset_s` d: a GPS record taken at IMU time t is stamped t - d (a logger's late or
+    early GPS time tags, the IMU-GPS clock offset of issue 11); the truth stays on the IMU clock.
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise InvalidInputError("duration and rate must be > 0")
@@ -163,6 +167,8 @@ def simulate_drive(
         correlated_sigma_neu_m=gps_correlated_sigma_neu_m,
         correlated_tau_s=gps_correlated_tau_s,
     )
+    if gps_clock_offset_s != 0.0:
+        gps = dataclasses.replace(gps, t_s=gps.t_s - float(gps_clock_offset_s))
     params = {
         "scenario": "drive",
         "duration_s": duration_s,
@@ -174,6 +180,8 @@ def simulate_drive(
         "gps_sigma_v_m": gps_sigma_v_m,
         "gps_sigma_vel_mps": gps_sigma_vel_mps,
     }
+    if gps_clock_offset_s != 0.0:
+        params["gps_clock_offset_s"] = float(gps_clock_offset_s)
     if np.any(np.asarray(gps_correlated_sigma_neu_m, dtype=float) > 0):
         params.update({"gps_correlated_sigma_neu_m": np.broadcast_to(np.asarray(gps_correlated_sigma_neu_m, dtype=float), 3).tolist(),
                        "gps_correlated_tau_s": gps_correlated_tau_s})
