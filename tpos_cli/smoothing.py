@@ -177,17 +177,16 @@ def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability, v
     positions are compared where they are delivered, on the GPS clock: p - v d, i.e. d9 = T d
     and S = T (P_f + P_b) T^T with T = [I_9 | -v at the clock column] (two runs that place a fix
     at different IMU times agree on where the platform was when the fix was taken)."""
+    S9 = fwd.ep_P[ef, :9, :9] + bwd.ep_P[eb, :9, :9]
+    d9 = d[:, :9]
     oc = fwd.layout.offset(Block.CLOCK)
-    if oc >= 0 and vel_ned is not None:
-        n = d.shape[1]
-        T = np.zeros((d.shape[0], 9, n))
-        T[:, np.arange(9), np.arange(9)] = 1.0
-        T[:, 0:3, oc] = -vel_ned
-        d9 = np.einsum("kij,kj->ki", T, d)
-        S9 = T @ (fwd.ep_P[ef] + bwd.ep_P[eb]) @ np.swapaxes(T, 1, 2)
-    else:
-        S9 = fwd.ep_P[ef, :9, :9] + bwd.ep_P[eb, :9, :9]
-        d9 = d[:, :9]
+    if oc >= 0 and vel_ned is not None:  # T S T^T from the blocks it touches: S9 - V c^T - c V^T + s_cc V V^T
+        V = np.zeros((d.shape[0], 9))
+        V[:, :3] = vel_ned
+        c = fwd.ep_P[ef, :9, oc] + bwd.ep_P[eb, :9, oc]
+        s_cc = fwd.ep_P[ef, oc, oc] + bwd.ep_P[eb, oc, oc]
+        S9 = S9 - V[:, :, None] * c[:, None, :] - c[:, :, None] * V[:, None, :] + s_cc[:, None, None] * V[:, :, None] * V[:, None, :]
+        d9 = d9 - V * d[:, oc, None]
     nis = np.einsum("ki,ki->k", d9, np.linalg.solve(S9, d9[:, :, None])[:, :, 0])
     return nis > float(chi2_threshold(flag_probability, 9)[9]), nis
 

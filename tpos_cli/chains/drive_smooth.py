@@ -576,8 +576,8 @@ def clock_track(res: DriveResult, idx) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     parts = []
     for run in (res.forward, res.backward):
-        P = run.ep_P[epoch_of(run, idx)]
-        parts.append((run.extra(Block.CLOCK)[idx], np.stack([P[:, o, o], P[:, o + 1, o + 1]], axis=1)))
+        e = epoch_of(run, idx)
+        parts.append((run.extra(Block.CLOCK)[idx], np.stack([run.ep_P[e, o, o], run.ep_P[e, o + 1, o + 1]], axis=1)))
     (df, vf), (db, vb) = parts
     w = vb / (vf + vb)
     return w * df + (1.0 - w) * db, np.sqrt(vf * vb / (vf + vb))
