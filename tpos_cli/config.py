@@ -135,10 +135,11 @@ class DriveSmoothParams(Section):
     platform: Literal["auto", "car", "rover", "pedestrian", "uav", "none"] = "auto"  # car/rover: NHC
     # + ZUPT/ZARU on stops; pedestrian: ZUPT on stops; uav/none: no constraint; auto: car when the
     # travel direction stays fixed in the IMU's axes on a first forward run, else pedestrian
-    travel_min_speed_sd: Positive = 10.0  # mounting from the travel direction: samples faster than this many
-    # horizontal velocity SDs of the first run (each then points to within 1/10 rad)
-    auto_min_steadiness: Probability = 0.97  # auto: mean resultant length of the body-frame travel
-    # directions above which the platform is wheeled (0.97 ~ a 14 deg angular spread)
+    travel_min_speed_sd: Positive = 1.0  # mounting from the travel direction: samples faster than this many
+    # horizontal velocity SDs of the first run (above its noise; their mean direction averages it out)
+    auto_nhc_nis_max: Positive = 2.0  # auto: wheeled when the non-holonomic rows of a trial pass have a mean
+    # NIS at most this (their d.o.f.: the constraint holds within its SD) ...
+    auto_nhc_reject_max: Probability = 0.05  # ... and at most this fraction of them is rejected
     nhc_sigma_mps: Positive = 0.1  # lateral and vertical velocity of a wheeled vehicle (SD)
     nhc_rate_hz: Positive = 5.0  # NHC rows per second (slip and vibration errors are correlated over ~0.2 s)
     nhc_axle_sigma_m: Positive = 2.0  # prior SD of the distance from the IMU back to the rear axle (a state)

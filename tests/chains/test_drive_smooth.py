@@ -176,8 +176,11 @@ def test_summary_reports_gps_noise_nis_band_and_mounting(session_dir, tmp_path):
     assert not any(w.startswith("mounting") for w in summary["warnings"])
 
 
-def test_mounting_warning_for_an_imu_turned_90_deg(tmp_path):
-    """IMU x axis pointing to the car's right: positions still fine, the summary warns with evidence."""
+def test_imu_turned_90_deg_is_found_and_the_output_is_the_vehicle(tmp_path):
+    """IMU x axis pointing to the car's right, no mounting in the session (issue 11 item 3): the
+    travel direction gives the mounting (yaw +90 deg, the contract's convention), a trial pass
+    with the non-holonomic constraint decides "car", and the trajectory's attitude is the car's:
+    its yaw matches the truth, no mounting warning, positions as good as with an aligned IMU."""
     import dataclasses
 
     from tpos_cli.frames.rotation import euler_to_dcm
@@ -189,14 +192,18 @@ def test_mounting_warning_for_an_imu_turned_90_deg(tmp_path):
     path = dataclasses.replace(sim, imu=imu).write(tmp_path / "s")
     out = process_session(path, "drive-smooth", tmp_path / "run")
     summary = json.loads((out.run_dir / "summary.json").read_text())
-    m = summary["results"]["mounting_check"]
-    # the car has no sideslip: course - yaw of the IMU's x axis = -90 deg (smoothed yaw to ~1 deg)
-    assert m["warning"] and abs(m["course_minus_yaw_median_deg"] + 90.0) < 3.0 and m["spread_deg"] < 3.0
-    msg = [w for w in summary["warnings"] if w.startswith("mounting")]
-    assert len(msg) == 1 and "[imu] axes" in msg[0] and "+90 deg" in msg[0]
+    c = summary["results"]["constraints"]
+    assert c["platform"] == "car" and c["mounting"]["source"].startswith("travel direction")
+    rpy = np.array(c["mounting"]["mounting_rpy_deg"])
+    assert np.all(np.abs(rpy - [0.0, 0.0, 90.0]) < 1.0), rpy  # 1 deg: the first pass's degree-level figure
+    assert not summary["results"]["mounting_check"]["warning"]
+    assert not [w for w in summary["warnings"] if w.startswith("mounting")]
     traj = pd.read_parquet(out.run_dir / "trajectory.parquet")
     sm = traj[traj["solution"] == "smoothed"]
     t_rel = sm["t"].to_numpy() - sim.t0_s
+    yaw_true = np.degrees(np.interp(t_rel, sim.truth.t_s, np.unwrap(sim.truth.rpy_rad[:, 2])))
+    dyaw = (sm["yaw"].to_numpy() - yaw_true + 180.0) % 360.0 - 180.0
+    assert np.all(np.abs(dyaw) < 3.0 * sm["sigma_yaw"].to_numpy() + 0.05), np.abs(dyaw).max()
     truth_lla = np.column_stack([np.interp(t_rel, sim.truth.t_s, sim.truth.lla[:, i]) for i in range(3)])
     e = lla_to_ned(sm[["lat", "lon", "h"]].to_numpy(), truth_lla[0]) - lla_to_ned(truth_lla, truth_lla[0])
     assert np.sqrt(np.mean(np.hypot(e[:, 0], e[:, 1]) ** 2)) < 0.6  # the issue's outside-outage budget

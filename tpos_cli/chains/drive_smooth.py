@@ -39,7 +39,7 @@ from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covari
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, mounting_block, odometer_block
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
+from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, vehicle_attitude
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.ins.mechanization import decimate_imu
@@ -159,6 +159,7 @@ class DriveResult:
     fixes: GpsFixes
     info: dict
     mounting: dict | None = None  # course - yaw check of the first solution in `names` after forward
+    C_vb: np.ndarray | None = None  # IMU body to vehicle axes, when the run applied a mounting (NHC)
 
     def innovations(self, run: str = "forward") -> GpsInnovations:
         """Per-fix results of the forward or backward run."""
@@ -281,9 +282,9 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         # a coarse pass (IMU at about 25 Hz, 1 s covariance steps, as the GPS noise passes) serves
         # the travel direction, a degree-level figure, at a tenth of the cost of a full one
         factor = max(1, int(round(imu.rate_hz / COARSE_RATE_HZ)))
-        td, gd, ad = decimate_imu(imu.t, imu.gyro, imu.acc, factor)
+        td_, gd, ad = decimate_imu(imu.t, imu.gyro, imu.acc, factor)
         coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(imu.rate_hz / factor))))
-        first = run_insgps(td, gd, ad, fixes, init, coarse, store_rts=False, extra=zu)
+        first = run_insgps(td_, gd, ad, fixes, init, coarse, store_rts=False, extra=zu)
         gap_s = max(1.0, 1.5 * float(np.median(np.diff(fixes.t_s)))) if fixes.t_s.size > 1 else 1.0
         # slow platforms count too: a sample's travel direction is good to sd_v / speed rad, so the
         # floor is a multiple of the run's horizontal velocity SD at its covariance epochs next to
@@ -302,8 +303,9 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
             else:
                 out["travel_direction"] = td.summary()
         if platform == "auto":
-            platform = "car" if td is not None and td.steadiness >= p.auto_min_steadiness else "pedestrian"
-            decided = (f"auto: travel direction steadiness {td.steadiness:.3f} vs {p.auto_min_steadiness}" if td is not None
+            trial = None if td is None else nhc_trial((td_, gd, ad), fixes, init, coarse, stops, td.C_vb, p, info)
+            platform = "car" if trial is not None and trial["wheeled"] else "pedestrian"
+            decided = (f"auto: {trial['why']}" if trial is not None
                        else "auto: too little motion to tell (no constraint of a wheeled vehicle)")
     out["platform"] = platform
     out["decided_by"] = decided
@@ -338,6 +340,32 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["odometry"] = {"samples": int(odo.t_s.size), "scale_prior_sigma": p.odometer_scale_sigma}
     parts = [m for m in parts if m is not None and len(m)]
     return cfg, (Measurements.merge(*parts) if parts else None)
+
+
+def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterConfig, stops, C_vb, p: DriveSmoothParams,
+              info: dict) -> dict | None:
+    """Is the platform wheeled? A coarse forward pass with the non-holonomic constraint in the
+    travel direction's axes (and the residual-misalignment states): on wheels the constraint holds
+    within its SD, so its rows' mean NIS stays at or below their d.o.f. (2); a walker's sway and
+    bounce break it (the shared walk: 4.3, 11 % rejected; a car, a slow rover: 0.2-0.4). The
+    steadiness of the travel direction cannot tell them apart at walking speeds (0.89-0.91 for
+    both). Returns {"wheeled", "why", "nhc": the rows' figures} or None without NHC rows."""
+    t, g, a = imu_coarse
+    ysr = info.get("yaw_search")
+    after = ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
+    rows = nhc_measurements(t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after)
+    if rows is None or not len(rows):
+        return None
+    cfg = dataclasses.replace(coarse, C_vb=np.asarray(C_vb, dtype=float), layout=StateLayout(
+        (*coarse.layout.blocks, mounting_block(np.radians(p.mounting_sigma_assumed_deg), p.nhc_axle_sigma_m))))
+    nhc = constraint_summary(run_insgps(t, g, a, fixes, init, cfg, store_rts=False, extra=rows)).get("nhc")
+    if nhc is None or nhc["nis"] is None or not nhc["rows"]:
+        return None
+    mean, rej = float(nhc["nis"]["mean"]), nhc["rejected"] / nhc["rows"]
+    wheeled = mean <= p.auto_nhc_nis_max and rej <= p.auto_nhc_reject_max
+    return {"wheeled": bool(wheeled), "nhc": {"mean_nis": round(mean, 3), "rejected_fraction": round(rej, 4)},
+            "why": (f"non-holonomic constraint on a trial pass: mean NIS {mean:.2f} (at most {p.auto_nhc_nis_max:g}), "
+                    f"{100 * rej:.1f} % rejected (at most {100 * p.auto_nhc_reject_max:g} %)")}
 
 
 def constraint_summary(run: FilterRun) -> dict:
@@ -390,6 +418,20 @@ def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothPar
     if "smoothed" in wanted:
         sols["smoothed"] = sols[p.smoother].renamed("smoothed")
     return {k: v for k, v in sols.items() if k in names}, flag, nis
+
+
+def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun) -> Solution:
+    """A solution's attitude in the vehicle's axes when the run applied a mounting C_vb (and its
+    residual misalignment states, `fusion.mounting.vehicle_attitude`, their SD that of the forward
+    run's end); the IMU's otherwise. Targets keep the IMU's attitude: the rangefinders sit on the IMU."""
+    if C_vb is None:
+        return sol
+    o = run.layout.offset(Block.MOUNTING)
+    m = sol.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + 2] if (o >= 0 and sol.bias is not None) else None
+    _, sd = _block_at_end(run, Block.MOUNTING, 2)
+    P9 = np.array(sol.P9, copy=True)
+    C_nv, P9[:, 6:9, 6:9] = vehicle_attitude(sol.C_nb, sol.P9[:, 6:9, 6:9], C_vb, m, sd)
+    return Solution(sol.name, sol.idx, sol.nav, C_nv, P9, sol.bias)
 
 
 def mounting_check(sols: dict, t_s, p: DriveSmoothParams) -> dict | None:
@@ -447,7 +489,9 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
-    return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info, mounting_check(sols, imu.t, p))
+    C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
+    return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
+                       mounting_check({k: in_vehicle_axes(v, C_vb, fwd) for k, v in sols.items()}, imu.t, p), C_vb)
 
 
 def nis_band(nis, innovation) -> dict | None:
@@ -629,7 +673,7 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
     o = res.forward.layout.offset(Block.CLOCK) - N_NAV + 6  # the position clock in a solution's bias row
     frames = []
     for n in names:
-        sol = res.solutions[n].rows(keep)
+        sol = in_vehicle_axes(res.solutions[n].rows(keep), res.C_vb, res.forward)
         rows = solution_rows(sol, t, session.t0_s, outage, flag)
         if clock is not None and clock["output_clock"] == "gps":
             # each solution's own clock estimate: the one its positions were fitted with

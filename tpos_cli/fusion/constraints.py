@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
 from tpos_cli.fusion.engine import Measurements
 from tpos_cli.fusion.measurements import Kind
 
@@ -153,10 +153,12 @@ def odometer_measurements(odo_t_s, speed_mps, *, rate_hz: float, sigma_mps: floa
 
 @dataclass(frozen=True)
 class TravelDirection:
-    """The IMU-to-vehicle rotation from the travel direction in body axes: pitch_deg, yaw_deg with
-    their SDs (roll is unobservable this way: 0), steadiness (mean resultant length of the unit
-    body-frame velocities, 1 = a fixed direction), moving_s (time used)."""
+    """The IMU-to-vehicle rotation from the travel direction in body axes: roll_deg, pitch_deg,
+    yaw_deg (the contract's `mounting_rpy_deg`), the SDs of pitch and yaw (the vehicle's axes
+    about which the travel direction turns; roll comes from gravity: no SD), steadiness (|mean
+    body-frame velocity| / mean speed, 1 = a fixed direction), moving_s (time used)."""
 
+    roll_deg: float
     pitch_deg: float
     yaw_deg: float
     sigma_pitch_deg: float
@@ -167,31 +169,36 @@ class TravelDirection:
     @property
     def C_vb(self) -> np.ndarray:
         """Body -> vehicle DCM (v_vehicle = C_vb v_body), the contract's mounting convention."""
-        return euler_to_dcm(0.0, np.radians(self.pitch_deg), np.radians(self.yaw_deg))
+        return euler_to_dcm(*np.radians([self.roll_deg, self.pitch_deg, self.yaw_deg]))
 
     def summary(self) -> dict:
-        return {"mounting_rpy_deg": [0.0, round(self.pitch_deg, 2), round(self.yaw_deg, 2)],
+        return {"mounting_rpy_deg": [round(self.roll_deg, 2), round(self.pitch_deg, 2), round(self.yaw_deg, 2)],
                 "sigma_rpy_deg": [None, round(self.sigma_pitch_deg, 2), round(self.sigma_yaw_deg, 2)],
                 "steadiness": round(self.steadiness, 4), "moving_s": round(self.moving_s, 1)}
 
 
-def _pitch_yaw_deg(u):
-    """Pitch in [-90, 90] and yaw (deg) of Rz(yaw) Ry(pitch) whose vehicle x axis is the body-frame
-    direction u = (cos p cos y, -sin y, sin p cos y) (axis 0 of u)."""
-    p = np.arctan2(u[2] * np.sign(u[0]), np.abs(u[0]))  # cos p >= 0: u_x carries the sign of cos y
-    cy = u[0] / np.cos(p)
-    return np.degrees(p), np.degrees(np.arctan2(-u[1], cy))
+def vehicle_axes(x_b, down_b) -> np.ndarray:
+    """C_vb (v_vehicle = C_vb v_body) whose rows are the vehicle's axes in body coordinates: x
+    along the travel direction x_b, z (down) the body-frame direction of gravity made orthogonal
+    to it, y = z x x. Any mounting angle, no gimbal lock (an Euler parametrization of the travel
+    direction loses pitch at a yaw of 90 deg); a vehicle's mean attitude over a drive is level, so
+    gravity marks its down axis."""
+    x = np.asarray(x_b, dtype=float) / np.linalg.norm(x_b)
+    z = np.asarray(down_b, dtype=float) - (np.asarray(down_b, dtype=float) @ x) * x
+    z = z / np.linalg.norm(z)
+    return np.vstack([x, np.cross(z, x), z])
 
 
 def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, block_s: float = 10.0,
                      fix_t_s=None, max_fix_gap_s: float = 1.0) -> TravelDirection | None:
     """Mounting from the direction of a solution's velocity in body axes (t_s (K,), vel_ned_mps
-    (K, 3), C_nb (K, 3, 3)) while faster than min_speed_mps. u = C_nb^T v / |v|; with v_vehicle =
-    Rz(yaw) Ry(pitch) v_body along x: u = (cos p cos y, -sin y, sin p cos y) (`_pitch_yaw_deg`).
-    With `fix_t_s` (a forward run's fixes), only samples at most max_fix_gap_s after a fix count:
-    inside a GPS outage a filter's velocity and yaw drift apart, and that drift would read as
-    mounting (2.7 deg of yaw on part 1 with two 30 s windows withheld). SDs: scatter of 10 s block means over sqrt(number
-    of blocks)."""
+    (K, 3), C_nb (K, 3, 3)) while faster than min_speed_mps: the vehicle's x axis along the mean of
+    C_nb^T v (each sample weighted by its speed; steadiness = |mean| / mean speed), its down axis
+    from gravity (`vehicle_axes`). With `fix_t_s` (a forward run's fixes), only samples at most
+    max_fix_gap_s after a fix count: inside a GPS outage a filter's velocity and yaw drift apart,
+    and that drift would read as mounting (2.7 deg of yaw on part 1 with two 30 s windows
+    withheld). SDs: scatter of the 10 s block means' directions in the vehicle's axes over
+    sqrt(number of blocks)."""
     v = np.asarray(vel_ned_mps, dtype=float)
     t_all = np.asarray(t_s, dtype=float)
     sp = np.linalg.norm(v, axis=1)
@@ -204,21 +211,24 @@ def travel_direction(t_s, vel_ned_mps, C_nb, *, min_speed_mps: float = 3.0, bloc
         m &= (j >= 0) & (t_all - tf[np.maximum(j, 0)] <= max_fix_gap_s)
     if m.sum() < 10:
         return None
-    u = np.einsum("kji,kj->ki", np.asarray(C_nb)[m], v[m]) / sp[m, None]
+    # the body-frame velocities themselves, not their unit vectors: a sample's direction is good to
+    # sd_v / speed, so weighting it by its speed keeps the slow, noisy ones from steering the mean
+    Cm = np.asarray(C_nb)[m]
+    u = np.einsum("kji,kj->ki", Cm, v[m])
     mean = u.mean(axis=0)
-    steadiness = float(np.linalg.norm(mean))
-    d = mean / steadiness
-    pitch, yaw = _pitch_yaw_deg(d)
+    steadiness = float(np.linalg.norm(mean) / np.mean(sp[m]))
+    C_vb = vehicle_axes(mean, Cm[:, 2, :].mean(axis=0))  # NED down in body axes: row 2 of C_nb
+    roll, pitch, yaw = np.degrees(dcm_to_euler(C_vb))
     t = t_all[m]
     blk = np.floor((t - t[0]) / block_s).astype(np.int64)
     ids = np.unique(blk)
     dt = float(np.median(np.diff(t_all))) if t_all.size > 1 else 0.0
     if ids.size >= 3:
         starts = np.searchsorted(blk, ids)  # blk is sorted: block means by reduceat
-        bm = np.add.reduceat(u, starts, axis=0) / np.diff(np.append(starts, blk.size))[:, None]
-        bp, by = _pitch_yaw_deg(bm.T)
-        by = (by - yaw + 180.0) % 360.0 - 180.0  # spread about the mean, across +-180
+        w = np.add.reduceat(u, starts, axis=0) @ C_vb.T  # block directions in the vehicle's axes
+        by = np.degrees(np.arctan2(w[:, 1], w[:, 0]))
+        bp = np.degrees(np.arctan2(-w[:, 2], np.hypot(w[:, 0], w[:, 1])))
         sp_, sy_ = (float(np.std(x, ddof=1) / np.sqrt(ids.size)) for x in (bp, by))
     else:
         sp_ = sy_ = float("nan")
-    return TravelDirection(float(pitch), float(yaw), sp_, sy_, steadiness, float(m.sum() * dt))
+    return TravelDirection(float(roll), float(pitch), float(yaw), sp_, sy_, steadiness, float(m.sum() * dt))

@@ -63,3 +63,30 @@ def mounting_warning(check: CourseYawCheck | None, threshold_deg: float, min_mov
             f"vehicle. Likely fix: check [imu] axes in session.toml and the mounting (the IMU appears turned by about "
             f"{-check.median_deg:+.0f} deg about the vertical). A car has little sideslip (a few deg); a walking "
             f"person or a hand-held unit need not point where it moves, so there this offset may be real.")
+
+
+def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_rad=None):
+    """The vehicle's attitude from the IMU's: C_nv = C_nb C_vb^T (C_vb: IMU body to vehicle
+    axes, v_vehicle = C_vb v_body), with the filter's residual misalignment [pitch, yaw] (rad,
+    (K, 2), `fusion.layout.mounting_block`) turning the vehicle axes by (I - [(0, m_p, m_y) x]) as
+    the NHC rows model it. C_nb (K, 3, 3), P_att_rad2 (K, 3, 3) the NED attitude-error covariance;
+    returns (C_nv (K, 3, 3), P (K, 3, 3)): the misalignment's variance (vehicle axes) is added,
+    rotated into NED (the cross-covariance is left out: the two come from different rows)."""
+    C_nb = np.asarray(C_nb, dtype=float)
+    K = C_nb.shape[0]
+    C_vb_k = np.broadcast_to(np.asarray(C_vb, dtype=float), (K, 3, 3)).copy()
+    if misalign_py_rad is not None:
+        m = np.zeros((K, 3))
+        m[:, 1:] = misalign_py_rad
+        S = np.zeros((K, 3, 3))
+        S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -m[:, 2], m[:, 1], -m[:, 0]
+        S = S - np.swapaxes(S, 1, 2)
+        C_vb_k = (np.eye(3) - S) @ C_vb_k
+    C_nv = C_nb @ np.swapaxes(C_vb_k, 1, 2)
+    P = np.array(P_att_rad2, dtype=float, copy=True)
+    if misalign_sd_rad is not None:
+        Dm = np.zeros((K, 3, 3))
+        sd = np.broadcast_to(np.asarray(misalign_sd_rad, dtype=float), (K, 2))
+        Dm[:, 1, 1], Dm[:, 2, 2] = sd[:, 0] ** 2, sd[:, 1] ** 2
+        P = P + C_nv @ Dm @ np.swapaxes(C_nv, 1, 2)
+    return C_nv, P
