@@ -198,7 +198,13 @@ def _tpos_report_killed_mid_write(run, sig) -> tuple[int, list[str]]:
     being written); returns its exit code and the temporaries left. None if it finished first."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen(
-        [sys.executable, "-m", "tpos_cli", "report", str(run)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        [sys.executable, "-m", "tpos_cli", "report", str(run)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        # as a terminal's foreground job: a test run in the background (nohup ... &) ignores SIGINT, and
+        # its children would inherit that
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     while proc.poll() is None and not list(run.glob(".*.tmp")):
         time.sleep(0.005)
