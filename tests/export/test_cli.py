@@ -180,3 +180,27 @@ def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
     ):
         res = runner.invoke(app, ["export", str(run), *args])
         assert res.exit_code == 2 and msg in res.output, res.output
+
+
+def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):
+    """A session whose start_utc names its first sample while t counts Unix seconds (as
+    navego_canada_enav) would date every epoch decades ahead: no times, and a note why."""
+    import shutil
+
+    run, _ = drive_run
+    summary = json.loads((run / "summary.json").read_text())
+    s = shutil.copytree(summary["session"]["path"], tmp_path / "s")
+    toml = (s / "session.toml").read_text()
+    (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2099-12-31T23:59:00Z"\n', 1))
+    r = shutil.copytree(run, tmp_path / "r", ignore=shutil.ignore_patterns("*.csv", "*.kml", "*.gpx", "*.geojson"))
+    summary["session"]["path"] = str(s)
+    (r / "summary.json").write_text(json.dumps(summary))
+    res = _export(r, "-f", "gpx", "--trajectory")
+    assert "start_utc 2099-12-31T23:59:00Z + t" in res.stderr and "after today" in res.stderr
+    g = gpxpy.parse((r / "trajectory_smoothed.gpx").read_text())
+    assert all(p.time is None for p in g.tracks[0].segments[0].points)
+    res = _export(r, "-f", "csv", "--trajectory")
+    assert "time_utc" not in _rows_csv(r / "trajectory_smoothed.csv")[0]
+    (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2020-01-01T00:00:00Z"\n', 1))
+    res = _export(r, "-f", "csv", "--trajectory")
+    assert "note:" not in res.stderr and _rows_csv(r / "trajectory_smoothed.csv")[0]["time_utc"].startswith("2020-01-01T00:00:")

@@ -6,15 +6,18 @@ import json
 import os
 import re
 import shutil
+import signal
 import stat
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
+from tests.helpers.paths import REPO
 from tests.report import synth
 from tpos_cli.cli import app
 
@@ -188,3 +191,51 @@ def test_truth_from_another_session_is_used_for_truth_only(tmp_path):
     assert res.exit_code == 0 and "is not the session this run was processed from" in res.stderr
     js = json.loads((r / "accuracy.json").read_text())
     assert js["truth"]["trajectory"]["source"] == "truth" and js["session"]["inputs_verified"].startswith("no")
+
+
+def _tpos_report_killed_mid_write(run, sig) -> tuple[int, list[str]]:
+    """`tpos report RUN` in a process of its own, sent `sig` while its temporaries exist (the PDF
+    being written); returns its exit code and the temporaries left. None if it finished first."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tpos_cli", "report", str(run)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        # as a terminal's foreground job: a test run in the background (nohup ... &) ignores SIGINT, and
+        # its children would inherit that
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    while proc.poll() is None and not list(run.glob(".*.tmp")):
+        time.sleep(0.005)
+    if proc.poll() is not None:
+        return None
+    proc.send_signal(sig)
+    return proc.wait(timeout=60), sorted(p.name for p in run.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL], ids=["INT", "TERM", "KILL"])
+def test_report_killed_mid_run_then_run_again(tmp_path, sig):
+    """Issue 14: no temporary files after an interrupted report. Ctrl-C and kill remove them at
+    once; kill -9 cannot, and the next report removes them; the earlier report stays whole."""
+    r = _run(tmp_path)
+    assert runner.invoke(app, ["report", str(r)]).exit_code == 0
+    before = (r / "report.pdf").read_bytes()
+    for _ in range(5):  # a report that finishes before the signal lands is tried again
+        res = _tpos_report_killed_mid_write(r, sig)
+        if res is not None:
+            break
+    assert res is not None, "the report always finished before it could be interrupted"
+    code, left = res
+    if sig == signal.SIGKILL:
+        assert code == -signal.SIGKILL and 1 <= len(left) <= 3  # of accuracy.parquet, accuracy.json, report.pdf
+    else:
+        assert code == 130 and left == []
+    assert (r / "report.pdf").read_bytes() == before
+    old = os.umask(0o022)
+    try:
+        assert runner.invoke(app, ["report", str(r)]).exit_code == 0
+    finally:
+        os.umask(old)
+    assert not list(r.glob(".*.tmp"))
+    assert all(stat.S_IMODE((r / n).stat().st_mode) == 0o644 for n in ("accuracy.parquet", "accuracy.json", "report.pdf"))

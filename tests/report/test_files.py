@@ -74,3 +74,22 @@ def test_sigterm_mid_write_leaves_nothing(tmp_path):
     proc.terminate()
     assert proc.wait(timeout=20) == 130
     assert [p.name for p in tmp_path.iterdir()] == ["out.bin"] and (tmp_path / "out.bin").read_text() == "old"
+
+
+def test_interrupt_right_after_a_temporary_is_created_leaves_nothing(tmp_path, monkeypatch):
+    # a SIGTERM (KeyboardInterrupt) landing between a temporary's creation and its registration
+    # once left it behind (found by test_report_killed_mid_run_then_run_again)
+    from tpos_cli.report import files
+
+    real, calls = files._create, []
+
+    def create_then_interrupt(tmp):
+        real(tmp)
+        calls.append(tmp)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(files, "_create", create_then_interrupt)
+    with pytest.raises(KeyboardInterrupt), staged([tmp_path / "a.json", tmp_path / "b.pdf", tmp_path / "c.parquet"]):
+        pass
+    assert len(calls) == 2 and list(tmp_path.iterdir()) == []

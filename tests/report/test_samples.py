@@ -16,6 +16,8 @@ from typer.testing import CliRunner
 from tests.helpers.paths import REPO
 from tpos_cli.cli import app
 from tpos_cli.pipeline import process_session
+from tpos_cli.report.appendix import PAPER_LAYOUTS
+from tpos_cli.report.build import make_report
 
 runner = CliRunner()
 SAMPLE_LOGS = REPO / "sample_logs"
@@ -59,3 +61,16 @@ def test_report(run):
     assert (js["truth"] is not None) == truth or kind == "drive_outage"  # a drive keeps its GPS fixes as (non-independent) truth
     if kind == "target_wall":
         assert [t["id"] for t in js["targets_combined"]["rows"]] == ["REF", "T1", "T2", "T3", "T4"]
+
+
+def test_full_report(run):
+    """`--full` appends the appendix (every segment, innovation stream, shot, the papers' layouts):
+    it once failed on a target run whose paper table holds labels in pandas' own string dtype."""
+    r, kind, truth = run
+    res = runner.invoke(app, ["report", str(r), "--full"])
+    assert res.exit_code == 0, res.output
+    pages = int(re.search(r"(\d+) PDF pages", res.output).group(1))
+    js = json.loads((r / "accuracy.json").read_text())
+    shown = [k for k in PAPER_LAYOUTS if js["paper_tables"].get(k)]  # the papers' layouts this run has
+    assert [k for k in PAPER_LAYOUTS if f"appendix_{k}" in "+".join(make_report(r, full=True).pages)] == shown
+    assert pages > 1 and (kind != "target_wall" or not truth or shown == ["paper000_table4"])

@@ -36,7 +36,7 @@ def test_report_stages_are_named(tmp_path):
 def test_cyclic_gc_paused_restores_the_collector():
     import gc
 
-    from tpos_cli.report.build import cyclic_gc_paused
+    from tpos_cli.report.collector import cyclic_gc_paused
 
     assert gc.isenabled()
     with cyclic_gc_paused():

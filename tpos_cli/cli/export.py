@@ -47,6 +47,8 @@ def export(
         if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
             read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
         res = export_run(run, fmt, solution=solution, rate_hz=rate, out=out, trajectory=trajectory)
+    for n in res.notes:
+        typer.echo(f"note: {n}", err=True)
     if res.path is None:
         return
     what = (

@@ -27,14 +27,17 @@ def report(
 
     Example: tpos report runs/drive --json
     """
-    from tpos_cli.report.build import make_report
-    from tpos_cli.report.files import terminate_as_interrupt
+    from tpos_cli.report.collector import cyclic_gc_paused
 
     try:
-        with exit_on_error(), terminate_as_interrupt(), working(f"tpos report {run}"):
-            if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
-                read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
-            res = make_report(run, truth, full=full)
+        with exit_on_error(), cyclic_gc_paused(), working(f"tpos report {run}"):  # the report's imports too
+            from tpos_cli.report.build import make_report
+            from tpos_cli.report.files import terminate_as_interrupt
+
+            with terminate_as_interrupt():
+                if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
+                    read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
+                res = make_report(run, truth, full=full)
     except KeyboardInterrupt:
         typer.echo("tpos report: interrupted; the run's earlier report files, if any, are unchanged", err=True)
         raise typer.Exit(130) from None

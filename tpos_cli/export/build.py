@@ -19,7 +19,7 @@ from tpos_cli.export import geojson, gpx, kml
 from tpos_cli.export.meta import ExportMeta, decimals, read_start_utc
 from tpos_cli.export.trajectory import trajectory_table
 from tpos_cli.report.files import write_atomic
-from tpos_cli.report.format import utc_strings
+from tpos_cli.report.format import checked_start_utc, utc_strings
 from tpos_cli.report.solutions import choose_solution
 from tpos_cli.report.targets import combined_targets
 
@@ -35,6 +35,7 @@ class ExportResult:
     n_rows: int
     zone: str
     rate_hz: float | None
+    notes: tuple[str, ...] = ()  # one line each, for the terminal
 
 
 def format_csv(df: pd.DataFrame) -> bytes:
@@ -66,6 +67,16 @@ def _observer(run, solution: str) -> pd.DataFrame | None:
     return pd.DataFrame({"id": ["observer"], "lat": [p[0, 0]], "lon": [p[0, 1]], "h": [p[0, 2]]})
 
 
+def _logger_times(run) -> np.ndarray:
+    """Every logger-clock time an export may date: trajectory epochs and shot windows."""
+    parts = [np.empty(0)]
+    if run.trajectory is not None:
+        parts.append(run.trajectory["t"].to_numpy(float))
+    if run.targets is not None:
+        parts += [run.targets[c].to_numpy(float) for c in ("t_start", "t_end") if c in run.targets.columns]
+    return np.concatenate(parts)
+
+
 def _default_path(run_dir: Path, kind: str, solution: str, fmt: str) -> Path:
     return run_dir / f"{kind}_{solution}.{fmt}"
 
@@ -93,7 +104,8 @@ def export_run(
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InvalidInputError(f"--rate {rate_hz:g}: must be a positive number of Hz")
     run = load_run(Path(run_dir))
-    start_utc = read_start_utc(session_dir_of(run.summary, run.path))
+    start_utc, why = checked_start_utc(read_start_utc(session_dir_of(run.summary, run.path)), _logger_times(run))
+    notes = (why,) if why else ()
     s = run.summary
     sess = s.get("session") or {}
 
@@ -149,11 +161,11 @@ def export_run(
     if out is not None and str(out) == "-":
         sys.stdout.buffer.write(data)
         sys.stdout.flush()
-        return ExportResult(None, kind, sol, len(table), zone.label, rate)
+        return ExportResult(None, kind, sol, len(table), zone.label, rate, notes)
     path = Path(out) if out is not None else _default_path(run.path, kind, sol, fmt)
     if path.is_dir():
         path = _default_path(path, kind, sol, fmt)
     if not path.parent.is_dir():
         raise InvalidInputError(f"-o {out}: directory {path.parent} does not exist")
     write_atomic(path, lambda p: p.write_bytes(data))
-    return ExportResult(path, kind, sol, len(table), zone.label, rate)
+    return ExportResult(path, kind, sol, len(table), zone.label, rate, notes)

@@ -103,7 +103,9 @@ class ExportMeta:
     @property
     def description(self) -> str:
         time = (
-            "UTC from the session's start_utc" if self.start_utc else "no UTC (the session has no start_utc): times are the logger clock t"
+            "UTC from the session's start_utc"
+            if self.start_utc
+            else "no UTC (the session gives no usable start_utc): times are the logger clock t"
         )
         return (
             f"tpos {self.tpos_version} export of run {self.run_dir} (pipeline {self.pipeline}, config sha256 "

@@ -5,6 +5,7 @@ whose layout it follows)."""
 from __future__ import annotations
 
 import pandas as pd
+from pandas.api.types import is_integer_dtype, is_numeric_dtype
 
 from tpos_cli.report import layout as L
 from tpos_cli.report.context import ReportContext
@@ -125,7 +126,9 @@ def layout_sections(ctx: ReportContext) -> list[Section]:
         if df is None or not len(df):
             continue
         cols = [
-            L.Column(c, list(df[c].astype(str)), align="left") if df[c].dtype == object else L.Column(c, L.fmt_num(df[c], 4))
+            L.Column(c, L.fmt_num(df[c], 0 if is_integer_dtype(df[c]) else 4))
+            if is_numeric_dtype(df[c])  # labels are strings of any dtype (object, or pandas' own str)
+            else L.Column(c, list(df[c].astype(str)), align="left")
             for c in df.columns
         ]
 

@@ -7,11 +7,8 @@ A run whose session files changed since it was processed is refused (see `check_
 
 from __future__ import annotations
 
-import gc
 import json
 import math
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -22,6 +19,7 @@ import pandas as pd
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.report import qc
 from tpos_cli.report.accuracy import Accuracy, compute_accuracy
+from tpos_cli.report.collector import cyclic_gc_paused
 from tpos_cli.report.context import ReportContext, ShotWindows
 from tpos_cli.report.files import staged
 from tpos_cli.report.health import Health, filter_health
@@ -313,22 +311,6 @@ def build_context(
         inputs_note=inputs_note,
         notes=tuple(notes),
     )
-
-
-@contextmanager
-def cyclic_gc_paused() -> Iterator[None]:
-    """Pause Python's cyclic garbage collector for the length of a report: the report builds some
-    10^5 matplotlib objects, all alive until the PDF is written, which the collector would scan again
-    and again meanwhile (about a tenth of a report's CPU time, measured by benchmarks/report.py).
-    Reference counting still frees everything that is not in a cycle; the cycles (artists and their
-    figures) are collected once the collector resumes. Resumes only if it was running before."""
-    was_enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_enabled:
-            gc.enable()
 
 
 def make_report(

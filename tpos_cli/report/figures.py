@@ -8,6 +8,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from tpos_cli.frames.earth import G0_MPS2
+from tpos_cli.report import layout as L
 from tpos_cli.report.layout import COLORS, log_labels, new_page
 
 
@@ -27,7 +28,7 @@ def draw_allan(fig: Figure, nf, top: float, bottom: float) -> None:
         ax.set_xlabel("averaging time τ, s", fontsize=8)
         ax.set_ylabel(label, fontsize=8)
         ax.tick_params(labelsize=7.5)
-        ax.grid(True, which="both", lw=0.3)
+        L.log_minor_grid(ax, "xy")
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     keys = nf.toml_keys()
     fig.text(

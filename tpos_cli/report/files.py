@@ -50,11 +50,13 @@ def remove_stale_temporaries(directory: Path, names: Iterable[str]) -> list[Path
     return removed
 
 
-def _new_temporary(path: Path) -> Path:
-    tmp = path.parent / f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+def _temporary_name(path: Path) -> Path:
+    return path.parent / f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+
+
+def _create(tmp: Path) -> None:
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
     os.close(fd)
-    return tmp
 
 
 @contextlib.contextmanager
@@ -69,8 +71,9 @@ def staged(paths: Iterable[Path]):
         remove_stale_temporaries(d, [p.name for p in paths if p.parent == d])
     tmps: dict[Path, Path] = {}
     try:
-        for p in paths:
-            tmps[p] = _new_temporary(p)
+        for p in paths:  # named before it exists: an interruption right after its creation still removes it
+            tmps[p] = _temporary_name(p)
+            _create(tmps[p])
         yield tmps
         for p, tmp in tmps.items():
             os.replace(tmp, p)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime
+from datetime import UTC, datetime
 
 import numpy as np
 
@@ -52,3 +52,24 @@ def utc_strings(t_s, start_utc: datetime | None, decimals: int = 3) -> np.ndarra
     stamps = base + np.round(t * 1e9).astype("int64").astype("timedelta64[ns]")
     unit = {0: "s", 3: "ms", 6: "us"}[decimals]
     return np.char.add(np.datetime_as_string(stamps, unit=unit), "Z")
+
+
+def checked_start_utc(start_utc: datetime | None, t_s, now: datetime | None = None) -> tuple[datetime | None, str]:
+    """`start_utc` (the contract's UTC of t = 0) if the logger times `t_s` it dates end no later than
+    `now` (default: the present), else (None, why). A session stamped in Unix seconds or GPS time
+    whose start_utc names its first sample (t = 1.5e9 s) would otherwise date its epochs decades
+    ahead (navego_canada_enav: 2067): no UTC at all beats a wrong one in a deliverable."""
+    if start_utc is None:
+        return None, ""
+    t = np.asarray(t_s, dtype=float)
+    t = t[np.isfinite(t)]
+    if not t.size:
+        return start_utc, ""
+    now = now or datetime.now(UTC)
+    last = utc_strings([float(t.max())], start_utc, 0)[0]
+    if np.datetime64(last.rstrip("Z")) <= np.datetime64(now.replace(tzinfo=None), "s"):
+        return start_utc, ""
+    return None, (
+        f"session start_utc {start_utc.strftime('%Y-%m-%dT%H:%M:%SZ')} + t (up to {float(t.max()):.0f} s) dates epochs "
+        f"to {last}, after today: start_utc is not the UTC of t = 0 (docs/log-format.md); no UTC times written"
+    )

@@ -203,7 +203,31 @@ def robust_ylim(ax, arrays, symmetric: bool = False, floor: float = 0.0, pct: fl
     v = v[np.isfinite(v)]
     if v.size < 20:
         return
-    lim = 1.25 * float(np.percentile(v, pct))
+    _clip_y(ax, v, 1.25 * float(np.percentile(v, pct)), symmetric, floor)
+
+
+def ylim_past_startup(ax, series, startup: float, symmetric: bool = False, floor: float = 0.0) -> None:
+    """y limits from what each (x, y) series shows after its first and before its last `startup` (x
+    units): a filter's first epochs carry its initial covariance (metres to tens of metres, for a
+    second or two, at the start of a forward run and the end of a backward one), which would
+    flatten an hour of centimetres. Everything later, GPS outages included, keeps its full height;
+    the axis says how many samples lie beyond it."""
+    inner, every = [], []
+    for x, y in series:
+        x, y = np.asarray(x, dtype=float), np.abs(np.asarray(y, dtype=float))
+        ok = np.isfinite(x) & np.isfinite(y)
+        x, y = x[ok], y[ok]
+        if x.size:
+            inner.append(y[(x >= x.min() + startup) & (x <= x.max() - startup)])
+            every.append(y)
+    if not every or sum(a.size for a in inner) < 20:
+        return
+    _clip_y(ax, np.concatenate(every), 1.05 * float(np.concatenate(inner).max()), symmetric, floor)
+
+
+def _clip_y(ax, v: np.ndarray, lim: float, symmetric: bool, floor: float) -> None:
+    """Limit the y axis to `lim` (|value|) when the largest |value| `v` goes more than 10 % beyond
+    it, with a note of how many lie beyond."""
     if not lim > 0 or float(v.max()) <= 1.1 * lim:
         return
     ax.set_ylim(-lim if symmetric else floor, lim)
@@ -302,6 +326,31 @@ def log_labels(ax, which: str = "y") -> None:
         getattr(ax, f"{name}axis").set_major_formatter(FuncFormatter(decade_label))
 
 
+def log_minor_grid(ax, which: str = "xy", lw: float = 0.3, color: str = "0.69") -> None:
+    """Major grid plus the minor grid of log axes (2..9 x 10^k) drawn as one line collection, with
+    no minor tick objects: matplotlib builds each tick (two marks, a label, a grid line) as its own
+    artists, about 0.3 ms apiece, and a two-axis log-log page holds some 150 minor ticks.
+    Call after the data are plotted (the limits must be final); the limits are then fixed."""
+    from matplotlib.collections import LineCollection
+    from matplotlib.ticker import NullLocator
+
+    ax.grid(True, which="major", lw=lw)
+    for name in which:
+        lo, hi = sorted(getattr(ax, f"get_{name}lim")())
+        if getattr(ax, f"get_{name}scale")() != "log" or not lo > 0:
+            continue
+        getattr(ax, f"set_{name}lim")(*getattr(ax, f"get_{name}lim")())  # freeze: the grid is drawn for these
+        getattr(ax, f"{name}axis").set_minor_locator(NullLocator())
+        k = np.arange(np.floor(np.log10(lo)), np.ceil(np.log10(hi)) + 1)
+        v = (np.arange(2.0, 10.0)[None, :] * 10.0 ** k[:, None]).ravel()
+        v = v[(v > lo) & (v < hi)]
+        if name == "x":
+            segs, trans = [[(x, 0.0), (x, 1.0)] for x in v], ax.get_xaxis_transform()
+        else:
+            segs, trans = [[(0.0, y), (1.0, y)] for y in v], ax.get_yaxis_transform()
+        ax.add_collection(LineCollection(segs, transform=trans, colors=color, linewidths=lw, zorder=0.5), autolim=False)
+
+
 def style_axis(ax, ylabel: str) -> None:
     ax.set_ylabel(ylabel, fontsize=8)
     if ax.get_yscale() == "log":
@@ -339,20 +388,25 @@ def length_label(m: float) -> str:
 
 
 def scale_bar(ax, points=None, frac: float = 0.25) -> None:
-    """A scale bar on an equal-aspect east/north axis in metres, in whichever lower corner holds
-    fewer of `points` ((N, 2) east, north), so it covers no data."""
+    """A scale bar on an equal-aspect east/north axis in metres, in the corner (lower left, lower
+    right, upper left, in that order of preference; the north arrow holds the upper right) whose bar
+    and label cover fewest of `points` ((N, 2) east, north), so it covers no data where it can."""
     ax.apply_aspect()
     x0, x1 = ax.get_xlim()
     y0, y1 = ax.get_ylim()
-    L = nice_length(frac * (x1 - x0))
-    xs, ys = x0 + 0.05 * (x1 - x0), y0 + 0.05 * (y1 - y0)
+    w, h = x1 - x0, y1 - y0
+    L = nice_length(frac * w)
+    corners = [(x0 + 0.05 * w, y0 + 0.05 * h), (x1 - 0.05 * w - L, y0 + 0.05 * h), (x0 + 0.05 * w, y1 - 0.10 * h)]
+    xs, ys = corners[0]
     if points is not None and len(points):
         p = np.asarray(points, dtype=float)
-        low = p[:, 1] < y0 + 0.2 * (y1 - y0)
-        n_left = np.sum(low & (p[:, 0] < x0 + 0.4 * (x1 - x0)))
-        n_right = np.sum(low & (p[:, 0] > x1 - 0.4 * (x1 - x0)))
-        if n_right < n_left:
-            xs = x1 - 0.05 * (x1 - x0) - L
+
+        def covered(c) -> int:  # points under the bar and its label, with a margin
+            a, b = c
+            inside_x = (p[:, 0] > a - 0.03 * w) & (p[:, 0] < a + L + 0.03 * w)
+            return int(np.sum(inside_x & (p[:, 1] > b - 0.03 * h) & (p[:, 1] < b + 0.08 * h)))
+
+        xs, ys = min(corners, key=covered)  # the first of equals
     ax.plot([xs, xs + L], [ys, ys], color="k", lw=2.5, solid_capstyle="butt", zorder=5)
     ax.plot([xs, xs + L / 2], [ys, ys], color="w", lw=1.2, solid_capstyle="butt", zorder=6)
     ax.text(

@@ -17,10 +17,15 @@ from tpos_cli.report import layout as L
 from tpos_cli.report.targets import horizontal_ellipse
 
 MIN_ELLIPSE_FRAC = 0.012  # an ellipse under ~1.2 % of the map width (~2 mm on paper) is enlarged
+MAX_ELLIPSE_FRAC = 0.05  # ... but none to a semi-axis over 5 % of it
 N_TRACK_ELLIPSES = 12
 
 
 def _enlargement(major_m: np.ndarray, extent_m: float) -> float:
+    """The 1-2-5 factor that draws the median ellipse at least `MIN_ELLIPSE_FRAC` of the map wide,
+    but no ellipse wider than `MAX_ELLIPSE_FRAC` of it: one GPS-outage epoch among a dozen has an
+    ellipse tens of times the median, which the median's factor would draw across the whole map.
+    Never below 1 (an ellipse is not drawn smaller than it is)."""
     m = major_m[np.isfinite(major_m)]
     if not m.size or extent_m <= 0:
         return 1.0
@@ -28,10 +33,12 @@ def _enlargement(major_m: np.ndarray, extent_m: float) -> float:
     if need <= 1.0:
         return 1.0
     e = 10.0 ** np.ceil(np.log10(need))
-    for f in (0.2, 0.5, 1.0):
-        if f * e >= need:
-            return f * e
-    return e
+    f_need = next((f * e for f in (0.2, 0.5, 1.0) if f * e >= need), e)
+    cap = MAX_ELLIPSE_FRAC * extent_m / max(float(m.max()), 1e-9)
+    if f_need <= cap:
+        return f_need
+    e = 10.0 ** np.floor(np.log10(cap)) if cap > 0 else 1.0
+    return max(1.0, next((f * e for f in (5.0, 2.0, 1.0) if f * e <= cap), e))
 
 
 def _draw_ellipses(ax, e_m, n_m, major, minor, az_deg, factor, color, label):

@@ -17,7 +17,7 @@ from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import ReportContext
-from tpos_cli.report.format import length_unit, utc_strings
+from tpos_cli.report.format import checked_start_utc, length_unit, utc_strings
 from tpos_cli.report.sections import Section
 from tpos_cli.report.solutions import rank_solutions
 
@@ -118,6 +118,7 @@ def shots_section(ctx: ReportContext) -> Section | None:
         L.Column("end", L.fmt_num(sh["t_end"] - ctx.t_ref, 1) if "t_end" in sh else empty, "s"),
     ]
     start_utc = ctx.session.meta.start_utc if ctx.session is not None else None
+    start_utc, _ = checked_start_utc(start_utc, sh["t_start"].to_numpy(float))  # none rather than decades ahead
     if start_utc is not None:
         cols.append(
             L.Column(

@@ -24,6 +24,7 @@ FIX_NAMES = {0: "none", 1: "autonomous", 2: "SBAS/WAAS"}
 LEGEND_H = 0.028  # a legend line above an axis
 TICKS_H = 0.022  # tick labels under an axis
 XLABEL_H = 0.045  # tick labels and the time label under the last axis
+STARTUP_S = 10.0  # a filter's start-up (initial covariance) left out of the limits of accuracy axes, s
 
 
 def panel_axes(fig: Figure, n: int, top: float, bottom: float, legend_each: bool = False) -> list:
@@ -105,25 +106,33 @@ def accuracy_section(ctx: ReportContext) -> Section | None:
 
     def draw(fig, top, bottom):
         axes = panel_axes(fig, n, top, bottom + note_h)
+        drawn: list[list] = [[] for _ in axes]  # what each axis shows, for limits a start-up transient does not set
+
+        def plot(k, x, y, **kw):
+            L.plot_series(axes[k], x, y, **kw)
+            drawn[k].append((x, y))
+
         for s in _draw_order(ctx, shown):
             ser, c = ctx.series[s], ctx.color(s)
             x = ctx.x(ser.t)
             lw = 1.4 if s == ctx.best else 1.0
-            L.plot_series(axes[0], x, qc.horizontal_95_m(ser), color=c, lw=lw, label=f"{s}: 95 % bound")
-            L.plot_series(axes[1], x, qc.Z95 * ser.sigma_neu_m[:, 2], color=c, lw=lw, label=f"{s}: 95 % bound")
+            plot(0, x, qc.horizontal_95_m(ser), color=c, lw=lw, label=f"{s}: 95 % bound")
+            plot(1, x, qc.Z95 * ser.sigma_neu_m[:, 2], color=c, lw=lw, label=f"{s}: 95 % bound")
             L.plot_series(axes[1], x, -qc.Z95 * ser.sigma_neu_m[:, 2], color=c, lw=lw)
             if has_yaw:
-                L.plot_series(axes[2], x, qc.Z95 * ser.sigma_rpy_deg[:, 2], color=c, lw=lw)
+                plot(2, x, qc.Z95 * ser.sigma_rpy_deg[:, 2], color=c, lw=lw)
                 L.plot_series(axes[2], x, -qc.Z95 * ser.sigma_rpy_deg[:, 2], color=c, lw=lw)
             se = ctx.errors(s) if truth else None
             if se is not None:
-                L.plot_series(axes[0], x, np.hypot(se.err_ned_m[:, 0], se.err_ned_m[:, 1]), color=c, lw=0.6, alpha=0.8, label=f"{s}: error")
-                L.plot_series(axes[1], x, -se.err_ned_m[:, 2], color=c, lw=0.6, alpha=0.8)
+                plot(0, x, np.hypot(se.err_ned_m[:, 0], se.err_ned_m[:, 1]), color=c, lw=0.6, alpha=0.8, label=f"{s}: error")
+                plot(1, x, -se.err_ned_m[:, 2], color=c, lw=0.6, alpha=0.8)
                 if has_yaw and se.att_err_deg is not None:
-                    L.plot_series(axes[2], x, se.att_err_deg["yaw_deg"], color=c, lw=0.6, alpha=0.8)
+                    plot(2, x, se.att_err_deg["yaw_deg"], color=c, lw=0.6, alpha=0.8)
         for k, ax in enumerate(axes):
             mark_time(ax, ctx, legend=k == 0)
         axes[0].set_ylim(bottom=0)
+        for k, ax in enumerate(axes):
+            L.ylim_past_startup(ax, drawn[k], STARTUP_S / ctx.time_scale, symmetric=k > 0)
         _finish(axes, ctx, ("horizontal, m", "vertical (up), m", "yaw, deg")[:n])
         if lines:
             L.note(fig, bottom + note_h, "; ".join(lines) + ". About 95 % means honest sigmas; much less means the sigmas are too small.")
@@ -144,6 +153,7 @@ def separation_section(ctx: ReportContext) -> Section | None:
             L.plot_series(ax, x, sep.bound99_h_m, color="k", lw=0.9, ls="--", label="99 % bound of the pair")
             mark_time(ax, ctx)
             ax.set_ylim(bottom=0)
+            L.ylim_past_startup(ax, [(x, sep.dist_h_m), (x, sep.bound99_h_m)], STARTUP_S / ctx.time_scale)  # either run's start
         _finish(axes, ctx, ["separation, m"] * len(seps))
 
     return Section(
