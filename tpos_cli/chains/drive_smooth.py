@@ -353,7 +353,8 @@ def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterCon
     t, g, a = imu_coarse
     ysr = info.get("yaw_search")
     after = ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
-    rows = nhc_measurements(t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after)
+    # rows at 1 Hz: the mean of a few thousand NIS values decides (to about 2/sqrt(n)), at a tenth of the cost
+    rows = nhc_measurements(t, stops, rate_hz=min(p.nhc_rate_hz, 1.0), sigma_mps=p.nhc_sigma_mps, after_s=after)
     if rows is None or not len(rows):
         return None
     cfg = dataclasses.replace(coarse, C_vb=np.asarray(C_vb, dtype=float), layout=StateLayout(
@@ -420,26 +421,28 @@ def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothPar
     return {k: v for k, v in sols.items() if k in names}, flag, nis
 
 
-def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun) -> Solution:
+def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False) -> Solution:
     """A solution's attitude in the vehicle's axes when the run applied a mounting C_vb (and its
     residual misalignment states, `fusion.mounting.vehicle_attitude`, their SD that of the forward
-    run's end); the IMU's otherwise. Targets keep the IMU's attitude: the rangefinders sit on the IMU."""
+    run's end); the IMU's otherwise. Targets keep the IMU's attitude: the rangefinders sit on the IMU.
+    own: the caller owns sol.P9 (a `Solution.rows` copy), which is then updated in place."""
     if C_vb is None:
         return sol
     o = run.layout.offset(Block.MOUNTING)
     m = sol.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + 2] if (o >= 0 and sol.bias is not None) else None
     _, sd = _block_at_end(run, Block.MOUNTING, 2)
-    P9 = np.array(sol.P9, copy=True)
+    P9 = sol.P9 if own else np.array(sol.P9, copy=True)
     C_nv, P9[:, 6:9, 6:9] = vehicle_attitude(sol.C_nb, sol.P9[:, 6:9, 6:9], C_vb, m, sd)
     return Solution(sol.name, sol.idx, sol.nav, C_nv, P9, sol.bias)
 
 
-def mounting_check(sols: dict, t_s, p: DriveSmoothParams) -> dict | None:
-    """Course over ground minus yaw of the best solution while moving (`fusion.mounting`)."""
+def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s) -> dict | None:
+    """Course over ground minus yaw of the best solution while moving (`fusion.mounting`), its
+    attitude in the axes the output reports (`axes`: `in_vehicle_axes` when a mounting applies)."""
     best = next((n for n in ("smoothed", "rts", "two_filter", "forward") if n in sols), None)
     if p.mounting_check_deg <= 0 or best is None:
         return None
-    s = sols[best]
+    s = axes(sols[best])
     chk = course_minus_yaw(t_s[s.idx], s.nav[:, 3:6], dcm_to_euler(s.C_nb)[2], p.mounting_min_speed_mps)
     warn = mounting_warning(chk, p.mounting_check_deg)
     out = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn is not None,
@@ -491,7 +494,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
-                       mounting_check({k: in_vehicle_axes(v, C_vb, fwd) for k, v in sols.items()}, imu.t, p), C_vb)
+                       mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd)), C_vb)
 
 
 def nis_band(nis, innovation) -> dict | None:
@@ -673,7 +676,7 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
     o = res.forward.layout.offset(Block.CLOCK) - N_NAV + 6  # the position clock in a solution's bias row
     frames = []
     for n in names:
-        sol = in_vehicle_axes(res.solutions[n].rows(keep), res.C_vb, res.forward)
+        sol = in_vehicle_axes(res.solutions[n].rows(keep), res.C_vb, res.forward, own=True)
         rows = solution_rows(sol, t, session.t0_s, outage, flag)
         if clock is not None and clock["output_clock"] == "gps":
             # each solution's own clock estimate: the one its positions were fitted with
