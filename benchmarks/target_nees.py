@@ -7,7 +7,7 @@ compared with its own covariance from `targets.parquet` (sigma_n/e/u and cov_ne/
 Printed per grade and solution: the share of targets inside their 95 % ellipsoid (chi-square(3) 7.81;
 goal >= 80 %) and the mean NEES per dof (goal within [0.3, 2]).
 
-    python benchmarks/target_nees.py [seeds per grade, default 4]
+    python benchmarks/target_nees.py [seeds per grade, default 4] [grades, default paper,mems,tactical]
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ from scipy.stats import chi2
 
 from tpos_cli.frames import geodetic
 from tpos_cli.pipeline import process_session
+from tpos_cli.sim.sensor_errors import GRADES as OFFERED
 from tpos_cli.sim.target import simulate_target
 from tpos_cli.sim.writer import write_session
 
-GRADES = tuple(sys.argv[2].split(",")) if len(sys.argv) > 2 else ("paper", "mems")  # the grades `tpos simulate target` offers
+GRADES = tuple(sys.argv[2].split(",")) if len(sys.argv) > 2 else ("paper", "mems", "tactical")  # issue 12's grades
 SOLUTIONS = ("fkf", "fkf_cal", "lf1", "lf2")
 
 
@@ -59,6 +60,9 @@ def main(argv) -> int:
     print(f"{'grade':9s} {'solution':9s} {'targets':>7s} {'in 95%':>7s} {'NEES/dof':>8s} {'mean err m':>10s}")
     with tempfile.TemporaryDirectory() as tmp:
         for grade in GRADES:
+            if grade not in OFFERED:
+                print(f"{grade:9s} (not a grade of `tpos simulate target`: {', '.join(OFFERED)})")
+                continue
             df = pd.concat([session_nees(grade, 500 + s, Path(tmp)) for s in range(n_seeds)], ignore_index=True)
             for sol in SOLUTIONS:
                 q = df[df.solution == sol]

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import predict, update
+from tpos_cli.filters.kalman import cho_solve_into, cholesky_into, matmul_into, predict, symmetrize, update
 from tpos_cli.frames._kernels import orthonormalize, rotvec_to_dcm, skew
 
 # measurement kinds, bit flags in `Gates.use`
@@ -61,6 +61,7 @@ class Frame(NamedTuple):
     wall_n: np.ndarray
     o2: np.ndarray
     o3: np.ndarray
+    wall_sens: np.ndarray  # (3,) rad per m/s^2: the wall azimuth's error per accelerometer bias (`Init.S0`)
 
 
 class Noise(NamedTuple):
@@ -114,19 +115,26 @@ class Gates(NamedTuple):
 
 
 class Init(NamedTuple):
-    """C0 (3,3); bias (3,) rad/s; acc_bias (3,) m/s^2; M0 (3,3); P0 (n,n) with n from `state_offsets`."""
+    """C0 (3,3); bias (3,) rad/s; acc_bias (3,) m/s^2; M0 (3,3); P0 (n,n) with n from `state_offsets`;
+    S0 (n,6) the initial error's sensitivity to the accelerometer bias b_a: columns 0-2 the total,
+    d e0 / d b_a (the levelling error of the alignment, phi0 = M b_a, and the bias state's own error,
+    I), columns 3-5 the part the filter's prior already holds (the bias state's I). Both are carried
+    by the filter's closed loop (e <- (I - K H) Phi e, minus K times a measurement's own bias
+    sensitivity), so that e(t) = a(t) + S(t) b_a with a(t) independent of b_a."""
 
     C0: np.ndarray
     bias: np.ndarray
     acc_bias: np.ndarray
     M0: np.ndarray
     P0: np.ndarray
+    S0: np.ndarray
 
 
 class Outputs(NamedTuple):
     """Filled per sample (the posterior after it): C (N,3,3), P_att (N,3,3) rad^2, bias (N,3) rad/s,
     acc_bias (N,3) m/s^2, var_bias (N,6) variances of [gyro bias, acc bias], nis_acc, nis_mag, nis_rng
-    (N,) (NaN: no update made), mag_ok (N,) bool, M (N or 1, 3, 3) (written only with the M states)."""
+    (N,) (NaN: no update made), mag_ok (N,) bool, M (N or 1, 3, 3) (written only with the M states),
+    S_att (N,3,6) the attitude rows of the bias sensitivity (`Init.S0`)."""
 
     C: np.ndarray
     P_att: np.ndarray
@@ -138,6 +146,7 @@ class Outputs(NamedTuple):
     nis_rng: np.ndarray
     mag_ok: np.ndarray
     M: np.ndarray
+    S_att: np.ndarray
 
 
 @njit(cache=True)
@@ -208,6 +217,65 @@ def _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s):
 
 
 @njit(cache=True)
+def _gain(P, H, R, K):
+    """K (n, m) = P H^T (H P H^T + R)^-1, the gain `kalman.update` applies (Cholesky of S); False,
+    K untouched, if S is not positive definite (`update` then makes no update either)."""
+    m, n = H.shape
+    PHt = np.empty((n, m))
+    matmul_into(P, np.ascontiguousarray(H.T), PHt)
+    S = np.empty((m, m))
+    matmul_into(H, PHt, S)
+    for i in range(m):
+        for j in range(m):
+            S[i, j] += R[i, j]
+    symmetrize(S)
+    L = np.empty((m, m))
+    if not cholesky_into(S, L):
+        return False
+    for i in range(n):
+        cho_solve_into(L, PHt[i], K[i])
+    return True
+
+
+@njit(cache=True)
+def _sens_update(Sv, K, H, Z):
+    """Sv <- (I - K H) Sv - K Z on the first three columns (Z (m,3) the measurement's own sensitivity
+    to the bias), (I - K H) Sv on the others (`Init.S0`)."""
+    n, c = Sv.shape
+    HS = np.empty((H.shape[0], c))
+    matmul_into(H, Sv, HS)
+    for i in range(H.shape[0]):
+        for j in range(3):
+            HS[i, j] += Z[i, j]
+    KHS = np.empty((n, c))
+    matmul_into(K, HS, KHS)
+    for i in range(n):
+        for j in range(c):
+            Sv[i, j] -= KHS[i, j]
+
+
+@njit(cache=True)
+def _sens_predict(Sv, Phi):
+    """Sv <- Phi Sv."""
+    T = np.empty(Sv.shape)
+    matmul_into(Phi, Sv, T)
+    for i in range(Sv.shape[0]):
+        for j in range(Sv.shape[1]):
+            Sv[i, j] = T[i, j]
+
+
+@njit(cache=True)
+def _tracked_update(x, P, z, H, R, Sv, Z):
+    """`kalman.update` with the bias sensitivity carried through the same gain (`Init.S0`)."""
+    K = np.empty((H.shape[1], H.shape[0]))
+    ok = _gain(P, H, R, K)
+    nis = update(x, P, z, H, R)
+    if ok and nis >= 0.0:
+        _sens_update(Sv, K, H, Z)
+    return nis
+
+
+@njit(cache=True)
 def _consider_update(x, P, z, H, R, n_keep, keep):
     """Kalman update whose gain is zero outside the `keep` states (Schmidt consider update, Joseph
     form, valid for any gain): the others' uncertainty enters S but they are never corrected."""
@@ -224,6 +292,7 @@ def _consider_update(x, P, z, H, R, n_keep, keep):
     I_KH = np.eye(n) - K @ H
     Pn = I_KH @ P @ I_KH.T + K @ R @ K.T
     P[:, :] = 0.5 * (Pn + Pn.T)
+    return K
 
 
 @njit(cache=True)
@@ -253,6 +322,9 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
     v = np.zeros(3)
     p = np.zeros(3)
     P = init.P0.copy()
+    Sv = init.S0.copy()
+    z3 = np.zeros((3, 3))
+    z6 = np.zeros((6, 3))
     x = np.zeros(n)
     Phi = np.eye(n)
     Qd = np.zeros((n, n))
@@ -337,6 +409,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                     acc_T += dt
                     acc_k += 1
             predict(x, P, Phi, Qd)
+            _sens_predict(Sv, Phi)
             C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
         out.nis_acc[k] = np.nan
         out.nis_mag[k] = np.nan
@@ -358,7 +431,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                     H[i, i_s + i] = hf[i]
                 hf = hf + sa * hf
             z = s.acc[k] - (hf + ba)
-            out.nis_acc[k] = update(x, P, z, H, np.eye(3) * s.grav_var[k])
+            out.nis_acc[k] = _tracked_update(x, P, z, H, np.eye(3) * s.grav_var[k], Sv, z3)
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         # ---- hand model: the velocity change of the interval equals the model's integrated acceleration
         if (use & USE_ACC) != 0 and use_osc and acc_k >= hand.step:
@@ -375,7 +448,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                 Ho[i, i_v + i] = c_v * acc_T
                 Ho[i, i_v + 3 + i] = c_p * acc_T
                 Ro[i, i] = hand.q * acc_T + nz.q_vel * acc_k
-            out.nis_acc[k] = update(x, P, z, Ho, Ro)
+            out.nis_acc[k] = _tracked_update(x, P, z, Ho, Ro, Sv, z3)
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
             acc_dv[:] = 0.0
             acc_dvf[:] = 0.0
@@ -389,20 +462,20 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
             Hz = np.zeros((3, n))
             for i in range(3):
                 Hz[i, i_v + i] = 1.0
-            update(x, P, -v, Hz, np.eye(3) * hand.zupt_sd**2)
+            _tracked_update(x, P, -v, Hz, np.eye(3) * hand.zupt_sd**2, Sv, z3)
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         if (use & USE_ACC) != 0 and motion and not use_osc and k % hand.epoch == 0:
             Hm = np.zeros((6, n))
             Rm = np.zeros((6, 6))
-            z6 = np.empty(6)
+            zm = np.empty(6)
             for i in range(3):
                 Hm[i, i_v + i] = 1.0
                 Hm[3 + i, i_v + 3 + i] = 1.0
                 Rm[i, i] = (hand.zupt_sd if s.still[k] else hand.sd_vel) ** 2
                 Rm[3 + i, 3 + i] = hand.sd_pos**2
-                z6[i] = -v[i]
-                z6[3 + i] = -p[i]
-            update(x, P, z6, Hm, Rm)  # (6 dof: not recorded with the 3-dof accelerometer NIS)
+                zm[i] = -v[i]
+                zm[3 + i] = -p[i]
+            _tracked_update(x, P, zm, Hm, Rm, Sv, z6)  # (6 dof: not recorded with the 3-dof accelerometer NIS)
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         # ---- magnetic field vector (Eq. 7): m_b = C^T m_ref, tilt only considered (Schmidt)
         if (use & USE_MAG) != 0 and not np.isnan(s.mag[k, 0]):
@@ -430,9 +503,10 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
             if ok:
                 out.nis_mag[k] = nis  # the NIS of the updates made (a rejected field is no update)
                 if gates.mag_consider:
-                    _consider_update(x, P, z, H, R, n, keep)
+                    Km = _consider_update(x, P, z, H, R, n, keep)
+                    _sens_update(Sv, Km, H, z3)
                 else:
-                    update(x, P, z, H, R)
+                    _tracked_update(x, P, z, H, R, Sv, z3)
                 C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         # ---- three-beam range differences (exact plane geometry)
         if (use & USE_RANGE) != 0 and not (np.isnan(s.rdiff[k, 0]) or np.isnan(s.rdiff[k, 1])):
@@ -446,11 +520,20 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                 nis = z @ np.linalg.solve(S, z)
                 out.nis_rng[k] = nis
                 if gates.rng_gate <= 0.0 or nis < gates.rng_gate:
-                    update(x, P, z, H, nz.r_rng)
+                    # the wall's azimuth error (from the levelled alignment) biases both differences
+                    # like a heading error of the device: dz = Hr[:, 2] d(azimuth)
+                    Zr = np.empty((2, 3))
+                    for i in range(2):
+                        for j in range(3):
+                            Zr[i, j] = Hr[i, 2] * fr.wall_sens[j]
+                    _tracked_update(x, P, z, H, nz.r_rng, Sv, Zr)
                     C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         C = orthonormalize(C)
         out.C[k] = C
         out.P_att[k] = P[0:3, 0:3]
+        for i in range(3):
+            for j in range(6):
+                out.S_att[k, i, j] = Sv[i, j]
         out.bias[k] = b
         out.acc_bias[k] = ba
         for i in range(6):

@@ -90,6 +90,11 @@ class FilterSetup:
     acc_bias0_mps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
     acc_scale_sd: float = 0.0  # > 0: accelerometer scale-factor states (prior SD, relative)
     gravity_mps2: float | None = None  # measured |f| at rest (absorbs the accelerometer scale); None: normal gravity
+    # the alignment's attitude error per accelerometer bias, phi0 = lev_map b_a (rad per m/s^2), and the
+    # wall normal's azimuth error per bias (LF2): the filter carries both as a bias sensitivity
+    # (`_kernels.Init.S0`, `AttitudeSolution.S_ba`)
+    lev_map: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    wall_sens: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
 @dataclass(frozen=True)
@@ -115,6 +120,10 @@ class AttitudeSolution:
     acc_bias_mps2: np.ndarray | None = None
     var_bias: np.ndarray | None = None
     fb_scale: tuple[float, float] | None = None  # smoothed only: (tilt, heading) forward/backward consistency (smoother)
+    # the attitude error's sensitivity to the accelerometer bias, e = a + S_ba b_a (N,3,3), and the part
+    # Q_ba (N,3,3) rad^2 of P_att that the filter's own bias prior explains (`honest_covariance`)
+    S_ba: np.ndarray | None = None
+    Q_ba: np.ndarray | None = None
 
     def euler_deg(self):
         """(N,3) roll, pitch, yaw in degrees, yaw in [0, 360)."""
@@ -128,13 +137,31 @@ class AttitudeSolution:
         return euler_sigmas_deg(self.C_nb, self.P_att)
 
 
-def add_heading_variance(sol: AttitudeSolution, var_rad2: float) -> AttitudeSolution:
-    """`sol` with a constant heading-error variance added about NED down (e.g. LF2's wall azimuth)."""
+def honest_covariance(sol: AttitudeSolution, acc_bias_var: float) -> np.ndarray:
+    """(N,3,3) rad^2 covariance of the attitude error with the accelerometer bias b_a ~ N(0, acc_bias_var I)
+    acting through the levelling and the filters as it does: e = a + S_ba b_a, a independent of b_a, so
+    Cov(e) = (P_att - Q_ba) + S_ba S_ba^T acc_bias_var (a filter whose prior takes the alignment's tilt
+    as independent of b_a holds Q_ba = B B^T acc_bias_var of it in P_att; `_kernels.Init.S0`).
+    P_att where the solution has no sensitivity."""
+    if sol.S_ba is None:
+        return sol.P_att
+    S = sol.S_ba
+    return sol.P_att - sol.Q_ba + acc_bias_var * (S @ np.swapaxes(S, 1, 2))
+
+
+def add_heading_variance(sol: AttitudeSolution, var_rad2: float, bias_var_rad2: float = 0.0) -> AttitudeSolution:
+    """`sol` with a constant heading-error variance added about NED down (e.g. LF2's wall azimuth), of
+    which `bias_var_rad2` is the accelerometer bias's share that the solution's sensitivity `S_ba`
+    already carries (so it joins `Q_ba` too, and `honest_covariance` counts it once)."""
     if var_rad2 <= 0.0:
         return sol
     P = sol.P_att.copy()
     P[:, 2, 2] += var_rad2
-    return replace(sol, P_att=P)
+    Q = sol.Q_ba
+    if Q is not None and bias_var_rad2 > 0.0:
+        Q = Q.copy()
+        Q[:, 2, 2] += bias_var_rad2
+    return replace(sol, P_att=P, Q_ba=Q)
 
 
 def range_differences(t_imu_s, t_rng_s, range_m):
@@ -274,7 +301,8 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     dt_mean = float(np.median(np.abs(np.diff(t)))) if n > 1 else 0.01
     m_ref = reference_field_ned(setup.mag_ref[0], setup.mag_ref[1], setup.declination_rad)
     samples = K.Samples(t, gyro, acc, mag, rd, st, np.ascontiguousarray(grav))
-    frame = K.Frame(w_ie, g_n, m_ref, np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3)
+    frame = K.Frame(w_ie, g_n, m_ref, np.ascontiguousarray(setup.wall_n_ned, dtype=float), o2, o3,
+                    np.ascontiguousarray(setup.wall_sens, dtype=float))
     kn = K.Noise((noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_scale_sd**2 / beta,
                  noise.gyro_bias_rw_rps_rts**2 / beta, noise.acc_bias_rw_mps2_rts**2 / beta,
                  setup.gyro_err_rw_rts**2 / beta, (noise.acc_noise_mps2 * dt_mean) ** 2,
@@ -284,18 +312,25 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
                     float(setup.mag_dip_tol_rad), float(setup.mag_nis_tau_s), float(setup.mag_nis_ratio),
                     float(setup.range_gate_chi2))
     acc_b0 = np.asarray(setup.acc_bias0_mps2, dtype=float)
+    P0 = initial_covariance(setup, use) / beta
+    S0 = np.zeros((P0.shape[0], 6))
+    S0[0:3, 0:3] = setup.lev_map
+    S0[K.I_BA:K.I_BA + 3, 0:3] = np.eye(3)
+    S0[K.I_BA:K.I_BA + 3, 3:6] = np.eye(3)
     init = K.Init(np.ascontiguousarray(setup.C0, dtype=float), np.ascontiguousarray(bias0),
-                  np.ascontiguousarray(acc_b0), np.ascontiguousarray(setup.gyro_M0, dtype=float),
-                  initial_covariance(setup, use) / beta)
+                  np.ascontiguousarray(acc_b0), np.ascontiguousarray(setup.gyro_M0, dtype=float), P0, S0)
     with_m = setup.gyro_err_sd > 0
     out = K.Outputs(np.empty((n, 3, 3)), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 6)),
-                    np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_), np.zeros((n if with_m else 1, 3, 3)))
+                    np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_), np.zeros((n if with_m else 1, 3, 3)),
+                    np.empty((n, 3, 6)))
     K.marg_filter(samples, frame, kn, _hand(setup, dt_mean, share), gates, init, out)
     o = {f: getattr(out, f) for f in out._fields}
     if backward:
         o = {k: v[::-1] if v.shape[0] == n else v for k, v in o.items()}
         o["bias"] = -o["bias"]
+    B = o["S_att"][:, :, 3:6]
     return AttitudeSolution(
+        S_ba=np.ascontiguousarray(o["S_att"][:, :, 0:3]), Q_ba=noise.acc_bias_mps2**2 / beta * (B @ np.swapaxes(B, 1, 2)),
         name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(o["C"]),
         P_att=np.ascontiguousarray(o["P_att"]), bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
         nis={"acc": o["nis_acc"], "mag": o["nis_mag"], "range": o["nis_rng"]},

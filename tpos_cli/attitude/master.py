@@ -39,15 +39,27 @@ def fuse(name: str, sols: list[AttitudeSolution], weights=None) -> AttitudeSolut
     C_ref = sols[0].C_nb
     info = np.zeros((n, 3, 3))
     iv = np.zeros((n, 3))
+    infos = []
     for s, wi in zip(sols, w):
         d = dcm_to_rotvec(s.C_nb @ np.swapaxes(C_ref, 1, 2))
-        Pi = np.linalg.inv(s.P_att)
-        info += wi[:, None, None] * Pi
-        iv += wi[:, None] * np.einsum("nij,nj->ni", Pi, d)
+        Pi = wi[:, None, None] * np.linalg.inv(s.P_att)
+        infos.append(Pi)
+        info += Pi
+        iv += np.einsum("nij,nj->ni", Pi, d)
     Pg = np.linalg.inv(info)
     xg = np.einsum("nij,nj->ni", Pg, iv)
     C = rotvec_to_dcm(xg) @ C_ref
-    return AttitudeSolution(name=name, t_s=sols[0].t_s, C_nb=C, P_att=0.5 * (Pg + np.swapaxes(Pg, 1, 2)))
+    S_g = Q_g = None
+    if all(s.S_ba is not None for s in sols):
+        # the fused error is sum_i W_i e_i with W_i = P_g w_i P_i^-1: its accelerometer-bias sensitivity
+        # is sum_i W_i S_i, and the parts the filters' own bias priors explain combine as sum_i W_i Q_i W_i^T
+        S_g, Q_g = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
+        for s, Pi in zip(sols, infos):
+            W = Pg @ Pi
+            S_g += W @ s.S_ba
+            Q_g += W @ s.Q_ba @ np.swapaxes(W, 1, 2)
+    return AttitudeSolution(name=name, t_s=sols[0].t_s, C_nb=C, P_att=0.5 * (Pg + np.swapaxes(Pg, 1, 2)), S_ba=S_g,
+                            Q_ba=Q_g)
 
 
 def consistency_nis(a: AttitudeSolution, b: AttitudeSolution) -> np.ndarray:

@@ -28,6 +28,7 @@ from tpos_cli.attitude.local import (
     FilterNoise,
     FilterSetup,
     add_heading_variance,
+    honest_covariance,
     range_differences,
     run_full,
     run_paper8,
@@ -36,32 +37,44 @@ from tpos_cli.attitude.smoother import smooth_full
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import TargetFkfParams
 from tpos_cli.errors import InvalidInputError, ProcessingError
-from tpos_cli.frames import geodetic
+from tpos_cli.frames import earth, geodetic
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.rotation import dcm_to_euler, dcm_to_rotvec, euler_error_map, euler_to_dcm, rotvec_to_dcm
 from tpos_cli.imu_noise import resolve_imu_noise
 from tpos_cli.session import Session
 from tpos_cli.trajectory import trajectory_table
 
+#: attitude SD (rad, each axis) of the backward run's prior when it starts from the start alignment carried
+#: by the gyro (`_align_at_end`): uninformative beside any alignment (0.1 rad is 5.7 deg; a still window
+#: levels to ~0.01 deg), small enough that the error-state linearization holds
+BACKWARD_CARRIED_SD_RAD = 0.1
+
 
 @dataclass(frozen=True)
 class End:
     """Alignment at one end of the log: the coarse alignment (`alignment.Alignment`) in its still
-    window, the gravity magnitude there (m/s^2) and the SD of the gyro bias measured in it (rad/s)."""
+    window, the gravity magnitude there (m/s^2), the SD of the gyro bias measured in it (rad/s) and the
+    attitude at which the accelerometer levelled it (`levelling_map`; None: align.C_nb)."""
 
     align: al.Alignment
     window: al.StaticWindow
     gravity_mps2: float
     bias_sd_rps: float
+    level_C: np.ndarray | None = None
+
+    def levelled_at(self) -> np.ndarray:
+        return self.align.C_nb if self.level_C is None else self.level_C
 
 
 @dataclass(frozen=True)
 class Beams:
-    """Range differences on the IMU samples (N,2) or None, the wall's NED normal and its azimuth variance."""
+    """Range differences on the IMU samples (N,2) or None, the wall's NED normal, its azimuth variance
+    and the share of it that the accelerometer bias explains (carried by the filters' sensitivity)."""
 
     rdiff: np.ndarray | None
     wall_n: np.ndarray
     wall_var_rad2: float
+    wall_lev_var_rad2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -183,12 +196,14 @@ def remove_mag_lag(session: Session, p: TargetFkfParams, ctx: RunContext, summar
     return replace(session, imu=replace(imu, mag_b_ut=sensor_lag.advance(imu.t_s, imu.mag_b_ut, lag.lag_s)))
 
 
-def _carry(C, bias, t, gyro, i_from, i_to):
-    """Attitude C at sample i_from carried to sample i_to by the gyro alone (bias removed)."""
+def _carry(C, bias, t, gyro, i_from, i_to, w_ie_ned):
+    """Attitude C at sample i_from carried to sample i_to by the gyro alone: bias and Earth rate removed
+    (Eq. 19, omega_nb = omega_ib - b - C^T omega_ie; the Earth turns a still device's heading by
+    15 deg/h sin(lat))."""
     step = 1 if i_to >= i_from else -1
     for k in range(i_from + step, i_to + step, step) if i_to != i_from else ():
         kk = k if step > 0 else k + 1  # the rate of row kk covers (t_{kk-1}, t_kk]
-        w = (gyro[kk] - bias) * (t[kk] - t[kk - 1]) * step
+        w = (gyro[kk] - bias - C.T @ w_ie_ned) * (t[kk] - t[kk - 1]) * step
         C = C @ rotvec_to_dcm(w)
     return C
 
@@ -212,10 +227,11 @@ def align_end(session: Session, p: TargetFkfParams, lat: float, decl: float, noi
     sg = float(np.sqrt(np.mean(np.var(g[win.i0:win.i1], axis=0))))
     edge = n - 1 if at_end else 0
     ref = win.i1 - 1 if at_end else win.i0
+    C_level = A.C_nb
     if ref != edge:
-        A = replace(A, C_nb=_carry(A.C_nb, A.gyro_bias_rps, t, g, ref, edge))
+        A = replace(A, C_nb=_carry(A.C_nb, A.gyro_bias_rps, t, g, ref, edge, earth.earth_rate_ned_rps(lat)))
     grav = float(np.linalg.norm(np.mean(a[win.i0:win.i1], axis=0)))
-    return End(A, win, grav, sg / np.sqrt(max(win.i1 - win.i0, 1)))
+    return End(A, win, grav, sg / np.sqrt(max(win.i1 - win.i0, 1)), C_level)
 
 
 def imu_figures(session: Session, p: TargetFkfParams, start: End, summary: dict) -> FilterNoise:
@@ -399,7 +415,8 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
                 # the samples the survey masked were not used either
                 sols["lf1"] = replace(sols["lf1"], mag_ok=sols["lf1"].mag_ok & ~field.disturbed)
             if beams.rdiff is not None:
-                sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot), beams.wall_var_rad2)
+                sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot),
+                                                   beams.wall_var_rad2, beams.wall_lev_var_rad2)
             summary["forward_backward_consistency"] = {
                 k: {"tilt": round(s.fb_scale[0], 3), "heading": round(s.fb_scale[1], 3)}
                 for k, s in sols.items() if s.fb_scale is not None}
@@ -430,7 +447,7 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
             ctx.count("fkf_samples_lf2_excluded", int((~fr.ok[1]).sum()))
         else:
             s1 = locals_[0]
-            sols["fkf"] = AttitudeSolution("fkf", s1.t_s, s1.C_nb, s1.P_att)
+            sols["fkf"] = AttitudeSolution("fkf", s1.t_s, s1.C_nb, s1.P_att, S_ba=s1.S_ba, Q_ba=s1.Q_ba)
         if sols["lf1"].mag_ok is not None:
             ctx.count("mag_samples_rejected", int((~sols["lf1"].mag_ok).sum()))
     return sols
@@ -450,37 +467,53 @@ def levelling_map(C_nb, gravity_mps2: float, dip_rad: float | None, decl_rad: fl
 
 def levelling_consider_cov(maps, noise: FilterNoise) -> tuple[np.ndarray, np.ndarray]:
     """(P, D): (3,3) NED covariances (rad^2) of the levelling error that the accelerometer bias leaves in
-    every solution (P, the mean over the two ends) and of its difference between the forward and the
-    backward run (D, for their consistency test, `smoother.fb_scale`).
+    an alignment (P, the mean over the two ends: the whole error when nothing after the alignment
+    observes the bias) and of its difference between the two ends (D, for the forward/backward
+    consistency test, `smoother.fb_scale`; the runs' sensitivities would give the exact difference,
+    (S_f - S_b)(S_f - S_b)^T var - Q_f - Q_b, but that moves the test's scale and the fusion weights
+    with it: a rolled-device session's fkf 0.0200 -> 0.0201 m at the issue's 0.02 m goal).
+    The full model does not use P for its covariances: its filters carry the levelling error as a
+    sensitivity to the bias (`FilterSetup.lev_map`, `local.honest_covariance`), which shrinks as the
+    device turns and the filters learn the bias (kept in full, a MEMS session's target sigmas came out
+    twice their errors, NEES/dof 0.27). P is added in full to the paper8 model's solutions and reported.
 
     An alignment takes f_b = C^T f_up + b_a for gravity, so its tilt is off by phi_h = J b_a with
-    J = [[C_E], [-C_N]] / g (C the alignment's attitude). The local filters start from a tight tilt
-    (the levelling correlation as a prior is measured harmful on real hand-held logs,
-    `_initial_covariance`), and a device that barely turns (a target session) never makes b_a
-    observable; so its effect is carried as a consider term, added to every solution after the fusion
-    (LF1 and LF2 share the accelerometer: the term is common to both and must not be fused as
-    independent). A magnetic heading levelled with that tilt is off too: the field's horizontal part
-    seen through a tilt phi_h turns the heading by tan(dip) (u_h . phi_h), u_h the field's horizontal
-    direction (Eq. 8 with a tilted levelling); the alignment's heading, and the wall normal LF2 takes
-    from it, inherit it. So phi = L J b_a with L = [I2; tan(dip) u_h^T] (`levelling_map`). A device held
-    still at a new attitude is levelled anew (phi follows J(C)), but for an isotropic bias prior
-    J J^T = I / g^2 at any attitude, so P holds at every sample."""
+    J = [[C_E], [-C_N]] / g (C the alignment's attitude; phi with C_true = exp(phi) C_hat). A magnetic
+    heading levelled with that tilt is off too: the field's horizontal part seen through a tilt phi_h
+    turns the heading by tan(dip) (u_h . phi_h), u_h the field's horizontal direction (Eq. 8 with a
+    tilted levelling); the alignment's heading, and the wall normal LF2 takes from it, inherit it. So
+    phi = L J b_a with L = [I2; tan(dip) u_h^T] (`levelling_map`); for an isotropic bias prior
+    J J^T = I / g^2 at any attitude."""
     sb2 = noise.acc_bias_mps2**2
     P = sum(M @ M.T for M in maps) * sb2 / len(maps)
     dM = maps[0] - maps[-1]
     return P, dM @ dM.T * sb2
 
 
-def with_levelling(sol: AttitudeSolution, P_lev: np.ndarray) -> AttitudeSolution:
-    """`sol` with the levelling consider covariance added to its attitude covariance."""
+def with_levelling(sol: AttitudeSolution, P_lev: np.ndarray, noise: FilterNoise) -> AttitudeSolution:
+    """`sol` with the accelerometer bias's effect in its attitude covariance: through its own
+    sensitivity (`local.honest_covariance`) where the filters carried one, else the levelling consider
+    covariance `P_lev` added in full (the paper8 model)."""
+    if sol.S_ba is not None:
+        return replace(sol, P_att=honest_covariance(sol, noise.acc_bias_mps2**2))
     return replace(sol, P_att=sol.P_att + P_lev[None])
+
+
+def with_levelling_maps(setups: Setups, maps) -> Setups:
+    """`setups` with each run's levelling map (forward: the start's, backward: the end's) and the wall
+    normal's azimuth sensitivity (it is the start alignment's heading turned by the beams: -M[2])."""
+    m0, m1 = (np.asarray(m, dtype=float) for m in maps)
+    kw = dict(wall_sens=-m0[2].copy())
+    return Setups(replace(setups.forward, lev_map=m0, **kw), replace(setups.backward, lev_map=m1, **kw),
+                  replace(setups.gyro, lev_map=m0, **kw))
 
 
 def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, start: End, noise: FilterNoise,
                      ctx: RunContext, summary: dict, base_fkf: AttitudeSolution | None = None, P_lev=None):
     """Target rows of every solution for every shot, `fkf_cal` from reference shots (calibrating `base_fkf`,
-    default `sols["fkf"]`, without the levelling consider covariance `P_lev`, which fkf_cal then gets), and
-    the target pairs."""
+    default `sols["fkf"]`, with the filters' own covariance: the accelerometer bias's share, through the
+    sensitivity `S_ba` (full model) or the levelling consider covariance `P_lev` (paper8), is added to
+    fkf_cal for what the offsets leave of it), and the target pairs."""
     t = session.imu.t_s
     rows, pairs = [], []
     with ctx.stage("targeting"):
@@ -492,7 +525,7 @@ def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, 
         d1 = _d1_on_imu(session, t)
         fixes = {name: _geolocate_shots(sol, shots, t, d1, obs_lla, noise.range_sigma_m) for name, sol in sols.items()}
         # the reference shots calibrate fkf's own pitch/heading offsets, which take up the levelling error
-        # (`levelling_consider_cov`): the fit and fkf_cal use fkf without that consider term
+        # at those shots: the fit uses fkf's own covariance (`_apply_offsets` adds what is left of it)
         fkf_base = base_fkf if base_fkf is not None else sols.get("fkf")
         cal = None
         if fkf_base is not None:
@@ -506,12 +539,11 @@ def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, 
                                       "sigma_deg": np.degrees(np.sqrt(np.diag(cal.cov_rad2))).tolist(),
                                       "residual_rms_m": cal.residual_rms_m, "shots": cal.n_shots}
             sols["fkf_cal"] = _apply_offsets(fkf_base, cal, t_ref, noise, session.meta.rate_hz)
-            if P_lev is not None:
-                # the offsets take up the levelling error at the reference shots only: it changes with the
-                # device's attitude and as the filters learn the bias (measured on MEMS simulations: its
-                # change re-levelled at each attitude, (M(t) - M(t_ref)) b_a, leaves fkf_cal over-confident,
-                # NEES/dof 6), so all of it is kept
-                sols["fkf_cal"] = with_levelling(sols["fkf_cal"], P_lev)
+            if P_lev is not None and fkf_base.S_ba is None:
+                # without a sensitivity (paper8) what the offsets leave of the levelling error is unknown: all
+                # of it is kept (its change re-levelled at each attitude, (M(t) - M(t_ref)) b_a, was measured
+                # over-confident on MEMS simulations, NEES/dof 6: the filters do not follow J(C))
+                sols["fkf_cal"] = with_levelling(sols["fkf_cal"], P_lev, noise)
             fixes["fkf_cal"] = _geolocate_shots(sols["fkf_cal"], shots, t, d1, obs_lla, noise.range_sigma_m)
         for name, (df, lla, cov) in fixes.items():
             rows.append(df.assign(t_start=df.t_start + session.t0_s, t_end=df.t_end + session.t0_s))
@@ -539,16 +571,23 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
     with ctx.stage("initial alignment"):
         end = _align_at_end(session, p, np.radians(obs_lla[0]), decl, noise, start, field, ctx)
     setups = filter_setups(session, p, obs_lla, decl, (start, end), noise, field)
-    beams = beam_geometry(session, start, noise, float(setups.forward.P0[2, 2]), ctx, summary)
-    setups = with_wall(setups, beams)
     mag_ref = setups.forward.mag_ref
     lev = (mag_ref[1] if mag_ref[0] > 0 else None, decl)
-    P_lev, D_lev = levelling_consider_cov([levelling_map(e.align.C_nb, e.gravity_mps2, *lev) for e in (start, end)], noise)
+    maps = [levelling_map(e.levelled_at(), e.gravity_mps2, *lev) for e in (start, end)]
+    P_lev, D_lev = levelling_consider_cov(maps, noise)
+    tracked = p.model == "full"  # the full model's filters carry the accelerometer bias's effect themselves
+    beams = beam_geometry(session, start, noise, float(setups.forward.P0[2, 2]), ctx, summary)
+    if tracked:
+        setups = with_levelling_maps(setups, maps)
+        # the wall azimuth's levelling share is carried by the sensitivity (`FilterSetup.wall_sens`)
+        lev_var = noise.acc_bias_mps2**2 * float(maps[0][2] @ maps[0][2])
+        beams = replace(beams, wall_lev_var_rad2=min(lev_var, beams.wall_var_rad2))
+    setups = with_wall(setups, beams)
     sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, fb_diff_cov=D_lev)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
     summary["levelling_consider_sigma_deg"] = np.degrees(np.sqrt(np.diag(P_lev))).round(4).tolist()
     fkf = sols["fkf"]
-    sols = {k: with_levelling(v, P_lev) for k, v in sols.items()}
+    sols = {k: with_levelling(v, P_lev, noise) for k, v in sols.items()}
     targets, tables = position_targets(session, p, sols, obs_lla, start, noise, ctx, summary, base_fkf=fkf, P_lev=P_lev)
     traj = _trajectory(sols, session.imu.t_s + session.t0_s, obs_lla)
     summary["solutions"] = list(sols)
@@ -588,10 +627,16 @@ def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: Filter
     imu = session.imu
     n = imu.t_s.size
     A = start.align
-    C = _carry(A.C_nb, A.gyro_bias_rps, imu.t_s, imu.gyro_b_rps, start.window.i0, n - 1)
-    grow = noise.gyro_bias_rps * (imu.t_s[-1] - imu.t_s[start.window.i0])
-    A = replace(A, C_nb=C, sigma_rpy_rad=np.hypot(A.sigma_rpy_rad, grow))
-    return End(A, start.window, start.gravity_mps2, noise.gyro_bias_rps)
+    # the start alignment is held at the first sample (`align_end` carried it there)
+    C = _carry(A.C_nb, A.gyro_bias_rps, imu.t_s, imu.gyro_b_rps, 0, n - 1, earth.earth_rate_ned_rps(lat))
+    # that attitude is the forward run's own information: as the backward run's prior it would be fused
+    # with the forward run as if independent (a heading that only the start's magnetometer fixed, counted
+    # twice). The backward run keeps it as its linearization point with an uninformative covariance
+    # (BACKWARD_CARRIED_SD_RAD, or the bias SD times the log when larger), so it holds only what the
+    # samples after each instant tell
+    grow = noise.gyro_bias_rps * (imu.t_s[-1] - imu.t_s[0])
+    A = replace(A, C_nb=C, sigma_rpy_rad=np.maximum(np.hypot(A.sigma_rpy_rad, grow), BACKWARD_CARRIED_SD_RAD))
+    return End(A, start.window, start.gravity_mps2, noise.gyro_bias_rps, start.levelled_at())
 
 
 def _alignment_summary(session: Session, start: End) -> dict:
@@ -706,15 +751,26 @@ def attitude_change_variance(sol: AttitudeSolution, t_ref_s, noise: FilterNoise,
 def _apply_offsets(sol: AttitudeSolution, cal, t_ref_s, noise: FilterNoise, rate_hz: float) -> AttitudeSolution:
     """Subtract the pitch/heading offsets (paper 001 Eq. 35) from every attitude of `sol`. The offsets
     remove the attitude error of the reference shots, so the covariance left is that of the error's
-    change since then (`attitude_change_variance`, on each axis) plus the offsets' own uncertainty
-    (`Calibration.cov_rad2`, from the reference shots' range noise)."""
+    change since then (`attitude_change_variance`, on each axis), the offsets' own uncertainty
+    (`Calibration.cov_rad2`, from the reference shots' range noise) and, with the accelerometer-bias
+    sensitivity S (`AttitudeSolution.S_ba`), the bias's share the offsets leave: E(t) b_a with
+    E(t) = S(t) - Mx(t) Pi mean_ref(Mx^-1 S) (Mx the Euler error map, Pi keeps pitch and heading)."""
     r, pch, y = dcm_to_euler(sol.C_nb)
     C = euler_to_dcm(r, pch - cal.dpitch_rad, y - cal.dyaw_rad)
     Pe = np.zeros((3, 3))
     Pe[1:, 1:] = cal.cov_rad2
     Mx = euler_error_map(C)
     drift = attitude_change_variance(sol, t_ref_s, noise, rate_hz)[:, None, None] * np.eye(3)
-    return AttitudeSolution("fkf_cal", sol.t_s, C, drift + Mx @ Pe @ np.swapaxes(Mx, 1, 2))
+    P = drift + Mx @ Pe @ np.swapaxes(Mx, 1, 2)
+    if sol.S_ba is not None:
+        # the accelerometer bias's part: S(t) b_a less what the offsets took up at the reference shots,
+        # the pitch/heading Euler part of Mx(t_ref)^-1 S(t_ref) (mean over them), turned at each sample
+        k_ref = np.clip(np.searchsorted(sol.t_s, np.asarray(t_ref_s, dtype=float)), 0, sol.t_s.size - 1)
+        E_ref = np.mean(np.linalg.solve(euler_error_map(sol.C_nb[k_ref]), sol.S_ba[k_ref]), axis=0)
+        E_ref[0] = 0.0  # roll is not calibrated
+        E = sol.S_ba - Mx @ E_ref
+        P = P + noise.acc_bias_mps2**2 * (E @ np.swapaxes(E, 1, 2))
+    return AttitudeSolution("fkf_cal", sol.t_s, C, P)
 
 
 def _trajectory(sols: dict, t_logger, obs_lla) -> pd.DataFrame:
