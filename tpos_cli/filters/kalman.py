@@ -22,7 +22,9 @@ from numba import njit
 def matmul_into(A, B, out):
     """out (m, p) = A B for A (m, n), B (n, p); `out` must not alias A or B. Loop order i, k, j:
     the innermost loop runs along rows of B and out (contiguous, so it vectorizes without
-    reassociating the sums; each sum still adds k = 0, 1, ... in order)."""
+    reassociating the sums; each sum still adds k = 0, 1, ... in order). Zero elements of A are
+    skipped (the filters' transition and measurement matrices are mostly zeros; adding their
+    zero products would not change a sum)."""
     m, n = A.shape
     p = B.shape[1]
     for i in range(m):
@@ -30,21 +32,30 @@ def matmul_into(A, B, out):
             out[i, j] = 0.0
         for k in range(n):
             a = A[i, k]
-            for j in range(p):
-                out[i, j] += a * B[k, j]
+            if a != 0.0:
+                for j in range(p):
+                    out[i, j] += a * B[k, j]
 
 
 @njit(cache=True)
 def sandwich_into(A, B, out):
-    """out (m, m) = A B A^T for A (m, n), B (n, n); `out` must not alias A or B."""
+    """out (m, m) = A B A^T for A (m, n) and a symmetric B (n, n); `out` must not alias A or B.
+
+    T = A B, then out = A T^T (= A B^T A^T = A B A^T for a symmetric B): both products have A on
+    the left, whose zeros `matmul_into` skips; the upper triangle is mirrored, so the result is
+    exactly symmetric.
+    """
     m, n = A.shape
     T = np.empty((m, n))
     matmul_into(A, B, T)
-    At = np.empty((n, m))
+    Tt = np.empty((n, m))
     for i in range(m):
         for k in range(n):
-            At[k, i] = A[i, k]
-    matmul_into(T, At, out)
+            Tt[k, i] = T[i, k]
+    matmul_into(A, Tt, out)
+    for i in range(m):
+        for j in range(i):
+            out[i, j] = out[j, i]
 
 
 @njit(cache=True)
@@ -120,7 +131,8 @@ def discretize(F, Qc, dt, Phi, Qd):
     """Phi = I + F dt + (F dt)^2 / 2 (Eq. 14 to second order), Qd = (Phi Qc Phi^T + Qc) dt / 2.
 
     `Phi`, `Qd` (n, n) are written in place. Trapezoidal Qd: exact to O(dt^2) for the
-    short covariance steps (<= 1 s) used with MEMS IMUs.
+    short covariance steps (<= 1 s) used with MEMS IMUs. A diagonal Qc (white noises on single
+    states, as the filters' are) makes Phi Qc a column scaling (the same numbers as the product).
     """
     n = F.shape[0]
     matmul_into(F, F, Phi)
@@ -128,7 +140,22 @@ def discretize(F, Qc, dt, Phi, Qd):
         for j in range(n):
             Phi[i, j] = F[i, j] * dt + 0.5 * (dt * dt) * Phi[i, j]
         Phi[i, i] += 1.0
-    sandwich_into(Phi, Qc, Qd)
+    diagonal = True
+    for i in range(n):
+        for j in range(n):
+            if i != j and Qc[i, j] != 0.0:
+                diagonal = False
+    if diagonal:
+        QPt = np.empty((n, n))  # (Phi Qc)^T
+        for k in range(n):
+            for i in range(n):
+                QPt[k, i] = Phi[i, k] * Qc[k, k]
+        matmul_into(Phi, QPt, Qd)
+        for i in range(n):
+            for j in range(i):
+                Qd[i, j] = Qd[j, i]
+    else:
+        sandwich_into(Phi, Qc, Qd)
     for i in range(n):
         for j in range(n):
             Qd[i, j] = 0.5 * dt * (Qd[i, j] + Qc[i, j])
@@ -153,30 +180,28 @@ def predict(x, P, Phi, Qd):
 
 @njit(cache=True)
 def _innovation(x, P, z, H, R):
-    """(nu = z - H x (m,), P H^T (n, m), S = H P H^T + R symmetrized (m, m))."""
+    """(nu = z - H x (m,), H P (m, n) (= (P H^T)^T: P symmetric), S = H P H^T + R symmetrized
+    (m, m)). Zero elements of H are skipped (a measurement row touches a few states)."""
     m, n = H.shape
     nu = np.empty(m)
-    PHt = np.empty((n, m))
+    HP = np.empty((m, n))
     S = np.empty((m, m))
     for i in range(m):
         s = z[i]
         for k in range(n):
-            s -= H[i, k] * x[k]
+            if H[i, k] != 0.0:
+                s -= H[i, k] * x[k]
         nu[i] = s
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for k in range(n):
-                s += P[i, k] * H[j, k]
-            PHt[i, j] = s
+    matmul_into(H, P, HP)
     for i in range(m):
         for j in range(m):
             s = R[i, j]
             for k in range(n):
-                s += H[i, k] * PHt[k, j]
+                if H[i, k] != 0.0:
+                    s += H[i, k] * HP[j, k]
             S[i, j] = s
     symmetrize(S)
-    return nu, PHt, S
+    return nu, HP, S
 
 
 @njit(cache=True)
@@ -195,14 +220,70 @@ def _nis(nu, S, L):
 
 
 @njit(cache=True)
-def update(x, P, z, H, R):
-    """Joseph-form update (Eq. 3-5) in place; returns NIS = nu^T S^-1 nu, or -1 if S is not PD.
+def _scalar_statistics(x, P, z, H, R):
+    """(nu, h^T P h, S = h^T P h + R) of a scalar measurement (H (1, n)) without allocating;
+    the sums run in the order of `_innovation`'s, skipping zeros of h."""
+    n = H.shape[1]
+    nu = z[0]
+    hph = 0.0
+    S = R[0, 0]
+    for k in range(n):
+        hk = H[0, k]
+        if hk != 0.0:
+            nu -= hk * x[k]
+            pk = 0.0  # (P h)_k
+            for j in range(n):
+                if H[0, j] != 0.0:
+                    pk += H[0, j] * P[k, j]
+            hph += hk * pk
+            S += hk * pk
+    return nu, hph, S
 
-    z (m,), H (m, n), R (m, m). Joseph form keeps P symmetric PD even for a gated or
-    suboptimal gain. The innovation is nu = z - H x.
-    """
+
+@njit(cache=True)
+def _update_scalar(x, P, z, h, r):
+    """One scalar measurement z = h^T x + noise of variance r (h (n,)), in place, in O(n^2):
+    p = P h, s = h^T p + r, k = p / s, x <- x + k nu, and the Joseph form
+    (I - k h^T) P (I - k h^T)^T + k r k^T expanded exactly (for any gain k) as
+    P - k p^T - p k^T + s k k^T. Returns nu^2 / s, or -1 (nothing changed) if s <= 0."""
+    n = h.shape[0]
+    p = np.empty(n)
+    for i in range(n):
+        p[i] = 0.0
+    nu = z
+    for k in range(n):
+        hk = h[k]
+        if hk != 0.0:
+            nu -= hk * x[k]
+            for i in range(n):
+                p[i] += hk * P[k, i]  # P symmetric: row k of P is its column k
+    s = r
+    for k in range(n):
+        if h[k] != 0.0:
+            s += h[k] * p[k]
+    if not s > 0.0:
+        return -1.0
+    sq = np.sqrt(s)
+    w = nu / sq
+    g = np.empty(n)  # the gain k, as a Cholesky solve with S = s computes it
+    for i in range(n):
+        g[i] = (p[i] / sq) / sq
+        x[i] += g[i] * nu
+    for i in range(n):
+        for j in range(i, n):
+            v = P[i, j] - g[i] * p[j] - p[i] * g[j] + s * g[i] * g[j]
+            P[i, j] = v
+            P[j, i] = v
+    return w * w
+
+
+@njit(cache=True)
+def _update_joint(x, P, z, H, R):
+    """`update` of all m rows at once (for an R that is not positive definite): K = P H^T S^-1
+    by Cholesky solves, Joseph form evaluated exactly in O(n^2 m) as
+    P - K (H P) - (K (H P))^T + K S K^T."""
     m, n = H.shape
-    nu, PHt, S = _innovation(x, P, z, H, R)
+    nu, HP, S = _innovation(x, P, z, H, R)
     # Cholesky both tests positive definiteness and gives the whitened innovation
     L = np.empty((m, m))
     nis = _nis(nu, S, L)
@@ -210,28 +291,65 @@ def update(x, P, z, H, R):
         return -1.0
     # K = P H^T S^-1 without an explicit inverse: row i of K solves S k = (P H^T)[i] (S symmetric)
     K = np.empty((n, m))
+    col = np.empty(m)
     for i in range(n):
-        cho_solve_into(L, PHt[i], K[i])
+        for a in range(m):
+            col[a] = HP[a, i]
+        cho_solve_into(L, col, K[i])
     for i in range(n):
         s = 0.0
         for j in range(m):
             s += K[i, j] * nu[j]
         x[i] += s
-    I_KH = np.empty((n, n))
+    KS = np.empty((n, m))
+    matmul_into(K, S, KS)
     for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(m):
-                s += K[i, k] * H[k, j]
-            I_KH[i, j] = -s
-        I_KH[i, i] += 1.0
-    KRKt = np.empty((n, n))
-    sandwich_into(K, R, KRKt)
-    sandwich_into(I_KH, P.copy(), P)
-    for i in range(n):
-        for j in range(n):
-            P[i, j] += KRKt[i, j]
-    symmetrize(P)
+        for j in range(i, n):
+            v = P[i, j]
+            for a in range(m):
+                v += KS[i, a] * K[j, a] - K[i, a] * HP[a, j] - K[j, a] * HP[a, i]
+            P[i, j] = v
+            P[j, i] = v
+    return nis
+
+
+@njit(cache=True)
+def update(x, P, z, H, R):
+    """Joseph-form update (Eq. 3-5) in place; returns NIS = nu^T S^-1 nu, or -1 (x and P
+    unchanged) if S is not PD.
+
+    z (m,), H (m, n), R (m, m), P symmetric. The innovation is nu = z - H x, S = H P H^T + R.
+    Joseph form (I - K H) P (I - K H)^T + K R K^T keeps P symmetric PD even for a gated or
+    suboptimal gain. The rows are processed one at a time (`_update_scalar`, O(n^2) each
+    instead of the O(n^3) products with I - K H): after whitening by R = L L^T (z' = L^-1 z,
+    H' = L^-1 H, R' = I) they are independent, and sequential scalar updates give the joint
+    update's x, P and NIS (the sum of the rows' nu'^2 / s'). An R that is not PD: `_update_joint`.
+    """
+    m, n = H.shape
+    if m == 1:
+        return _update_scalar(x, P, z[0], H[0], R[0, 0])
+    L = np.empty((m, m))
+    if not cholesky_into(R, L):
+        return _update_joint(x, P, z, H, R)
+    zw = np.empty(m)
+    forward_substitute(L, z, zw)
+    Hw = np.empty((m, n))
+    for i in range(m):
+        for k in range(n):
+            s = H[i, k]
+            for j in range(i):
+                s -= L[i, j] * Hw[j, k]
+            Hw[i, k] = s / L[i, i]
+    x0 = x.copy()
+    P0 = P.copy()
+    nis = 0.0
+    for i in range(m):
+        v = _update_scalar(x, P, zw[i], Hw[i], 1.0)
+        if v < 0.0:  # S not PD: leave the state as it was
+            x[:] = x0
+            P[:, :] = P0
+            return -1.0
+        nis += v
     return nis
 
 
@@ -240,13 +358,22 @@ def innovation_statistics(x, P, z, H, R, pvar):
     """A candidate update's statistics, without applying it, from one S = H P H^T + R and its
     Cholesky factor: returns (NIS nu^T S^-1 nu, log det S) and writes pvar[:m] = diag(H P H^T)
     (the predicted variance of each residual component, for covariance matching). NIS -1 and
-    log det NaN if S is not PD (`update` then reports it)."""
+    log det NaN if S is not PD (`update` then reports it). P symmetric."""
     m, n = H.shape
-    nu, PHt, S = _innovation(x, P, z, H, R)
+    if m == 1:
+        nu, hph, s = _scalar_statistics(x, P, z, H, R)
+        pvar[0] = hph
+        if not s > 0.0:
+            return -1.0, np.nan
+        sq = np.sqrt(s)
+        w = nu / sq
+        return w * w, 2.0 * np.log(sq)
+    nu, HP, S = _innovation(x, P, z, H, R)
     for i in range(m):
         s = 0.0
         for k in range(n):
-            s += H[i, k] * PHt[k, i]
+            if H[i, k] != 0.0:
+                s += H[i, k] * HP[i, k]
         pvar[i] = s
     L = np.empty((m, m))
     nis = _nis(nu, S, L)
