@@ -146,7 +146,7 @@ def _joseph_reference(x, P, z, H, R):
 
 
 def test_update_rows_one_at_a_time_match_the_joint_joseph_update():
-    """m = 1, 2, 3 with a correlated R (whitened, then scalar rows) and sparse rows, 21 states."""
+    """m = 1, 2, 3 with a correlated R (decorrelated, then scalar rows) and sparse rows, 21 states."""
     rng = np.random.default_rng(21)
     n = 21
     A = rng.standard_normal((n, n))
@@ -168,7 +168,7 @@ def test_update_rows_one_at_a_time_match_the_joint_joseph_update():
 
 
 def test_update_with_a_singular_R_and_a_failed_update_leaves_the_state():
-    """R = 0 (a perfect measurement) goes the joint way; an S that is not PD changes nothing."""
+    """R = 0 (a perfect measurement: zero pivots of R = L D L^T); an S that is not PD changes nothing."""
     x, P = np.array([1.0, 2.0]), np.diag([4.0, 1.0])
     H, z = np.array([[1.0, 0.0], [1.0, 1.0]]), np.array([0.0, 0.0])
     x_ref, P_ref, nis_ref = _joseph_reference(x, P, z, H, np.zeros((2, 2)))

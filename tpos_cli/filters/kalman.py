@@ -278,76 +278,56 @@ def _update_scalar(x, P, z, h, r):
 
 
 @njit(cache=True)
-def _update_joint(x, P, z, H, R):
-    """`update` of all m rows at once (for an R that is not positive definite): K = P H^T S^-1
-    by Cholesky solves, Joseph form evaluated exactly in O(n^2 m) as
-    P - K (H P) - (K (H P))^T + K S K^T."""
-    m, n = H.shape
-    nu, HP, S = _innovation(x, P, z, H, R)
-    # Cholesky both tests positive definiteness and gives the whitened innovation
-    L = np.empty((m, m))
-    nis = _nis(nu, S, L)
-    if nis < 0.0:
-        return -1.0
-    # K = P H^T S^-1 without an explicit inverse: row i of K solves S k = (P H^T)[i] (S symmetric)
-    K = np.empty((n, m))
-    col = np.empty(m)
-    for i in range(n):
-        for a in range(m):
-            col[a] = HP[a, i]
-        cho_solve_into(L, col, K[i])
-    for i in range(n):
-        s = 0.0
-        for j in range(m):
-            s += K[i, j] * nu[j]
-        x[i] += s
-    KS = np.empty((n, m))
-    matmul_into(K, S, KS)
-    for i in range(n):
-        for j in range(i, n):
-            v = P[i, j]
-            for a in range(m):
-                v += KS[i, a] * K[j, a] - K[i, a] * HP[a, j] - K[j, a] * HP[a, i]
-            P[i, j] = v
-            P[j, i] = v
-    return nis
-
-
-@njit(cache=True)
 def update(x, P, z, H, R):
     """Joseph-form update (Eq. 3-5) in place; returns NIS = nu^T S^-1 nu, or -1 (x and P
     unchanged) if S is not PD.
 
-    z (m,), H (m, n), R (m, m), P symmetric. The innovation is nu = z - H x, S = H P H^T + R.
-    Joseph form (I - K H) P (I - K H)^T + K R K^T keeps P symmetric PD even for a gated or
-    suboptimal gain. The rows are processed one at a time (`_update_scalar`, O(n^2) each
-    instead of the O(n^3) products with I - K H): after whitening by R = L L^T (z' = L^-1 z,
-    H' = L^-1 H, R' = I) they are independent, and sequential scalar updates give the joint
-    update's x, P and NIS (the sum of the rows' nu'^2 / s'). An R that is not PD: `_update_joint`.
+    z (m,), H (m, n), R (m, m) symmetric PSD, P symmetric. The innovation is nu = z - H x,
+    S = H P H^T + R. Joseph form (I - K H) P (I - K H)^T + K R K^T keeps P symmetric PD even for
+    a gated or suboptimal gain. The rows are processed one at a time (`_update_scalar`, O(n^2)
+    each instead of the O(n^3) products with I - K H), after decorrelating them by R = L D L^T
+    (L unit lower-triangular, D diagonal: z' = L^-1 z, H' = L^-1 H, R' = D; a diagonal R is
+    left as it is): rows with independent noise give, one after the other, the joint update's
+    x, P and NIS (the sum of the rows' nu'^2 / s').
     """
     m, n = H.shape
     if m == 1:
         return _update_scalar(x, P, z[0], H[0], R[0, 0])
-    L = np.empty((m, m))
-    if not cholesky_into(R, L):
-        return _update_joint(x, P, z, H, R)
-    zw = np.empty(m)
-    forward_substitute(L, z, zw)
-    Hw = np.empty((m, n))
-    for i in range(m):
+    L = np.zeros((m, m))
+    D = np.empty(m)
+    for j in range(m):  # R = L D L^T; a zero pivot (PSD R) leaves its column of L at zero
+        d = R[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k] * D[k]
+        D[j] = d
+        L[j, j] = 1.0
+        for i in range(j + 1, m):
+            v = R[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k] * D[k]
+            L[i, j] = v / d if d > 0.0 else 0.0
+    zd = np.empty(m)
+    Hd = np.empty((m, n))
+    for i in range(m):  # unit lower-triangular forward substitution
+        s = z[i]
+        for j in range(i):
+            s -= L[i, j] * zd[j]
+        zd[i] = s
         for k in range(n):
             s = H[i, k]
             for j in range(i):
-                s -= L[i, j] * Hw[j, k]
-            Hw[i, k] = s / L[i, i]
+                s -= L[i, j] * Hd[j, k]
+            Hd[i, k] = s
     x0 = x.copy()
     P0 = P.copy()
     nis = 0.0
     for i in range(m):
-        v = _update_scalar(x, P, zw[i], Hw[i], 1.0)
+        v = _update_scalar(x, P, zd[i], Hd[i], D[i])
         if v < 0.0:  # S not PD: leave the state as it was
-            x[:] = x0
-            P[:, :] = P0
+            for k in range(n):
+                x[k] = x0[k]
+                for j in range(n):
+                    P[k, j] = P0[k, j]
             return -1.0
         nis += v
     return nis
