@@ -199,3 +199,17 @@ def test_sandwich_and_discretize_skip_zeros_exactly():
     discretize(F, Qc, 0.1, Phi, Qd)
     np.testing.assert_allclose(Qd, 0.05 * (Phi_ref @ Qc @ Phi_ref.T + Qc), rtol=1e-13, atol=1e-15)
     np.testing.assert_array_equal(Qd, Qd.T)
+
+
+def test_cho_solve_matrix_into_against_numpy():
+    from tpos_cli.filters.kalman import cho_solve_matrix_into
+
+    rng = np.random.default_rng(9)
+    n, p = 21, 7
+    A = rng.standard_normal((n, n))
+    S = A @ A.T + n * np.eye(n)
+    L = np.empty((n, n))
+    assert cholesky_into(S, L)
+    B, X = rng.standard_normal((n, p)), np.empty((n, p))
+    cho_solve_matrix_into(L, B, X)
+    np.testing.assert_allclose(X, np.linalg.solve(S, B), rtol=1e-12, atol=1e-14)

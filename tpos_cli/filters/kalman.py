@@ -127,6 +127,34 @@ def cho_solve_into(L, b, out):
 
 
 @njit(cache=True)
+def cho_solve_matrix_into(L, B, X):
+    """X (m, p) = S^-1 B for S = L L^T (L lower-triangular (m, m), from `cholesky_into`) and B
+    (m, p): forward then back substitution on whole rows, so the inner loops run along the rows of
+    B and X (contiguous; the p right-hand sides at once instead of p calls of `cho_solve_into`).
+    `X` must not alias L; it may alias B."""
+    m = L.shape[0]
+    p = B.shape[1]
+    for i in range(m):  # L Y = B, Y in X
+        for j in range(p):
+            X[i, j] = B[i, j]
+        for k in range(i):
+            a = L[i, k]
+            for j in range(p):
+                X[i, j] -= a * X[k, j]
+        d = L[i, i]
+        for j in range(p):
+            X[i, j] /= d
+    for i in range(m - 1, -1, -1):  # L^T X = Y
+        for k in range(i + 1, m):
+            a = L[k, i]
+            for j in range(p):
+                X[i, j] -= a * X[k, j]
+        d = L[i, i]
+        for j in range(p):
+            X[i, j] /= d
+
+
+@njit(cache=True)
 def discretize(F, Qc, dt, Phi, Qd):
     """Phi = I + F dt + (F dt)^2 / 2 (Eq. 14 to second order), Qd = (Phi Qc Phi^T + Qc) dt / 2.
 
