@@ -6,6 +6,7 @@ from scipy.stats import chi2
 
 from tpos_cli.filters.gating import chi2_threshold
 from tpos_cli.filters.kalman import (
+    cho_solve_matrix_into,
     cholesky_into,
     discretize,
     forward_substitute,
@@ -71,6 +72,9 @@ def test_linear_algebra_kernels_against_numpy():
     b, w = rng.standard_normal(n), np.empty(n)
     forward_substitute(L, b, w)
     np.testing.assert_allclose(L @ w, b, rtol=1e-13, atol=1e-13)
+    B, X = rng.standard_normal((n, 4)), np.empty((n, 4))
+    cho_solve_matrix_into(L, B, X)
+    np.testing.assert_allclose(X, np.linalg.solve(S, B), rtol=1e-12, atol=1e-14)
     M, out = rng.standard_normal((m, n)), np.empty((m, m))
     sandwich_into(M, S, out)
     np.testing.assert_allclose(out, M @ S @ M.T, rtol=1e-13, atol=1e-12)
@@ -200,16 +204,3 @@ def test_sandwich_and_discretize_skip_zeros_exactly():
     np.testing.assert_allclose(Qd, 0.05 * (Phi_ref @ Qc @ Phi_ref.T + Qc), rtol=1e-13, atol=1e-15)
     np.testing.assert_array_equal(Qd, Qd.T)
 
-
-def test_cho_solve_matrix_into_against_numpy():
-    from tpos_cli.filters.kalman import cho_solve_matrix_into
-
-    rng = np.random.default_rng(9)
-    n, p = 21, 7
-    A = rng.standard_normal((n, n))
-    S = A @ A.T + n * np.eye(n)
-    L = np.empty((n, n))
-    assert cholesky_into(S, L)
-    B, X = rng.standard_normal((n, p)), np.empty((n, p))
-    cho_solve_matrix_into(L, B, X)
-    np.testing.assert_allclose(X, np.linalg.solve(S, B), rtol=1e-12, atol=1e-14)
