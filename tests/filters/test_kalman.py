@@ -199,8 +199,17 @@ def test_sandwich_and_discretize_skip_zeros_exactly():
     Phi_ref = np.eye(n) + F * 0.1 + F @ F * 0.005
     np.testing.assert_allclose(Phi, Phi_ref, rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(Qd, 0.05 * (Phi_ref @ Qc @ Phi_ref.T + Qc), rtol=1e-13, atol=1e-15)
+    np.testing.assert_array_equal(Qd, Qd.T)
     Qc[0, 1] = Qc[1, 0] = 0.1  # not diagonal: the general sandwich
     discretize(F, Qc, 0.1, Phi, Qd)
     np.testing.assert_allclose(Qd, 0.05 * (Phi_ref @ Qc @ Phi_ref.T + Qc), rtol=1e-13, atol=1e-15)
-    np.testing.assert_array_equal(Qd, Qd.T)
+    # predict: Phi P Phi^T + Qd of P's symmetric part, exactly symmetric
+    A = rng.standard_normal((n, n))
+    P = A @ A.T
+    P[0, 1] += 1e-9  # a slightly asymmetric P
+    P_ref = Phi_ref @ (0.5 * (P + P.T)) @ Phi_ref.T + Qd
+    x = np.zeros(n)
+    predict(x, P, Phi, Qd)
+    np.testing.assert_allclose(P, 0.5 * (P_ref + P_ref.T), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(P, P.T)
 

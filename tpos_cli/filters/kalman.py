@@ -39,12 +39,23 @@ def matmul_into(A, B, out):
 
 @njit(cache=True)
 def sandwich_into(A, B, out):
-    """out (m, m) = A B A^T for A (m, n) and a symmetric B (n, n); `out` must not alias A or B.
+    """out (m, m) = A B A^T for A (m, n), B (n, n); `out` must not alias A or B."""
+    m, n = A.shape
+    T = np.empty((m, n))
+    matmul_into(A, B, T)
+    At = np.empty((n, m))
+    for i in range(m):
+        for k in range(n):
+            At[k, i] = A[i, k]
+    matmul_into(T, At, out)
 
-    T = A B, then out = A T^T (= A B^T A^T = A B A^T for a symmetric B): both products have A on
-    the left, whose zeros `matmul_into` skips; the upper triangle is mirrored, so the result is
-    exactly symmetric.
-    """
+
+@njit(cache=True)
+def _symmetric_sandwich_into(A, B, out):
+    """out (m, m) = A B A^T for a symmetric B (n, n): T = A B, then out = A T^T (= A B^T A^T):
+    both products have A on the left, whose zeros `matmul_into` skips (a transition matrix is
+    mostly zeros); the upper triangle is mirrored, so the result is exactly symmetric. `out` must
+    not alias A or B."""
     m, n = A.shape
     T = np.empty((m, n))
     matmul_into(A, B, T)
@@ -191,7 +202,8 @@ def discretize(F, Qc, dt, Phi, Qd):
 
 @njit(cache=True)
 def predict(x, P, Phi, Qd):
-    """x <- Phi x ; P <- Phi P Phi^T + Qd, symmetrized (Eq. 1-2); in place."""
+    """x <- Phi x ; P <- Phi P Phi^T + Qd, symmetrized (Eq. 1-2); in place. The product is taken
+    of P's symmetric part (`_symmetric_sandwich_into`: Phi's zeros skipped)."""
     n = x.shape[0]
     x0 = x.copy()
     for i in range(n):
@@ -199,7 +211,9 @@ def predict(x, P, Phi, Qd):
         for k in range(n):
             s += Phi[i, k] * x0[k]
         x[i] = s
-    sandwich_into(Phi, P.copy(), P)
+    Ps = P.copy()
+    symmetrize(Ps)
+    _symmetric_sandwich_into(Phi, Ps, P)
     for i in range(n):
         for j in range(n):
             P[i, j] += Qd[i, j]
