@@ -38,24 +38,9 @@ def matmul_into(A, B, out):
 
 
 @njit(cache=True)
-def sandwich_into(A, B, out):
-    """out (m, m) = A B A^T for A (m, n), B (n, n); `out` must not alias A or B."""
-    m, n = A.shape
-    T = np.empty((m, n))
-    matmul_into(A, B, T)
-    At = np.empty((n, m))
-    for i in range(m):
-        for k in range(n):
-            At[k, i] = A[i, k]
-    matmul_into(T, At, out)
-
-
-@njit(cache=True)
-def _symmetric_sandwich_into(A, B, out):
-    """out (m, m) = A B A^T for a symmetric B (n, n): T = A B, then out = A T^T (= A B^T A^T):
-    both products have A on the left, whose zeros `matmul_into` skips (a transition matrix is
-    mostly zeros); the upper triangle is mirrored, so the result is exactly symmetric. `out` must
-    not alias A or B."""
+def _a_bt_at_into(A, B, W):
+    """W (m, m) = A B^T A^T for A (m, n), B (n, n): T = A B, then W = A T^T. Both products have A
+    on the left, whose zeros `matmul_into` skips (a transition matrix is mostly zeros)."""
     m, n = A.shape
     T = np.empty((m, n))
     matmul_into(A, B, T)
@@ -63,8 +48,27 @@ def _symmetric_sandwich_into(A, B, out):
     for i in range(m):
         for k in range(n):
             Tt[k, i] = T[i, k]
-    matmul_into(A, Tt, out)
+    matmul_into(A, Tt, W)
+
+
+@njit(cache=True)
+def sandwich_into(A, B, out):
+    """out (m, m) = A B A^T for A (m, n), B (n, n) (the transpose of A B^T A^T); `out` must not
+    alias A or B."""
+    m = A.shape[0]
+    W = np.empty((m, m))
+    _a_bt_at_into(A, B, W)
     for i in range(m):
+        for j in range(m):
+            out[i, j] = W[j, i]
+
+
+@njit(cache=True)
+def _symmetric_sandwich_into(A, B, out):
+    """out (m, m) = A B A^T for a symmetric B (n, n), its upper triangle mirrored (exactly
+    symmetric); `out` must not alias A or B."""
+    _a_bt_at_into(A, B, out)
+    for i in range(out.shape[0]):
         for j in range(i):
             out[i, j] = out[j, i]
 
