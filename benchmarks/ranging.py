@@ -9,8 +9,9 @@ ranging OUT --duration 3600`) processed by `tpos process` in a subprocess, three
 warm-up (numba cache); each run's wall time against a bare numba two-filter reference loop of the
 same size timed right after it (issue 16's yardstick, `benchmarks/drive.py`: 15-state predict at
 every IMU sample, a 6-dim update at 1 Hz, forward and backward, per-sample blend), the median of
-the three ratios, each stage's share of that run (summary.json timings), and the peak memory (max
-RSS) of the timed processes; goals <= 3x and <= 1 GB.
+the three ratios, each stage's share of that run (summary.json timings), the whole process's CPU
+time against the reference's (less disturbed by other load on a shared machine), and the peak
+memory (max RSS) of the timed processes; goals <= 3x and <= 1 GB.
 Accuracy (paper 002 Table 1): the simulated corridor (four anchors, range noise 0.05 m + 1 %,
 3 % NLOS spikes), once with anchor A2 dropped in 18-23 s and 40-45 s (paper Sec. 5.4) and once
 without (Sec. 5.5): per solution the x (east) / y (north) error range and variance, horizontal max,
@@ -84,14 +85,15 @@ def evaluate(case: str, seed: int, work: Path, overrides: dict | None = None) ->
 
 
 # --------------------------------------------------------------------------- speed
-def _process(cmd, env, cwd) -> float:
-    """Run `tpos process` in a child; its own peak RSS (MB), from the kernel's accounting of that child."""
+def _process(cmd, env, cwd) -> tuple[float, float]:
+    """Run `tpos process` in a child; (its own peak RSS in MB, its CPU seconds), from the kernel's
+    accounting of that child."""
     child = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=subprocess.DEVNULL)
     _, status, usage = os.wait4(child.pid, 0)
     child.returncode = os.waitstatus_to_exitcode(status)
     if child.returncode != 0:
         raise subprocess.CalledProcessError(child.returncode, cmd)
-    return usage.ru_maxrss / 1024.0
+    return usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
 
 
 def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
@@ -105,14 +107,18 @@ def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
         cmd = [sys.executable, "-m", "tpos_cli", "process", str(path), "-o", str(Path(tmp) / "run"), "-q"]
         env = dict(os.environ, PYTHONPATH=str(REPO))
         _process(cmd, env, tmp)  # warm the numba cache (a compile's memory is not the run's)
-        runs, refs, rss = [], [], []
+        reference_loop(1000, 100)  # and compile (or load) the reference kernels before timing them
+        runs, refs, rss, cpu = [], [], [], []
         for _ in range(repeats):  # interleaved: the machine's load drifts
             t1 = time.perf_counter()
-            rss.append(_process(cmd, env, tmp))
+            mb, cpu_s = _process(cmd, env, tmp)
             wall = time.perf_counter() - t1
+            rss.append(mb)
             summ = json.loads((Path(tmp) / "run" / "summary.json").read_text())
             runs.append((wall, summ))
+            p0 = time.process_time()
             refs.append(reference_loop(n, 100))
+            cpu.append(cpu_s / (time.process_time() - p0))  # whole-process CPU / reference CPU: less disturbed by load
         rss_mb = max(rss)
     ratios = [w / r for (w, _), r in zip(runs, refs)]  # each run against the reference timed next to it
     k = int(np.argsort(ratios)[len(ratios) // 2])
@@ -128,6 +134,8 @@ def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
     print(f"ratio process wall / reference: {wall / ref:.2f} (median of {repeats}; goal <= 3); "
           f"in-process total / reference: {ts['total'] / ref:.2f}")
     print(f"ratios of each run: {', '.join(f'{v:.2f}' for v in ratios)}")
+    print(f"process CPU / reference CPU (imports included; less disturbed by other load): median "
+          f"{float(np.median(cpu)):.2f} ({', '.join(f'{v:.2f}' for v in cpu)})")
     print(f"peak memory (max RSS of the timed processes): {rss_mb:.0f} MB (goal <= 1024)")
     print(f"verdict of the hour: {summ['quality']['verdict']} {summ['quality']['reasons']}")
 

@@ -6,6 +6,7 @@ from scipy.stats import chi2
 
 from tpos_cli.filters.gating import chi2_threshold
 from tpos_cli.filters.kalman import (
+    cho_solve_matrix_into,
     cholesky_into,
     discretize,
     forward_substitute,
@@ -71,6 +72,9 @@ def test_linear_algebra_kernels_against_numpy():
     b, w = rng.standard_normal(n), np.empty(n)
     forward_substitute(L, b, w)
     np.testing.assert_allclose(L @ w, b, rtol=1e-13, atol=1e-13)
+    B, X = rng.standard_normal((n, 4)), np.empty((n, 4))
+    cho_solve_matrix_into(L, B, X)
+    np.testing.assert_allclose(X, np.linalg.solve(S, B), rtol=1e-12, atol=1e-14)
     M, out = rng.standard_normal((m, n)), np.empty((m, m))
     sandwich_into(M, S, out)
     np.testing.assert_allclose(out, M @ S @ M.T, rtol=1e-13, atol=1e-12)
@@ -134,3 +138,78 @@ def test_innovation_statistics_against_numpy():
     assert nis_of(x, P, z, H, R) == nis
     bad = innovation_statistics(x, np.array([[1.0, 2.0], [2.0, 1.0]]), np.ones(2), np.eye(2), np.zeros((2, 2)), pvar)
     assert bad[0] == -1.0 and np.isnan(bad[1])
+
+
+def _joseph_reference(x, P, z, H, R):
+    """The textbook update with the full n x n Joseph product, in numpy."""
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    I_KH = np.eye(P.shape[0]) - K @ H
+    nu = z - H @ x
+    return x + K @ nu, I_KH @ P @ I_KH.T + K @ R @ K.T, nu @ np.linalg.solve(S, nu)
+
+
+def test_update_rows_one_at_a_time_match_the_joint_joseph_update():
+    """m = 1, 2, 3 with a correlated R (decorrelated, then scalar rows) and sparse rows, 21 states."""
+    rng = np.random.default_rng(21)
+    n = 21
+    A = rng.standard_normal((n, n))
+    P = A @ A.T / n + 0.05 * np.eye(n)
+    for m in (1, 2, 3):
+        H = np.zeros((m, n))
+        H[:, :6] = rng.standard_normal((m, 6))
+        H[:, 15 + m] = 1.0
+        B = rng.standard_normal((m, m))
+        R = B @ B.T + 0.1 * np.eye(m)
+        x, z = rng.standard_normal(n), rng.standard_normal(m)
+        x_ref, P_ref, nis_ref = _joseph_reference(x, P, z, H, R)
+        xk, Pk = x.copy(), P.copy()
+        nis = update(xk, Pk, z, H, R)
+        np.testing.assert_allclose(xk, x_ref, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Pk, P_ref, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(nis, nis_ref, rtol=1e-10)
+        np.testing.assert_array_equal(Pk, Pk.T)  # exactly symmetric
+
+
+def test_update_with_a_singular_R_and_a_failed_update_leaves_the_state():
+    """R = 0 (a perfect measurement: zero pivots of R = L D L^T); an S that is not PD changes nothing."""
+    x, P = np.array([1.0, 2.0]), np.diag([4.0, 1.0])
+    H, z = np.array([[1.0, 0.0], [1.0, 1.0]]), np.array([0.0, 0.0])
+    x_ref, P_ref, nis_ref = _joseph_reference(x, P, z, H, np.zeros((2, 2)))
+    xk, Pk = x.copy(), P.copy()
+    np.testing.assert_allclose(update(xk, Pk, z, H, np.zeros((2, 2))), nis_ref, rtol=1e-12)
+    np.testing.assert_allclose(xk, x_ref, atol=1e-12)
+    np.testing.assert_allclose(Pk, P_ref, atol=1e-12)
+    # an indefinite P: the second whitened row finds s <= 0 after the first was applied
+    x, P = np.zeros(2), np.array([[1.0, 2.0], [2.0, 1.0]])
+    xk, Pk = x.copy(), P.copy()
+    assert update(xk, Pk, np.ones(2), np.eye(2), 1e-3 * np.eye(2)) == -1.0
+    np.testing.assert_array_equal(xk, x)
+    np.testing.assert_array_equal(Pk, P)
+
+
+def test_sandwich_and_discretize_skip_zeros_exactly():
+    """Sparse A (zeros skipped) and a diagonal Qc (column scaling) against the dense products."""
+    rng = np.random.default_rng(5)
+    n = 21
+    F = np.where(rng.random((n, n)) < 0.15, rng.standard_normal((n, n)), 0.0)
+    Qc = np.diag(rng.uniform(0.0, 1.0, n))
+    Phi, Qd = np.empty((n, n)), np.empty((n, n))
+    discretize(F, Qc, 0.1, Phi, Qd)
+    Phi_ref = np.eye(n) + F * 0.1 + F @ F * 0.005
+    np.testing.assert_allclose(Phi, Phi_ref, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(Qd, 0.05 * (Phi_ref @ Qc @ Phi_ref.T + Qc), rtol=1e-13, atol=1e-15)
+    np.testing.assert_array_equal(Qd, Qd.T)
+    Qc[0, 1] = Qc[1, 0] = 0.1  # not diagonal: the general sandwich
+    discretize(F, Qc, 0.1, Phi, Qd)
+    np.testing.assert_allclose(Qd, 0.05 * (Phi_ref @ Qc @ Phi_ref.T + Qc), rtol=1e-13, atol=1e-15)
+    # predict: Phi P Phi^T + Qd of P's symmetric part, exactly symmetric
+    A = rng.standard_normal((n, n))
+    P = A @ A.T
+    P[0, 1] += 1e-9  # a slightly asymmetric P
+    P_ref = Phi_ref @ (0.5 * (P + P.T)) @ Phi_ref.T + Qd
+    x = np.zeros(n)
+    predict(x, P, Phi, Qd)
+    np.testing.assert_allclose(P, 0.5 * (P_ref + P_ref.T), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(P, P.T)
+

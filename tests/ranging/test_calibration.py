@@ -84,3 +84,29 @@ def test_identity_model():
     assert_allclose(model.correct(np.array([0, 2]), np.array([5.0, 7.0])), [5.0, 7.0])
     assert_allclose(model.range_sd_m(np.array([1.0, 50.0])), 0.1)
     assert not model.fitted
+
+
+def test_sd_curve_fisher_scoring_reaches_the_likelihood_minimum():
+    """`_ml_sd_poly` against scipy's Nelder-Mead on the same bin likelihood (lines and parabolas)."""
+    from scipy.optimize import minimize
+
+    from tpos_cli.ranging.calibration import _bins, _ml_sd_poly
+
+    rng = np.random.default_rng(3)
+    dd = np.repeat(np.linspace(0.6, 18.6, 30), 20)
+    res = rng.normal(0.0, 0.05 + 0.01 * dd)
+    groups = _bins(dd)
+    d = np.array([dd[g].mean() for g in groups])
+    var = np.array([res[g].var(ddof=1) for g in groups])
+    dof = np.array([g.size - 1.0 for g in groups])
+
+    def nll(c):
+        v = np.polyval(c, d) ** 2
+        return 0.5 * float(np.sum(dof * (np.log(v) + var / v)))
+
+    for deg in (1, 2):
+        start = np.polyfit(d, np.sqrt(var), deg, w=np.sqrt(dof / var))
+        ref = minimize(nll, start, method="Nelder-Mead", options={"xatol": 1e-12, "fatol": 1e-14, "maxiter": 20000}).x
+        got = _ml_sd_poly(d, var, dof, start)
+        assert nll(got) <= nll(ref) + 1e-9
+        np.testing.assert_allclose(np.polyval(got, d), np.polyval(ref, d), rtol=1e-6)

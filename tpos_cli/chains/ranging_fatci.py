@@ -247,27 +247,29 @@ def run(session: Session, p: RangingParams, ctx: RunContext) -> ChainOutput:
         st = start(session, p, rg, ctx, results)
     common = common_events(rg, st, p, ctx)
     out_idx = output_indices(imu.t_s.size - st.init.k0, max(1, int(round(1.0 / (p.output_rate_hz * float(np.median(np.diff(imu.t_s))))))))
-    trajs, innov, per_sol, source = [], [], {}, None
-    for name in p.solutions:
+    rows, innov, per_sol, smooth_rows = {}, {}, {}, None
+    source = p.smooth_source if p.smoothed else None
+    # the smoothed solution's source runs first and is smoothed at once: its RTS history (the
+    # largest arrays of the chain) is freed before the other filters run
+    for name in sorted(p.solutions, key=lambda s: s != source):
         with ctx.stage(f"filter_{name}"):
             ev, extra = solution_events(name, rg, st, p)
-            is_source = p.smoothed and name == p.smooth_source
             run_ = run_ranging(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, st.init, Measurements.merge(ev, common),
                                session.anchors.ned_m, session.anchors.origin_lla, st.cfg,
-                               store_rts=is_source and p.smoother == "rts")
+                               store_rts=name == source and p.smoother == "rts")
             rb = run_.extra(Block.RANGE_BIAS)[out_idx, 0]
-            trajs.append(_rows(smoothing.filter_solution(run_, out_idx, name), run_, session.t0_s, rb))
+            rows[name] = _rows(smoothing.filter_solution(run_, out_idx, name), run_, session.t0_s, rb)
             per_sol[name] = _report(run_, name, ids, session.t0_s, p, ctx, st.t_used_s) | extra
-            innov.append(_innovations(run_, name, ids, session.t0_s))
-        if is_source:
-            source = run_
-        del run_  # a run holds every sample's nominal and every epoch's covariance: keep only the smoothed one
-    if source is not None:
-        with ctx.stage("smoothing"):
-            trajs.append(smoothed(session, source, st, p, out_idx, per_sol))
-        del source
+            innov[name] = _innovations(run_, name, ids, session.t0_s)
+        if name == source:
+            with ctx.stage("smoothing"):
+                smooth_rows = smoothed(session, run_, st, p, out_idx, per_sol)
+        del run_  # a run holds every sample's nominal and every epoch's covariance
+    trajs = [rows[n] for n in p.solutions] + ([smooth_rows] if smooth_rows is not None else [])
+    per_sol = {n: per_sol[n] for n in (*p.solutions, "smoothed") if n in per_sol}
     results["solutions"] = per_sol
-    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True), tables={"innovations": pd.concat(innov, ignore_index=True)},
+    return ChainOutput(trajectory=pd.concat(trajs, ignore_index=True),
+                       tables={"innovations": pd.concat([innov[n] for n in p.solutions], ignore_index=True)},
                        summary=results)
 
 
@@ -373,9 +375,13 @@ def _heading(session: Session, fixes: Measurements, still, p: RangingParams) -> 
 
 def _running_median(z: np.ndarray, half: int) -> np.ndarray:
     """Median of each column over rows i - half..i + half (fewer at the ends), (K, d) -> (K, d)."""
-    pad = np.full((half, z.shape[1]), np.nan)
-    win = np.lib.stride_tricks.sliding_window_view(np.concatenate([pad, z, pad]), 2 * half + 1, axis=0)
-    return np.nanmedian(win, axis=-1)
+    K, w = z.shape[0], 2 * half + 1
+    out = np.empty(z.shape)
+    if K >= w:  # full windows: one vectorized median
+        out[half: K - half] = np.median(np.lib.stride_tricks.sliding_window_view(z, w, axis=0), axis=-1)
+    for i in [*range(min(half, K)), *range(max(K - half, min(half, K)), K)]:  # the partial windows at the ends
+        out[i] = np.median(z[max(0, i - half): i + half + 1], axis=0)
+    return out
 
 
 def few_anchor_intervals(t_s: np.ndarray, anchor: np.ndarray, window_s: float, min_s: float) -> list[tuple[float, float]]:

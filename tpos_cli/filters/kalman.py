@@ -22,7 +22,9 @@ from numba import njit
 def matmul_into(A, B, out):
     """out (m, p) = A B for A (m, n), B (n, p); `out` must not alias A or B. Loop order i, k, j:
     the innermost loop runs along rows of B and out (contiguous, so it vectorizes without
-    reassociating the sums; each sum still adds k = 0, 1, ... in order)."""
+    reassociating the sums; each sum still adds k = 0, 1, ... in order). Zero elements of A are
+    skipped (the filters' transition and measurement matrices are mostly zeros; adding their
+    zero products would not change a sum)."""
     m, n = A.shape
     p = B.shape[1]
     for i in range(m):
@@ -30,21 +32,45 @@ def matmul_into(A, B, out):
             out[i, j] = 0.0
         for k in range(n):
             a = A[i, k]
-            for j in range(p):
-                out[i, j] += a * B[k, j]
+            if a != 0.0:
+                for j in range(p):
+                    out[i, j] += a * B[k, j]
+
+
+@njit(cache=True)
+def _a_bt_at_into(A, B, W):
+    """W (m, m) = A B^T A^T for A (m, n), B (n, n): T = A B, then W = A T^T. Both products have A
+    on the left, whose zeros `matmul_into` skips (a transition matrix is mostly zeros)."""
+    m, n = A.shape
+    T = np.empty((m, n))
+    matmul_into(A, B, T)
+    Tt = np.empty((n, m))
+    for i in range(m):
+        for k in range(n):
+            Tt[k, i] = T[i, k]
+    matmul_into(A, Tt, W)
 
 
 @njit(cache=True)
 def sandwich_into(A, B, out):
-    """out (m, m) = A B A^T for A (m, n), B (n, n); `out` must not alias A or B."""
-    m, n = A.shape
-    T = np.empty((m, n))
-    matmul_into(A, B, T)
-    At = np.empty((n, m))
+    """out (m, m) = A B A^T for A (m, n), B (n, n) (the transpose of A B^T A^T); `out` must not
+    alias A or B."""
+    m = A.shape[0]
+    W = np.empty((m, m))
+    _a_bt_at_into(A, B, W)
     for i in range(m):
-        for k in range(n):
-            At[k, i] = A[i, k]
-    matmul_into(T, At, out)
+        for j in range(m):
+            out[i, j] = W[j, i]
+
+
+@njit(cache=True)
+def _symmetric_sandwich_into(A, B, out):
+    """out (m, m) = A B A^T for a symmetric B (n, n), its upper triangle mirrored (exactly
+    symmetric); `out` must not alias A or B."""
+    _a_bt_at_into(A, B, out)
+    for i in range(out.shape[0]):
+        for j in range(i):
+            out[i, j] = out[j, i]
 
 
 @njit(cache=True)
@@ -116,11 +142,40 @@ def cho_solve_into(L, b, out):
 
 
 @njit(cache=True)
+def cho_solve_matrix_into(L, B, X):
+    """X (m, p) = S^-1 B for S = L L^T (L lower-triangular (m, m), from `cholesky_into`) and B
+    (m, p): forward then back substitution on whole rows, so the inner loops run along the rows of
+    B and X (contiguous; the p right-hand sides at once instead of p calls of `cho_solve_into`).
+    `X` must not alias L; it may alias B."""
+    m = L.shape[0]
+    p = B.shape[1]
+    for i in range(m):  # L Y = B, Y in X
+        for j in range(p):
+            X[i, j] = B[i, j]
+        for k in range(i):
+            a = L[i, k]
+            for j in range(p):
+                X[i, j] -= a * X[k, j]
+        d = L[i, i]
+        for j in range(p):
+            X[i, j] /= d
+    for i in range(m - 1, -1, -1):  # L^T X = Y
+        for k in range(i + 1, m):
+            a = L[k, i]
+            for j in range(p):
+                X[i, j] -= a * X[k, j]
+        d = L[i, i]
+        for j in range(p):
+            X[i, j] /= d
+
+
+@njit(cache=True)
 def discretize(F, Qc, dt, Phi, Qd):
     """Phi = I + F dt + (F dt)^2 / 2 (Eq. 14 to second order), Qd = (Phi Qc Phi^T + Qc) dt / 2.
 
     `Phi`, `Qd` (n, n) are written in place. Trapezoidal Qd: exact to O(dt^2) for the
-    short covariance steps (<= 1 s) used with MEMS IMUs.
+    short covariance steps (<= 1 s) used with MEMS IMUs. A diagonal Qc (white noises on single
+    states, as the filters' are) makes Phi Qc a column scaling (the same numbers as the product).
     """
     n = F.shape[0]
     matmul_into(F, F, Phi)
@@ -128,7 +183,22 @@ def discretize(F, Qc, dt, Phi, Qd):
         for j in range(n):
             Phi[i, j] = F[i, j] * dt + 0.5 * (dt * dt) * Phi[i, j]
         Phi[i, i] += 1.0
-    sandwich_into(Phi, Qc, Qd)
+    diagonal = True
+    for i in range(n):
+        for j in range(n):
+            if i != j and Qc[i, j] != 0.0:
+                diagonal = False
+    if diagonal:
+        QPt = np.empty((n, n))  # (Phi Qc)^T
+        for k in range(n):
+            for i in range(n):
+                QPt[k, i] = Phi[i, k] * Qc[k, k]
+        matmul_into(Phi, QPt, Qd)
+        for i in range(n):
+            for j in range(i):
+                Qd[i, j] = Qd[j, i]
+    else:
+        sandwich_into(Phi, Qc, Qd)
     for i in range(n):
         for j in range(n):
             Qd[i, j] = 0.5 * dt * (Qd[i, j] + Qc[i, j])
@@ -136,7 +206,8 @@ def discretize(F, Qc, dt, Phi, Qd):
 
 @njit(cache=True)
 def predict(x, P, Phi, Qd):
-    """x <- Phi x ; P <- Phi P Phi^T + Qd, symmetrized (Eq. 1-2); in place."""
+    """x <- Phi x ; P <- Phi P Phi^T + Qd, symmetrized (Eq. 1-2); in place. The product is taken
+    of P's symmetric part (`_symmetric_sandwich_into`: Phi's zeros skipped)."""
     n = x.shape[0]
     x0 = x.copy()
     for i in range(n):
@@ -144,7 +215,9 @@ def predict(x, P, Phi, Qd):
         for k in range(n):
             s += Phi[i, k] * x0[k]
         x[i] = s
-    sandwich_into(Phi, P.copy(), P)
+    Ps = P.copy()
+    symmetrize(Ps)
+    _symmetric_sandwich_into(Phi, Ps, P)
     for i in range(n):
         for j in range(n):
             P[i, j] += Qd[i, j]
@@ -153,30 +226,28 @@ def predict(x, P, Phi, Qd):
 
 @njit(cache=True)
 def _innovation(x, P, z, H, R):
-    """(nu = z - H x (m,), P H^T (n, m), S = H P H^T + R symmetrized (m, m))."""
+    """(nu = z - H x (m,), H P (m, n) (= (P H^T)^T: P symmetric), S = H P H^T + R symmetrized
+    (m, m)). Zero elements of H are skipped (a measurement row touches a few states)."""
     m, n = H.shape
     nu = np.empty(m)
-    PHt = np.empty((n, m))
+    HP = np.empty((m, n))
     S = np.empty((m, m))
     for i in range(m):
         s = z[i]
         for k in range(n):
-            s -= H[i, k] * x[k]
+            if H[i, k] != 0.0:
+                s -= H[i, k] * x[k]
         nu[i] = s
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for k in range(n):
-                s += P[i, k] * H[j, k]
-            PHt[i, j] = s
+    matmul_into(H, P, HP)
     for i in range(m):
         for j in range(m):
             s = R[i, j]
             for k in range(n):
-                s += H[i, k] * PHt[k, j]
+                if H[i, k] != 0.0:
+                    s += H[i, k] * HP[j, k]
             S[i, j] = s
     symmetrize(S)
-    return nu, PHt, S
+    return nu, HP, S
 
 
 @njit(cache=True)
@@ -195,43 +266,116 @@ def _nis(nu, S, L):
 
 
 @njit(cache=True)
-def update(x, P, z, H, R):
-    """Joseph-form update (Eq. 3-5) in place; returns NIS = nu^T S^-1 nu, or -1 if S is not PD.
+def _scalar_statistics(x, P, z, H, R):
+    """(nu, h^T P h, S = h^T P h + R) of a scalar measurement (H (1, n)) without allocating;
+    the sums run in the order of `_innovation`'s, skipping zeros of h."""
+    n = H.shape[1]
+    nu = z[0]
+    hph = 0.0
+    S = R[0, 0]
+    for k in range(n):
+        hk = H[0, k]
+        if hk != 0.0:
+            nu -= hk * x[k]
+            pk = 0.0  # (P h)_k
+            for j in range(n):
+                if H[0, j] != 0.0:
+                    pk += H[0, j] * P[k, j]
+            hph += hk * pk
+            S += hk * pk
+    return nu, hph, S
 
-    z (m,), H (m, n), R (m, m). Joseph form keeps P symmetric PD even for a gated or
-    suboptimal gain. The innovation is nu = z - H x.
+
+@njit(cache=True)
+def _update_scalar(x, P, z, h, r):
+    """One scalar measurement z = h^T x + noise of variance r (h (n,)), in place, in O(n^2):
+    p = P h, s = h^T p + r, k = p / s, x <- x + k nu, and the Joseph form
+    (I - k h^T) P (I - k h^T)^T + k r k^T expanded exactly (for any gain k) as
+    P - k p^T - p k^T + s k k^T. Returns nu^2 / s, or -1 (nothing changed) if s <= 0."""
+    n = h.shape[0]
+    p = np.empty(n)
+    for i in range(n):
+        p[i] = 0.0
+    nu = z
+    for k in range(n):
+        hk = h[k]
+        if hk != 0.0:
+            nu -= hk * x[k]
+            for i in range(n):
+                p[i] += hk * P[k, i]  # P symmetric: row k of P is its column k
+    s = r
+    for k in range(n):
+        if h[k] != 0.0:
+            s += h[k] * p[k]
+    if not s > 0.0:
+        return -1.0
+    sq = np.sqrt(s)
+    w = nu / sq
+    g = np.empty(n)  # the gain k, as a Cholesky solve with S = s computes it
+    for i in range(n):
+        g[i] = (p[i] / sq) / sq
+        x[i] += g[i] * nu
+    for i in range(n):
+        for j in range(i, n):
+            v = P[i, j] - g[i] * p[j] - p[i] * g[j] + s * g[i] * g[j]
+            P[i, j] = v
+            P[j, i] = v
+    return w * w
+
+
+@njit(cache=True)
+def update(x, P, z, H, R):
+    """Joseph-form update (Eq. 3-5) in place; returns NIS = nu^T S^-1 nu, or -1 (x and P
+    unchanged) if S is not PD.
+
+    z (m,), H (m, n), R (m, m) symmetric PSD, P symmetric. The innovation is nu = z - H x,
+    S = H P H^T + R. Joseph form (I - K H) P (I - K H)^T + K R K^T keeps P symmetric PD even for
+    a gated or suboptimal gain. The rows are processed one at a time (`_update_scalar`, O(n^2)
+    each instead of the O(n^3) products with I - K H), after decorrelating them by R = L D L^T
+    (L unit lower-triangular, D diagonal: z' = L^-1 z, H' = L^-1 H, R' = D; a diagonal R is
+    left as it is): rows with independent noise give, one after the other, the joint update's
+    x, P and NIS (the sum of the rows' nu'^2 / s').
     """
     m, n = H.shape
-    nu, PHt, S = _innovation(x, P, z, H, R)
-    # Cholesky both tests positive definiteness and gives the whitened innovation
-    L = np.empty((m, m))
-    nis = _nis(nu, S, L)
-    if nis < 0.0:
-        return -1.0
-    # K = P H^T S^-1 without an explicit inverse: row i of K solves S k = (P H^T)[i] (S symmetric)
-    K = np.empty((n, m))
-    for i in range(n):
-        cho_solve_into(L, PHt[i], K[i])
-    for i in range(n):
-        s = 0.0
-        for j in range(m):
-            s += K[i, j] * nu[j]
-        x[i] += s
-    I_KH = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(m):
-                s += K[i, k] * H[k, j]
-            I_KH[i, j] = -s
-        I_KH[i, i] += 1.0
-    KRKt = np.empty((n, n))
-    sandwich_into(K, R, KRKt)
-    sandwich_into(I_KH, P.copy(), P)
-    for i in range(n):
-        for j in range(n):
-            P[i, j] += KRKt[i, j]
-    symmetrize(P)
+    if m == 1:
+        return _update_scalar(x, P, z[0], H[0], R[0, 0])
+    L = np.zeros((m, m))
+    D = np.empty(m)
+    for j in range(m):  # R = L D L^T; a zero pivot (PSD R) leaves its column of L at zero
+        d = R[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k] * D[k]
+        D[j] = d
+        L[j, j] = 1.0
+        for i in range(j + 1, m):
+            v = R[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k] * D[k]
+            L[i, j] = v / d if d > 0.0 else 0.0
+    zd = np.empty(m)
+    Hd = np.empty((m, n))
+    for i in range(m):  # unit lower-triangular forward substitution
+        s = z[i]
+        for j in range(i):
+            s -= L[i, j] * zd[j]
+        zd[i] = s
+        for k in range(n):
+            s = H[i, k]
+            for j in range(i):
+                s -= L[i, j] * Hd[j, k]
+            Hd[i, k] = s
+    x0 = x.copy()
+    P0 = P.copy()
+    nis = 0.0
+    for i in range(m):
+        v = _update_scalar(x, P, zd[i], Hd[i], D[i])
+        if v < 0.0:  # S not PD: leave the state as it was
+            for k in range(n):
+                x[k] = x0[k]
+                for j in range(n):
+                    P[k, j] = P0[k, j]
+            return -1.0
+        nis += v
     return nis
 
 
@@ -240,13 +384,22 @@ def innovation_statistics(x, P, z, H, R, pvar):
     """A candidate update's statistics, without applying it, from one S = H P H^T + R and its
     Cholesky factor: returns (NIS nu^T S^-1 nu, log det S) and writes pvar[:m] = diag(H P H^T)
     (the predicted variance of each residual component, for covariance matching). NIS -1 and
-    log det NaN if S is not PD (`update` then reports it)."""
+    log det NaN if S is not PD (`update` then reports it). P symmetric."""
     m, n = H.shape
-    nu, PHt, S = _innovation(x, P, z, H, R)
+    if m == 1:
+        nu, hph, s = _scalar_statistics(x, P, z, H, R)
+        pvar[0] = hph
+        if not s > 0.0:
+            return -1.0, np.nan
+        sq = np.sqrt(s)
+        w = nu / sq
+        return w * w, 2.0 * np.log(sq)
+    nu, HP, S = _innovation(x, P, z, H, R)
     for i in range(m):
         s = 0.0
         for k in range(n):
-            s += H[i, k] * PHt[k, i]
+            if H[i, k] != 0.0:
+                s += H[i, k] * HP[i, k]
         pvar[i] = s
     L = np.empty((m, m))
     nis = _nis(nu, S, L)

@@ -222,6 +222,41 @@ def _robust_sd_at(true_m: np.ndarray, resid_m: np.ndarray, at_m: np.ndarray, deg
     return np.maximum(np.polyval(poly, np.clip(at_m, d.min(), d.max())), max(sd.min(), 1e-12))
 
 
+def _ml_sd_poly(d, var, dof, start, max_iter: int = 100) -> np.ndarray:
+    """Coefficients c (highest power first) minimizing the bins' negative log-likelihood
+    f(c) = sum_b dof_b / 2 (log p_b^2 + var_b / p_b^2), p_b = polyval(c, d_b), by Fisher scoring
+    from `start`: with J = d p / d c, the score J^T g, g_b = dof_b (1 / p_b - var_b / p_b^3), and
+    the expected information J^T W J, W_b = 2 dof_b / p_b^2 (positive: each step descends), the
+    step halved until f decreases; to a step below 1e-13 relative. (scipy.optimize is not used:
+    its import alone costs 0.2-0.3 s of every ranging run.)"""
+    J = np.vander(d, len(start))
+
+    def nll(c):
+        p = J @ c
+        return np.inf if np.any(p <= 0) else 0.5 * float(np.sum(dof * (np.log(p * p) + var / (p * p))))
+
+    c = np.asarray(start, dtype=float)
+    f = nll(c)
+    if not np.isfinite(f):
+        return c
+    for _ in range(max_iter):
+        p = J @ c
+        g = dof * (1.0 / p - var / p**3)
+        step = np.linalg.solve(J.T @ (J * (2.0 * dof / p**2)[:, None]), -(J.T @ g))
+        a = 1.0
+        while a > 1e-6:
+            f_new = nll(c + a * step)
+            if f_new <= f:
+                break
+            a *= 0.5
+        else:
+            break  # no decrease along the scoring direction: at the minimum to rounding
+        c, f = c + a * step, f_new
+        if np.max(np.abs(a * step)) <= 1e-13 * max(np.max(np.abs(c)), 1e-300):
+            break
+    return c
+
+
 def _fit_sd_curve(true_m: np.ndarray, resid_m: np.ndarray, degree: int) -> tuple[np.ndarray, tuple[float, float]]:
     """Range SD vs distance (paper Fig. 6): a polynomial sd(d) fitted to the residual variances of
     distance bins by maximum likelihood.
@@ -232,8 +267,6 @@ def _fit_sd_curve(true_m: np.ndarray, resid_m: np.ndarray, degree: int) -> tuple
     (bins whose SD came out small weighed more, and a sample SD underestimates: ~4 % in SD with 20
     readings per bin, which the filters' NIS showed as ~8 % excess).
     """
-    from scipy.optimize import minimize
-
     groups = _bins(true_m)
     d = np.array([true_m[g].mean() for g in groups])
     var = np.array([resid_m[g].var(ddof=1) for g in groups])
@@ -243,12 +276,6 @@ def _fit_sd_curve(true_m: np.ndarray, resid_m: np.ndarray, degree: int) -> tuple
         return np.array([float(np.sqrt(np.mean(resid_m**2)))]), (float(true_m.min()), float(true_m.max()))
     sd = np.sqrt(var)
     start = np.polyfit(d, sd, deg, w=np.sqrt(dof) / np.maximum(sd, 1e-9))
-    floor = 1e-6 * float(np.max(var))
-
-    def nll(c):
-        v = np.maximum(np.polyval(c, d) ** 2, floor)
-        return 0.5 * float(np.sum(dof * (np.log(v) + var / v)))
-
-    fit = minimize(nll, start, method="Nelder-Mead", options={"xatol": 1e-10, "fatol": 1e-12, "maxiter": 4000 * (deg + 1)})
-    poly = fit.x if fit.success and np.all(np.polyval(fit.x, d) > 0) else start
+    poly = _ml_sd_poly(d, var, dof, start)
+    poly = poly if np.all(np.polyval(poly, d) > 0) else start
     return poly, (float(d.min()), float(d.max()))

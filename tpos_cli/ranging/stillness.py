@@ -21,12 +21,43 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
-from scipy.stats import theilslopes
+from scipy.special import ndtri  # not scipy.stats (theilslopes): its import costs 0.5 s of every ranging run
 
 from tpos_cli.alignment import static_mask
 
 _MIN_RANGES = 5  # a line through fewer ranges gives no usable rate
 _MAX_POINTS = 200  # Theil-Sen is O(n^2): thin longer pieces (the rate SD still shrinks with span)
+
+
+def theil_sen(x, y, confidence: float) -> tuple[float, float, float]:
+    """Theil-Sen line y = a + b x: (slope b, low, high) with the two-sided `confidence` interval
+    of the slope (Sen 1968, Eq. 2.6, ties in x and y corrected), as `scipy.stats.theilslopes`.
+
+    b is the median of the slopes (y_j - y_i) / (x_j - x_i) over the pairs with x_j > x_i; the
+    interval is the pair of sorted slopes at ranks (N -+ z sigma) / 2, z the normal quantile of
+    (1 - confidence) / 2 and sigma^2 = [n (n-1) (2n+5) - sum over tied groups of t (t-1) (2t+5)] / 18.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    dx = x[:, None] - x
+    pos = dx > 0
+    slopes = (y[:, None] - y)[pos] / dx[pos]
+    if slopes.size == 0:  # all x equal
+        return np.nan, np.nan, np.nan
+    slopes.sort()
+    slope = float(np.median(slopes))
+    z = ndtri((1.0 - confidence) / 2.0)
+
+    def ties(v):
+        _, c = np.unique(v, return_counts=True)
+        c = c[c > 1].astype(float)
+        return float(np.sum(c * (c - 1) * (2 * c + 5)))
+
+    n, nt = y.size, slopes.size
+    sigma = np.sqrt((n * (n - 1) * (2 * n + 5) - ties(x) - ties(y)) / 18.0)
+    hi = min(int(np.round((nt - z * sigma) / 2.0)), nt - 1)
+    lo = max(int(np.round((nt + z * sigma) / 2.0)) - 1, 0)
+    return slope, float(slopes[lo]), float(slopes[hi])
 
 
 def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m, *, min_duration_s=1.0,
@@ -70,7 +101,7 @@ def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m
             if m.size < _MIN_RANGES:
                 continue
             m = m[:: max(1, m.size // _MAX_POINTS)]
-            slope, icpt, lo, hi = theilslopes(rr[m], rt[m], alpha=0.997)  # (lo, hi): 3-sigma interval
+            slope, lo, hi = theil_sen(rt[m], rr[m], 0.997)  # (lo, hi): 3-sigma interval
             if abs(slope) >= max_speed_mps:
                 ok = False
                 break
