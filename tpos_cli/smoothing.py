@@ -30,7 +30,7 @@ from numba import njit
 from tpos_cli.filters.gating import (
     chi2_threshold,  # scipy.special: scipy.stats costs 0.3 s to import
 )
-from tpos_cli.filters.kalman import cho_solve_into, cholesky_into, sandwich_into, symmetrize
+from tpos_cli.filters.kalman import cho_solve_matrix_into, cholesky_into, matmul_into, sandwich_into, symmetrize
 from tpos_cli.frames import earth, rotation
 from tpos_cli.fusion.engine import FilterRun, epoch_of
 from tpos_cli.fusion.layout import Block
@@ -73,13 +73,13 @@ def rts_closed_loop(Phi, Ppred, Pfilt, dx):
         # A = P_e Phi_{e+1}^T (P^-_{e+1})^-1: row i solves P^- a = (P_e Phi^T)[i] (both symmetric)
         if not cholesky_into(Ppred[e + 1], L):
             raise ValueError("rts: a predicted covariance is not positive definite")
+        # (P_e Phi^T)^T = Phi P_e (P_e symmetric; matmul_into skips Phi's zeros), then
+        # A^T = (P^-)^-1 Phi P_e for all columns at once
+        matmul_into(Phi[e + 1], Pfilt[e], PPhit)
+        cho_solve_matrix_into(L, PPhit, PPhit)
         for i in range(n):
             for j in range(n):
-                s = 0.0
-                for k in range(n):
-                    s += Pfilt[e, i, k] * Phi[e + 1, j, k]
-                PPhit[i, j] = s
-            cho_solve_into(L, PPhit[i], A[i])
+                A[i, j] = PPhit[j, i]
         for i in range(n):
             s = 0.0
             for k in range(n):

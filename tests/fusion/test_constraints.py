@@ -49,10 +49,12 @@ def test_nhc_rows_skip_stops_and_the_yaw_search():
     assert np.all(m.dim == 2) and np.allclose(m.R[:, :2, :2], 0.01 * np.eye(2))
 
 
-@pytest.mark.parametrize("rpy_deg", [(0.0, -3.0, 91.0), (0.0, 2.0, -45.0), (0.0, 0.0, 180.0)])
+@pytest.mark.parametrize("rpy_deg", [(0.0, -3.0, 91.0), (0.0, 2.0, -45.0), (0.0, 0.0, 180.0), (0.0, 1.5, 4.0)])
 def test_travel_direction_recovers_the_mounting(rpy_deg):
-    """A vehicle moving along its own x axis, seen by an IMU turned by `rpy_deg` (roll is not
-    observable this way): the estimate is the exact pitch and yaw, steadiness 1."""
+    """A vehicle moving along its own x axis, seen by an IMU turned by `rpy_deg`: the estimate's
+    x axis is the exact travel direction in body axes (any yaw: at 91 deg the old Euler form lost
+    the pitch), steadiness 1; a turn about the travel direction itself is not observable this way,
+    so an upright IMU's z axis, made orthogonal to it, is the vehicle's down axis."""
     rng = np.random.default_rng(1)
     n = 3000
     t = np.arange(n) * 0.1
@@ -62,13 +64,29 @@ def test_travel_direction_recovers_the_mounting(rpy_deg):
     C_nb = C_nv @ C_vb
     vel = 10.0 * C_nv[:, :, 0]
     td = travel_direction(t, vel, C_nb)
-    assert td.pitch_deg == pytest.approx(rpy_deg[1], abs=1e-9)
-    assert (td.yaw_deg - rpy_deg[2] + 180) % 360 - 180 == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(td.C_vb[0], C_vb[0], atol=1e-9)
+    z = np.array([0.0, 0.0, 1.0]) - C_vb[0, 2] * C_vb[0]
+    np.testing.assert_allclose(td.C_vb[2], z / np.linalg.norm(z), atol=1e-9)
     assert td.steadiness == pytest.approx(1.0, abs=1e-12)
+    if abs(rpy_deg[2]) < 10.0:  # a small mounting: the Euler angles themselves, to second order
+        # (the upright convention and Euler roll 0 differ by about pitch x yaw: 0.026 x 0.070 rad = 0.1 deg)
+        assert td.pitch_deg == pytest.approx(rpy_deg[1], abs=0.1) and td.yaw_deg == pytest.approx(rpy_deg[2], abs=0.1)
     # C_vb of the estimate takes the body-frame velocity onto the vehicle's x axis
     v_b = np.einsum("kji,kj->ki", C_nb, vel)
     v_v = v_b @ td.C_vb.T
     np.testing.assert_allclose(v_v[:, 1:], 0.0, atol=1e-9)
+
+
+def test_travel_direction_of_an_imu_on_its_side():
+    """An IMU rolled 90 deg on the vehicle (its z axis horizontal): gravity marks the vehicle's
+    down axis, and the estimate is the whole mounting of a level-driving vehicle."""
+    n = 3000
+    t = np.arange(n) * 0.1
+    C_nv = euler_to_dcm(np.zeros(n), np.zeros(n), 0.3 * np.sin(t / 30.0))
+    C_vb = euler_to_dcm(*np.radians([90.0, 2.0, 10.0]))
+    C_nb = C_nv @ C_vb
+    td = travel_direction(t, 10.0 * C_nv[:, :, 0], C_nb)
+    np.testing.assert_allclose(td.C_vb, C_vb, atol=1e-9)
 
 
 def test_travel_direction_leaves_out_samples_far_from_fixes():
@@ -88,8 +106,7 @@ def test_travel_direction_leaves_out_samples_far_from_fixes():
     biased = travel_direction(t, vel, C_nb)
     td = travel_direction(t, vel, C_nb, fix_t_s=fix_t, max_fix_gap_s=1.0)
     assert abs(biased.yaw_deg - 3.0) > 0.3  # the drift leaks in when counted
-    assert td.yaw_deg == pytest.approx(3.0, abs=1e-9)
-    assert td.pitch_deg == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(td.C_vb[0], C_vb[0], atol=1e-9)  # the exact travel direction again
 
 
 def test_velocity_latency_of_a_backward_difference_receiver():

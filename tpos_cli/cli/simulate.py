@@ -55,7 +55,7 @@ def simulate(
     out: Path = typer.Argument(..., help="Session directory to write (must not exist, or use --force)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the sensor noise (and of the drive manoeuvres)."),
     duration: float = typer.Option(None, "--duration", help="Seconds; default drive 120, target 90, ranging 60."),
-    grade: str = typer.Option(None, "--grade", help="Sensor errors: paper | mems | perfect; default mems (drive), paper (target, ranging)."),
+    grade: str = typer.Option(None, "--grade", help="Sensor errors: paper | mems | tactical | perfect; default mems (drive), paper (target, ranging)."),
     rate: float = typer.Option(100.0, "--rate", help="IMU rate, Hz."),
     fmt: str = typer.Option("parquet", "--format", help="Time-stamped tables as parquet or csv."),
     name: str = typer.Option(None, "--name", help="[session] name; default the directory name."),

@@ -177,15 +177,24 @@ class TravelDirection:
                 "steadiness": round(self.steadiness, 4), "moving_s": round(self.moving_s, 1)}
 
 
-def vehicle_axes(x_b, down_b) -> np.ndarray:
+def vehicle_axes(x_b, down_b, upright_within_deg: float = 20.0) -> np.ndarray:
     """C_vb (v_vehicle = C_vb v_body) whose rows are the vehicle's axes in body coordinates: x
-    along the travel direction x_b, z (down) the body-frame direction of gravity made orthogonal
-    to it, y = z x x. Any mounting angle, no gimbal lock (an Euler parametrization of the travel
-    direction loses pitch at a yaw of 90 deg); a vehicle's mean attitude over a drive is level, so
-    gravity marks its down axis."""
+    along the travel direction x_b, z (down) the body's own z axis made orthogonal to it (roll is
+    not observable from the travel direction: an upright IMU is taken as not rolled), y = z x x.
+    When that z is more than `upright_within_deg` from gravity (down_b, the mean body-frame
+    direction of gravity: a unit on its side), gravity marks the vehicle's down axis instead (a
+    vehicle's mean attitude over a drive is level). Any yaw, no gimbal lock (an Euler
+    parametrization of the travel direction loses pitch at a yaw of 90 deg)."""
     x = np.asarray(x_b, dtype=float) / np.linalg.norm(x_b)
-    z = np.asarray(down_b, dtype=float) - (np.asarray(down_b, dtype=float) @ x) * x
-    z = z / np.linalg.norm(z)
+
+    def _down(z):
+        z = np.asarray(z, dtype=float) - (np.asarray(z, dtype=float) @ x) * x
+        return z / np.linalg.norm(z)
+
+    g = _down(down_b)
+    z = _down([0.0, 0.0, 1.0]) if abs(x[2]) < 0.99 else g
+    if np.degrees(np.arccos(np.clip(z @ g, -1.0, 1.0))) > upright_within_deg:
+        z = g
     return np.vstack([x, np.cross(z, x), z])
 
 

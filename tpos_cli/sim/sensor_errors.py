@@ -9,6 +9,9 @@ per sample. Grades:
 - `mems`: a consumer MEMS IMU (gyro 0.008 deg/s per sample at 100 Hz, 20 deg/h constant plus
   10 deg/h Gauss-Markov bias with 300 s correlation; accelerometer 1.5 mg noise, 10 mg constant
   plus 2 mg Gauss-Markov bias).
+- `tactical`: a tactical-grade IMU (gyro 0.004 deg/s per sample, 1 deg/h constant plus 0.5 deg/h
+  Gauss-Markov bias; accelerometer 0.5 mg noise, 1 mg constant plus 0.2 mg Gauss-Markov bias):
+  every figure between `mems` and a navigation-grade unit.
 - `paper`: the scenario paper's figures (`PAPER_GRADES`); figures a paper does not state fall back
   to `mems` and are listed in `assumed`.
 """
@@ -67,6 +70,17 @@ MEMS = ImuGrade(
     mag_noise_ut=0.5,
 )
 
+TACTICAL = ImuGrade(
+    "tactical",
+    gyro_noise_dps=0.004,
+    gyro_bias_dph=1.0,
+    gyro_bias_gm_dph=0.5,
+    acc_noise_mg=0.5,
+    acc_bias_mg=1.0,
+    acc_bias_gm_mg=0.2,
+    mag_noise_ut=0.5,
+)
+
 PAPER_GRADES = {
     # Paper 000, section 6.1: gyro constant bias 5 deg/h and white noise 0.5 deg/h SD;
     # accelerometer constant bias 1e-4 g and white noise 1e-3 g SD. Magnetometer noise not stated.
@@ -92,15 +106,17 @@ PAPER_GRADES = {
     ),
 }
 
-GRADES = ("paper", "mems", "perfect")
+GRADES = ("paper", "mems", "tactical", "perfect")
 
 
 def imu_grade(name: str, scenario: str) -> ImuGrade:
-    """The ImuGrade called `name` (paper | mems | perfect) for `scenario`."""
+    """The ImuGrade called `name` (paper | mems | tactical | perfect) for `scenario`."""
     if name == "perfect":
         return PERFECT
     if name == "mems":
         return MEMS
+    if name == "tactical":
+        return TACTICAL
     if name == "paper":
         return PAPER_GRADES[scenario]
     raise InvalidInputError(f"grade: {name!r} is not one of {', '.join(GRADES)}")
