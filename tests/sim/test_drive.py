@@ -94,3 +94,34 @@ def test_seeded_reproducibility():
 def test_one_hour_drive_has_exact_sample_count():
     sim = simulate_drive(3600.0, seed=0, noise_free=True)
     assert sim.imu.t_s.size == 360001 and np.all(np.isfinite(sim.imu.acc_b_mps2))
+
+
+def test_realism_options_mounting_lever_arm_vibration_odometry(tmp_path):
+    """Issue 11 item 7: the IMU turned on the car (its samples are the car's rotated by C^T), the
+    antenna displaced by C_nb l, vibration of the requested RMS in the 10-50 Hz band, an odometer
+    reading the forward speed times (1 + k), all written as contract tables."""
+    from tpos_cli.frames.geodetic import lla_to_ned
+    from tpos_cli.frames.rotation import euler_to_dcm
+    from tpos_cli.session import load_session
+
+    base = simulate_drive(60.0, seed=3, outages=(), noise_free=True)
+    sim = simulate_drive(60.0, seed=3, outages=(), noise_free=True, mounting_rpy_deg=(1.0, 2.0, 90.0),
+                         lever_arm_m=(1.0, 0.5, -1.5), odometry_rate_hz=50.0, odometry_scale_error=0.03,
+                         odometry_sigma_mps=0.0)
+    C = euler_to_dcm(*np.radians([1.0, 2.0, 90.0]))
+    np.testing.assert_allclose(sim.imu.acc_b_mps2, base.imu.acc_b_mps2 @ C, atol=1e-12)
+    d = lla_to_ned(sim.gps.lla_true, base.gps.lla_true[0]) - lla_to_ned(base.gps.lla_true, base.gps.lla_true[0])
+    i = np.searchsorted(base.truth.t_s, base.gps.t_s)
+    # atol: the tangent plane at the first fix against the local one at each fix, |l| x 1 km / 6400 km < 1e-3 m
+    np.testing.assert_allclose(d, np.einsum("kij,j->ki", base.truth.C_nb[i], [1.0, 0.5, -1.5]), atol=1e-3)
+    fwd = np.einsum("ki,ki->k", sim.truth.C_nb[::2][:, :, 0], sim.truth.vel_ned_mps[::2])
+    np.testing.assert_allclose(sim.odometry.speed_mps, np.maximum(1.03 * fwd, 0.0), atol=1e-12)
+    s = load_session(sim.write(tmp_path / "s"))
+    assert s.odometry is not None and s.odometry.t_s.size == sim.odometry.t_s.size
+    np.testing.assert_allclose(s.meta.lever_arm_b_m, C.T @ [1.0, 0.5, -1.5], atol=1e-12)  # the IMU's axes
+    vib = simulate_drive(60.0, seed=3, outages=(), noise_free=True, vibration_mg=30.0)
+    v = vib.imu.acc_b_mps2 - base.imu.acc_b_mps2
+    np.testing.assert_allclose(np.sqrt(np.mean(v**2, axis=0)), 30e-3 * 9.80665, rtol=1e-9)
+    spec = np.abs(np.fft.rfft(v[:, 0])) ** 2
+    f = np.fft.rfftfreq(v.shape[0], 0.01)
+    assert spec[(f >= 10.0) & (f <= 50.0)].sum() > 0.99 * spec.sum()

@@ -15,13 +15,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import ned_to_lla
+from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.sim.gps import simulate_gps
 from tpos_cli.sim.kinematics import MotionSample, simulate_truth_imu
 from tpos_cli.sim.profiles import SMOOTHSTEP_PEAK_RATE as PEAK
 from tpos_cli.sim.profiles import RampProfile
 from tpos_cli.sim.result import (
     SimImu,
+    SimOdometry,
     SimRanges,
     SimResult,
     SimShots,
@@ -128,6 +131,12 @@ def simulate_drive(
     gps_correlated_sigma_neu_m=(0.0, 0.0, 0.0),
     gps_correlated_tau_s: float = 30.0,
     gps_clock_offset_s: float = 0.0,
+    mounting_rpy_deg=(0.0, 0.0, 0.0),
+    lever_arm_m=(0.0, 0.0, 0.0),
+    vibration_mg: float = 0.0,
+    odometry_rate_hz: float = 0.0,
+    odometry_scale_error: float = 0.0,
+    odometry_sigma_mps: float = 0.02,
 ) -> SimResult:
     """Simulate the `drive` scenario; see the module docstring.
 
@@ -140,6 +149,14 @@ def simulate_drive(
     beam at the return's time, written as targets with role "truth".
     `gps_clock_offset_s` d: a GPS record taken at IMU time t is stamped t - d (a logger's late or
     early GPS time tags, the IMU-GPS clock offset of issue 11); the truth stays on the IMU clock.
+    What real car logs hold (issue 11 item 7), each off by default: `mounting_rpy_deg`, the IMU's
+    attitude on the vehicle (the contract's convention, v_vehicle = C v_imu; session.toml does not
+    state it, as a user's log would not); `lever_arm_m`, the GPS antenna in the vehicle's axes
+    (session.toml states it in the IMU's); `vibration_mg`, engine and road vibration on the
+    accelerometers (a 25 Hz engine line and its 50 Hz harmonic plus 10-40 Hz road noise, that RMS
+    per axis, with 0.01 deg/s per mg on the gyros); an odometer at `odometry_rate_hz` reading
+    the forward speed times (1 + `odometry_scale_error`) plus `odometry_sigma_mps` noise. The
+    truth is the vehicle's attitude at the IMU point.
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise InvalidInputError("duration and rate must be > 0")
@@ -151,12 +168,19 @@ def simulate_drive(
     t = np.arange(n) / rate_hz
     ti = simulate_truth_imu(motion, t, np.asarray(start_lla, dtype=float))
     g = imu_grade("perfect" if noise_free else grade, "drive")
-    gyro, acc, err = corrupt_imu(ti.gyro_b_rps, ti.acc_b_mps2, g, rate_hz, imu_rng)
+    C_vb = euler_to_dcm(*np.radians(np.asarray(mounting_rpy_deg, dtype=float)))
+    gyro_s, acc_s = ti.gyro_b_rps @ C_vb, ti.acc_b_mps2 @ C_vb  # in the IMU's axes: C_vb^T x per row
+    if vibration_mg > 0:
+        vib = vibration(t, rate_hz, vibration_mg, np.random.default_rng([seed, 7]))
+        acc_s = acc_s + vib
+        gyro_s = gyro_s + np.radians(vib / (1e-3 * G0_MPS2) / 100.0)  # 1 mg of it with 0.01 deg/s
+    gyro, acc, err = corrupt_imu(gyro_s, acc_s, g, rate_hz, imu_rng)
     truth = SimTruth(ti.t_s, ti.lla, ti.vel_ned_mps, ti.rpy_rad)
-    imu = SimImu(t, gyro, acc, None, ti.gyro_b_rps, ti.acc_b_mps2, None, err, g, "FRD", float(rate_hz))
+    imu = SimImu(t, gyro, acc, None, gyro_s, acc_s, None, err, g, "FRD", float(rate_hz))
+    lever_v = np.asarray(lever_arm_m, dtype=float)
     outages_arr = np.asarray(outages, dtype=float).reshape(-1, 2)
     gps = simulate_gps(
-        truth,
+        antenna_truth(truth, ti.gyro_b_rps, lever_v) if np.any(lever_v) else truth,
         rate_hz,
         rate_hz=gps_rate_hz,
         sigma_h_m=gps_sigma_h_m,
@@ -182,6 +206,18 @@ def simulate_drive(
     }
     if gps_clock_offset_s != 0.0:
         params["gps_clock_offset_s"] = float(gps_clock_offset_s)
+    if np.any(np.asarray(mounting_rpy_deg, dtype=float)):
+        params["mounting_rpy_deg"] = [float(v) for v in mounting_rpy_deg]
+    if np.any(lever_v):
+        params["lever_arm_vehicle_m"] = lever_v.tolist()
+    if vibration_mg > 0:
+        params["vibration_mg"] = float(vibration_mg)
+    odometry = None
+    if odometry_rate_hz > 0:
+        odometry = simulate_odometry(truth, rate_hz, odometry_rate_hz, odometry_scale_error, odometry_sigma_mps,
+                                     np.random.default_rng([seed, 8]))
+        params.update({"odometry_rate_hz": float(odometry_rate_hz), "odometry_scale_error": float(odometry_scale_error),
+                       "odometry_sigma_mps": float(odometry_sigma_mps)})
     if np.any(np.asarray(gps_correlated_sigma_neu_m, dtype=float) > 0):
         params.update({"gps_correlated_sigma_neu_m": np.broadcast_to(np.asarray(gps_correlated_sigma_neu_m, dtype=float), 3).tolist(),
                        "gps_correlated_tau_s": gps_correlated_tau_s})
@@ -199,10 +235,50 @@ def simulate_drive(
         imu=imu,
         gps=gps,
         gps_outages_s=win,
-        toml={"gps": {"lever_arm_m": [0.0, 0.0, 0.0]}},
+        odometry=odometry,
+        toml={"gps": {"lever_arm_m": [float(v) for v in C_vb.T @ lever_v]}},  # in the IMU's axes
         params=params,
         **extra,
     )
+
+
+def vibration(t_s, rate_hz: float, rms_mg: float, rng: np.random.Generator) -> np.ndarray:
+    """(N, 3) engine and road vibration, m/s^2: a 25 Hz engine line and its 50 Hz harmonic (below
+    Nyquist only) with random phases and slowly varying amplitude, plus 10-40 Hz band noise (FFT
+    band-limited white noise), scaled to `rms_mg` per axis."""
+    t = np.asarray(t_s, dtype=float)
+    n = t.size
+    out = np.zeros((n, 3))
+    env = 1.0 + 0.3 * np.sin(2 * np.pi * t / rng.uniform(20.0, 40.0))  # engine load changes
+    for f in (25.0, 50.0):
+        if f < 0.5 * rate_hz:
+            out += env[:, None] * np.sin(2 * np.pi * f * t[:, None] + rng.uniform(0, 2 * np.pi, 3)) / (f / 25.0)
+    w = np.fft.rfft(rng.standard_normal((n, 3)), axis=0)
+    fr = np.fft.rfftfreq(n, 1.0 / rate_hz)
+    w[(fr < 10.0) | (fr > 40.0)] = 0.0
+    out += np.fft.irfft(w, n=n, axis=0)
+    out -= out.mean(axis=0)
+    return out * (rms_mg * 1e-3 * G0_MPS2 / np.sqrt(np.mean(out**2, axis=0)))
+
+
+def antenna_truth(truth: SimTruth, gyro_b_rps, lever_v_m) -> SimTruth:
+    """The truth moved to a GPS antenna at `lever_v_m` in the vehicle's axes: position + C_nb l,
+    velocity + C_nb (w x l) (the Earth's rate in the body rate is 7e-5 rad/s: negligible at metres)."""
+    C = truth.C_nb
+    ned = np.einsum("kij,j->ki", C, lever_v_m)
+    lla = np.array([ned_to_lla(ned[k], truth.lla[k]) for k in range(0, ned.shape[0])]).reshape(-1, 3)
+    vel = truth.vel_ned_mps + np.einsum("kij,kj->ki", C, np.cross(gyro_b_rps, lever_v_m))
+    return SimTruth(truth.t_s, lla, vel, truth.rpy_rad)
+
+
+def simulate_odometry(truth: SimTruth, imu_rate_hz: float, rate_hz: float, scale_error: float, sigma_mps: float,
+                      rng: np.random.Generator) -> SimOdometry:
+    """An odometer at `rate_hz` (a divisor of the IMU rate): the vehicle's forward speed (its
+    velocity along the body x axis, >= 0) times (1 + scale_error) plus white noise, clipped at 0."""
+    idx = np.arange(0, truth.t_s.size, max(1, int(round(imu_rate_hz / rate_hz))))
+    fwd = np.einsum("ki,ki->k", truth.C_nb[idx][:, :, 0], truth.vel_ned_mps[idx])
+    speed = np.maximum(fwd * (1.0 + scale_error) + sigma_mps * rng.standard_normal(idx.size), 0.0)
+    return SimOdometry(truth.t_s[idx].copy(), speed, float(scale_error), float(sigma_mps))
 
 
 def _roadside_shots(truth: SimTruth, n: int, static_s: float, duration_s: float, range_m: float, sigma_m: float,

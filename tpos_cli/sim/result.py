@@ -93,6 +93,16 @@ class SimTargets:
 
 
 @dataclass(frozen=True)
+class SimOdometry:
+    """Vehicle speed as an odometer logs it: forward speed times (1 + scale_error) plus noise."""
+
+    t_s: np.ndarray  # (M,)
+    speed_mps: np.ndarray  # (M,)
+    scale_error: float
+    sigma_mps: float
+
+
+@dataclass(frozen=True)
 class SimShots:
     ids: tuple[str, ...]
     t_start_s: np.ndarray
@@ -142,6 +152,7 @@ class SimResult:
     anchors: SimAnchors | None = None
     anchor_ranges: SimAnchorRanges | None = None
     range_calibration: SimRangeCalibration | None = None
+    odometry: SimOdometry | None = None
     toml: dict = field(default_factory=dict)  # extra session.toml sections ([magnetic], [observer], ...)
     params: dict = field(default_factory=dict)  # the scenario's parameters, recorded in session.toml
 

@@ -120,6 +120,8 @@ def session_tables(sim: SimResult) -> dict[str, pd.DataFrame]:
                 "sigma_u": g.sigma_neu_m[:, 2],
             }
         )
+    if sim.odometry is not None:
+        out["odometry"] = pd.DataFrame({"t": sim.odometry.t_s + t0, "speed_mps": sim.odometry.speed_mps})
     if sim.ranges is not None:
         r = sim.ranges
         out["ranges"] = pd.DataFrame({"t": r.t_s + t0, "d1": r.range_m[:, 0], "d2": r.range_m[:, 1], "d3": r.range_m[:, 2]})
