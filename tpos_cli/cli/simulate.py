@@ -11,7 +11,8 @@ from tpos_cli.cli._common import exit_on_error, show_progress
 from tpos_cli.io.bounded import MAX_TABLE_ROWS
 
 _ONLY = {
-    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range", "gps_clock_offset"),
+    "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range", "gps_clock_offset",
+              "mounting", "lever_arm", "vibration_mg", "odometry"),
     "target": ("motion", "wall_distance", "mag_disturbance_ut", "mag_disturbance_start", "mag_disturbance_end"),
     "ranging": ("dropout", "nlos_prob"),
 }
@@ -38,6 +39,7 @@ _RANGES = {
     "--shots": (0, 10_000), "--shot-range": (0.1, 10_000.0), "--wall-distance": (0.1, 1_000.0),
     "--mag-disturbance-ut": (0.0, 10_000.0), "--mag-disturbance-start": (0.0, 86_400.0),
     "--mag-disturbance-end": (0.0, 86_400.0), "--nlos-prob": (0.0, 1.0), "--gps-clock-offset": (-10.0, 10.0),
+    "--vibration-mg": (0.0, 10_000.0),
 }
 MAX_SAMPLES = MAX_TABLE_ROWS
 
@@ -70,6 +72,10 @@ def simulate(
     shots: int = typer.Option(None, "--shots", help="drive: laser shots (LR1 along the body x axis) on targets ahead, spread over the drive (default 0)."),
     shot_range: float = typer.Option(None, "--shot-range", help="drive: distance to the shot targets, m (default 40)."),
     gps_clock_offset: float = typer.Option(None, "--gps-clock-offset", help="drive: GPS records taken at IMU time t are stamped t - D, s (default 0)."),
+    mounting: str = typer.Option(None, "--mounting", help="drive: the IMU's roll:pitch:yaw on the car, deg (not written to session.toml; default 0:0:0)."),
+    lever_arm: str = typer.Option(None, "--lever-arm", help="drive: GPS antenna x:y:z in the car's axes, m (session.toml gets it in the IMU's; default 0:0:0)."),
+    vibration_mg: float = typer.Option(None, "--vibration-mg", help="drive: engine and road vibration on the accelerometers, RMS mg per axis (default 0)."),
+    odometry: str = typer.Option(None, "--odometry", help="drive: an odometer table RATE_HZ:SCALE_ERROR (e.g. 20:0.02; default none)."),
     motion: str = typer.Option(None, "--motion", help="target: shots (aim at each target in turn) or sine (paper 000 sec. 6.1)."),
     wall_distance: float = typer.Option(None, "--wall-distance", help="target: distance to the wall, m (default 12)."),
     mag_disturbance_ut: float = typer.Option(None, "--mag-disturbance-ut", help="target: add a magnetic disturbance of this magnitude, uT (paper 000: 50)."),
@@ -98,7 +104,8 @@ def simulate(
                    "--gps-sigma-h": gps_sigma_h, "--gps-sigma-v": gps_sigma_v, "--gps-sigma-vel": gps_sigma_vel,
                    "--shots": shots, "--shot-range": shot_range, "--wall-distance": wall_distance,
                    "--mag-disturbance-ut": mag_disturbance_ut, "--mag-disturbance-start": mag_disturbance_start,
-                   "--mag-disturbance-end": mag_disturbance_end, "--nlos-prob": nlos_prob, "--gps-clock-offset": gps_clock_offset})
+                   "--mag-disturbance-end": mag_disturbance_end, "--nlos-prob": nlos_prob, "--gps-clock-offset": gps_clock_offset,
+                   "--vibration-mg": vibration_mg})
     if duration is not None and duration * rate > MAX_SAMPLES:
         raise typer.BadParameter(f"{duration:g} s at {rate:g} Hz is more than {MAX_SAMPLES} IMU samples, the row limit of a "
                                  "session table", param_hint="--duration")
@@ -109,13 +116,27 @@ def simulate(
         kw["grade"] = grade
     if outage:
         kw["outages"] = [] if outage == ["none"] else [_floats(o, 2, "--outage") for o in outage]
+    if mounting:
+        kw["mounting_rpy_deg"] = _floats(mounting, 3, "--mounting")
+        if max(abs(v) for v in kw["mounting_rpy_deg"]) > 180.0:
+            raise typer.BadParameter(f"angles within +-180 deg, got {mounting!r}", param_hint="--mounting")
+    if lever_arm:
+        kw["lever_arm_m"] = _floats(lever_arm, 3, "--lever-arm")
+        if max(abs(v) for v in kw["lever_arm_m"]) > 50.0:
+            raise typer.BadParameter(f"each component within +-50 m, got {lever_arm!r}", param_hint="--lever-arm")
+    if odometry:
+        rate_hz, scale = _floats(odometry, 2, "--odometry")
+        if not (0.0 < rate_hz <= rate and -0.5 < scale < 0.5):
+            raise typer.BadParameter(f"rate in (0, {rate:g}] Hz and scale error in (-0.5, 0.5), got {odometry!r}", param_hint="--odometry")
+        kw["odometry_rate_hz"], kw["odometry_scale_error"] = rate_hz, scale
     if dropout:
         kw["dropouts"] = [] if dropout == ["none"] else [(d.split(":")[0], *_floats(d.split(":", 1)[-1], 2, "--dropout")) for d in dropout]
     for key, arg in (("trajectory_seed", trajectory_seed), ("gps_sigma_h_m", gps_sigma_h), ("gps_sigma_v_m", gps_sigma_v),
                      ("gps_sigma_vel_mps", gps_sigma_vel), ("motion", motion), ("wall_distance_m", wall_distance),
                      ("mag_disturbance_ut", mag_disturbance_ut), ("mag_disturbance_start_s", mag_disturbance_start),
                      ("mag_disturbance_end_s", mag_disturbance_end), ("nlos_prob", nlos_prob),
-                     ("shots", shots), ("shot_range_m", shot_range), ("gps_clock_offset_s", gps_clock_offset)):
+                     ("shots", shots), ("shot_range_m", shot_range), ("gps_clock_offset_s", gps_clock_offset),
+                     ("vibration_mg", vibration_mg)):
         if arg is not None:
             kw[key] = arg
     with exit_on_error():
