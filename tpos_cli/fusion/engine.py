@@ -165,7 +165,10 @@ class FilterRun:
     nominal after feedback at every sample (`Nominal`; the extra states' nominal after the IMU
     biases). ep_idx (E,) run-local sample of each covariance epoch, increasing; ep_P (E, n, n) the
     covariance after the updates there, forward-time signs; forward runs also hold ep_dx (E, n)
-    (correction fed back at the epoch) and, stored for RTS, ep_Phi and ep_Ppred (E, n, n).
+    (correction fed back at the epoch) and, stored for RTS, the transition from the previous
+    epoch, block diagonal: ep_Phi (E, 15, 15) its navigation block, ep_phi_extra (E, n - 15) its
+    diagonal beyond, and the predicted covariance ep_Ppred (E, n (n + 1) / 2) as its lower
+    triangle by rows (numpy's `tril_indices` order; it is exactly symmetric).
     Per measurement (rows of `measurements`, the caller's order): ev_nu (E, 3) residual (NaN past
     dim or when not processed), ev_pvar (E, 3) diagonal of H P- H^T (R excluded), ev_nis (E,) (NaN
     when not processed, e.g. outside the run), ev_logdet (E,) log det S, ev_accepted (E,).
@@ -189,6 +192,7 @@ class FilterRun:
     ev_nis: np.ndarray
     ev_logdet: np.ndarray
     ev_accepted: np.ndarray
+    ep_phi_extra: np.ndarray | None = None
 
     def extra(self, block: Block) -> np.ndarray:
         """Nominal of an extra block at every sample, (N-k0, size); (N-k0, 0) when absent."""
@@ -256,7 +260,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), np.unique(k_o))
     nr = n_ep if store_rts else 1
     out = History(np.empty((n, 6)), np.empty((n, 3, 3)), np.empty((n, nb)), np.zeros(n_ep, np.int64),
-                  np.empty((nr, ns, ns)), np.empty((nr, ns, ns)), np.empty((n_ep, ns, ns)), np.empty((n_ep, ns)))
+                  np.empty((nr, N_NAV, N_NAV)), np.empty((nr, ns - N_NAV)), np.empty((nr, ns * (ns + 1) // 2)),
+                  np.empty((n_ep, ns, ns)), np.empty((n_ep, ns)))
     m = order.size
     res = EventResults(np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan), np.full(m, np.nan),
                        np.zeros(m, np.bool_))
@@ -297,7 +302,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     rts = store_rts and not backward
     return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, ep_P,
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
-                     lay, meas, nu, pvar, nis, logdet, accepted)
+                     lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None)
 
 
 def epoch_count(n: int, cov_step: int, k_meas) -> int:
