@@ -46,7 +46,9 @@ class Settings(NamedTuple):
     constants (<= 0: random walk); earth_sign (-1 backward); cov_step (IMU samples per covariance
     epoch); extra_tau_s, extra_q (n_extra,) dynamics of the extra states; layout (N_BLOCKS,) int64
     offsets (`StateLayout.offsets`); gate (4,) chi-square thresholds by dimension; max_reject:
-    consecutive rejections of a slot after which the next one is applied; store_rts."""
+    consecutive rejections of a slot after which the next one is applied; store_rts; reverse_out:
+    the nominal of sample k is stored at row N-1-k (a backward run's history in forward order,
+    without a reversed copy of the run's largest arrays)."""
 
     q: np.ndarray
     tau_acc_s: float
@@ -59,6 +61,7 @@ class Settings(NamedTuple):
     gate: np.ndarray
     max_reject: int
     store_rts: bool
+    reverse_out: bool
 
 
 class EventArrays(NamedTuple):
@@ -95,7 +98,8 @@ class Aiding(NamedTuple):
 
 
 class History(NamedTuple):
-    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias) and per
+    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias; reversed rows
+    with `Settings.reverse_out`) and per
     covariance epoch ep_idx, ep_P (after the updates), ep_dx (correction fed back), and with
     store_rts the transition from the previous epoch, which is block diagonal (the extra states
     have their own scalar dynamics): ep_Phi (E, 15, 15) its navigation block and ep_phi_extra
@@ -239,9 +243,10 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             out.ep_Phi[ep, i, i] = 1.0
         out.ep_phi_extra[ep] = 1.0
         store_tril(out.ep_Ppred, ep, P)
-    _store(out.nav, ep, nav)
-    _store2(out.C, ep, C)
-    _store(out.bias, ep, bias)
+    row = n_t - 1 if st.reverse_out else 0  # where the nominal of sample 0 is stored
+    _store(out.nav, row, nav)
+    _store2(out.C, row, C)
+    _store(out.bias, row, bias)
     e = 0
     while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
         e += 1
@@ -302,7 +307,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             last = k
             f_sum[:] = 0.0
             dt_sum = 0.0
-        _store(out.nav, k, nav)
-        _store2(out.C, k, C)
-        _store(out.bias, k, bias)
+        row = n_t - 1 - k if st.reverse_out else k
+        _store(out.nav, row, nav)
+        _store2(out.C, row, C)
+        _store(out.bias, row, bias)
     return ep + 1, 0

@@ -267,7 +267,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                        np.zeros(m, np.bool_))
     st = Settings(np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), -1.0 if backward else 1.0,
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
-                  chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts))
+                  chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts),
+                  bool(backward))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
     # None when no row needs the ranging models: numba then compiles the kernel without them
     ranging = True if np.isin(meas.kind, [Kind.RANGE, Kind.FIX_NE, Kind.FLOOR]).any() else None
@@ -283,12 +284,9 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     nis, logdet, accepted = np.full(E, np.nan), np.full(E, np.nan), np.zeros(E, dtype=bool)
     nu[order], pvar[order], nis[order], logdet[order], accepted[order] = res
     ep_idx, ep_P, ep_dx = out.ep_idx[:n_used], out.ep_P[:n_used], out.ep_dx[:n_used]
-    nav, C, bias = out.nav, out.C, out.bias
+    nav, C, bias = out.nav, out.C, out.bias  # a backward run's stored in forward order (reverse_out)
     if backward:
-        nav = np.ascontiguousarray(nav[::-1])
         nav[:, 3:] *= -1.0
-        C = np.ascontiguousarray(C[::-1])
-        bias = np.ascontiguousarray(bias[::-1])
         bias[:, 3:6] *= -1.0
         bias[:, 6:][:, odd] *= -1.0
         ep_idx = (n - 1 - ep_idx)[::-1]
