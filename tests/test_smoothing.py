@@ -45,6 +45,12 @@ def _batch_smoother(Phi, Q, H, R, P0, zs):
     return mean.reshape(K, n), np.array([cov[k * n:(k + 1) * n, k * n:(k + 1) * n] for k in range(K)])
 
 
+def _tril(P):
+    """Lower triangles by rows (E, n (n + 1) / 2), the RTS history's storage of symmetric P (E, n, n)."""
+    i, j = np.tril_indices(P.shape[1])
+    return np.ascontiguousarray(P[:, i, j])
+
+
 @pytest.mark.parametrize("n", [4, 12])
 def test_closed_loop_rts_equals_batch_solution(n):
     """n = 12: the smoother returns the covariance's leading 9 x 9 (navigation) block only."""
@@ -58,14 +64,14 @@ def test_closed_loop_rts_equals_batch_solution(n):
     for k in range(K):
         if k > 0:
             x, P = Phi @ x, Phi @ P @ Phi.T + Q
-        ePhi[k], ePpred[k] = Phi, P
+        ePhi[k], ePpred[k] = Phi, 0.5 * (P + P.T)  # stored symmetric, as the filter kernel's (a triangle)
         S = H @ P @ H.T + R
         G = P @ H.T @ np.linalg.inv(S)
         x_new = x + G @ (zs[k] - H @ x)
         edx[k] = x - x_new
         x, P = x_new, (np.eye(n) - G @ H) @ P
         ePfilt[k], xf[k] = P, x
-    xs_post, xs_pre, Ps = rts_closed_loop(ePhi, ePpred, ePfilt, edx)
+    xs_post, xs_pre, Ps = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), ePfilt, edx)
     mean, cov = _batch_smoother(Phi, Q, H, R, P0, zs)
     # both exact; differences are rounding of a 120x120 inverse (~1e-12)
     np.testing.assert_allclose(xf - xs_post, mean, rtol=0, atol=1e-9)
@@ -76,6 +82,26 @@ def test_closed_loop_rts_equals_batch_solution(n):
     assert all(np.linalg.eigvalsh(ePfilt[k, :m, :m] - Ps[k]).min() > -1e-12 for k in range(K))
 
 
+def test_rts_block_diagonal_transition_equals_full():
+    """The filter's RTS history stores Phi as its leading block and the diagonal beyond: the same
+    smoothed errors and covariances as the full Phi."""
+    Phi, Q, H, R, P0, zs = _linear_problem(seed=2, n=6)
+    K, n, p = zs.shape[0], 6, 4
+    Phi[:p, p:] = 0.0
+    Phi[p:, :p] = 0.0
+    Phi[p:, p:] = np.diag([0.99, 1.0])
+    rng = np.random.default_rng(3)
+    ePhi = np.repeat(Phi[None], K, 0)
+    ePfilt = np.array([P0 * (0.5 + 0.1 * k) for k in range(K)])
+    ePpred = ePfilt + np.diag(np.diag(Q))[None]
+    dx = 0.1 * rng.standard_normal((K, n))
+    full = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), ePfilt, dx)
+    block = rts_closed_loop(np.ascontiguousarray(ePhi[:, :p, :p]), np.ascontiguousarray(ePhi[:, [4, 5], [4, 5]]),
+                            _tril(ePpred), ePfilt, dx)
+    for a, b in zip(full, block):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_rts_without_feedback_bookkeeping_is_wrong():
     """Dropping dx (the issue's pitfall) returns the forward solution: the test above has power."""
     Phi, Q, H, R, P0, zs = _linear_problem(seed=1)
@@ -83,7 +109,7 @@ def test_rts_without_feedback_bookkeeping_is_wrong():
     ePhi = np.repeat(Phi[None], K, 0)
     ePpred = np.repeat(P0[None], K, 0)
     ePfilt = np.repeat(0.5 * P0[None], K, 0)
-    xs_post, _, _ = rts_closed_loop(ePhi, ePpred, ePfilt, np.zeros((K, n)))
+    xs_post, _, _ = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), ePfilt, np.zeros((K, n)))
     np.testing.assert_array_equal(xs_post, 0.0)
 
 

@@ -42,17 +42,21 @@ from tpos_cli.trajectory import Solution
 
 
 @njit(cache=True)
-def rts_closed_loop(Phi, Ppred, Pfilt, dx):
+def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt, dx):
     """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n),
     Ps9 (E,m,m)), Ps9 the leading m = min(n, 9) block (navigation) of the smoothed covariance: the
     recursion keeps the full one of the next epoch only (the full history would be the largest array
     of a run).
 
-    Phi, Ppred, Pfilt (E, n, n) and dx (E, n) of the forward run's covariance epochs.
+    Of the forward run's covariance epochs: the transitions, block diagonal, as Phi_nav (E, p, p)
+    (p <= n) and phi_extra (E, n - p) the diagonal beyond (`FilterRun.ep_Phi`, `ep_phi_extra`),
+    the predicted covariances Ppred_tril (E, n (n + 1) / 2) as lower triangles by rows
+    (`FilterRun.ep_Ppred`, numpy's `tril_indices` order), Pfilt (E, n, n) and dx (E, n).
     xs_pre[e] = xs_post[e] + dx[e] is the smoothed error about the pre-update nominal.
     Element loops and Cholesky solves (`filters.kalman`): see there for why.
     """
     E, n = dx.shape
+    p = Phi_nav.shape[1]
     m = min(n, 9)
     xs_post = np.zeros((E, n))
     xs_pre = np.zeros((E, n))
@@ -62,6 +66,8 @@ def rts_closed_loop(Phi, Ppred, Pfilt, dx):
     D = np.empty((n, n))
     L = np.empty((n, n))
     PPhit = np.empty((n, n))
+    Phi = np.zeros((n, n))  # the transition of epoch e + 1 (its off-diagonal blocks stay 0)
+    Pp = np.empty((n, n))  # the predicted covariance of epoch e + 1
     for i in range(n):
         xs_pre[E - 1, i] = dx[E - 1, i]
         for j in range(n):
@@ -70,12 +76,23 @@ def rts_closed_loop(Phi, Ppred, Pfilt, dx):
         for j in range(m):
             Ps9[E - 1, i, j] = Ps[i, j]
     for e in range(E - 2, -1, -1):
+        c = 0
+        for i in range(n):
+            for j in range(i + 1):
+                Pp[i, j] = Ppred_tril[e + 1, c]
+                Pp[j, i] = Ppred_tril[e + 1, c]
+                c += 1
+        for i in range(p):
+            for j in range(p):
+                Phi[i, j] = Phi_nav[e + 1, i, j]
+        for i in range(n - p):
+            Phi[p + i, p + i] = phi_extra[e + 1, i]
         # A = P_e Phi_{e+1}^T (P^-_{e+1})^-1: row i solves P^- a = (P_e Phi^T)[i] (both symmetric)
-        if not cholesky_into(Ppred[e + 1], L):
+        if not cholesky_into(Pp, L):
             raise ValueError("rts: a predicted covariance is not positive definite")
         # (P_e Phi^T)^T = Phi P_e (P_e symmetric; matmul_into skips Phi's zeros), then
         # A^T = (P^-)^-1 Phi P_e for all columns at once
-        matmul_into(Phi[e + 1], Pfilt[e], PPhit)
+        matmul_into(Phi, Pfilt[e], PPhit)
         cho_solve_matrix_into(L, PPhit, PPhit)
         for i in range(n):
             for j in range(n):
@@ -87,7 +104,7 @@ def rts_closed_loop(Phi, Ppred, Pfilt, dx):
             xs_post[e, i] = s
             xs_pre[e, i] = s + dx[e, i]
             for j in range(n):
-                D[i, j] = Ps[i, j] - Ppred[e + 1, i, j]
+                D[i, j] = Ps[i, j] - Pp[i, j]
         sandwich_into(A, D, Ps)
         for i in range(n):
             for j in range(n):
@@ -102,6 +119,7 @@ def rts_closed_loop(Phi, Ppred, Pfilt, dx):
 @njit(cache=True)
 def _corrected_rows(out_idx, nav, C, bias, xs, o_nav, o_C, o_bias):
     """Row k of o_*: the nominal (nav, C, bias) at sample out_idx[k] corrected by the error estimate xs[k]."""
+    R = np.empty((3, 3))
     for k in range(out_idx.shape[0]):
         j = out_idx[k]
         for i in range(6):
@@ -111,7 +129,7 @@ def _corrected_rows(out_idx, nav, C, bias, xs, o_nav, o_C, o_bias):
                 o_C[k, i, m] = C[j, i, m]
         for i in range(bias.shape[1]):
             o_bias[k, i] = bias[j, i]
-        apply_feedback(o_nav[k], o_C[k], o_bias[k], xs[k])
+        apply_feedback(o_nav[k], o_C[k], o_bias[k], xs[k], R)
 
 
 def _corrected(run: FilterRun, out_idx, xs):
@@ -129,7 +147,7 @@ def rts(run: FilterRun, out_idx) -> Solution:
     Between epochs the smoothed error is interpolated linearly in time."""
     if run.ep_Phi is None:
         raise ValueError("`run` holds no RTS history (run the forward filter with store_rts=True)")
-    xs_post, xs_pre, Ps9 = rts_closed_loop(run.ep_Phi, run.ep_Ppred, run.ep_P, run.ep_dx)
+    xs_post, xs_pre, Ps9 = rts_closed_loop(run.ep_Phi, run.ep_phi_extra, run.ep_Ppred, run.ep_P, run.ep_dx)
     ep = run.ep_idx
     E = ep.size
     e = np.clip(np.searchsorted(ep, out_idx, side="right") - 1, 0, E - 1)  # the last epoch at or before

@@ -35,7 +35,7 @@ def test_error_dynamics_against_nonlinear_propagation():
                           [0.02, -0.03, 0.01], np.radians([0.01, -0.02, 0.015])])
     # truth = nominal corrected by dx0; the nominal's biases are off by dx0's bias part
     nav_t, C_t, bias_t = nav.copy(), C.copy(), np.zeros(6)
-    apply_feedback(nav_t, C_t, bias_t, dx0)
+    apply_feedback(nav_t, C_t, bias_t, dx0, np.empty((3, 3)))
     bias_true = bias_t  # sensors carry b_true = -dx0 bias part; the nominal assumes zero: db = 0 - b_true
     T, dt = 1.0, 0.01
     n_e, C_e, f_n = _propagate(nav, C, f_b + bias_true[:3], w_b + bias_true[3:], np.zeros(6), T, dt)

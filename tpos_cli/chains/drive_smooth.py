@@ -485,7 +485,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         with stage("smoothing_rts"):
             sols["rts"] = smoothing.rts(fwd, out_idx)
             # drop the RTS history before the backward run: it is the largest array of the run
-            fwd = dataclasses.replace(fwd, ep_Phi=None, ep_Ppred=None)
+            fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)
     with stage("backward"):
         bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg, backward=True,
                          extra=extra)

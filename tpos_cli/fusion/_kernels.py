@@ -46,7 +46,9 @@ class Settings(NamedTuple):
     constants (<= 0: random walk); earth_sign (-1 backward); cov_step (IMU samples per covariance
     epoch); extra_tau_s, extra_q (n_extra,) dynamics of the extra states; layout (N_BLOCKS,) int64
     offsets (`StateLayout.offsets`); gate (4,) chi-square thresholds by dimension; max_reject:
-    consecutive rejections of a slot after which the next one is applied; store_rts."""
+    consecutive rejections of a slot after which the next one is applied; store_rts; reverse_out:
+    the nominal of sample k is stored at row N-1-k (a backward run's history in forward order,
+    without a reversed copy of the run's largest arrays)."""
 
     q: np.ndarray
     tau_acc_s: float
@@ -59,6 +61,7 @@ class Settings(NamedTuple):
     gate: np.ndarray
     max_reject: int
     store_rts: bool
+    reverse_out: bool
 
 
 class EventArrays(NamedTuple):
@@ -95,15 +98,20 @@ class Aiding(NamedTuple):
 
 
 class History(NamedTuple):
-    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias) and per
+    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias; reversed rows
+    with `Settings.reverse_out`) and per
     covariance epoch ep_idx, ep_P (after the updates), ep_dx (correction fed back), and with
-    store_rts ep_Phi (transition from the previous epoch) and ep_Ppred."""
+    store_rts the transition from the previous epoch, which is block diagonal (the extra states
+    have their own scalar dynamics): ep_Phi (E, 15, 15) its navigation block and ep_phi_extra
+    (E, n_extra) its diagonal beyond, and ep_Ppred (E, n (n + 1) / 2) the predicted covariance
+    (exactly symmetric, `filters.kalman.predict`) as its lower triangle by rows (`store_tril`)."""
 
     nav: np.ndarray
     C: np.ndarray
     bias: np.ndarray
     ep_idx: np.ndarray
     ep_Phi: np.ndarray
+    ep_phi_extra: np.ndarray
     ep_Ppred: np.ndarray
     ep_P: np.ndarray
     ep_dx: np.ndarray
@@ -148,6 +156,27 @@ def _store2(dst, k, src):
     for i in range(src.shape[0]):
         for j in range(src.shape[1]):
             dst[k, i, j] = src[i, j]
+
+
+@njit(cache=True)
+def store_tril(dst, k, S):
+    """dst[k] = the lower triangle of S (n, n) by rows (S[0, 0], S[1, 0], S[1, 1], S[2, 0], ...:
+    numpy's `tril_indices` order), dst (E, n (n + 1) / 2)."""
+    c = 0
+    for i in range(S.shape[0]):
+        for j in range(i + 1):
+            dst[k, c] = S[i, j]
+            c += 1
+
+
+@njit(cache=True)
+def _store_transition(out, k, Phi):
+    """The RTS history's transition at epoch k: Phi's navigation block and its extra diagonal."""
+    for i in range(N_NAV):
+        for j in range(N_NAV):
+            out.ep_Phi[k, i, j] = Phi[i, j]
+    for i in range(Phi.shape[0] - N_NAV):
+        out.ep_phi_extra[k, i] = Phi[N_NAV + i, N_NAV + i]
 
 
 @njit(cache=True)
@@ -197,6 +226,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     dv_prev = np.zeros(3)
     w_ib = np.zeros(3)
     dx_sum = np.zeros(n)
+    R_fb = np.empty((3, 3))  # apply_feedback's scratch
     n_ev = ev.k.shape[0]
     n_slots = 1
     for e in range(n_ev):
@@ -209,12 +239,14 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     out.ep_dx[ep] = 0.0
     if st.store_rts:
         out.ep_Phi[ep] = 0.0
-        for i in range(n):
+        for i in range(N_NAV):
             out.ep_Phi[ep, i, i] = 1.0
-        _store2(out.ep_Ppred, ep, P)
-    _store(out.nav, ep, nav)
-    _store2(out.C, ep, C)
-    _store(out.bias, ep, bias)
+        out.ep_phi_extra[ep] = 1.0
+        store_tril(out.ep_Ppred, ep, P)
+    row = n_t - 1 if st.reverse_out else 0  # where the nominal of sample 0 is stored
+    _store(out.nav, row, nav)
+    _store2(out.C, row, C)
+    _store(out.bias, row, bias)
     e = 0
     while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
         e += 1
@@ -237,8 +269,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             ep += 1
             out.ep_idx[ep] = k
             if st.store_rts:
-                _store2(out.ep_Phi, ep, Phi)
-                _store2(out.ep_Ppred, ep, P)
+                _store_transition(out, ep, Phi)
+                store_tril(out.ep_Ppred, ep, P)
             for i in range(n_extra):
                 if st.extra_tau_s[i] > 0.0:  # the nominal of a Gauss-Markov state follows its mean
                     bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
@@ -261,7 +293,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 if accept:
                     if update(x, P, z, H, R) < 0.0:
                         return ep + 1, 1 + k
-                    apply_feedback(nav, C, bias, x)
+                    apply_feedback(nav, C, bias, x, R_fb)
                     for i in range(n):
                         dx_sum[i] += x[i]
                         x[i] = 0.0
@@ -275,7 +307,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             last = k
             f_sum[:] = 0.0
             dt_sum = 0.0
-        _store(out.nav, k, nav)
-        _store2(out.C, k, C)
-        _store(out.bias, k, bias)
+        row = n_t - 1 - k if st.reverse_out else k
+        _store(out.nav, row, nav)
+        _store2(out.C, row, C)
+        _store(out.bias, row, bias)
     return ep + 1, 0

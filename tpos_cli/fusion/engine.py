@@ -165,7 +165,10 @@ class FilterRun:
     nominal after feedback at every sample (`Nominal`; the extra states' nominal after the IMU
     biases). ep_idx (E,) run-local sample of each covariance epoch, increasing; ep_P (E, n, n) the
     covariance after the updates there, forward-time signs; forward runs also hold ep_dx (E, n)
-    (correction fed back at the epoch) and, stored for RTS, ep_Phi and ep_Ppred (E, n, n).
+    (correction fed back at the epoch) and, stored for RTS, the transition from the previous
+    epoch, block diagonal: ep_Phi (E, 15, 15) its navigation block, ep_phi_extra (E, n - 15) its
+    diagonal beyond, and the predicted covariance ep_Ppred (E, n (n + 1) / 2) as its lower
+    triangle by rows (numpy's `tril_indices` order; it is exactly symmetric).
     Per measurement (rows of `measurements`, the caller's order): ev_nu (E, 3) residual (NaN past
     dim or when not processed), ev_pvar (E, 3) diagonal of H P- H^T (R excluded), ev_nis (E,) (NaN
     when not processed, e.g. outside the run), ev_logdet (E,) log det S, ev_accepted (E,).
@@ -189,6 +192,7 @@ class FilterRun:
     ev_nis: np.ndarray
     ev_logdet: np.ndarray
     ev_accepted: np.ndarray
+    ep_phi_extra: np.ndarray | None = None
 
     def extra(self, block: Block) -> np.ndarray:
         """Nominal of an extra block at every sample, (N-k0, size); (N-k0, 0) when absent."""
@@ -256,13 +260,15 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), np.unique(k_o))
     nr = n_ep if store_rts else 1
     out = History(np.empty((n, 6)), np.empty((n, 3, 3)), np.empty((n, nb)), np.zeros(n_ep, np.int64),
-                  np.empty((nr, ns, ns)), np.empty((nr, ns, ns)), np.empty((n_ep, ns, ns)), np.empty((n_ep, ns)))
+                  np.empty((nr, N_NAV, N_NAV)), np.empty((nr, ns - N_NAV)), np.empty((nr, ns * (ns + 1) // 2)),
+                  np.empty((n_ep, ns, ns)), np.empty((n_ep, ns)))
     m = order.size
     res = EventResults(np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan), np.full(m, np.nan),
                        np.zeros(m, np.bool_))
     st = Settings(np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), -1.0 if backward else 1.0,
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
-                  chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts))
+                  chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts),
+                  bool(backward))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
     # None when no row needs the ranging models: numba then compiles the kernel without them
     ranging = True if np.isin(meas.kind, [Kind.RANGE, Kind.FIX_NE, Kind.FLOOR]).any() else None
@@ -278,12 +284,9 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     nis, logdet, accepted = np.full(E, np.nan), np.full(E, np.nan), np.zeros(E, dtype=bool)
     nu[order], pvar[order], nis[order], logdet[order], accepted[order] = res
     ep_idx, ep_P, ep_dx = out.ep_idx[:n_used], out.ep_P[:n_used], out.ep_dx[:n_used]
-    nav, C, bias = out.nav, out.C, out.bias
+    nav, C, bias = out.nav, out.C, out.bias  # a backward run's stored in forward order (reverse_out)
     if backward:
-        nav = np.ascontiguousarray(nav[::-1])
         nav[:, 3:] *= -1.0
-        C = np.ascontiguousarray(C[::-1])
-        bias = np.ascontiguousarray(bias[::-1])
         bias[:, 3:6] *= -1.0
         bias[:, 6:][:, odd] *= -1.0
         ep_idx = (n - 1 - ep_idx)[::-1]
@@ -297,7 +300,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     rts = store_rts and not backward
     return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, ep_P,
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
-                     lay, meas, nu, pvar, nis, logdet, accepted)
+                     lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None)
 
 
 def epoch_count(n: int, cov_step: int, k_meas) -> int:

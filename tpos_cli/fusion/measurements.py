@@ -21,7 +21,7 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import earth_rate_ned, mat_mat3, mat_matT3, mat_vec3, matT_vec3, radii_m, skew
+from tpos_cli.frames._kernels import earth_rate_ned, mat_mat3, mat_vec3, matT_vec3, radii_m, skew
 from tpos_cli.frames.earth import A_M, E2
 from tpos_cli.fusion.layout import ATT, BG, N_NAV, POS, VEL, Block
 from tpos_cli.ins._kernels import cross
@@ -96,14 +96,21 @@ def gps_velocity_jacobian(C, lever_b, w_ib_b, H, row):
 
 
 @njit(cache=True)
-def lla_rad_to_ecef(lat, lon, h):
-    """ECEF position (m) of geodetic lat, lon (rad), h (m) (Groves Eq. 2.112)."""
+def _ecef(lat, lon, h):
+    """ECEF position (m) of geodetic lat, lon (rad), h (m) as a tuple (Groves Eq. 2.112)."""
     sl = np.sin(lat)
     re = A_M / np.sqrt(1.0 - E2 * sl * sl)
+    return ((re + h) * np.cos(lat) * np.cos(lon), (re + h) * np.cos(lat) * np.sin(lon), (re * (1.0 - E2) + h) * sl)
+
+
+@njit(cache=True)
+def lla_rad_to_ecef(lat, lon, h):
+    """ECEF position (m) of geodetic lat, lon (rad), h (m) (Groves Eq. 2.112)."""
+    x, y, z = _ecef(lat, lon, h)
     out = np.empty(3)
-    out[0] = (re + h) * np.cos(lat) * np.cos(lon)
-    out[1] = (re + h) * np.cos(lat) * np.sin(lon)
-    out[2] = (re * (1.0 - E2) + h) * sl
+    out[0] = x
+    out[1] = y
+    out[2] = z
     return out
 
 
@@ -114,33 +121,47 @@ def lla_to_local_ned(lat, lon, h, r0_e, C_ne0):
 
 
 @njit(cache=True)
+def node_position_ned(nav, lag_s, r0_e, C_ne0):
+    """Local-frame NED position (m) of the INS at the measurement time (moved back by lag_s along
+    its velocity), as a tuple: C_ne0 (r_e - r0_e) - v lag_s (no allocation: once per range row)."""
+    x, y, z = _ecef(nav[0], nav[1], nav[2])
+    d0, d1, d2 = x - r0_e[0], y - r0_e[1], z - r0_e[2]
+    return (C_ne0[0, 0] * d0 + C_ne0[0, 1] * d1 + C_ne0[0, 2] * d2 - nav[3] * lag_s,
+            C_ne0[1, 0] * d0 + C_ne0[1, 1] * d1 + C_ne0[1, 2] * d2 - nav[4] * lag_s,
+            C_ne0[2, 0] * d0 + C_ne0[2, 1] * d1 + C_ne0[2, 2] * d2 - nav[5] * lag_s)
+
+
+@njit(cache=True)
 def node_position(nav, lag_s, r0_e, C_ne0):
-    """Local-frame NED position (m) of the INS at the measurement time (moved back by lag_s along its velocity)."""
-    p = lla_to_local_ned(nav[0], nav[1], nav[2], r0_e, C_ne0)
-    for i in range(3):
-        p[i] -= nav[3 + i] * lag_s
+    """`node_position_ned` as a new array (3,)."""
+    p = np.empty(3)
+    p[0], p[1], p[2] = node_position_ned(nav, lag_s, r0_e, C_ne0)
     return p
 
 
 @njit(cache=True)
 def range_residual(p_ned, anchor_ned, range_m, bias_m, cal_m):
     """z = |p - a| + eps_d + c_a - measured range (m): the INS range with the common bias eps_d
-    and the anchor's calibration bias c_a, minus the measured one (Eq. 21-22, fusion's sign)."""
-    d = p_ned - anchor_ned
-    return np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + bias_m + cal_m - range_m
+    and the anchor's calibration bias c_a, minus the measured one (Eq. 21-22, fusion's sign).
+    p_ned: an array (3,) or a tuple (`node_position_ned`)."""
+    d0, d1, d2 = p_ned[0] - anchor_ned[0], p_ned[1] - anchor_ned[1], p_ned[2] - anchor_ned[2]
+    return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) + bias_m + cal_m - range_m
 
 
 @njit(cache=True)
 def range_jacobian(p_ned, anchor_ned, lag_s, H, row):
     """Row `row` of H for `range_residual`: unit line of sight (Eq. 23) on the position and,
     through the lag, the velocity errors (clears the first 15 columns)."""
-    d = p_ned - anchor_ned
-    rho = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    d0, d1, d2 = p_ned[0] - anchor_ned[0], p_ned[1] - anchor_ned[1], p_ned[2] - anchor_ned[2]
+    rho = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     for j in range(N_NAV):
         H[row, j] = 0.0
-    for i in range(3):
-        H[row, POS + i] = d[i] / rho
-        H[row, VEL + i] = -lag_s * d[i] / rho
+    H[row, POS] = d0 / rho
+    H[row, POS + 1] = d1 / rho
+    H[row, POS + 2] = d2 / rho
+    H[row, VEL] = -lag_s * d0 / rho
+    H[row, VEL + 1] = -lag_s * d1 / rho
+    H[row, VEL + 2] = -lag_s * d2 / rho
 
 
 @njit(cache=True)
@@ -160,12 +181,36 @@ def zupt_jacobian(H):
 
 
 @njit(cache=True)
+def vehicle_velocity(nav, C, C_vb, i):
+    """Component i of the vehicle-axes velocity C_vb C_nb^T v_ned (m/s), without allocating."""
+    u0 = C[0, 0] * nav[3] + C[1, 0] * nav[4] + C[2, 0] * nav[5]
+    u1 = C[0, 1] * nav[3] + C[1, 1] * nav[4] + C[2, 1] * nav[5]
+    u2 = C[0, 2] * nav[3] + C[1, 2] * nav[4] + C[2, 2] * nav[5]
+    return C_vb[i, 0] * u0 + C_vb[i, 1] * u1 + C_vb[i, 2] * u2
+
+
+@njit(cache=True)
+def _vehicle_velocity_row(nav, C, C_vb, i, scale, H, row):
+    """H[row, vel] = scale a and H[row, att] = -scale (a [v x]) for a = row i of C_vb C^T (the
+    first-order sensitivity of `vehicle_velocity` i to the velocity and attitude errors)."""
+    a0 = C_vb[i, 0] * C[0, 0] + C_vb[i, 1] * C[0, 1] + C_vb[i, 2] * C[0, 2]
+    a1 = C_vb[i, 0] * C[1, 0] + C_vb[i, 1] * C[1, 1] + C_vb[i, 2] * C[1, 2]
+    a2 = C_vb[i, 0] * C[2, 0] + C_vb[i, 1] * C[2, 1] + C_vb[i, 2] * C[2, 2]
+    v0, v1, v2 = nav[3], nav[4], nav[5]
+    H[row, VEL] = scale * a0
+    H[row, VEL + 1] = scale * a1
+    H[row, VEL + 2] = scale * a2
+    H[row, ATT] = scale * -(a1 * v2 - a2 * v1)  # a [v x] by columns
+    H[row, ATT + 1] = scale * -(a2 * v0 - a0 * v2)
+    H[row, ATT + 2] = scale * -(a0 * v1 - a1 * v0)
+
+
+@njit(cache=True)
 def nhc_residual(nav, C, C_vb, z):
     """z = (lateral, vertical) velocity of the vehicle in its own axes, m/s: rows 1, 2 of
     C_vb C_nb^T v_ned (Groves 2013 Sec. 15.4.3 non-holonomic constraints; measured value 0)."""
-    v_v = mat_vec3(C_vb, matT_vec3(C, nav[3:6]))
-    z[0] = v_v[1]
-    z[1] = v_v[2]
+    z[0] = vehicle_velocity(nav, C, C_vb, 1)
+    z[1] = vehicle_velocity(nav, C, C_vb, 2)
 
 
 @njit(cache=True)
@@ -175,32 +220,24 @@ def nhc_jacobian(nav, C, C_vb, H):
     With C_est = (I - [phi x]) C_true: v_b,est - v_b,true = C^T dv - C^T [v x] phi (first order),
     so H_vel = (C_vb C^T)[1:3] and H_att = -(C_vb C^T [v x])[1:3].
     """
-    A = mat_matT3(C_vb, C)
-    B = -mat_mat3(A, skew(nav[3:6]))
     for i in range(2):
         for j in range(N_NAV):
             H[i, j] = 0.0
-        for j in range(3):
-            H[i, VEL + j] = A[1 + i, j]
-            H[i, ATT + j] = B[1 + i, j]
+        _vehicle_velocity_row(nav, C, C_vb, 1 + i, 1.0, H, i)
 
 
 @njit(cache=True)
 def odometer_residual(nav, C, C_vb, scale_err, speed_mps):
     """z = (1 + k) x forward velocity of the vehicle (row 0 of C_vb C_nb^T v_ned) - odometer speed, m/s."""
-    return (1.0 + scale_err) * mat_vec3(C_vb, matT_vec3(C, nav[3:6]))[0] - speed_mps
+    return (1.0 + scale_err) * vehicle_velocity(nav, C, C_vb, 0) - speed_mps
 
 
 @njit(cache=True)
 def odometer_jacobian(nav, C, C_vb, scale_err, H):
     """Row 0 of H for `odometer_residual` on the navigation errors (as `nhc_jacobian`, row 0, times 1 + k)."""
-    A = mat_matT3(C_vb, C)
-    B = -mat_mat3(A, skew(nav[3:6]))
     for j in range(N_NAV):
         H[0, j] = 0.0
-    for j in range(3):
-        H[0, VEL + j] = (1.0 + scale_err) * A[0, j]
-        H[0, ATT + j] = (1.0 + scale_err) * B[0, j]
+    _vehicle_velocity_row(nav, C, C_vb, 0, 1.0 + scale_err, H, 0)
 
 
 @njit(cache=True)
@@ -275,22 +312,23 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
         if om >= 0:  # the residual misalignment m = [pitch, yaw] turns the vehicle axes:
             # v_vehicle = (I - [(0, m_p, m_y) x]) C_vb v_b -> lateral - s m_y, vertical + s m_p; and
             # the constraint holds at a point d behind the IMU (the rear axle): + w x (-d, 0, 0)
-            s = mat_vec3(aid.C_vb, matT_vec3(C, nav[3:6]))[0]
-            w_v = mat_vec3(aid.C_vb, w_ib)
+            s = vehicle_velocity(nav, C, aid.C_vb, 0)
+            w_v1 = aid.C_vb[1, 0] * w_ib[0] + aid.C_vb[1, 1] * w_ib[1] + aid.C_vb[1, 2] * w_ib[2]
+            w_v2 = aid.C_vb[2, 0] * w_ib[0] + aid.C_vb[2, 1] * w_ib[1] + aid.C_vb[2, 2] * w_ib[2]
             mp, my, d = bias[6 + om - N_NAV], bias[6 + om - N_NAV + 1], bias[6 + om - N_NAV + 2]
-            z[0] += -s * my - w_v[2] * d
-            z[1] += s * mp + w_v[1] * d
+            z[0] += -s * my - w_v2 * d
+            z[1] += s * mp + w_v1 * d
             H[0, om + 1] = -s
             H[1, om] = s
-            H[0, om + 2] = -w_v[2]
-            H[1, om + 2] = w_v[1]
+            H[0, om + 2] = -w_v2
+            H[1, om + 2] = w_v1
     elif kind == Kind.ODOMETER:
         ok = lay[Block.ODOMETER]
         k_s = bias[6 + ok - N_NAV] if ok >= 0 else 0.0
         z[0] = odometer_residual(nav, C, aid.C_vb, k_s, ev.z[e, 0])
         odometer_jacobian(nav, C, aid.C_vb, k_s, H)
         if ok >= 0:
-            H[0, ok] = mat_vec3(aid.C_vb, matT_vec3(C, nav[3:6]))[0]
+            H[0, ok] = vehicle_velocity(nav, C, aid.C_vb, 0)
     elif kind == Kind.ZARU:
         zaru_residual(nav, C, bias, aid.earth_sign, ev.z[e], z)
         zaru_jacobian(H)
@@ -302,7 +340,7 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
     elif ranging is not None:  # None: numba compiles no ranging branch (a drive has none)
         if kind == Kind.RANGE:
             a = ev.par[e]
-            p = node_position(nav, lag, aid.r0_e, aid.C_ne0)
+            p = node_position_ned(nav, lag, aid.r0_e, aid.C_ne0)
             ob = lay[Block.RANGE_BIAS]
             oc = lay[Block.CALIBRATION]
             z[0] = range_residual(p, aid.anchors_ned[a], ev.z[e, 0], bias[6 + ob - N_NAV], bias[6 + oc - N_NAV + a])

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.frames._kernels import mat_mat3, normal_gravity, radii_m, rotvec_to_dcm_into
+from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm_into
 from tpos_cli.frames.earth import OMEGA_IE_RPS
 from tpos_cli.fusion.layout import ATT, BA, BG, N_NAV, POS, VEL
 
@@ -115,9 +115,10 @@ def process_noise(q, Qc):
 
 
 @njit(cache=True)
-def apply_feedback(nav, C, bias, x):
+def apply_feedback(nav, C, bias, x, R):
     """Feed the error estimate x back into the nominal state, the IMU biases bias[:6] and the
-    nominal of the extra states bias[6:] (`fusion.layout`), in place (closed loop)."""
+    nominal of the extra states bias[6:] (`fusion.layout`), in place (closed loop). R (3, 3):
+    scratch for the attitude correction (the caller's, so that the per-measurement loop allocates nothing)."""
     lat, h = nav[0], nav[2]
     rn, re = radii_m(lat)
     nav[0] = lat - x[POS] / (rn + h)
@@ -127,11 +128,10 @@ def apply_feedback(nav, C, bias, x):
         nav[3 + i] -= x[VEL + i]
         bias[i] -= x[BA + i]
         bias[3 + i] -= x[BG + i]
-    R = np.empty((3, 3))
     rotvec_to_dcm_into(x[ATT], x[ATT + 1], x[ATT + 2], R)
-    RC = mat_mat3(R, C)  # C_true = (I + [phi x]) C_est, exactly as a rotation
-    for i in range(3):
-        for j in range(3):
-            C[i, j] = RC[i, j]
+    for j in range(3):  # C <- R C: C_true = (I + [phi x]) C_est, exactly as a rotation (column by column)
+        c0, c1, c2 = C[0, j], C[1, j], C[2, j]
+        for i in range(3):
+            C[i, j] = R[i, 0] * c0 + R[i, 1] * c1 + R[i, 2] * c2
     for i in range(x.shape[0] - N_NAV):  # states after the 15 (fusion.layout): nominal in bias[6:]
         bias[6 + i] -= x[N_NAV + i]
