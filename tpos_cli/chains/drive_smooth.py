@@ -658,7 +658,8 @@ def on_gps_clock(rows: pd.DataFrame, d_s, sd_s: float) -> pd.DataFrame:
     return rows
 
 
-def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, names, with_shots: bool) -> pd.DataFrame:
+def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, names, with_shots: bool,
+                    clock: dict | None = None) -> pd.DataFrame:
     """`trajectory.parquet` of the solutions `names` at the output rate (the extra rows of range
     epochs for targeting dropped), with `outage` and `flag`, on the GPS clock when the estimated
     clock offset is significant (`clock_offset`)."""
@@ -672,7 +673,7 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
     for a, b in res.outages_s:
         outage |= (tt >= a) & (tt < b)
     flag = res.flag[keep]
-    clock = clock_offset(res, p)
+    clock = clock_offset(res, p) if clock is None else clock
     o = res.forward.layout.offset(Block.CLOCK) - N_NAV + 6  # the position clock in a solution's bias row
     frames = []
     for n in names:
@@ -698,7 +699,20 @@ def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:
             targets = geolocate_shots(session, res.solutions["smoothed"], epochs, sig_r)
         ctx.count("targets", len(targets))
     with ctx.stage("outputs"):
-        traj = trajectory_rows(res, session, p, names, with_shots=epochs is not None)
+        summary = drive_summary(res, p, names, session.t0_s, ctx)
+        res = without_histories(res)  # the tables below read the solutions and the runs' ends only
+        traj = trajectory_rows(res, session, p, names, with_shots=epochs is not None, clock=summary["gps_clock_offset"])
         innov = innovations_table(res, session.t0_s)
-    return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov},
-                       summary=drive_summary(res, p, names, session.t0_s, ctx))
+    return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov}, summary=summary)
+
+
+def without_histories(res: DriveResult) -> DriveResult:
+    """`res` with each run's per-sample nominal and covariance history cut to its first and last
+    rows (what `_block_at_end` reads); the measurement results stay. On the drive hour the two runs'
+    histories are 250 MB that the output tables do not read."""
+    def slim(run: FilterRun) -> FilterRun:
+        ends = np.array([0, run.ep_idx.size - 1])
+        return dataclasses.replace(run, nav=run.nav[[0, -1]], C_nb=run.C_nb[[0, -1]], bias=run.bias[[0, -1]],
+                                   ep_idx=run.ep_idx[ends], ep_P=run.ep_P[ends], ep_Phi=None, ep_Ppred=None, ep_dx=None,
+                                   ep_phi_extra=None)
+    return dataclasses.replace(res, forward=slim(res.forward), backward=slim(res.backward))
