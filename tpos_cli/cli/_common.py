@@ -9,6 +9,30 @@ import typer
 
 from tpos_cli.errors import TposError
 
+# True once `main()` runs: this process executes one command and exits (the console script,
+# `python -m tpos_cli`), so memory held only by reference cycles may be left to the operating
+# system at exit. False under CliRunner, tests and `tpos batch`, which call the commands in a
+# process that goes on.
+_one_shot = False
+
+
+def mark_one_shot() -> None:
+    """Called by `main()` only."""
+    global _one_shot
+    _one_shot = True
+
+
+def keep_until_exit() -> None:
+    """In a one-shot process, move every object now alive, and the cycles already unreachable,
+    out of the cyclic collector's reach (`gc.freeze`): a report's ~10^5 matplotlib artists are
+    then released by the process's exit, not by a collection that scans ~10^6 objects (0.09 s of
+    a 2.2 s report of the drive hour). Nothing else changes: files are closed by then, and
+    `weakref.finalize`/atexit clean-ups still run. Does nothing in a process that goes on."""
+    if _one_shot:
+        import gc
+
+        gc.freeze()
+
 
 @contextlib.contextmanager
 def exit_on_error():
