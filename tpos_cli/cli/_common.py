@@ -23,11 +23,13 @@ def mark_one_shot() -> None:
 
 
 def keep_until_exit() -> None:
-    """In a one-shot process, move every object now alive, and the cycles already unreachable,
-    out of the cyclic collector's reach (`gc.freeze`): a report's ~10^5 matplotlib artists are
-    then released by the process's exit, not by a collection that scans ~10^6 objects (0.09 s of
-    a 2.2 s report of the drive hour). Nothing else changes: files are closed by then, and
-    `weakref.finalize`/atexit clean-ups still run. Does nothing in a process that goes on."""
+    """In a one-shot process, move every object now alive (and cycles already unreachable) out of the
+    cyclic collector's reach (`gc.freeze`); they are released by the process's exit. `tpos process`
+    calls it after its imports: later collections no longer rescan their ~10^5 objects (collector time
+    of a drive-hour process 0.19 -> 0.08 s); `tpos report` after the report is written: its ~10^5
+    matplotlib artists are not freed by a collection (0.09 s) nor rescanned at exit. Nothing else
+    changes: files are closed by then, `weakref.finalize`/atexit clean-ups still run, objects created
+    later are collected as before. Does nothing in a process that goes on (CliRunner, tests, batch)."""
     if _one_shot:
         import gc
 
