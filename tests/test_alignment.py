@@ -54,3 +54,22 @@ def test_no_static_window_is_a_clear_error():
     g = make(lambda t: np.radians([0, 0, 30 * t]), duration_s=5.0)
     with pytest.raises(ProcessingError, match="stationary"):
         al.detect_static_window(g.t, g.gyro, g.acc, g.mag)
+
+
+@pytest.mark.parametrize("n", [3, 4, 5, 50, 2001])
+@pytest.mark.parametrize("shape", [(1,), (2,), (7,), (1000,), (1000, 3)])
+def test_moving_mean_equals_the_windowed_sums_it_defines(n, shape):
+    """_moving reads the clipped window ends as slices of a padded cumulative sum; it must give the
+    gathered form c[hi] - c[lo] exactly (same sums, same order), edges with their partial windows."""
+    x = np.random.default_rng(3).normal(size=shape)
+    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
+    i = np.arange(x.shape[0])
+    lo = np.clip(i - n // 2, 0, x.shape[0])
+    hi = np.clip(i - n // 2 + n, 0, x.shape[0])
+    want = (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    got = al._moving(x, n)
+    assert got.shape == want.shape
+    assert np.array_equal(got, want)
+    # and it is the mean over the window: a plain loop (rounding level)
+    loop = np.array([x[a:b].mean(axis=0) for a, b in zip(lo, hi)])
+    np.testing.assert_allclose(got, loop, rtol=1e-9, atol=1e-12)

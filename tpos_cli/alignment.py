@@ -47,14 +47,22 @@ class Alignment:
 
 
 def _moving(x, n):
-    """Centered moving mean of x (N, ...) over n samples (edges use the partial window)."""
-    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
+    """Centered moving mean of x (N, ...) over n samples (edges use the partial window).
+
+    Mean over samples [lo, hi) = (c[hi] - c[lo]) / (hi - lo) with c the cumulative sum from 0,
+    lo = clip(i - n//2, 0, N), hi = clip(i - n//2 + n, 0, N). The clipped indices are read as two
+    slices of c padded with its first value (n//2 times) and its last (n times): no gathers.
+    """
+    x = np.asarray(x)
     N = x.shape[0]
+    h = n // 2
+    c = np.empty((N + 1 + h + n,) + x.shape[1:])
+    c[: h + 1] = 0.0
+    np.cumsum(x, axis=0, out=c[h + 1 : h + 1 + N])
+    c[h + 1 + N :] = c[h + N]
     i = np.arange(N)
-    lo = np.clip(i - n // 2, 0, N)
-    hi = np.clip(i - n // 2 + n, 0, N)
-    cnt = (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
-    return (c[hi] - c[lo]) / cnt
+    cnt = (np.minimum(i - h + n, N) - np.maximum(i - h, 0)).reshape((-1,) + (1,) * (x.ndim - 1))
+    return (c[n : n + N] - c[:N]) / cnt
 
 
 def static_mask(t_s, gyro_b_rps, acc_b_mps2, *, window_s=0.5, gyro_tol_rps=0.03, acc_sd_tol_mps2=0.15):

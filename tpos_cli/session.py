@@ -487,13 +487,16 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         c.count("imu_nan_samples", int(nan_rows.sum()))
         c.warnings.append(f"{fname}: {int(nan_rows.sum())} samples with empty/NaN gyro or acc values dropped")
     keep = keep & finite
-    gyro_norm = np.linalg.norm(gyro[keep], axis=1)
+    every_row = bool(keep.all())  # the usual log: no row dropped, so no copies of the kept rows
+    gyro_k = gyro if every_row else gyro[keep]
+    acc_k = acc if every_row else acc[keep]
+    gyro_norm = np.linalg.norm(gyro_k, axis=1)
     p999 = float(np.quantile(gyro_norm, 0.999))
     if p999 > GYRO_MAX_PLAUSIBLE_RPS:
         row = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)]) + 1
         c.problem(fname, f"angular rates up to {p999:.1f} (99.9th percentile of |gyro|) only make sense in deg/s; "
                   "the contract requires rad/s", "gyro_x", row)
-    acc_norm = float(np.median(np.linalg.norm(acc[keep], axis=1)))
+    acc_norm = float(np.median(np.linalg.norm(acc_k, axis=1)))
     if ACC_G_BAND[0] <= acc_norm <= ACC_G_BAND[1]:
         c.problem(fname, f"median |acc| is {acc_norm:.3f}: that is g units; the contract requires m/s² "
                   "(multiply by 9.80665)", "acc_x", 1)
@@ -507,12 +510,12 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     if any(p.file == fname for p in c.problems):
         return None
     C_bs = axes_to_dcm(meta.axes)
-    t = t[keep]
-    gyro_b = gyro[keep] @ C_bs.T
-    acc_b = acc[keep] @ C_bs.T
+    t = t[keep]  # a copy even of every row: a view would keep the whole decoded table alive while the other tables load
+    gyro_b = gyro_k @ C_bs.T
+    acc_b = acc_k @ C_bs.T
     mag_b = None
     if mag is not None:
-        m = mag[keep]
+        m = mag if every_row else mag[keep]
         if meta.hard_iron_ut is not None or meta.soft_iron is not None:
             hi = meta.hard_iron_ut if meta.hard_iron_ut is not None else np.zeros(3)
             si = meta.soft_iron if meta.soft_iron is not None else np.eye(3)
@@ -710,7 +713,8 @@ def _anchor_index(c: _Collector, fname: str, ids: np.ndarray, anchors: Anchors |
             c.problem(fname, "ranges to anchors need anchors.csv with the anchors' positions")
         return None
     lookup = {a: i for i, a in enumerate(anchors.ids)}
-    idx = np.array([lookup.get(a, -1) for a in ids], dtype=np.int64)
+    codes, uniques = pd.factorize(np.asarray(ids, dtype=object))  # ids: str (read_table), never missing
+    idx = np.array([lookup.get(a, -1) for a in uniques] + [-1], dtype=np.int64)[codes]
     bad = np.flatnonzero(idx < 0)
     if bad.size:
         c.problem(fname, f"anchor id {_v(ids[bad[0]])} is not in anchors.csv", "id", int(bad[0]) + 1)

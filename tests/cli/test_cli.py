@@ -118,3 +118,21 @@ def test_noise_plot_default_path_never_follows_the_session_name(tmp_path, monkey
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in (tmp_path / "cwd").iterdir()) == ["s_allan.png"]
     assert not list((tmp_path / "victim").iterdir())
+
+
+def test_objects_are_kept_from_the_collector_only_in_a_one_shot_process(monkeypatch):
+    """`keep_until_exit` (after a report) freezes the heap only once `main()` marked the process as
+    one-shot: CliRunner, tests and `tpos batch` go on running and must get their memory back."""
+    import gc
+
+    from tpos_cli.cli import _common
+
+    assert gc.get_freeze_count() == 0
+    _common.keep_until_exit()
+    assert gc.get_freeze_count() == 0
+    monkeypatch.setattr(_common, "_one_shot", True)
+    try:
+        _common.keep_until_exit()
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()

@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from tpos_cli.cli import _common
 from tpos_cli.cli import batch as _batch
 from tpos_cli.cli import calibrate_mag as _calibrate_mag
 from tpos_cli.cli import export as _export
@@ -67,6 +68,7 @@ app.command("calibrate-mag")(_calibrate_mag.calibrate_mag)
 
 def main() -> None:
     """Console-script entry point: a one-line message and exit code 1 for an unexpected failure."""
+    _common.mark_one_shot()
     try:
         app()
     except SystemExit:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error, parse_window, show_progress
+from tpos_cli.cli._common import exit_on_error, keep_until_exit, parse_window, show_progress
 from tpos_cli.io.bounded import MAX_TOML_DEPTH, toml_depth
 
 
@@ -53,6 +53,8 @@ def process(
     windows = [parse_window(w, "--mask-gps") for w in mask_gps]
     overrides = _parse_set(set_)
     from tpos_cli.pipeline import process_session
+
+    keep_until_exit()  # the ~10^5 objects of the imports above: out of every later collection (one-shot only)
 
     with exit_on_error():
         res = process_session(session, pipeline, out, mask_gps_windows=windows, overrides=overrides,

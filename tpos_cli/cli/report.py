@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error, working
+from tpos_cli.cli._common import exit_on_error, keep_until_exit, working
 from tpos_cli.io.bounded import read_json_bounded
 
 
@@ -38,6 +38,7 @@ def report(
                 if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
                     read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
                 res = make_report(run, truth, full=full)
+            keep_until_exit()  # before the collector resumes (a one-shot `tpos report`)
     except KeyboardInterrupt:
         typer.echo("tpos report: interrupted; the run's earlier report files, if any, are unchanged", err=True)
         raise typer.Exit(130) from None

@@ -82,9 +82,22 @@ def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (),
             out[col] = _to_float(path, df[col], col)
     for col in text:
         if col in df.columns:
-            s = df[col]
-            out[col] = np.array(["" if (v is None or (isinstance(v, float) and np.isnan(v))) else str(v).strip() for v in s], dtype=object)
-    return pd.DataFrame(out)
+            out[col] = _to_text(df[col])
+    return pd.DataFrame(out, copy=False)  # the converted columns as they are (no second copy of a 360k-row table)
+
+
+def _to_text(s: pd.Series) -> np.ndarray:
+    """A text column as an object array of stripped str, "" where the cell is missing.
+
+    A str column (CSV text, Parquet strings: missing is NaN) is factorized, so that only its
+    distinct values are stripped (an hour of ranges to four anchors: 144k cells, 4 values);
+    other dtypes (numbers, mixed objects, whose 1, 1.0 and True a factorization would merge)
+    cell by cell."""
+    if isinstance(s.dtype, pd.StringDtype) and s.dtype.na_value is np.nan:
+        codes, uniques = pd.factorize(s)
+        values = np.array([str(v).strip() for v in uniques] + [""], dtype=object)
+        return values[codes]  # code -1 (missing) -> the last value, ""
+    return np.array(["" if (v is None or (isinstance(v, float) and np.isnan(v))) else str(v).strip() for v in s], dtype=object)
 
 
 def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
