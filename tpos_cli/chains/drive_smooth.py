@@ -328,10 +328,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
                                   layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
-        # a yaw the search had to pick over the course may be tens of degrees off until the GPS
-        # has turned it: NHC waits for the end of the search then (a confirmed course does not)
-        ysr = info.get("yaw_search")
-        after = ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
+        after = nhc_start_s(info)
         out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
         parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))
     if platform in WHEELED and odo is not None and p.use_odometry and odo.t_s.size > 1:
@@ -340,6 +337,14 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         out["odometry"] = {"samples": int(odo.t_s.size), "scale_prior_sigma": p.odometer_scale_sigma}
     parts = [m for m in parts if m is not None and len(m)]
     return cfg, (Measurements.merge(*parts) if parts else None)
+
+
+def nhc_start_s(info: dict) -> float:
+    """Session time from which NHC rows apply: a yaw the search had to pick over the course may be
+    tens of degrees off until the GPS has turned it, so NHC waits for the end of the search then
+    (a confirmed course does not: -inf)."""
+    ysr = info.get("yaw_search")
+    return ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
 
 
 def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterConfig, stops, C_vb, p: DriveSmoothParams,
@@ -351,8 +356,7 @@ def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterCon
     steadiness of the travel direction cannot tell them apart at walking speeds (0.89-0.91 for
     both). Returns {"wheeled", "why", "nhc": the rows' figures} or None without NHC rows."""
     t, g, a = imu_coarse
-    ysr = info.get("yaw_search")
-    after = ysr["t_s"][1] if ysr is not None and not ysr["prior_kept"] else -np.inf
+    after = nhc_start_s(info)
     # rows at 1 Hz: the mean of a few thousand NIS values decides (to about 2/sqrt(n)), at a tenth of the cost
     rows = nhc_measurements(t, stops, rate_hz=min(p.nhc_rate_hz, 1.0), sigma_mps=p.nhc_sigma_mps, after_s=after)
     if rows is None or not len(rows):
@@ -659,10 +663,11 @@ def on_gps_clock(rows: pd.DataFrame, d_s, sd_s: float) -> pd.DataFrame:
 
 
 def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, names, with_shots: bool,
-                    clock: dict | None = None) -> pd.DataFrame:
+                    clock: dict | None) -> pd.DataFrame:
     """`trajectory.parquet` of the solutions `names` at the output rate (the extra rows of range
     epochs for targeting dropped), with `outage` and `flag`, on the GPS clock when the estimated
-    clock offset is significant (`clock_offset`)."""
+    clock offset is significant (`clock`: `clock_offset`'s summary, taken before the runs'
+    histories are cut by `without_histories`)."""
     t = res.t_s
     keep = np.ones(res.out_idx.size, dtype=bool)
     if with_shots:
@@ -673,7 +678,6 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
     for a, b in res.outages_s:
         outage |= (tt >= a) & (tt < b)
     flag = res.flag[keep]
-    clock = clock_offset(res, p) if clock is None else clock
     o = res.forward.layout.offset(Block.CLOCK) - N_NAV + 6  # the position clock in a solution's bias row
     frames = []
     for n in names:
@@ -681,8 +685,7 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
         rows = solution_rows(sol, t, session.t0_s, outage, flag)
         if clock is not None and clock["output_clock"] == "gps":
             # each solution's own clock estimate: the one its positions were fitted with
-            d = sol.bias[:, o] if sol.bias is not None else np.full(len(rows), clock["estimate_s"])
-            rows = on_gps_clock(rows, d, clock["sigma_s"])
+            rows = on_gps_clock(rows, sol.bias[:, o], clock["sigma_s"])
         frames.append(rows)
     return pd.concat(frames, ignore_index=True)
 
@@ -701,7 +704,7 @@ def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:
     with ctx.stage("outputs"):
         summary = drive_summary(res, p, names, session.t0_s, ctx)
         res = without_histories(res)  # the tables below read the solutions and the runs' ends only
-        traj = trajectory_rows(res, session, p, names, with_shots=epochs is not None, clock=summary["gps_clock_offset"])
+        traj = trajectory_rows(res, session, p, names, epochs is not None, summary["gps_clock_offset"])
         innov = innovations_table(res, session.t0_s)
     return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innov}, summary=summary)
 
