@@ -288,19 +288,13 @@ def clock_advice(session, output, runner: _Runner, off) -> list[Finding]:
                     f"set [time] gps_offset_s = {cur + d:.3f} in session.toml", fig)]
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    z = np.zeros(w.shape[:-1] + (3, 3))
-    z[..., 0, 1], z[..., 0, 2], z[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
-    return z - np.swapaxes(z, -1, -2)
-
-
 def lever_arm_signature(session, output) -> dict | None:
     """GPS velocity innovations regressed on the lever-arm velocity C_nb (ω × δl): an antenna offset
     δl (body) missing from the model leaves this signature wherever the platform turns. Per run:
     the correction δl = l_true - l_used (3,) it fits, with its chi-square (3 dof; large when a lever
     arm is wrong, or when the model misfits in step with the rotation, e.g. a walker's gait). The
     filter absorbs part of an error into its attitude and velocity: δl is shrunk towards zero."""
-    from tpos_cli.frames.rotation import euler_to_dcm
+    from tpos_cli.frames.rotation import euler_to_dcm, skew
 
     inn = output.tables.get("innovations") if output is not None else None
     tr = output.trajectory if output is not None else None
@@ -317,7 +311,7 @@ def lever_arm_signature(session, output) -> dict | None:
         ang = [np.interp(t, f["t"], np.unwrap(np.radians(f[c].to_numpy(float)))) for c in ("roll", "pitch", "yaw")]
         C = euler_to_dcm(*ang)
         w = np.column_stack([np.interp(t, t_imu, session.imu.gyro_b_rps[:, j]) for j in range(3)])
-        A = C @ _skew(w)
+        A = C @ skew(w)
         nu = g[["nu_0", "nu_1", "nu_2"]].to_numpy(float)
         ok = np.isfinite(nu).all(axis=1)
         if ok.sum() < 10:

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tpos_cli.frames.rotation import skew
+
 
 @dataclass(frozen=True)
 class CourseYawCheck:
@@ -78,10 +80,7 @@ def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_r
     if misalign_py_rad is not None:
         m = np.zeros((K, 3))
         m[:, 1:] = misalign_py_rad
-        S = np.zeros((K, 3, 3))
-        S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -m[:, 2], m[:, 1], -m[:, 0]
-        S = S - np.swapaxes(S, 1, 2)
-        C_vb_k = (np.eye(3) - S) @ C_vb_k
+        C_vb_k = (np.eye(3) - skew(m)) @ C_vb_k
     C_nv = C_nb @ np.swapaxes(C_vb_k, 1, 2)
     P = np.array(P_att_rad2, dtype=float, copy=True)
     if misalign_sd_rad is not None:
