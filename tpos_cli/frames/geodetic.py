@@ -31,9 +31,10 @@ def lla_to_ned(lla, origin_lla):
 
 
 def ned_to_lla(ned_m, origin_lla):
-    """Geodetic position of north/east/down offsets (m) from `origin_lla`."""
+    """Geodetic position of north/east/down offsets (m) from `origin_lla` (3,), or from one origin
+    per row (..., 3)."""
     o = np.asarray(origin_lla, dtype=float)
-    return np.stack(pymap3d.ned2geodetic(*_cols(ned_m), o[0], o[1], o[2]), axis=-1)
+    return np.stack(pymap3d.ned2geodetic(*_cols(ned_m), o[..., 0], o[..., 1], o[..., 2]), axis=-1)
 
 
 def lla_to_enu(lla, origin_lla):

@@ -266,7 +266,7 @@ def antenna_truth(truth: SimTruth, gyro_b_rps, lever_v_m) -> SimTruth:
     velocity + C_nb (w x l) (the Earth's rate in the body rate is 7e-5 rad/s: negligible at metres)."""
     C = truth.C_nb
     ned = np.einsum("kij,j->ki", C, lever_v_m)
-    lla = np.array([ned_to_lla(ned[k], truth.lla[k]) for k in range(0, ned.shape[0])]).reshape(-1, 3)
+    lla = ned_to_lla(ned, truth.lla)  # each row from its own truth point
     vel = truth.vel_ned_mps + np.einsum("kij,kj->ki", C, np.cross(gyro_b_rps, lever_v_m))
     return SimTruth(truth.t_s, lla, vel, truth.rpy_rad)
 
@@ -288,7 +288,7 @@ def _roadside_shots(truth: SimTruth, n: int, static_s: float, duration_s: float,
     i = np.clip(np.searchsorted(truth.t_s, t_shot), 0, truth.t_s.size - 1)
     t_r = truth.t_s[i]
     C = truth.C_nb[i]
-    lla = np.array([ned_to_lla(C[k] @ np.array([range_m, 0.0, 0.0]), truth.lla[i[k]]) for k in range(i.size)]).reshape(-1, 3)
+    lla = ned_to_lla(C[:, :, 0] * range_m, truth.lla[i]).reshape(-1, 3)  # C x (range, 0, 0) from each shot's point
     r = np.full((i.size, 3), np.nan)
     r[:, 0] = range_m + sigma_m * rng.standard_normal(i.size)
     r_true = np.full((i.size, 3), np.nan)
