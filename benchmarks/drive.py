@@ -309,6 +309,12 @@ def real_logs(overrides: dict | None = None, logs: tuple | None = None) -> None:
             print(f"{'':26s} flagged {100 * res['flagged_fraction']:.1f} %; verdict {summ['quality']['verdict']}; platform "
                   f"{c.get('platform')} ({c.get('decided_by')}); stops {c.get('stops')} ({c.get('stopped_s')} s); mounting "
                   f"{mnt.get('mounting_rpy_deg')} ({mnt.get('source')})")
+            la, clk = res.get("lever_arm") or {}, res.get("gps_clock_offset") or {}
+            print(f"{'':28s}lever arm: {la.get('decided_by')}"
+                  + (f"; correction fwd/right {la['correction_forward_right_m']} +- {la['sigma_forward_right_m']} m"
+                     if la.get("estimated") else "")
+                  + (f"; clock offset {clk['estimate_s']} +- {clk['sigma_s']} s (output on the {clk['output_clock']} clock)"
+                     if clk else ""))
             for kind, ck in res["forward_nis_check"].items():
                 if ck is not None:
                     print(f"{'':28s}forward {kind} NIS {ck['mean']:.2f}, dof {ck['dof']:.0f} [{ck['band95'][0]:.2f}, "

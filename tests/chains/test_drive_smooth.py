@@ -264,3 +264,40 @@ def test_a_car_log_as_real_ones_are(tmp_path):
     yaw = np.degrees(np.interp(t_imu, sim.truth.t_s, np.unwrap(sim.truth.rpy_rad[:, 2])))
     dyaw = (s["yaw"].to_numpy() - yaw + 180.0) % 360.0 - 180.0  # the car's yaw, not the IMU's
     assert np.mean(np.abs(dyaw) < 2.0 * s["sigma_yaw"].to_numpy()) > 0.9
+
+
+def test_a_lever_arm_the_session_does_not_state_is_estimated(tmp_path):
+    """The antenna 0.8 m ahead of and 0.5 m right of the IMU, session.toml stating no lever arm (a
+    user who never measured it), 2 cm RTK-like fixes. Unmodelled, that lever arm turns with the
+    heading: the runs disagree at 22-40 % of epochs and the clock states take its forward part
+    for a 0.05 s GPS clock offset (8 simulated drives). The default pipeline estimates the
+    correction within 3 SD, flags at most the issue's 10 % of epochs, and blames no clock offset;
+    the trajectory is at the stated point, here the antenna (issue 11 item 4)."""
+    sim = simulate_drive(240.0, seed=3, outages=((150.0, 30.0),), gps_sigma_h_m=0.02, gps_sigma_v_m=0.03,
+                         gps_sigma_vel_mps=0.02, lever_arm_m=(0.8, 0.5, 0.0))
+    sdir = sim.write(tmp_path / "s")
+    toml = (sdir / "session.toml").read_text()
+    assert "lever_arm_m = [0.8, 0.5, 0.0]" in toml
+    (sdir / "session.toml").write_text(toml.replace("lever_arm_m = [0.8, 0.5, 0.0]", "lever_arm_m = [0.0, 0.0, 0.0]"))
+    out = process_session(sdir, "drive-smooth", tmp_path / "run")
+    summary = json.loads((out.run_dir / "summary.json").read_text())
+    r = summary["results"]
+    la = r["lever_arm"]
+    assert la["estimated"] and la["stated_m"] == [0.0, 0.0, 0.0], la
+    est, sd = np.array(la["correction_forward_right_m"]), np.array(la["sigma_forward_right_m"])
+    assert np.all(np.abs(est - [0.8, 0.5]) < 3.0 * sd) and np.all(sd < 0.1), la
+    assert np.allclose(la["estimate_m"], [est[0], est[1], 0.0], atol=2e-3)  # no mounting: IMU axes = the car's
+    assert r["flagged_fraction"] <= 0.10
+    assert r["gps_clock_offset"]["output_clock"] == "imu"
+    assert not any("gps_offset_s" in x for x in summary["quality"]["reasons"])
+    tr = pd.read_parquet(out.run_dir / "trajectory.parquet")
+    s = tr[tr["solution"] == "smoothed"]
+    t = s["t"].to_numpy() - sim.t0_s
+    lla = np.column_stack([np.interp(t, sim.truth.t_s, sim.truth.lla[:, i]) for i in range(3)])
+    yaw = np.interp(t, sim.truth.t_s, np.unwrap(sim.truth.rpy_rad[:, 2]))
+    antenna_ne = lla_to_ned(lla, lla[0])[:, :2] + np.column_stack([0.8 * np.cos(yaw) - 0.5 * np.sin(yaw),
+                                                                   0.8 * np.sin(yaw) + 0.5 * np.cos(yaw)])
+    e = lla_to_ned(s[["lat", "lon", "h"]].to_numpy(), lla[0])[:, :2] - antenna_ne
+    o = s["outage"].to_numpy()
+    # outside the outage the 2 cm fixes hold the antenna: the track is there, not at the IMU 0.94 m away
+    assert np.sqrt(np.mean(np.sum(e[~o] ** 2, axis=1))) < 0.2

@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion._kernels import Aiding, EventArrays
-from tpos_cli.fusion.layout import Block, StateLayout, backward_sign, clock_block, gps_error_block, ranging_blocks
+from tpos_cli.fusion.layout import Block, StateLayout, backward_sign, clock_block, gps_error_block, lever_arm_block, ranging_blocks
 from tpos_cli.fusion.measurements import (
     Kind,
     gps_position_jacobian,
@@ -128,6 +128,36 @@ def test_clock_offset_columns():
     assert_allclose(H[:, o], 0.0, atol=0)
     sign = backward_sign(lay.n_states, lay)
     assert sign[o] == sign[o + 1] == -1.0 and sign[3] == -1.0 and sign[0] == 1.0
+
+
+def test_lever_arm_columns_are_the_residuals_exact_change():
+    """The lever-arm correction (vehicle forward, right; `layout.lever_arm_block`) enters the GPS
+    residuals linearly: with the nominal correction dl, z equals the residual of the lever arm
+    l + C_vb^T (dl, 0) (to rounding), and H's columns are that change per metre of dl; a constant,
+    so a backward run keeps its sign (issue 11)."""
+    nav, C = _nominal()
+    C_vb = euler_to_dcm(*np.radians([1.0, -2.0, 91.0]))  # an IMU turned 91 deg on the vehicle
+    lever = np.array([0.5, -0.3, -1.2])
+    aid = Aiding(lever, np.zeros(3), np.zeros((2, 3)), geodetic.lla_to_ecef(np.array([48.0, 8.0, 480.0])),
+                 geodetic.ecef_to_ned_dcm(48.0, 8.0), np.zeros((1, 2, 3)), C_vb, 1.0)
+    lay = StateLayout((lever_arm_block(0.3),))
+    o = lay.offset(Block.LEVER)
+    dl = np.array([0.4, -0.25])
+    bias = np.concatenate([np.zeros(6), dl])
+    lever_true = lever + C_vb.T @ np.array([dl[0], dl[1], 0.0])
+    w_b = np.radians([2.0, -1.0, 20.0])
+    fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
+    v_gps = nav[3:6] + np.array([0.1, 0.2, -0.1])
+    for kind, zin, resid in ((Kind.GPS_POSITION, fix, lambda lv, out: gps_position_residual(nav, C, lv, fix, 0.0, out)),
+                             (Kind.GPS_VELOCITY, v_gps, lambda lv, out: gps_velocity_residual(nav, C, lv, w_b, v_gps, out))):
+        z, H, R = np.empty(3), np.zeros((3, lay.n_states)), np.zeros((3, 3))
+        measure(0, _events(kind, zin, np.eye(3), 3), aid, None, nav, C, bias, w_b, np.zeros(3), lay.offsets(), z, H, R)
+        z_true, z0 = np.empty(3), np.empty(3)
+        resid(lever_true, z_true)
+        resid(lever, z0)
+        assert_allclose(z, z_true, rtol=0, atol=1e-9)
+        assert_allclose(H[:, o:o + 2] @ dl, z_true - z0, rtol=0, atol=1e-9)
+    assert backward_sign(lay.n_states, lay)[o] == backward_sign(lay.n_states, lay)[o + 1] == 1.0
 
 
 def test_gps_jacobians_against_perturbation():

@@ -37,7 +37,8 @@ from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
-from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, mounting_block, odometer_block
+from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, lever_arm_block, mounting_block, odometer_block
+from tpos_cli.fusion.lever_arm import at_stated_point, course_span_deg, lever_arm_summary, lever_arm_wanted, lever_correction_b
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, vehicle_attitude
 from tpos_cli.fusion.screening import wild_fixes
@@ -339,6 +340,36 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     return cfg, (Measurements.merge(*parts) if parts else None)
 
 
+def lever_arm_states(p: DriveSmoothParams, fixes: GpsFixes, cfg: FilterConfig, info: dict) -> FilterConfig:
+    """`cfg` with the lever-arm correction states (`fusion.layout.lever_arm_block`) when
+    `fusion.lever_arm.lever_arm_wanted` says so for these fixes: their median horizontal SD, and
+    the span of their course (reported velocities, else differenced positions) above ten times the
+    velocity SD (a course good to about 6 deg). Records the decision in info["lever_arm"]."""
+    sd = fixes.sigma_pos_ned_m
+    sig_h = float(np.median(np.sqrt(0.5 * (sd[:, 0] ** 2 + sd[:, 1] ** 2)))) if sd.size else np.inf
+    vel = fixes.vel_ned_mps
+    if fixes.t_s.size > 1 and not np.isfinite(vel[:, :2]).all():
+        vel = np.gradient(lla_to_ned(fixes.lla, fixes.lla[0]), fixes.t_s, axis=0)
+    sig_v = float(np.median(fixes.sigma_vel_mps[:, :2])) if fixes.sigma_vel_mps.size else p.gps_sigma_vel_mps
+    span = course_span_deg(vel, 10.0 * sig_v) if fixes.t_s.size > 1 else 0.0
+    on, why = lever_arm_wanted(p.lever_arm, cfg.layout.offset(Block.MOUNTING) >= 0, sig_h, span, p.lever_arm_sigma_m,
+                               p.lever_arm_min_turn_deg)
+    info["lever_arm"] = {"decided_by": why, "stated_m": [float(v) for v in cfg.lever_arm_b_m],
+                         "C_vb": np.asarray(cfg.C_vb, dtype=float).tolist()}
+    if not on:
+        return cfg
+    return dataclasses.replace(cfg, layout=StateLayout((*cfg.layout.blocks, lever_arm_block(p.lever_arm_sigma_m))))
+
+
+def at_stated_lever_arm(sol: Solution, cfg: FilterConfig) -> Solution:
+    """`sol` at the point the stated lever arm refers to (`fusion.lever_arm.at_stated_point`) when
+    the run estimated a correction to it; unchanged otherwise."""
+    dl_b = lever_correction_b(sol.bias, cfg.layout, cfg.C_vb)
+    if dl_b is None:
+        return sol
+    return Solution(sol.name, sol.idx, at_stated_point(sol.nav, sol.C_nb, dl_b), sol.C_nb, sol.P9, sol.bias)
+
+
 def nhc_start_s(info: dict) -> float:
     """Session time from which NHC rows apply: a yaw the search had to pick over the course may be
     tens of degrees off until the GPS has turned it, so NHC waits for the end of the search then
@@ -476,6 +507,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                                  ("the filter's velocity clock state" if p.gps_clock_sigma_s > 0 else "the log's positions")}
     with stage("constraints"):
         cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
+        cfg = lever_arm_states(p, fixes, cfg, info)
     with stage("gps_noise"):
         fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra)
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))
@@ -496,6 +528,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
+    sols = {k: at_stated_lever_arm(v, cfg) for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
                        mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd)), C_vb)
@@ -602,7 +635,7 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         mean_nis[kind] = float(np.mean(a)) if a.size else None
         nis_check[kind] = nis_band(a, gi.innovation[gi.accepted[:, j], 3 * j: 3 * j + 3])
     return {
-        "alignment": res.info,
+        "alignment": {k: v for k, v in res.info.items() if k != "lever_arm"},  # that one: "lever_arm" below
         "smoothed_method": p.smoother,
         "solutions": list(names),
         "gps_fixes": int(res.fixes.t_s.size),
@@ -613,9 +646,20 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "flagged_fraction": float(np.mean(res.flag)) if res.flag.size else 0.0,
         "mounting_check": mounting,
         "gps_clock_offset": clock_offset(res, p),
+        "lever_arm": lever_arm_report(res),
         "constraints": {**res.info.get("constraints", {}), "forward": constraint_summary(res.forward),
                         "backward": constraint_summary(res.backward)},
     }
+
+
+def lever_arm_report(res: DriveResult) -> dict | None:
+    """The lever arm stated and, when estimated, the forward run's correction at its end (it has
+    seen every turn) with its SD (`fusion.lever_arm.lever_arm_summary`)."""
+    la = res.info.get("lever_arm")
+    if la is None:
+        return None
+    est, sd = _block_at_end(res.forward, Block.LEVER, 2)
+    return lever_arm_summary(est, sd, la["stated_m"], np.asarray(la["C_vb"]), la["decided_by"])
 
 
 def clock_track(res: DriveResult, idx) -> tuple[np.ndarray, np.ndarray] | None:

@@ -41,6 +41,7 @@ class Block(IntEnum):
     ODOMETER = 5  # 1: scale-factor error of the odometer speed (random constant)
     CLOCK = 6  # 2: IMU-GPS clock offsets (s) of the fixes' positions and of their velocities: a value
     # stamped t holds at IMU time t + d (constants)
+    LEVER = 7  # 2: correction (m) to the stated GPS lever arm along the vehicle's forward and right axes (constants)
 
 
 N_BLOCKS = len(Block)
@@ -144,6 +145,19 @@ def clock_block(sigma_s: float, rw_s_per_sqrt_s: float = 0.0) -> ExtraBlock:
     logger's clock also drifts against GPS time (tens of ppm, and buffering that changes), so the
     offsets are random walks of rw_s_per_sqrt_s (PSD rw^2 s^2/s) rather than exact constants."""
     return ExtraBlock(Block.CLOCK, 2, 0.0, np.full(2, float(rw_s_per_sqrt_s) ** 2), np.eye(2) * float(sigma_s) ** 2)
+
+
+def lever_arm_block(sigma_m: float) -> ExtraBlock:
+    """The correction dl = (forward, right) (m, prior SD sigma_m each) to the stated GPS lever arm
+    in the vehicle's axes, random constants: the antenna sits at l_stated + C_vb^T (dl, 0) from the
+    IMU, so the position rows see C_nb C_vb^T (dl, 0) and the velocity rows C_nb [w x] C_vb^T (dl, 0)
+    (`fusion.measurements.measure`). Horizontal only: on a car the vertical component changes the
+    antenna's position only through roll and pitch of a few degrees (under 10 % of it), so it goes
+    into the height, which it does not bias, rather than into a state it would not observe. A
+    lever arm the log does not state (or states wrong) shows in turns as a position error that
+    rotates with the heading; unmodelled, the fixes pull the heading to explain it, and the
+    forward and backward runs disagree after every turn."""
+    return ExtraBlock(Block.LEVER, 2, 0.0, np.zeros(2), np.eye(2) * float(sigma_m) ** 2)
 
 
 def backward_sign(n_states: int = N_NAV, layout: StateLayout | None = None) -> np.ndarray:

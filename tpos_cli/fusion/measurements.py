@@ -290,6 +290,14 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
             for i in range(3):
                 z[i] += nav[3 + i] * d
                 H[i, oc] = nav[3 + i]
+        ol = lay[Block.LEVER]
+        if ol >= 0:  # the antenna at l + C_vb^T (dl, 0) (`layout.lever_arm_block`): + C C_vb^T (dl, 0)
+            for j in range(2):
+                dl = bias[6 + ol - N_NAV + j]
+                for i in range(3):
+                    a = C[i, 0] * aid.C_vb[j, 0] + C[i, 1] * aid.C_vb[j, 1] + C[i, 2] * aid.C_vb[j, 2]
+                    H[i, ol + j] = a
+                    z[i] += a * dl
     elif kind == Kind.GPS_VELOCITY:
         zv = np.empty(3)
         gps_velocity_residual(nav, C, aid.lever_b, w_ib, ev.z[e], zv)
@@ -305,6 +313,14 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
             for i in range(m):
                 z[i] += acc_ned[i] * d
                 H[i, oc + 1] = acc_ned[i]
+        ol = lay[Block.LEVER]
+        if ol >= 0:  # the antenna's rate term C (w x C_vb^T (dl, 0)): column j is C (w x row j of C_vb)
+            for j in range(2):
+                u = mat_vec3(C, cross(w_ib, aid.C_vb[j]))
+                dl = bias[6 + ol - N_NAV + j]
+                for i in range(m):
+                    H[i, ol + j] = u[i]
+                    z[i] += u[i] * dl
     elif kind == Kind.NHC:
         nhc_residual(nav, C, aid.C_vb, z)
         nhc_jacobian(nav, C, aid.C_vb, H)
