@@ -116,8 +116,8 @@ class DriveSmoothParams(Section):
     # against GPS time (100 ppm is 0.1 ms/s) and its buffering changes; 1e-3: 10 ms in 100 s
     clock_apply_sd: Positive = 3.0  # output on the GPS clock when |offset| exceeds this many of its SDs
     lever_arm: Literal["auto", "on", "off"] = "auto"  # estimate a horizontal correction to the stated
-    # GPS lever arm (`fusion.layout.lever_arm_block`); auto: on a wheeled platform whose fixes are
-    # better than the lever arm's prior SD and whose course turns (`drive_smooth.lever_arm_states`)
+    # GPS lever arm (`fusion.layout.lever_arm_block`); auto: with vehicle axes or a level IMU, fixes
+    # under a third of the prior SD and a course that turns (`drive_smooth.lever_arm_states`)
     lever_arm_sigma_m: Positive = 0.5  # prior SD of each component of that correction (m): a car's antenna
     # sits within a metre or two of its IMU; a stated lever arm is usually right to centimetres, but
     # the contract's default (zero) cannot be told from a measured zero

@@ -6,7 +6,14 @@ from numpy.testing import assert_allclose
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion.layout import Block, StateLayout, clock_block, lever_arm_block
-from tpos_cli.fusion.lever_arm import at_stated_point, course_span_deg, lever_arm_summary, lever_arm_wanted, lever_correction_b
+from tpos_cli.fusion.lever_arm import (
+    at_stated_point,
+    course_span_deg,
+    lever_arm_summary,
+    lever_arm_wanted,
+    lever_axes,
+    lever_correction_b,
+)
 
 
 def test_course_span_counts_the_turns_of_moving_rows_only():
@@ -22,13 +29,22 @@ def test_course_span_counts_the_turns_of_moving_rows_only():
 
 
 def test_auto_decision_rules():
-    """auto wants a wheeled platform, fixes under a third of the prior SD and a course that turns."""
-    assert lever_arm_wanted("auto", True, 0.01, 180.0, 0.5, 90.0)[0]
-    assert not lever_arm_wanted("auto", False, 0.01, 180.0, 0.5, 90.0)[0]
-    assert not lever_arm_wanted("auto", True, 0.2, 180.0, 0.5, 90.0)[0]  # 0.2 m fixes bury a lever arm
-    assert not lever_arm_wanted("auto", True, 0.01, 60.0, 0.5, 90.0)[0]
-    assert not lever_arm_wanted("auto", True, np.inf, 180.0, 0.5, 90.0)[0]
-    assert lever_arm_wanted("on", False, 5.0, 0.0, 0.5, 90.0)[0] and not lever_arm_wanted("off", True, 0.01, 360.0, 0.5, 90.0)[0]
+    """auto wants horizontal axes (a vehicle's, or a level IMU's), fixes under a third of the
+    prior SD and a course that turns."""
+    assert lever_arm_wanted("auto", "vehicle", 0.01, 180.0, 0.5, 90.0)[0]
+    assert lever_arm_wanted("auto", "imu", 0.01, 180.0, 0.5, 90.0)[0]
+    assert not lever_arm_wanted("auto", None, 0.01, 180.0, 0.5, 90.0)[0]
+    assert not lever_arm_wanted("auto", "vehicle", 0.2, 180.0, 0.5, 90.0)[0]  # 0.2 m fixes bury a lever arm
+    assert not lever_arm_wanted("auto", "vehicle", 0.01, 60.0, 0.5, 90.0)[0]
+    assert not lever_arm_wanted("auto", "vehicle", np.inf, 180.0, 0.5, 90.0)[0]
+    assert lever_arm_wanted("on", None, 5.0, 0.0, 0.5, 90.0)[0] and not lever_arm_wanted("off", "vehicle", 0.01, 360.0, 0.5, 90.0)[0]
+
+
+def test_axes_of_the_correction():
+    """A wheeled platform's vehicle axes; else a level IMU's own (tilt 15.0 deg: yes, 25 deg: no)."""
+    assert lever_axes(True, euler_to_dcm(0.0, np.radians(80.0), 0.0)) == "vehicle"
+    assert lever_axes(False, euler_to_dcm(np.radians(9.0), np.radians(12.0), 1.0)) == "imu"  # tilt 14.96 deg
+    assert lever_axes(False, euler_to_dcm(np.radians(25.0), 0.0, 2.0)) is None
 
 
 def test_the_output_point_moves_by_the_rotated_correction():

@@ -38,7 +38,14 @@ from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigma
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, lever_arm_block, mounting_block, odometer_block
-from tpos_cli.fusion.lever_arm import at_stated_point, course_span_deg, lever_arm_summary, lever_arm_wanted, lever_correction_b
+from tpos_cli.fusion.lever_arm import (
+    at_stated_point,
+    course_span_deg,
+    lever_arm_summary,
+    lever_arm_wanted,
+    lever_axes,
+    lever_correction_b,
+)
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, vehicle_attitude
 from tpos_cli.fusion.screening import wild_fixes
@@ -340,11 +347,12 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     return cfg, (Measurements.merge(*parts) if parts else None)
 
 
-def lever_arm_states(p: DriveSmoothParams, fixes: GpsFixes, cfg: FilterConfig, info: dict) -> FilterConfig:
+def lever_arm_states(p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict) -> FilterConfig:
     """`cfg` with the lever-arm correction states (`fusion.layout.lever_arm_block`) when
-    `fusion.lever_arm.lever_arm_wanted` says so for these fixes: their median horizontal SD, and
-    the span of their course (reported velocities, else differenced positions) above ten times the
-    velocity SD (a course good to about 6 deg). Records the decision in info["lever_arm"]."""
+    `fusion.lever_arm.lever_arm_wanted` says so for these fixes (in `lever_axes`: the vehicle's, or
+    a level IMU's own): their median horizontal SD, and the span of their course (reported
+    velocities, else differenced positions) above ten times the velocity SD (a course good to about
+    6 deg). Records the decision in info["lever_arm"]."""
     sd = fixes.sigma_pos_ned_m
     sig_h = float(np.median(np.sqrt(0.5 * (sd[:, 0] ** 2 + sd[:, 1] ** 2)))) if sd.size else np.inf
     vel = fixes.vel_ned_mps
@@ -352,8 +360,8 @@ def lever_arm_states(p: DriveSmoothParams, fixes: GpsFixes, cfg: FilterConfig, i
         vel = np.gradient(lla_to_ned(fixes.lla, fixes.lla[0]), fixes.t_s, axis=0)
     sig_v = float(np.median(fixes.sigma_vel_mps[:, :2])) if fixes.sigma_vel_mps.size else p.gps_sigma_vel_mps
     span = course_span_deg(vel, 10.0 * sig_v) if fixes.t_s.size > 1 else 0.0
-    on, why = lever_arm_wanted(p.lever_arm, cfg.layout.offset(Block.MOUNTING) >= 0, sig_h, span, p.lever_arm_sigma_m,
-                               p.lever_arm_min_turn_deg)
+    axes = lever_axes(cfg.layout.offset(Block.MOUNTING) >= 0, init.C_nb)  # cfg.C_vb: the vehicle's, else identity
+    on, why = lever_arm_wanted(p.lever_arm, axes, sig_h, span, p.lever_arm_sigma_m, p.lever_arm_min_turn_deg)
     info["lever_arm"] = {"decided_by": why, "stated_m": [float(v) for v in cfg.lever_arm_b_m],
                          "C_vb": np.asarray(cfg.C_vb, dtype=float).tolist()}
     if not on:
@@ -507,7 +515,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                                  ("the filter's velocity clock state" if p.gps_clock_sigma_s > 0 else "the log's positions")}
     with stage("constraints"):
         cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
-        cfg = lever_arm_states(p, fixes, cfg, info)
+        cfg = lever_arm_states(p, fixes, init, cfg, info)
     with stage("gps_noise"):
         fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra)
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))

@@ -41,7 +41,8 @@ class Block(IntEnum):
     ODOMETER = 5  # 1: scale-factor error of the odometer speed (random constant)
     CLOCK = 6  # 2: IMU-GPS clock offsets (s) of the fixes' positions and of their velocities: a value
     # stamped t holds at IMU time t + d (constants)
-    LEVER = 7  # 2: correction (m) to the stated GPS lever arm along the vehicle's forward and right axes (constants)
+    LEVER = 7  # 2: correction (m) to the stated GPS lever arm along the vehicle's forward and right axes
+    # (rows 0, 1 of the filter's C_vb: a level IMU's own x, y without vehicle axes) (constants)
 
 
 N_BLOCKS = len(Block)

@@ -28,24 +28,38 @@ def course_span_deg(vel_ned_mps, min_speed_mps: float) -> float:
     return float(np.degrees(course.max() - course.min()))
 
 
-def lever_arm_wanted(mode: str, wheeled: bool, sigma_h_fix_m: float, span_deg: float, prior_sd_m: float,
+LEVEL_MAX_TILT_DEG = 20.0  # without vehicle axes, the IMU's own x, y serve when its z is this close to vertical
+
+
+def lever_arm_wanted(mode: str, axes: str | None, sigma_h_fix_m: float, span_deg: float, prior_sd_m: float,
                      min_turn_deg: float) -> tuple[bool, str]:
-    """Whether to estimate the correction, and why. `auto`: on a wheeled platform (its vehicle
-    axes are known), with fixes whose median horizontal SD sigma_h_fix_m is under a third of the
-    prior SD (coarser fixes bury a lever arm in their noise: the state would only add its prior
-    to the position sigmas), and a course that spans min_turn_deg or more."""
+    """Whether to estimate the correction, and why. axes: which horizontal axes the two states
+    follow ("vehicle": a wheeled platform's; "imu": a level IMU's own x, y), None when neither
+    holds. `auto`: with such axes, fixes whose median horizontal SD sigma_h_fix_m is under a third
+    of the prior SD (coarser fixes bury a lever arm in their noise: the state would only add its
+    prior to the position sigmas), and a course that spans min_turn_deg or more."""
     if mode == "off":
         return False, "pipeline: lever_arm = off"
     if mode == "on":
         return True, "pipeline: lever_arm = on"
-    if not wheeled:
-        return False, "auto: no vehicle axes (not a wheeled platform)"
+    if axes is None:
+        return False, f"auto: no horizontal axes (not a wheeled platform, IMU tilted over {LEVEL_MAX_TILT_DEG:g} deg)"
     if not sigma_h_fix_m < prior_sd_m / 3.0:
         return False, f"auto: fixes' horizontal SD {sigma_h_fix_m:.3g} m is not under a third of the prior SD {prior_sd_m:g} m"
     if span_deg < min_turn_deg:
         return False, f"auto: the course spans {span_deg:.0f} deg, under {min_turn_deg:g} deg"
     return True, (f"auto: fixes' horizontal SD {sigma_h_fix_m:.3g} m under a third of the prior SD {prior_sd_m:g} m, "
-                  f"course spans {span_deg:.0f} deg")
+                  f"course spans {span_deg:.0f} deg, {axes} axes")
+
+
+def lever_axes(wheeled: bool, C_nb0) -> str | None:
+    """The horizontal axes the correction follows: the vehicle's on a wheeled platform (its
+    mounting is known), else the IMU's own x, y when the IMU is level within LEVEL_MAX_TILT_DEG at
+    the start (C_nb0: the initial attitude; a walker's or a rover's board), else None."""
+    if wheeled:
+        return "vehicle"
+    tilt = np.degrees(np.arccos(np.clip(np.asarray(C_nb0, dtype=float)[2, 2], -1.0, 1.0)))
+    return "imu" if tilt <= LEVEL_MAX_TILT_DEG else None
 
 
 def lever_correction_b(bias_rows, layout: StateLayout, C_vb) -> np.ndarray | None:
