@@ -23,6 +23,7 @@ from scipy.special import chdtri, ndtri  # scipy.stats costs about a second to i
 
 from tpos_cli import consistency, conventions, quality, timebase
 from tpos_cli.errors import TposError
+from tpos_cli.frames.rotation import axes_to_dcm
 from tpos_cli.quality import Finding, Quality
 
 WINDOW_S = 300.0  # the part of a long log that is re-run for a candidate fix
@@ -342,8 +343,42 @@ def _position_sigma_m(trajectory: pd.DataFrame | None) -> float:
     return float("nan")
 
 
+def lever_state_finding(session, state: Mapping, sigma_h_m: float) -> list[Finding]:
+    """The lever-arm correction the drive filter estimated (`summary.json` lever_arm,
+    `fusion.lever_arm`). The run already used it, so re-processing with it changes nothing: it is
+    named, not tried, when it is significant (chi-square of its two components above the 99.9 %
+    point) and material (it moves the antenna by more than LEVER_MATERIAL_SIGMAS of the
+    solution's horizontal position sigmas); the suggestion is in the IMU's logged axes."""
+    dl = np.asarray(state["correction_forward_right_m"], dtype=float)
+    sd = np.asarray(state["sigma_forward_right_m"], dtype=float)
+    chi = float(np.sum((dl / np.maximum(sd, 1e-12)) ** 2))
+    thr = float(chdtri(2, 1.0 - 0.999))
+    stated, est = np.asarray(state["stated_m"], dtype=float), np.asarray(state["estimate_m"], dtype=float)
+    fig = {"filter_correction_m": dl.tolist(), "filter_sigma_m": sd.tolist(), "chi2": chi, "chi2_limit": thr,
+           "position_sigma_m": sigma_h_m}
+    if not (chi > thr and np.linalg.norm(est - stated) > LEVER_MATERIAL_SIGMAS * sigma_h_m):
+        return [Finding("lever_arm", "ok", None, fig)]
+    flip = np.asarray(state.get("flip_needs_forward_right_m", [np.nan, np.nan]), dtype=float)
+    flipped = bool(np.any(stated != 0.0) and np.all(np.abs(dl - flip) < 3.0 * sd))  # the estimate is the sign flip
+    # a flip fixes the vertical part too (the filter does not estimate it)
+    shown = np.round(axes_to_dcm(session.meta.axes).T @ (-stated if flipped else est), 3) + 0.0  # + 0.0: no "-0"
+    fig["suggested_lever_arm_m"] = shown.tolist()
+    fig["sign_flipped"] = flipped
+    what = ("the stated lever arm with its sign flipped" if flipped else
+            f"{np.hypot(*(est - stated)[:2]):.2f} m (horizontally) from where [gps] lever_arm_m puts it")
+    return [Finding("lever_arm", "suspect",
+                    f"gps: the filter places the GPS antenna at {what} (correction forward {dl[0]:+.3f} ± {sd[0]:.3f} m, right "
+                    f"{dl[1]:+.3f} ± {sd[1]:.3f} m; the output used it): set [gps] lever_arm_m = "
+                    f"[{', '.join(f'{v:g}' for v in shown)}] (antenna minus IMU, in the IMU's logged axes"
+                    + ("" if flipped else "; the vertical part is not estimated") + ")", fig)]
+
+
 def lever_arm_advice(session, output, runner: _Runner) -> list[Finding]:
-    """A flipped lever-arm sign, looked for when the velocity innovations carry its signature."""
+    """A flipped lever-arm sign, looked for when the velocity innovations carry its signature; a
+    run that estimated the lever arm itself (`lever_state_finding`) names its own estimate instead."""
+    state = (getattr(output, "summary", None) or {}).get("lever_arm")
+    if state is not None and state.get("estimated"):
+        return lever_state_finding(session, state, _position_sigma_m(output.trajectory))
     sig = lever_arm_signature(session, output)
     if sig is None:
         return []

@@ -118,7 +118,7 @@ class DriveSmoothParams(Section):
     lever_arm: Literal["auto", "on", "off"] = "auto"  # estimate a horizontal correction to the stated
     # GPS lever arm (`fusion.layout.lever_arm_block`); auto: with vehicle axes or a level IMU, fixes
     # under a third of the prior SD and a course that turns (`drive_smooth.lever_arm_states`)
-    lever_arm_sigma_m: Positive = 0.5  # prior SD of each component of that correction (m): a car's antenna
+    lever_arm_sigma_m: Positive = 1.0  # prior SD of each component of that correction (m): a car's antenna
     # sits within a metre or two of its IMU; a stated lever arm is usually right to centimetres, but
     # the contract's default (zero) cannot be told from a measured zero
     lever_arm_min_turn_deg: NonNegative = 90.0  # auto: the course must span at least this much

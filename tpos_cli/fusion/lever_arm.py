@@ -93,4 +93,6 @@ def lever_arm_summary(estimate, sd, stated_b_m, C_vb, decided: str) -> dict:
         out["correction_forward_right_m"] = [round(float(v), 3) for v in dl]
         out["sigma_forward_right_m"] = [round(float(v), 3) for v in np.asarray(sd, dtype=float)[:2]]
         out["estimate_m"] = [round(float(v), 3) for v in np.asarray(stated_b_m, dtype=float) + dl @ np.asarray(C_vb)[:2]]
+        # the correction a flipped sign of the stated lever arm would need (a common mistake, issue 12)
+        out["flip_needs_forward_right_m"] = [round(float(v), 3) for v in (np.asarray(C_vb) @ (-2.0 * np.asarray(stated_b_m)))[:2]]
     return out
