@@ -5,8 +5,8 @@ from numpy.testing import assert_allclose
 
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.frames.rotation import euler_to_dcm
-from tpos_cli.fusion.layout import Block, StateLayout, clock_block, lever_arm_block
 from tpos_cli.fusion import lever_arm as la
+from tpos_cli.fusion.layout import Block, StateLayout, clock_block, lever_arm_block
 
 
 def test_course_span_counts_the_turns_of_moving_rows_only():
