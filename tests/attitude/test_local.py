@@ -7,7 +7,7 @@ from tests.attitude.gen import H_M, LAT_DEG, MAG_NED_UT, make
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude import faults, master
 from tpos_cli.attitude.local import FilterNoise, FilterSetup, range_differences, run_full
-from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm
+from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
 
 DECL = np.arctan2(MAG_NED_UT[1], MAG_NED_UT[0])
 NOISE = FilterNoise(gyro_noise_rps=1e-4, gyro_bias_rps=3e-5, gyro_bias_rw_rps_rts=1e-8,
@@ -196,3 +196,64 @@ def test_fused_sensitivity_is_the_weighted_sum_of_the_local_ones():
     assert np.allclose(f.S_ba, W[0] @ sols[0].S_ba + W[1] @ sols[1].S_ba, rtol=1e-9, atol=1e-15)
     Q = sum(w @ s.Q_ba @ np.swapaxes(w, 1, 2) for w, s in zip(W, sols))
     assert np.allclose(f.Q_ba, Q, rtol=1e-9, atol=1e-20)
+
+
+def test_alignment_heading_sensitivity_predicts_the_error_it_causes():
+    # oracle: two runs that differ only by their initial heading; the kernel's s_al (sensitivity to the
+    # start alignment's heading error) must predict the change of the error: LF1 with the field (it
+    # replaces the prior's heading: s decays) and the gyro alone (the heading error stays: s = e_D)
+    g = make(_rpy, duration_s=30.0, seed=7)
+    rng = np.random.default_rng(7)
+    st = replace(_setup(g, rng), C0=g.C[0], align_heading_var_rad2=np.radians(0.5) ** 2, mag_consider=True)
+    d = np.radians(0.3)
+    for use in (K.USE_ACC | K.USE_MAG | K.USE_MOTION, 0):
+        a = run_full("a", g.t, g.gyro, g.acc, g.mag, None, st, use)
+        b = run_full("b", g.t, g.gyro, g.acc, g.mag, None, replace(st, C0=rotvec_to_dcm(np.array([0.0, 0.0, -d])) @ g.C[0]), use)
+        de = dcm_to_rotvec(a.C_nb @ np.swapaxes(b.C_nb, 1, 2))  # C_true = exp(e) C_hat: e_b - e_a
+        pred = b.s_al * d
+        assert np.max(np.abs(pred[:, 2])) > 0.5 * d
+        err = np.sqrt(np.mean(np.sum((de - pred) ** 2, axis=1)))
+        assert err < 0.03 * d, (use, np.degrees(err))
+    assert abs(a.s_al[-1, 2] - 1.0) < 1e-6  # gyro only: the alignment's heading error stays
+    # its covariance holds that error once, not divided by beta (Eq. 23's bound is for what is shared)
+    st2 = replace(st, beta=0.5)
+    h = run_full("h", g.t, g.gyro, g.acc, g.mag, None, st2, 0)
+    h0 = run_full("h0", g.t, g.gyro, g.acc, g.mag, None, replace(st2, align_heading_var_rad2=0.0), 0)
+    dP = h0.P_att[:, 2, 2] - h.P_att[:, 2, 2]
+    assert np.allclose(dP, (st2.P0[2, 2] / 0.5 - st2.align_heading_var_rad2) * h.s_al[:, 2] ** 2, rtol=1e-9, atol=1e-18)
+
+
+def test_fusion_with_a_shared_heading_error_is_unbiased_and_consistent():
+    # Monte Carlo oracle of master.fuse's cross-covariance fusion (Bar-Shalom/Campo): errors e_i = a_i + s_i h
+    # with h shared; the fused error's empirical covariance equals the fused P_att (Eq. 27 as if independent
+    # claims less than it delivers), and the fused heading error is smaller than either's and than Eq. 27's
+    from tpos_cli.attitude.local import AttitudeSolution
+    rng = np.random.default_rng(11)
+    n = 20000
+    t = np.arange(n, dtype=float)
+    var = np.radians(0.1) ** 2
+    A1 = np.diag(np.radians([0.01, 0.01, 0.01]) ** 2)
+    A2 = np.diag(np.radians([0.01, 0.01, 0.08]) ** 2)
+    s1, s2 = np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0])
+    h = rng.normal(0.0, np.sqrt(var), n)
+    e1 = rng.multivariate_normal(np.zeros(3), A1, n) + h[:, None] * s1
+    e2 = rng.multivariate_normal(np.zeros(3), A2, n) + h[:, None] * s2
+    sols = [AttitudeSolution(f"lf{i}", t, rotvec_to_dcm(-e), np.tile(A + var * np.outer(s, s), (n, 1, 1)),
+                             s_al=np.tile(s, (n, 1)), var_al=var)
+            for i, (e, A, s) in enumerate(((e1, A1, s1), (e2, A2, s2)))]
+    f = master.fuse("fkf", sols)
+    raw = master.fuse("fkf_raw", sols, independent=True)
+    ef = dcm_to_rotvec(f.C_nb)  # truth is the identity: C_true = exp(e) C_hat
+    er = dcm_to_rotvec(raw.C_nb)
+    emp = np.cov(-ef.T)
+    assert np.allclose(np.diag(emp), np.diag(f.P_att[0]), rtol=0.05)
+    nees = np.mean(np.einsum("ni,ni->n", ef, np.linalg.solve(f.P_att, ef[..., None])[..., 0])) / 3
+    assert 0.95 < nees < 1.05
+    assert np.mean(ef[:, 2] ** 2) < np.mean(er[:, 2] ** 2)
+    assert np.mean(er[:, 2] ** 2) > 1.5 * raw.P_att[0, 2, 2]  # as if independent: over-confident
+    assert np.allclose(f.s_al[0], [0.0, 0.0, 1.0], atol=1e-9)  # the shared error stays whole in the fusion
+    # without the shared sensitivity the fusion is Eq. 27
+    plain = [AttitudeSolution(s.name, t[:5], s.C_nb[:5], s.P_att[:5]) for s in sols]
+    q = master.fuse("x", plain)
+    info = sum(np.linalg.inv(s.P_att) for s in plain)
+    assert np.allclose(q.P_att, np.linalg.inv(info), rtol=1e-9, atol=1e-20)

@@ -116,11 +116,13 @@ class Gates(NamedTuple):
 
 class Init(NamedTuple):
     """C0 (3,3); bias (3,) rad/s; acc_bias (3,) m/s^2; M0 (3,3); P0 (n,n) with n from `state_offsets`;
-    S0 (n,6) the initial error's sensitivity to the accelerometer bias b_a: columns 0-2 the total,
+    S0 (n,c) the initial error's sensitivity to the accelerometer bias b_a: columns 0-2 the total,
     d e0 / d b_a (the levelling error of the alignment, phi0 = M b_a, and the bias state's own error,
     I), columns 3-5 the part the filter's prior already holds (the bias state's I). Both are carried
     by the filter's closed loop (e <- (I - K H) Phi e, minus K times a measurement's own bias
-    sensitivity), so that e(t) = a(t) + S(t) b_a with a(t) independent of b_a."""
+    sensitivity), so that e(t) = a(t) + S(t) b_a with a(t) independent of b_a. Further columns (c > 6)
+    carry another error of the initial state the same way, without a measurement sensitivity (the start
+    alignment's heading error, `local.run_full`)."""
 
     C0: np.ndarray
     bias: np.ndarray
@@ -134,7 +136,7 @@ class Outputs(NamedTuple):
     """Filled per sample (the posterior after it): C (N,3,3), P_att (N,3,3) rad^2, bias (N,3) rad/s,
     acc_bias (N,3) m/s^2, var_bias (N,6) variances of [gyro bias, acc bias], nis_acc, nis_mag, nis_rng
     (N,) (NaN: no update made), mag_ok (N,) bool, M (N or 1, 3, 3) (written only with the M states),
-    S_att (N,3,6) the attitude rows of the bias sensitivity (`Init.S0`)."""
+    S_att (N,3,c) the attitude rows of the sensitivities (`Init.S0`)."""
 
     C: np.ndarray
     P_att: np.ndarray
@@ -532,7 +534,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
         out.C[k] = C
         out.P_att[k] = P[0:3, 0:3]
         for i in range(3):
-            for j in range(6):
+            for j in range(Sv.shape[1]):
                 out.S_att[k, i, j] = Sv[i, j]
         out.bias[k] = b
         out.acc_bias[k] = ba

@@ -9,7 +9,7 @@ A local filter is declared faulty at a sample when
 - the NIS of its updates, summed over a trailing window, exceeds the chi-square bound of that
   window (a step in the aiding measurement, e.g. the paper's 60 deg yaw fault).
 It stays faulty until the physical check has passed for `recover_s` AND its attitude agrees with
-the healthy filters again (chi-square(3) test of the difference with P_i + P_j). A fault that the
+the healthy filters again (chi-square(3) test of the difference, `master.difference_cov`). A fault that the
 local filter has absorbed (it converged onto the wrong heading) is therefore still excluded.
 """
 

@@ -95,6 +95,10 @@ class FilterSetup:
     # (`_kernels.Init.S0`, `AttitudeSolution.S_ba`)
     lev_map: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     wall_sens: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    # > 0: the prior's heading is the start alignment's, whose error (variance align_heading_var_rad2 =
+    # P0[2,2]) other filters share (LF2's wall normal): the run carries its sensitivity to it
+    # (`AttitudeSolution.s_al`) and its covariance holds that error once, not divided by beta
+    align_heading_var_rad2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -124,6 +128,11 @@ class AttitudeSolution:
     # Q_ba (N,3,3) rad^2 of P_att that the filter's own bias prior explains (`honest_covariance`)
     S_ba: np.ndarray | None = None
     Q_ba: np.ndarray | None = None
+    # the error's sensitivity (N,3) to the start alignment's heading error h ~ N(0, var_al) rad^2, an error
+    # other solutions share: e = a + s_al h (+ S_ba b_a), a independent of h; P_att holds var_al s s^T
+    # (`master.fuse` fuses with the cross-covariance var_al s_i s_j^T)
+    s_al: np.ndarray | None = None
+    var_al: float = 0.0
 
     def euler_deg(self):
         """(N,3) roll, pitch, yaw in degrees, yaw in [0, 360)."""
@@ -149,10 +158,13 @@ def honest_covariance(sol: AttitudeSolution, acc_bias_var: float) -> np.ndarray:
     return sol.P_att - sol.Q_ba + acc_bias_var * (S @ np.swapaxes(S, 1, 2))
 
 
-def add_heading_variance(sol: AttitudeSolution, var_rad2: float, bias_var_rad2: float = 0.0) -> AttitudeSolution:
+def add_heading_variance(sol: AttitudeSolution, var_rad2: float, bias_var_rad2: float = 0.0,
+                         align_var_rad2: float = 0.0) -> AttitudeSolution:
     """`sol` with a constant heading-error variance added about NED down (e.g. LF2's wall azimuth), of
     which `bias_var_rad2` is the accelerometer bias's share that the solution's sensitivity `S_ba`
-    already carries (so it joins `Q_ba` too, and `honest_covariance` counts it once)."""
+    already carries (so it joins `Q_ba` too, and `honest_covariance` counts it once) and `align_var_rad2`
+    the start alignment's heading error (variance `var_al`) in it: a wall normal turned by the alignment's
+    heading gives the solution that heading error again (`s_al` gains e_D, with its cross-covariance)."""
     if var_rad2 <= 0.0:
         return sol
     P = sol.P_att.copy()
@@ -161,7 +173,14 @@ def add_heading_variance(sol: AttitudeSolution, var_rad2: float, bias_var_rad2: 
     if Q is not None and bias_var_rad2 > 0.0:
         Q = Q.copy()
         Q[:, 2, 2] += bias_var_rad2
-    return replace(sol, P_att=P, Q_ba=Q)
+    s_al = sol.s_al
+    if s_al is not None and align_var_rad2 > 0.0:
+        # the shared part becomes var (s + u)(s + u)^T, u = e_D: var u u^T is in var_rad2, the cross terms are added
+        X = align_var_rad2 * s_al
+        P[:, :, 2] += X
+        P[:, 2, :] += X
+        s_al = s_al + np.array([0.0, 0.0, 1.0])
+    return replace(sol, P_att=P, Q_ba=Q, s_al=s_al)
 
 
 def range_differences(t_imu_s, t_rng_s, range_m):
@@ -313,26 +332,34 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
                     float(setup.range_gate_chi2))
     acc_b0 = np.asarray(setup.acc_bias0_mps2, dtype=float)
     P0 = initial_covariance(setup, use) / beta
-    S0 = np.zeros((P0.shape[0], 6))
+    S0 = np.zeros((P0.shape[0], 7))
     S0[0:3, 0:3] = setup.lev_map
     S0[K.I_BA:K.I_BA + 3, 0:3] = np.eye(3)
     S0[K.I_BA:K.I_BA + 3, 3:6] = np.eye(3)
+    S0[2, 6] = 1.0  # the start alignment's heading error (used with align_heading_var_rad2 > 0)
     init = K.Init(np.ascontiguousarray(setup.C0, dtype=float), np.ascontiguousarray(bias0),
                   np.ascontiguousarray(acc_b0), np.ascontiguousarray(setup.gyro_M0, dtype=float), P0, S0)
     with_m = setup.gyro_err_sd > 0
     out = K.Outputs(np.empty((n, 3, 3)), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 6)),
                     np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_), np.zeros((n if with_m else 1, 3, 3)),
-                    np.empty((n, 3, 6)))
+                    np.empty((n, 3, 7)))
     K.marg_filter(samples, frame, kn, _hand(setup, dt_mean, share), gates, init, out)
     o = {f: getattr(out, f) for f in out._fields}
     if backward:
         o = {k: v[::-1] if v.shape[0] == n else v for k, v in o.items()}
         o["bias"] = -o["bias"]
     B = o["S_att"][:, :, 3:6]
+    P_att, s_al, var_al = np.ascontiguousarray(o["P_att"]), None, 0.0
+    if setup.align_heading_var_rad2 > 0.0:
+        # the prior's share of the alignment's heading error, P0[2,2] / beta s s^T (Eq. 23's bound), is that
+        # error's own variance once: the cross-covariance with the filters that share it is `master.fuse`'s
+        var_al = float(setup.align_heading_var_rad2)
+        s_al = np.ascontiguousarray(o["S_att"][:, :, 6])
+        P_att = P_att + (var_al - P0[2, 2]) * (s_al[:, :, None] * s_al[:, None, :])
     return AttitudeSolution(
         S_ba=np.ascontiguousarray(o["S_att"][:, :, 0:3]), Q_ba=noise.acc_bias_mps2**2 / beta * (B @ np.swapaxes(B, 1, 2)),
-        name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(o["C"]),
-        P_att=np.ascontiguousarray(o["P_att"]), bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
+        name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(o["C"]), P_att=P_att, s_al=s_al,
+        var_al=var_al, bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
         nis={"acc": o["nis_acc"], "mag": o["nis_mag"], "range": o["nis_rng"]},
         mag_ok=o["mag_ok"] if (use & K.USE_MAG) else None, gyro_M=o["M"] if with_m else None,
         mag_gated=bool((use & K.USE_MAG) and (setup.mag_norm_tol_ut > 0.0 or setup.mag_nis_tau_s > 0.0)),

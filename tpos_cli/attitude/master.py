@@ -6,6 +6,17 @@ x_i = log(C_i C_ref^T) (NED error vectors), C_g = exp(x_g) C_ref. For the paper'
 Eq. 27 is applied to the 8 DCM elements as written. There is no feedback to the local filters
 ("no-reset"), so a failed local filter cannot contaminate the other one. `weights` (S, N) scale
 each local information matrix: 1 = the paper's fusion, 0 = excluded by the fault detector.
+
+Solutions that carry their sensitivity to the start alignment's heading error (`AttitudeSolution.s_al`,
+e_i = a_i + s_i h, h ~ N(0, var_al), a_i independent) are not independent: LF1's heading prior is that
+alignment and LF2's wall normal is its heading turned by the beams. Eq. 27 would count h once per filter
+(on paper 000's 6.2.2 session, where the field is disturbed after 4 s and LF1 holds the alignment's heading,
+fkf leaned on LF2, whose wall normal adds the beams' noise to the same heading: worse than LF1 alone).
+They are fused with that cross-covariance (best linear unbiased combination of correlated estimates,
+Bar-Shalom and Campo): stacked covariance B_ij = delta_ij A_i / w_i + var_al s_i s_j^T with
+A_i = P_i - var_al s_i s_i^T, P_g = (sum_ij (B^-1)_ij)^-1, x_g = sum_i W_i x_i, W_i = P_g sum_j (B^-1)_ji.
+With s_i = 0 this is Eq. 27; what the filters share besides h (the gyro, the accelerometer LF2 levels
+with) stays bounded by Eq. 23's beta.
 """
 
 from __future__ import annotations
@@ -16,10 +27,12 @@ from tpos_cli.attitude.local import AttitudeSolution, paper8_solution
 from tpos_cli.frames.rotation import dcm_to_rotvec, rotvec_to_dcm
 
 
-def fuse(name: str, sols: list[AttitudeSolution], weights=None) -> AttitudeSolution:
+def fuse(name: str, sols: list[AttitudeSolution], weights=None, independent: bool = False) -> AttitudeSolution:
     """Fuse local solutions sample by sample (Eq. 27); weights (S, N) in [0, 1], default all 1.
 
-    Where every weight of a sample is 0 the plain fusion (all 1) is used for that sample.
+    Where every weight of a sample is 0 the plain fusion (all 1) is used for that sample. The shared
+    alignment heading enters with its cross-covariance (module docstring) unless `independent` (the
+    paper's plain Eq. 27).
     """
     S = len(sols)
     n = sols[0].t_s.size
@@ -37,33 +50,71 @@ def fuse(name: str, sols: list[AttitudeSolution], weights=None) -> AttitudeSolut
         xg = np.einsum("nij,nj->ni", Pg, iv)
         return paper8_solution(name, sols[0].t_s, xg, Pg)
     C_ref = sols[0].C_nb
-    info = np.zeros((n, 3, 3))
-    iv = np.zeros((n, 3))
-    infos = []
-    for s, wi in zip(sols, w):
-        d = dcm_to_rotvec(s.C_nb @ np.swapaxes(C_ref, 1, 2))
-        Pi = wi[:, None, None] * np.linalg.inv(s.P_att)
-        infos.append(Pi)
-        info += Pi
-        iv += np.einsum("nij,nj->ni", Pi, d)
-    Pg = np.linalg.inv(info)
-    xg = np.einsum("nij,nj->ni", Pg, iv)
+    # a solution without the sensitivity (e.g. a backward run from its own end) holds none of h
+    sens = [s.s_al for s in sols if s.s_al is not None]
+    shared = bool(sens) and not independent
+    var = max(s.var_al for s in sols) if shared else 0.0
+    if shared:
+        sv = [np.zeros((n, 3)) if s.s_al is None else s.s_al for s in sols]
+        A = [s.P_att - var * (si[:, :, None] * si[:, None, :]) for s, si in zip(sols, sv)]
+        Pg, Ws = _gains(A, sv, var, w)
+    else:
+        Pg, Ws = _gains([s.P_att for s in sols], None, 0.0, w)
+    xg = np.zeros((n, 3))
+    for s, W in zip(sols, Ws):
+        xg += np.einsum("nij,nj->ni", W, dcm_to_rotvec(s.C_nb @ np.swapaxes(C_ref, 1, 2)))
     C = rotvec_to_dcm(xg) @ C_ref
-    S_g = Q_g = None
+    S_g = Q_g = s_g = None
     if all(s.S_ba is not None for s in sols):
-        # the fused error is sum_i W_i e_i with W_i = P_g w_i P_i^-1: its accelerometer-bias sensitivity
-        # is sum_i W_i S_i, and the parts the filters' own bias priors explain combine as sum_i W_i Q_i W_i^T
-        S_g, Q_g = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
-        for s, Pi in zip(sols, infos):
-            W = Pg @ Pi
-            S_g += W @ s.S_ba
-            Q_g += W @ s.Q_ba @ np.swapaxes(W, 1, 2)
+        # the fused error is sum_i W_i e_i: its accelerometer-bias sensitivity is sum_i W_i S_i, and the
+        # parts the filters' own bias priors explain combine as sum_i W_i Q_i W_i^T
+        S_g = sum(W @ s.S_ba for s, W in zip(sols, Ws))
+        Q_g = sum(W @ s.Q_ba @ np.swapaxes(W, 1, 2) for s, W in zip(sols, Ws))
+    if shared:
+        s_g = sum(np.einsum("nij,nj->ni", W, si) for si, W in zip(sv, Ws))
     return AttitudeSolution(name=name, t_s=sols[0].t_s, C_nb=C, P_att=0.5 * (Pg + np.swapaxes(Pg, 1, 2)), S_ba=S_g,
-                            Q_ba=Q_g)
+                            Q_ba=Q_g, s_al=s_g, var_al=var)
+
+
+def _gains(A, s, var, w):
+    """(P_g (N,3,3), [W_i (N,3,3)]): best linear unbiased fusion of estimates with errors a_i + s_i h,
+    a_i ~ N(0, A_i) (N,3,3) independent, h ~ N(0, var) shared (s None: independent errors); w (k, N)
+    scales A_i^-1; a solution with w = 0 at a sample gets W_i = 0 there (module docstring)."""
+    k, n = len(A), A[0].shape[0]
+    Ws = [np.zeros((n, 3, 3)) for _ in range(k)]
+    Pg = np.zeros((n, 3, 3))
+    inc = w > 0.0
+    for pattern in np.unique(inc.T, axis=0):
+        rows = np.flatnonzero(np.all(inc.T == pattern, axis=1))
+        idx = np.flatnonzero(pattern)
+        m = idx.size
+        B = np.zeros((rows.size, 3 * m, 3 * m))
+        for a, i in enumerate(idx):
+            B[:, 3 * a:3 * a + 3, 3 * a:3 * a + 3] += A[i][rows] / w[i, rows][:, None, None]
+            if s is not None:
+                for b, j in enumerate(idx):
+                    B[:, 3 * a:3 * a + 3, 3 * b:3 * b + 3] += var * (s[i][rows][:, :, None] * s[j][rows][:, None, :])
+        Bi = np.linalg.inv(0.5 * (B + np.swapaxes(B, 1, 2)))
+        HtBi = Bi.reshape(rows.size, m, 3, 3 * m).sum(axis=1)  # H^T B^-1, H = [I; ...; I]: block-row sums
+        Pr = np.linalg.inv(HtBi.reshape(rows.size, 3, m, 3).sum(axis=2))
+        Pg[rows] = Pr
+        for a, i in enumerate(idx):
+            Ws[i][rows] = Pr @ HtBi[:, :, 3 * a:3 * a + 3]
+    return Pg, Ws
+
+
+def difference_cov(a: AttitudeSolution, b: AttitudeSolution) -> np.ndarray:
+    """(N,3,3) covariance of the attitude difference of two solutions: P_a + P_b less what they share,
+    the start alignment's heading error (`AttitudeSolution.s_al`): - var_al (s_a s_b^T + s_b s_a^T)."""
+    D = a.P_att + b.P_att
+    if a.s_al is not None and b.s_al is not None:
+        X = max(a.var_al, b.var_al) * (a.s_al[:, :, None] * b.s_al[:, None, :])
+        D = D - X - np.swapaxes(X, 1, 2)
+    return D
 
 
 def consistency_nis(a: AttitudeSolution, b: AttitudeSolution) -> np.ndarray:
-    """(N,) chi-square(3) statistic of the attitude difference of two solutions with P_a + P_b."""
+    """(N,) chi-square(3) statistic of the attitude difference of two solutions (`difference_cov`)."""
     d = dcm_to_rotvec(a.C_nb @ np.swapaxes(b.C_nb, 1, 2))
-    S = a.P_att + b.P_att
+    S = difference_cov(a, b)
     return np.einsum("ni,ni->n", d, np.linalg.solve(S, d[..., None])[..., 0])

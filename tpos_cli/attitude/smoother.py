@@ -5,7 +5,9 @@ of the log, and backward in time from the backward setup, which the caller align
 log on its own (its own still window, its own gyro bias): nothing of the forward run enters it, so
 the two estimates are independent given the common prior and are fused on SO(3) with their
 covariances (two-filter smoother, Fraser-Potter form), which is the information fusion of Eq. 27
-applied to the two runs (`master.fuse`). Their biases are fused the same way (diagonal covariances).
+applied to the two runs (`master.fuse`; the forward run's sensitivity to the start alignment's heading,
+`AttitudeSolution.s_al`, is carried through the fusion and the forward/backward test). Their biases are
+fused the same way (diagonal covariances).
 
 The two runs also measure how honest their covariances are: their difference d has covariance
 P_f + P_b when both are consistent. `fb_scale` is the mean of d^T (P_f + P_b)^-1 d per degree of
@@ -37,7 +39,7 @@ def fb_scale(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10, dif
     term, e.g. the two ends' different levelling errors from one accelerometer bias), default none."""
     sl = slice(None, None, max(1, stride))
     d = dcm_to_rotvec(fwd.C_nb[sl] @ np.swapaxes(bwd.C_nb[sl], 1, 2))
-    S = fwd.P_att[sl] + bwd.P_att[sl]
+    S = master.difference_cov(fwd, bwd)[sl]
     if diff_cov is not None:
         S = S + np.asarray(diff_cov, dtype=float)[None]
     St = S[:, 0:2, 0:2]
@@ -92,4 +94,4 @@ def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Fil
     ba, va = _fuse_diag(fwd.acc_bias_mps2, vb[:, 3:6], bwd.acc_bias_mps2, vb[:, 9:12])
     mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)
     return replace(fwd, C_nb=s.C_nb, P_att=P, bias_rps=bg, acc_bias_mps2=ba, var_bias=np.concatenate([vg, va], axis=1),
-                   mag_ok=mag_ok, gyro_M=None, fb_scale=(lt, lh), S_ba=s.S_ba, Q_ba=Q)
+                   mag_ok=mag_ok, gyro_M=None, fb_scale=(lt, lh), S_ba=s.S_ba, Q_ba=Q, s_al=s.s_al, var_al=s.var_al)

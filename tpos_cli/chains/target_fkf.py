@@ -68,13 +68,15 @@ class End:
 
 @dataclass(frozen=True)
 class Beams:
-    """Range differences on the IMU samples (N,2) or None, the wall's NED normal, its azimuth variance
-    and the share of it that the accelerometer bias explains (carried by the filters' sensitivity)."""
+    """Range differences on the IMU samples (N,2) or None, the wall's NED normal, its azimuth variance,
+    the share of it that the accelerometer bias explains (carried by the filters' sensitivity) and the
+    share that is the start alignment's heading error (`local.add_heading_variance`)."""
 
     rdiff: np.ndarray | None
     wall_n: np.ndarray
     wall_var_rad2: float
     wall_lev_var_rad2: float = 0.0
+    wall_align_var_rad2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -295,7 +297,7 @@ def beam_geometry(session: Session, start: End, noise: FilterNoise, yaw_var_rad2
     var = float(yaw_var_rad2 + 2.0 * noise.range_sigma_m**2 / rf.baseline_12_m**2 / good.sum())
     summary["wall_azimuth_deg"] = float(np.degrees(np.arctan2(wall_n[1], wall_n[0])) % 360.0)
     summary["wall_azimuth_sigma_deg"] = float(np.degrees(np.sqrt(var)))
-    return Beams(rdiff, wall_n, var)
+    return Beams(rdiff, wall_n, var, wall_align_var_rad2=float(yaw_var_rad2))
 
 
 def _initial_covariance(end: End, noise: FilterNoise, m_ref_n, mag_w):
@@ -416,7 +418,8 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
                 sols["lf1"] = replace(sols["lf1"], mag_ok=sols["lf1"].mag_ok & ~field.disturbed)
             if beams.rdiff is not None:
                 sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot),
-                                                   beams.wall_var_rad2, beams.wall_lev_var_rad2)
+                                                   beams.wall_var_rad2, beams.wall_lev_var_rad2,
+                                                   beams.wall_align_var_rad2)
             summary["forward_backward_consistency"] = {
                 k: {"tilt": round(s.fb_scale[0], 3), "heading": round(s.fb_scale[1], 3)}
                 for k, s in sols.items() if s.fb_scale is not None}
@@ -438,7 +441,7 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
         if len(locals_) == 2:
             fr = faults.detect(locals_, p.fault, gate_chi2)
             sols["fkf"] = master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None)
-            sols["fkf_raw"] = master.fuse("fkf_raw", locals_, None)
+            sols["fkf_raw"] = master.fuse("fkf_raw", locals_, None, independent=True)
             summary["faults"] = {
                 name: {"excluded_fraction": float(1.0 - fr.ok[i].mean()),
                        "excluded_s": float(np.sum(np.diff(t, prepend=t[0])[~fr.ok[i]]))}
@@ -447,7 +450,8 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
             ctx.count("fkf_samples_lf2_excluded", int((~fr.ok[1]).sum()))
         else:
             s1 = locals_[0]
-            sols["fkf"] = AttitudeSolution("fkf", s1.t_s, s1.C_nb, s1.P_att, S_ba=s1.S_ba, Q_ba=s1.Q_ba)
+            sols["fkf"] = AttitudeSolution("fkf", s1.t_s, s1.C_nb, s1.P_att, S_ba=s1.S_ba, Q_ba=s1.Q_ba, s_al=s1.s_al,
+                                           var_al=s1.var_al)
         if sols["lf1"].mag_ok is not None:
             ctx.count("mag_samples_rejected", int((~sols["lf1"].mag_ok).sum()))
     return sols
@@ -501,11 +505,14 @@ def with_levelling(sol: AttitudeSolution, P_lev: np.ndarray, noise: FilterNoise)
 
 def with_levelling_maps(setups: Setups, maps) -> Setups:
     """`setups` with each run's levelling map (forward: the start's, backward: the end's) and the wall
-    normal's azimuth sensitivity (it is the start alignment's heading turned by the beams: -M[2])."""
+    normal's azimuth sensitivity (it is the start alignment's heading turned by the beams: -M[2]); the runs
+    that start from the start alignment (forward, gyro-only) carry their sensitivity to its heading error,
+    which LF2's wall normal shares (`FilterSetup.align_heading_var_rad2`, `master.fuse`)."""
     m0, m1 = (np.asarray(m, dtype=float) for m in maps)
     kw = dict(wall_sens=-m0[2].copy())
-    return Setups(replace(setups.forward, lev_map=m0, **kw), replace(setups.backward, lev_map=m1, **kw),
-                  replace(setups.gyro, lev_map=m0, **kw))
+    h = dict(align_heading_var_rad2=float(setups.forward.P0[2, 2]))
+    return Setups(replace(setups.forward, lev_map=m0, **kw, **h), replace(setups.backward, lev_map=m1, **kw),
+                  replace(setups.gyro, lev_map=m0, **kw, **h))
 
 
 def position_targets(session: Session, p: TargetFkfParams, sols: dict, obs_lla, start: End, noise: FilterNoise,
