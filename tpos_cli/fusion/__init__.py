@@ -17,7 +17,8 @@ Where each piece lives:
   documented wrapper, forward and backward), `backward_start`, `epoch_of`;
 - `insgps`: GPS fixes as measurements (`run_insgps`, `gps_innovations`); `initial`: alignment and
   yaw search of a land vehicle; `gps_noise`, `gps_error`: GPS noise and error-state fitting;
-  `mounting`: the course-minus-yaw check.
+  `mounting`: the course-minus-yaw check and the vehicle's attitude; `lever_arm`: when to estimate
+  a correction to the stated GPS lever arm, and the output at the stated point.
 `tpos_cli.smoothing` (rts, two_filter, simplified) works on any `FilterRun`; `tpos_cli.trajectory`
 turns its solutions into contract rows.
 
