@@ -29,6 +29,7 @@ from tpos_cli.fusion.constraints import (
     detect_stops,
     nhc_measurements,
     odometer_measurements,
+    rotation_gyro_noise_dps,
     stop_measurements,
     travel_direction,
 )
@@ -55,12 +56,16 @@ GPS_KINDS = ("gps_pos", "gps_vel")  # `innovations.parquet` kind of the position
 
 def drive_imu_noise(p: DriveSmoothParams, session: Session) -> ImuNoiseFigures:
     """IMU figures (`tpos_cli.imu_noise`); the white noise measured from the log counts only where
-    larger than the default: real platforms vibrate far above data-sheet noise."""
+    larger than the default: real platforms vibrate far above data-sheet noise. The gyro's is at
+    least what the platform's rotation makes of the gyro's scale-factor error
+    (`fusion.constraints.rotation_gyro_noise_dps`: a walker's sway and turns)."""
     default = {k: DriveSmoothParams.model_fields[k].default for k in ("gyro_noise_dps", "acc_noise_mg")}
-    measured = {"gyro_noise_dps": max(default["gyro_noise_dps"], float(np.degrees(measured_white_noise(session.imu.gyro_b_rps)))),
+    gyro = session.imu.gyro_b_rps
+    measured = {"gyro_noise_dps": max(default["gyro_noise_dps"], float(np.degrees(measured_white_noise(gyro))),
+                                      rotation_gyro_noise_dps(gyro)),
                 "acc_noise_mg": max(default["acc_noise_mg"], float(measured_white_noise(session.imu.acc_b_mps2) / (1e-3 * G0_MPS2)))}
     return resolve_imu_noise(p, session.meta.imu_noise, measured=measured,
-                             measured_label="measured from the log (or default, the larger)")
+                             measured_label="measured from the log (gyro: or 1 % of its RMS rate; or default: the larger)")
 
 
 def initial_sigmas(p: DriveSmoothParams, nz: ImuNoiseFigures) -> InitialSigmas:
@@ -294,8 +299,10 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         near = np.abs(t_ep - fixes.t_s[j]) <= gap_s
         var_h = first.ep_P[:, 3, 3] + first.ep_P[:, 4, 4]
         vel_sd = float(np.sqrt(np.median(var_h[near] if near.any() else var_h)))
+        ep = epoch_of(first, np.arange(first.t_s.size))
+        att_sd = np.sqrt(np.column_stack([0.5 * (first.ep_P[ep, 6, 6] + first.ep_P[ep, 7, 7]), first.ep_P[ep, 8, 8]]))
         td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb, fix_t_s=fixes.t_s, max_fix_gap_s=gap_s,
-                              min_speed_mps=p.travel_min_speed_sd * vel_sd)
+                              min_speed_mps=p.travel_min_speed_sd * vel_sd, att_sd_rad=att_sd)
         if td is not None:
             if C_vb is None:
                 C_vb = td.C_vb
@@ -323,7 +330,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
             sd_deg = p.mounting_sigma_assumed_deg
         elif mounting is not None:
             sd_deg = p.mounting_sigma_given_deg
-        else:  # the first run's attitude errors are common to its blocks: the scatter alone is optimistic
+        else:  # the SDs carry the first run's own attitude error (`travel_direction`)
             sd_deg = max(p.mounting_sigma_given_deg, *(v for v in (td.sigma_pitch_deg, td.sigma_yaw_deg) if np.isfinite(v)))
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
