@@ -355,12 +355,6 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     return cfg, (Measurements.merge(*parts) if parts else None)
 
 
-def _mounting_sd_deg(td, floor_deg: float) -> float:
-    """Prior SD (deg) of the residual misalignment about a travel-direction mounting: its larger
-    SD (pitch or yaw), at least floor_deg."""
-    return max(floor_deg, *(v for v in (td.sigma_pitch_deg, td.sigma_yaw_deg) if np.isfinite(v)))
-
-
 def nhc_start_s(info: dict) -> float:
     """Session time from which NHC rows apply: a yaw the search had to pick over the course may be
     tens of degrees off until the GPS has turned it, so NHC waits for the end of the search then
@@ -398,6 +392,12 @@ def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterCon
             "misalignment_rad": m, "misalignment_sd_rad": sd,
             "why": (f"non-holonomic constraint on a trial pass: mean NIS {mean:.2f} (at most {p.auto_nhc_nis_max:g}), "
                     f"{100 * rej:.1f} % rejected (at most {100 * p.auto_nhc_reject_max:g} %)")}
+
+
+def _mounting_sd_deg(td, floor_deg: float) -> float:
+    """Prior SD (deg) of the residual misalignment about a travel-direction mounting: its larger
+    SD (pitch or yaw), at least floor_deg."""
+    return max(floor_deg, *(v for v in (td.sigma_pitch_deg, td.sigma_yaw_deg) if np.isfinite(v)))
 
 
 def constraint_summary(run: FilterRun) -> dict:
