@@ -21,6 +21,26 @@ def session_dir(tmp_path_factory):
     return sim, sim.write(tmp_path_factory.mktemp("drive") / "s")
 
 
+def test_gyro_noise_counts_the_rotation_of_a_swaying_platform():
+    """A gyro whose white noise is 0.05 deg/s on a platform turning back and forth at up to 40 deg/s
+    (0.1 Hz): the filter's gyro noise is 1 % of the RMS rate (`fusion.constraints.rotation_gyro_noise_dps`),
+    above the white noise that first differences measure; a still platform keeps its white noise."""
+    from types import SimpleNamespace
+
+    from tpos_cli.chains.drive_smooth import drive_imu_noise
+    from tpos_cli.config import DriveSmoothParams
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 60.0, 1 / 160.0)
+    white = np.radians(0.05) * rng.standard_normal((t.size, 3))
+    acc = np.tile([0.0, 0.0, -9.81], (t.size, 1)) + 0.01 * rng.standard_normal((t.size, 3))
+    sway = np.column_stack([np.radians(40.0) * np.sin(2 * np.pi * 0.1 * t), np.zeros((t.size, 2))])
+    for gyro, expected in ((white + sway, 0.01 * 40.0 / np.sqrt(2.0)), (white, 0.05)):
+        session = SimpleNamespace(imu=SimpleNamespace(gyro_b_rps=gyro, acc_b_mps2=acc), meta=SimpleNamespace(imu_noise=None))
+        nz = drive_imu_noise(DriveSmoothParams(), session)
+        assert nz["gyro_noise_dps"] == pytest.approx(expected, rel=0.05)
+
+
 def test_process_writes_all_solutions(session_dir, tmp_path):
     sim, path = session_dir
     out = process_session(path, "drive-smooth", tmp_path / "run", overrides={"drive_smooth.compare": True})

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from tpos_cli.frames.rotation import euler_to_dcm
-from tpos_cli.fusion.constraints import detect_stops, nhc_measurements, stop_measurements, travel_direction
+from tpos_cli.fusion.constraints import (
+    detect_stops,
+    nhc_measurements,
+    rotation_gyro_noise_dps,
+    stop_measurements,
+    travel_direction,
+)
 from tpos_cli.fusion.insgps import GpsFixes, velocity_latency_s
 from tpos_cli.fusion.measurements import Kind
 
@@ -107,6 +113,38 @@ def test_travel_direction_leaves_out_samples_far_from_fixes():
     td = travel_direction(t, vel, C_nb, fix_t_s=fix_t, max_fix_gap_s=1.0)
     assert abs(biased.yaw_deg - 3.0) > 0.3  # the drift leaks in when counted
     np.testing.assert_allclose(td.C_vb[0], C_vb[0], atol=1e-9)  # the exact travel direction again
+
+
+def test_travel_direction_sigma_carries_the_runs_heading_error():
+    """A first run whose heading is 8 deg off all along (a slow rover's GPS-only run): every
+    body-frame velocity turns alike, so the estimate is 8 deg off while its 10 s blocks agree to a
+    few hundredths of a degree. Given the run's heading SD (8 deg) the mounting's yaw SD covers
+    that error; the block scatter alone claims it 100 times too well."""
+    n = 3000
+    t = np.arange(n) * 0.1
+    C_nv = euler_to_dcm(np.zeros(n), np.zeros(n), 0.3 * np.sin(t / 30.0))
+    C_vb = euler_to_dcm(0.0, np.radians(1.0), np.radians(3.0))
+    C_nb = euler_to_dcm(0.0, 0.0, np.radians(8.0)) @ C_nv @ C_vb  # the run's heading error
+    vel = 10.0 * C_nv[:, :, 0]
+    scatter = travel_direction(t, vel, C_nb)
+    att_sd = np.column_stack([np.full(n, np.radians(0.2)), np.full(n, np.radians(8.0))])
+    td = travel_direction(t, vel, C_nb, att_sd_rad=att_sd)
+    err = abs(td.yaw_deg - 3.0)
+    assert err == pytest.approx(8.0, abs=0.2) and td.yaw_deg == scatter.yaw_deg  # the estimate itself is unchanged
+    assert err / scatter.sigma_yaw_deg > 100.0
+    assert td.sigma_yaw_deg == pytest.approx(np.hypot(scatter.sigma_yaw_deg, 8.0), rel=1e-9)
+    assert td.sigma_pitch_deg == pytest.approx(np.hypot(scatter.sigma_pitch_deg, 0.2), rel=1e-9)
+
+
+def test_rotation_gyro_noise_is_one_percent_of_the_rms_rate():
+    """A walker's sway (40 deg/s amplitude at 1.8 Hz about x, 25 deg/s at 0.9 Hz about z) on a gyro
+    with a constant bias: 1 % of the RMS rate about the bias, sqrt(40^2 + 25^2) / sqrt(2) deg/s,
+    whatever the bias; a still gyro gives 0."""
+    t = np.arange(0.0, 60.0, 1 / 160.0)
+    w = np.column_stack([np.radians(40.0) * np.sin(2 * np.pi * 1.8 * t), np.zeros(t.size),
+                         np.radians(25.0) * np.sin(2 * np.pi * 0.9 * t)]) + np.radians([0.3, -0.2, 0.5])
+    assert rotation_gyro_noise_dps(w) == pytest.approx(0.01 * np.hypot(40.0, 25.0) / np.sqrt(2.0), rel=0.01)
+    assert rotation_gyro_noise_dps(np.tile(np.radians([0.3, -0.2, 0.5]), (100, 1))) == 0.0
 
 
 def test_velocity_latency_of_a_backward_difference_receiver():

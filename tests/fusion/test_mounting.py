@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning
+from tpos_cli.frames.rotation import euler_to_dcm, skew
+from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, refined_mounting, vehicle_attitude
 
 
 def _track(offset_deg, n=600, speed=5.0, seed=0):
@@ -36,3 +37,21 @@ def test_no_warning_when_aligned_or_standing():
     # too little motion to judge: 5 s
     c = course_minus_yaw(t[:50], v[:50], yaw[:50] - 1.0, 1.0)
     assert mounting_warning(c, 20.0) is None
+
+
+def test_refined_mounting_turns_the_axes_as_the_misalignment_states_do():
+    """A travel direction 6.3 deg short in yaw (a slow rover's GPS-only first run) and the residual
+    misalignment a trial pass found: the refined C_vb is the exact rotation the states describe to
+    first order ((I - [(0, m_p, m_y) x]) C_vb, `vehicle_attitude`), the true mounting again, so a
+    run given it starts with no residual; its summary carries the trial's SDs."""
+    true = euler_to_dcm(0.0, np.radians(0.5), np.radians(89.0))
+    first = euler_to_dcm(0.0, np.radians(0.5), np.radians(82.7))
+    m = np.array([0.0, np.radians(-6.3)])  # v_vehicle = (I - [m x]) C_vb v_b: a residual m_y turns the axes by -m_y
+    C, summ = refined_mounting(first, m, np.radians([0.8, 3.1]))
+    np.testing.assert_allclose(C, true, atol=1e-12)
+    small = np.radians([0.0, 0.2, -0.4])
+    C2, _ = refined_mounting(true, small[1:], np.zeros(2))
+    np.testing.assert_allclose(C2, (np.eye(3) - skew(small)) @ true, atol=1e-4)  # equal to second order: |m|^2 = 6e-5
+    C_nv, _ = vehicle_attitude(np.eye(3)[None], np.zeros((1, 3, 3)), true, small[None, 1:])
+    np.testing.assert_allclose(C_nv[0], C2.T, atol=1e-4)
+    assert summ["mounting_rpy_deg"][2] == 89.0 and summ["sigma_py_deg"] == [0.8, 3.1]

@@ -29,6 +29,7 @@ from tpos_cli.fusion.constraints import (
     detect_stops,
     nhc_measurements,
     odometer_measurements,
+    rotation_gyro_noise_dps,
     stop_measurements,
     travel_direction,
 )
@@ -47,7 +48,7 @@ from tpos_cli.fusion.lever_arm import (
     lever_correction_b,
 )
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, vehicle_attitude
+from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, refined_mounting, vehicle_attitude
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.ins.mechanization import decimate_imu
@@ -63,12 +64,16 @@ GPS_KINDS = ("gps_pos", "gps_vel")  # `innovations.parquet` kind of the position
 
 def drive_imu_noise(p: DriveSmoothParams, session: Session) -> ImuNoiseFigures:
     """IMU figures (`tpos_cli.imu_noise`); the white noise measured from the log counts only where
-    larger than the default: real platforms vibrate far above data-sheet noise."""
+    larger than the default: real platforms vibrate far above data-sheet noise. The gyro's is at
+    least what the platform's rotation makes of the gyro's scale-factor error
+    (`fusion.constraints.rotation_gyro_noise_dps`: a walker's sway and turns)."""
     default = {k: DriveSmoothParams.model_fields[k].default for k in ("gyro_noise_dps", "acc_noise_mg")}
-    measured = {"gyro_noise_dps": max(default["gyro_noise_dps"], float(np.degrees(measured_white_noise(session.imu.gyro_b_rps)))),
+    gyro = session.imu.gyro_b_rps
+    measured = {"gyro_noise_dps": max(default["gyro_noise_dps"], float(np.degrees(measured_white_noise(gyro))),
+                                      rotation_gyro_noise_dps(gyro)),
                 "acc_noise_mg": max(default["acc_noise_mg"], float(measured_white_noise(session.imu.acc_b_mps2) / (1e-3 * G0_MPS2)))}
     return resolve_imu_noise(p, session.meta.imu_noise, measured=measured,
-                             measured_label="measured from the log (or default, the larger)")
+                             measured_label="measured from the log (gyro: or 1 % of its RMS rate; or default: the larger)")
 
 
 def initial_sigmas(p: DriveSmoothParams, nz: ImuNoiseFigures) -> InitialSigmas:
@@ -271,7 +276,9 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     """The platform's motion constraints (`fusion.constraints`): stops from GPS / odometer speed
     (ZUPT, and ZARU on a wheeled vehicle), NHC in the vehicle axes of a wheeled one. The mounting
     comes from `[imu] mounting_rpy_deg`, else from the travel direction of a first forward run,
-    which also decides an `auto` platform. Records what was decided in info["constraints"]."""
+    which also decides an `auto` platform; there the trial pass's residual misalignment refines it
+    (a slow rover's first run holds its heading only to 8-19 deg, and the travel direction inherits
+    that). Records what was decided in info["constraints"]."""
     gps = session.gps
     odo = session.odometry
     stops = detect_stops(gps.t_s[gps.valid], gps.vel_ned_mps[gps.valid], None if odo is None else odo.t_s,
@@ -302,8 +309,10 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         near = np.abs(t_ep - fixes.t_s[j]) <= gap_s
         var_h = first.ep_P[:, 3, 3] + first.ep_P[:, 4, 4]
         vel_sd = float(np.sqrt(np.median(var_h[near] if near.any() else var_h)))
+        ep = epoch_of(first, np.arange(first.t_s.size))
+        att_sd = np.sqrt(np.column_stack([0.5 * (first.ep_P[ep, 6, 6] + first.ep_P[ep, 7, 7]), first.ep_P[ep, 8, 8]]))
         td = travel_direction(first.t_s, first.nav[:, 3:6], first.C_nb, fix_t_s=fixes.t_s, max_fix_gap_s=gap_s,
-                              min_speed_mps=p.travel_min_speed_sd * vel_sd)
+                              min_speed_mps=p.travel_min_speed_sd * vel_sd, att_sd_rad=att_sd)
         if td is not None:
             if C_vb is None:
                 C_vb = td.C_vb
@@ -311,10 +320,15 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
             else:
                 out["travel_direction"] = td.summary()
         if platform == "auto":
-            trial = None if td is None else nhc_trial((td_, gd, ad), fixes, init, coarse, stops, td.C_vb, p, info)
+            trial = None if td is None else nhc_trial((td_, gd, ad), fixes, init, coarse, stops, td.C_vb, p, info,
+                                                      _mounting_sd_deg(td, p.mounting_sigma_assumed_deg))
             platform = "car" if trial is not None and trial["wheeled"] else "pedestrian"
             decided = (f"auto: {trial['why']}" if trial is not None
                        else "auto: too little motion to tell (no constraint of a wheeled vehicle)")
+            if trial is not None and trial["wheeled"] and mounting is None and "misalignment_rad" in trial:
+                C_vb, refined = refined_mounting(td.C_vb, trial["misalignment_rad"], trial["misalignment_sd_rad"])
+                out["mounting"] = {"source": "travel direction of a first forward run, turned by the residual "
+                                             "misalignment the trial pass found", **refined, "travel_direction": td.summary()}
     out["platform"] = platform
     out["decided_by"] = decided
     info["constraints"] = out
@@ -331,8 +345,10 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
             sd_deg = p.mounting_sigma_assumed_deg
         elif mounting is not None:
             sd_deg = p.mounting_sigma_given_deg
-        else:  # the first run's attitude errors are common to its blocks: the scatter alone is optimistic
-            sd_deg = max(p.mounting_sigma_given_deg, *(v for v in (td.sigma_pitch_deg, td.sigma_yaw_deg) if np.isfinite(v)))
+        elif "sigma_py_deg" in out["mounting"]:  # refined by the trial pass: its misalignment's SD at its end
+            sd_deg = max(p.mounting_sigma_given_deg, *out["mounting"]["sigma_py_deg"])
+        else:  # the SDs carry the first run's own attitude error (`travel_direction`)
+            sd_deg = _mounting_sd_deg(td, p.mounting_sigma_given_deg)
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
                                   layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
@@ -387,13 +403,15 @@ def nhc_start_s(info: dict) -> float:
 
 
 def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterConfig, stops, C_vb, p: DriveSmoothParams,
-              info: dict) -> dict | None:
+              info: dict, sigma_deg: float | None = None) -> dict | None:
     """Is the platform wheeled? A coarse forward pass with the non-holonomic constraint in the
     travel direction's axes (and the residual-misalignment states): on wheels the constraint holds
     within its SD, so its rows' mean NIS stays at or below their d.o.f. (2); a walker's sway and
     bounce break it (the shared walk: 4.3, 11 % rejected; a car, a slow rover: 0.2-0.4). The
     steadiness of the travel direction cannot tell them apart at walking speeds (0.89-0.91 for
-    both). Returns {"wheeled", "why", "nhc": the rows' figures} or None without NHC rows."""
+    both). sigma_deg: the prior SD of the residual misalignment (the travel direction's own SD).
+    Returns {"wheeled", "why", "nhc": the rows' figures, "misalignment_rad", "misalignment_sd_rad":
+    [pitch, yaw] at the pass's end} or None without NHC rows."""
     t, g, a = imu_coarse
     after = nhc_start_s(info)
     # rows at 1 Hz: the mean of a few thousand NIS values decides (to about 2/sqrt(n)), at a tenth of the cost
@@ -401,15 +419,24 @@ def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterCon
     if rows is None or not len(rows):
         return None
     cfg = dataclasses.replace(coarse, C_vb=np.asarray(C_vb, dtype=float), layout=StateLayout(
-        (*coarse.layout.blocks, mounting_block(np.radians(p.mounting_sigma_assumed_deg), p.nhc_axle_sigma_m))))
-    nhc = constraint_summary(run_insgps(t, g, a, fixes, init, cfg, store_rts=False, extra=rows)).get("nhc")
+        (*coarse.layout.blocks, mounting_block(np.radians(sigma_deg or p.mounting_sigma_assumed_deg), p.nhc_axle_sigma_m))))
+    run = run_insgps(t, g, a, fixes, init, cfg, store_rts=False, extra=rows)
+    nhc = constraint_summary(run).get("nhc")
     if nhc is None or nhc["nis"] is None or not nhc["rows"]:
         return None
     mean, rej = float(nhc["nis"]["mean"]), nhc["rejected"] / nhc["rows"]
     wheeled = mean <= p.auto_nhc_nis_max and rej <= p.auto_nhc_reject_max
+    m, sd = _block_at_end(run, Block.MOUNTING, 2)
     return {"wheeled": bool(wheeled), "nhc": {"mean_nis": round(mean, 3), "rejected_fraction": round(rej, 4)},
+            "misalignment_rad": m, "misalignment_sd_rad": sd,
             "why": (f"non-holonomic constraint on a trial pass: mean NIS {mean:.2f} (at most {p.auto_nhc_nis_max:g}), "
                     f"{100 * rej:.1f} % rejected (at most {100 * p.auto_nhc_reject_max:g} %)")}
+
+
+def _mounting_sd_deg(td, floor_deg: float) -> float:
+    """Prior SD (deg) of the residual misalignment about a travel-direction mounting: its larger
+    SD (pitch or yaw), at least floor_deg."""
+    return max(floor_deg, *(v for v in (td.sigma_pitch_deg, td.sigma_yaw_deg) if np.isfinite(v)))
 
 
 def constraint_summary(run: FilterRun) -> dict:

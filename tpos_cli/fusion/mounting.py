@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.frames.rotation import skew
+from tpos_cli.frames.rotation import dcm_to_euler, rotvec_to_dcm, skew
 
 
 @dataclass(frozen=True)
@@ -89,3 +89,15 @@ def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_r
         Dm[:, 1, 1], Dm[:, 2, 2] = sd[:, 0] ** 2, sd[:, 1] ** 2
         P = P + C_nv @ Dm @ np.swapaxes(C_nv, 1, 2)
     return C_nv, P
+
+
+def refined_mounting(C_vb, misalign_py_rad, sd_py_rad) -> tuple[np.ndarray, dict]:
+    """The mounting C_vb (IMU body to vehicle axes) turned by a run's residual misalignment
+    [pitch, yaw] (rad; `fusion.layout.mounting_block`: the vehicle axes are (I - [(0, m_p, m_y) x])
+    C_vb, here the exact rotation by -m), and its summary: mounting_rpy_deg, sigma_py_deg (the
+    misalignment's SDs, deg), residual_py_deg."""
+    m = np.array([0.0, *np.asarray(misalign_py_rad, dtype=float)[:2]])
+    C = rotvec_to_dcm(-m) @ np.asarray(C_vb, dtype=float)
+    sd = np.degrees(np.asarray(sd_py_rad, dtype=float)[:2])
+    return C, {"mounting_rpy_deg": [round(float(v), 2) for v in np.degrees(dcm_to_euler(C))],
+               "sigma_py_deg": [round(float(v), 3) for v in sd], "residual_py_deg": [round(float(v), 3) for v in np.degrees(m[1:])]}
