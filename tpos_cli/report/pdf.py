@@ -1,20 +1,29 @@
 """The PDF: page 1, then the sections of each kind of run packed onto pages (at most `MAX_PAGES`
-by default), the Allan page of a log with a long static stretch, the `--full` appendix, and a footer
+by default), the Allan page of a log at rest long enough (`_static_noise`), the `--full` appendix, and a footer
 with the provenance and page numbers on every page (vector output through matplotlib)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from tpos_cli.report import tables, timeplots
 from tpos_cli.report.appendix import appendix_sections
 from tpos_cli.report.context import ReportContext
 from tpos_cli.report.layout import footer
+from tpos_cli.report.rest import rest_stretches, solution_velocity
 from tpos_cli.report.sections import PAGE_BOTTOM, PAGE_TOP, Section, compose
 from tpos_cli.report.stages import StageClock, timed
 from tpos_cli.report.summary import summary_section
 
 MAX_PAGES = 8
+# Text extents measured from unhinted glyph outlines, as the PDF draws them (matplotlib lays out the
+# glyphs it writes without hinting; its default measures hinted ones, which places right-aligned and
+# centred text by a width that is not the drawn one, and costs ~30 % more per measured string).
+# Deflate level 3 instead of 6: the drive hour's ~0.9 MB of page streams compress in 15 ms instead of
+# 38 ms, for a file ~6 % larger (zlib on the streams captured from a report, /work/notes/report5.md).
+PDF_RC = {"text.hinting": "no_hinting", "pdf.compression": 3}
 
 
 def section_plan(ctx: ReportContext, summary: dict) -> list[Section]:
@@ -43,12 +52,34 @@ def section_plan(ctx: ReportContext, summary: dict) -> list[Section]:
     return [summary_section(ctx, summary)] + [s for s in body if s is not None] + tables.figure_sections(ctx)
 
 
+def _static_noise(ctx: ReportContext):
+    """(NoiseFigures, (w0, w1) logger clock) of the longest stretch at rest by the IMU
+    (`noise.longest_static_window`) and, where the best solution has a velocity, by that velocity
+    too (`rest.rest_stretches`: the IMU test alone also passes driving straight at constant speed);
+    None when no such stretch lasts `noise.MIN_STATIC_S`."""
+    from tpos_cli.noise import MIN_STATIC_S, identify_noise, longest_static_window, session_noise
+
+    vel = solution_velocity(ctx.run.trajectory, ctx.best)
+    if vel is None:
+        return session_noise(ctx.session)
+    imu, t0 = ctx.session.imu, ctx.session.t0_s
+    best = (0, 0)
+    for a, b in rest_stretches(*vel, MIN_STATIC_S):  # usually none (a drive) or a few stops
+        i0, i1 = int(np.searchsorted(imu.t_s, a - t0, side="left")), int(np.searchsorted(imu.t_s, b - t0, side="right"))
+        j0, j1 = longest_static_window(imu.t_s[i0:i1], imu.gyro_b_rps[i0:i1], imu.acc_b_mps2[i0:i1])
+        if j1 > j0 and (best == (0, 0) or imu.t_s[i0 + j1 - 1] - imu.t_s[i0 + j0] > imu.t_s[best[1] - 1] - imu.t_s[best[0]]):
+            best = (i0 + j0, i0 + j1)
+    i0, i1 = best
+    if i1 - i0 < 100 or imu.t_s[i1 - 1] - imu.t_s[i0] < MIN_STATIC_S:
+        return None
+    nf = identify_noise(imu.t_s[i0:i1], imu.gyro_b_rps[i0:i1], imu.acc_b_mps2[i0:i1])
+    return nf, (float(imu.t_s[i0] + t0), float(imu.t_s[i1 - 1] + t0))
+
+
 def _allan_section(ctx: ReportContext) -> Section | None:
     if ctx.session is None or ctx.session_note:
         return None
-    from tpos_cli.noise import session_noise
-
-    static = session_noise(ctx.session)  # a log static for >= 100 s: its IMU noise figures
+    static = _static_noise(ctx)  # a log at rest for >= 100 s: its IMU noise figures
     if static is None:
         return None
     from tpos_cli.report.figures import draw_allan
@@ -63,7 +94,7 @@ def _allan_section(ctx: ReportContext) -> Section | None:
         "IMU noise: Allan deviation",
         PAGE_TOP - PAGE_BOTTOM - 0.08,
         draw,
-        f"Overlapping Allan deviation per axis (IEEE Std 952-1997 Annex C) over the longest static stretch, "
+        f"Overlapping Allan deviation per axis (IEEE Std 952-1997 Annex C) over the longest stretch at rest, "
         f"{w0 - ctx.t_ref:.1f}-{w1 - ctx.t_ref:.1f} s after the first IMU sample.",
         new_page=True,
     )
@@ -75,6 +106,11 @@ def write_pdf(path: Path, ctx: ReportContext, summary: dict, clock: StageClock |
     import matplotlib
 
     matplotlib.use("Agg")
+    with matplotlib.rc_context(PDF_RC):
+        return _write_pdf(path, ctx, summary, clock)
+
+
+def _write_pdf(path: Path, ctx: ReportContext, summary: dict, clock: StageClock | None) -> list[str]:
     from matplotlib.backends.backend_pdf import PdfPages
 
     with timed(clock, "section plan"):

@@ -55,6 +55,14 @@ class Series:
         return bool(np.isfinite(self.sigma_neu_m[:, :2]).any())
 
     @cached_property
+    def h95_m(self) -> np.ndarray:
+        """95 % horizontal radius of each epoch (`horizontal_95_m`), computed once per solution: the
+        summary, the accuracy page and the estimated-accuracy table all draw on it."""
+        h = horizontal_ellipse(_cov_ne(self.sigma_neu_m[:, 0], self.sigma_neu_m[:, 1], self.cov_ne_m2)).semi_major_m
+        h.setflags(write=False)  # shared by its readers
+        return h
+
+    @cached_property
     def is_static(self) -> bool:
         """A fixed point (a tripod observer): its plan view is one point, not a trajectory."""
         p = self.lla[np.isfinite(self.lla).all(axis=1)]
@@ -106,7 +114,7 @@ def _cov_ne(sn, se, cne) -> np.ndarray:
 
 def horizontal_95_m(s: Series) -> np.ndarray:
     """95 % horizontal radius of each epoch: semi-major axis of its 95 % ellipse, m."""
-    return horizontal_ellipse(_cov_ne(s.sigma_neu_m[:, 0], s.sigma_neu_m[:, 1], s.cov_ne_m2)).semi_major_m
+    return s.h95_m
 
 
 def estimated_accuracy(series: dict[str, Series], order) -> pd.DataFrame:

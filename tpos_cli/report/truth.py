@@ -71,6 +71,8 @@ def _clean(t, *arrays):
     """Drop rows with NaN time or NaN in the first array, sort by time, drop duplicate stamps."""
     t = np.asarray(t, dtype=float)
     ok = np.isfinite(t) & np.all(np.isfinite(np.asarray(arrays[0], dtype=float).reshape(t.size, -1)), axis=1)
+    if ok.all() and np.all(t[1:] > t[:-1]):  # the usual truth table: nothing to drop or sort, no copies
+        return (t,) + tuple(np.asarray(a) for a in arrays)
     idx = np.flatnonzero(ok)
     idx = idx[np.argsort(t[idx], kind="stable")]
     ts = t[idx]
