@@ -494,15 +494,18 @@ def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothPar
 def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False) -> Solution:
     """A solution's attitude in the vehicle's axes when the run applied a mounting C_vb (and its
     residual misalignment states, `fusion.mounting.vehicle_attitude`, their SD that of the forward
-    run's end); the IMU's otherwise. Targets keep the IMU's attitude: the rangefinders sit on the IMU.
+    run's end, the unobserved roll the states' prior SD); the IMU's otherwise. Targets keep the
+    IMU's attitude: the rangefinders sit on the IMU.
     own: the caller owns sol.P9 (a `Solution.rows` copy), which is then updated in place."""
     if C_vb is None:
         return sol
     o = run.layout.offset(Block.MOUNTING)
     m = sol.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + 2] if (o >= 0 and sol.bias is not None) else None
     _, sd = _block_at_end(run, Block.MOUNTING, 2)
+    prior = next((b for b in run.layout.blocks if b.block == Block.MOUNTING), None)
+    roll_sd = float(np.sqrt(prior.P0[0, 0])) if prior is not None else 0.0
     P9 = sol.P9 if own else np.array(sol.P9, copy=True)
-    C_nv, P9[:, 6:9, 6:9] = vehicle_attitude(sol.C_nb, sol.P9[:, 6:9, 6:9], C_vb, m, sd)
+    C_nv, P9[:, 6:9, 6:9] = vehicle_attitude(sol.C_nb, sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
     return Solution(sol.name, sol.idx, sol.nav, C_nv, P9, sol.bias)
 
 

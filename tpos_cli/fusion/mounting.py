@@ -67,13 +67,16 @@ def mounting_warning(check: CourseYawCheck | None, threshold_deg: float, min_mov
             f"person or a hand-held unit need not point where it moves, so there this offset may be real.")
 
 
-def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_rad=None):
+def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_rad=None, roll_sd_rad: float = 0.0):
     """The vehicle's attitude from the IMU's: C_nv = C_nb C_vb^T (C_vb: IMU body to vehicle
     axes, v_vehicle = C_vb v_body), with the filter's residual misalignment [pitch, yaw] (rad,
     (K, 2), `fusion.layout.mounting_block`) turning the vehicle axes by (I - [(0, m_p, m_y) x]) as
     the NHC rows model it. C_nb (K, 3, 3), P_att_rad2 (K, 3, 3) the NED attitude-error covariance;
     returns (C_nv (K, 3, 3), P (K, 3, 3)): the misalignment's variance (vehicle axes) is added,
-    rotated into NED (the cross-covariance is left out: the two come from different rows)."""
+    rotated into NED (the cross-covariance is left out: the two come from different rows), and
+    roll_sd_rad^2 about the vehicle's forward axis: no measurement sees how the IMU is rolled on
+    the vehicle (NHC and the travel direction fix its pitch and yaw only), so the vehicle's roll
+    carries the mounting's roll uncertainty (`constraints.vehicle_axes` takes the IMU as unrolled)."""
     C_nb = np.asarray(C_nb, dtype=float)
     K = C_nb.shape[0]
     C_vb_k = np.broadcast_to(np.asarray(C_vb, dtype=float), (K, 3, 3)).copy()
@@ -83,10 +86,12 @@ def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_r
         C_vb_k = (np.eye(3) - skew(m)) @ C_vb_k
     C_nv = C_nb @ np.swapaxes(C_vb_k, 1, 2)
     P = np.array(P_att_rad2, dtype=float, copy=True)
-    if misalign_sd_rad is not None:
+    if misalign_sd_rad is not None or roll_sd_rad > 0.0:
         Dm = np.zeros((K, 3, 3))
-        sd = np.broadcast_to(np.asarray(misalign_sd_rad, dtype=float), (K, 2))
-        Dm[:, 1, 1], Dm[:, 2, 2] = sd[:, 0] ** 2, sd[:, 1] ** 2
+        Dm[:, 0, 0] = float(roll_sd_rad) ** 2
+        if misalign_sd_rad is not None:
+            sd = np.broadcast_to(np.asarray(misalign_sd_rad, dtype=float), (K, 2))
+            Dm[:, 1, 1], Dm[:, 2, 2] = sd[:, 0] ** 2, sd[:, 1] ** 2
         P = P + C_nv @ Dm @ np.swapaxes(C_nv, 1, 2)
     return C_nv, P
 
