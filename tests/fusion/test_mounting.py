@@ -55,3 +55,15 @@ def test_refined_mounting_turns_the_axes_as_the_misalignment_states_do():
     C_nv, _ = vehicle_attitude(np.eye(3)[None], np.zeros((1, 3, 3)), true, small[None, 1:])
     np.testing.assert_allclose(C_nv[0], C2.T, atol=1e-4)
     assert summ["mounting_rpy_deg"][2] == 89.0 and summ["sigma_py_deg"] == [0.8, 3.1]
+
+
+def test_vehicle_roll_carries_the_unobserved_mounting_roll():
+    """roll_sd_rad adds its variance about the vehicle's forward axis only (in NED: along C_nv e_x),
+    exactly, on top of the IMU's attitude covariance and the pitch/yaw misalignment SDs."""
+    C_nb = euler_to_dcm(np.radians(3.0), np.radians(-2.0), np.radians(40.0))[None]
+    C_vb = euler_to_dcm(0.0, np.radians(2.0), np.radians(-4.0))
+    P0 = np.diag([1e-6, 2e-6, 3e-6])[None]
+    C_nv, P_a = vehicle_attitude(C_nb, P0, C_vb, np.zeros((1, 2)), np.array([0.01, 0.02]))
+    _, P_b = vehicle_attitude(C_nb, P0, C_vb, np.zeros((1, 2)), np.array([0.01, 0.02]), roll_sd_rad=0.05)
+    x = C_nv[0] @ [1.0, 0.0, 0.0]
+    np.testing.assert_allclose(P_b[0] - P_a[0], 0.05**2 * np.outer(x, x), atol=1e-15)
