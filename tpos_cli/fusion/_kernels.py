@@ -282,7 +282,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     z, H, R = z2, H2, R2
                 else:
                     z, H, R = z3, H3, R3
-                measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, st.layout, z, H, R)
+                measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, st.layout, P, z, H, R)
                 s, logdet = innovation_statistics(x, P, z, H, R, res.pvar[e])
                 for i in range(m):
                     res.nu[e, i] = z[i]

@@ -260,12 +260,33 @@ def zaru_jacobian(H):
 
 
 @njit(cache=True)
-def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
+def _lever_second_order(P, ol, H, R, m):
+    """R[:2, :2] += the variance of the second-order term -phi x (A dl) that the linear rows
+    (A = H's lever-arm columns, dl the correction's error) leave out, for the yaw error phi_D:
+    its north and east parts -phi_D u_E and phi_D u_N, u = A dl, have variances P_yaw (A P_ll
+    A^T)_EE and P_yaw (A P_ll A^T)_NN (independent zero-mean Gaussians: E[a^2 b^2] = s_a^2 s_b^2;
+    Bar-Shalom et al. 2001 Sec. 10.3, the second-order filter's trace term). While the heading is
+    still tens of degrees uncertain (a static start, the yaw search) and the lever arm a metre,
+    this is decimetres against centimetre fixes: without it the filter reads the yaw's own
+    corrections as turns and takes a lever arm from them it has not seen."""
+    s_yaw = P[ATT + 2, ATT + 2]
+    for i in range(min(m, 2)):
+        r = 1 - i  # north's term comes from u_E, east's from u_N
+        v = 0.0
+        for a in range(2):
+            for b in range(2):
+                v += H[r, ol + a] * P[ol + a, ol + b] * H[r, ol + b]
+        R[i, i] += s_yaw * v
+
+
+@njit(cache=True)
+def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, P, z, H, R):
     """Residual z (m,), rows H (m, n) and noise R (m, m) of measurement e about the nominal state.
 
     ev: the kernel's event arrays (`fusion._kernels.EventArrays`), aid: the per-kind parameters
     (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample,
-    acc_ned (3,) the platform's NED acceleration there (m/s^2; the clock-offset columns).
+    acc_ned (3,) the platform's NED acceleration there (m/s^2; the clock-offset columns), P (n, n)
+    the predicted covariance (the lever arm's second-order term, `_lever_second_order`).
     m = ev.dim[e] is the size of z, H and R, which the caller allocated; H is written whole.
     """
     kind = ev.kind[e]
@@ -298,6 +319,7 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
                     a = C[i, 0] * aid.C_vb[j, 0] + C[i, 1] * aid.C_vb[j, 1] + C[i, 2] * aid.C_vb[j, 2]
                     H[i, ol + j] = a
                     z[i] += a * dl
+            _lever_second_order(P, ol, H, R, 3)
     elif kind == Kind.GPS_VELOCITY:
         zv = np.empty(3)
         gps_velocity_residual(nav, C, aid.lever_b, w_ib, ev.z[e], zv)
@@ -321,6 +343,7 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, z, H, R):
                 for i in range(m):
                     H[i, ol + j] = u[i]
                     z[i] += u[i] * dl
+            _lever_second_order(P, ol, H, R, m)
     elif kind == Kind.NHC:
         nhc_residual(nav, C, aid.C_vb, z)
         nhc_jacobian(nav, C, aid.C_vb, H)
