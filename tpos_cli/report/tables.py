@@ -397,6 +397,59 @@ def _estimated_columns(ctx: ReportContext) -> list[L.Column] | None:
     return cols
 
 
+def _fx(v: float, decimals: int) -> str:
+    """Fixed decimals without a "-0.00"."""
+    out = f"{v:.{decimals}f}"
+    return out[1:] if out.startswith("-") and float(out) == 0.0 else out
+
+
+def _calibration_rows(results: dict) -> list[tuple[str, str, str, str]]:
+    """(quantity, estimate, 1-sigma, note) of what a drive run calibrated from its own log
+    (`summary.json` results: the mounting, the residual misalignment, the GPS lever arm, the
+    IMU-GPS clock offset, the odometer scale); rows whose figures the run does not hold are left out."""
+    rows = []
+    c = results.get("constraints") or {}
+    mnt = c.get("mounting") or {}
+    if mnt.get("mounting_rpy_deg") is not None:
+        sd = mnt.get("sigma_py_deg")
+        rows.append(("IMU on the vehicle, roll/pitch/yaw (deg)", " / ".join(_fx(v, 2) for v in mnt["mounting_rpy_deg"]),
+                     "- / " + " / ".join(_fx(v, 2) for v in sd) if sd else "", str(mnt.get("source", ""))))
+    fwd = c.get("forward") or {}
+    rm = fwd.get("residual_misalignment_deg")
+    if rm:
+        rows.append(("residual misalignment, pitch/yaw (deg)", " / ".join(_fx(v, 3) for v in rm["pitch_yaw"]),
+                     " / ".join(f"{v:.3f}" for v in rm["sigma"]), "filter states, forward run's end"))
+    la = results.get("lever_arm") or {}
+    if la.get("estimated"):
+        rows.append(("GPS lever arm, IMU axes (m)", " / ".join(_fx(v, 3) for v in la["estimate_m"]),
+                     " / ".join(f"{v:.3f}" for v in la["sigma_forward_right_m"]) + " (fwd/right)",
+                     "stated " + " / ".join(f"{v:g}" for v in la["stated_m"]) + "; vertical as stated"))
+    elif la:
+        rows.append(("GPS lever arm, IMU axes (m)", " / ".join(f"{v:g}" for v in la.get("stated_m", [])), "",
+                     "as stated, not estimated (" + str(la.get("decided_by", "")) + ")"))
+    clk = results.get("gps_clock_offset") or {}
+    if clk:
+        rows.append(("IMU-GPS clock offset, positions (s)", f"{clk['estimate_s']:+.4f}", f"{clk['sigma_s']:.4f}",
+                     f"a fix stamped t was taken at IMU time t + d; output on the {clk.get('output_clock')} clock"))
+        rows.append(("IMU-GPS clock offset, velocities (s)", f"{clk['velocity_estimate_s']:+.4f}", f"{clk['velocity_sigma_s']:.4f}", ""))
+    odo = fwd.get("odometer_scale_error")
+    if odo:
+        rows.append(("odometer scale error", f"{odo['estimate']:+.5f}", f"{odo['sigma']:.5f}", "speed read = (1 + k) x true speed"))
+    return rows
+
+
+def calibration_section(ctx: ReportContext) -> Section | None:
+    """A drive run's calibration from its own log (`_calibration_rows`), one table."""
+    rows = _calibration_rows((ctx.run.summary or {}).get("results") or {})
+    if not rows:
+        return None
+    cols = [L.Column(h, [r[i] for r in rows], align="left" if i in (0, 3) else "right")
+            for i, h in enumerate(("quantity", "estimate", "1 sigma", "note"))]
+    return _table_section("calibration", "Estimated from the log",
+                          "What the filter calibrated from this log's own data; `summary.json` holds the same figures.", cols,
+                          font=7.0)
+
+
 def _flat(d, prefix: str = "") -> list[str]:
     out = []
     for k, v in (d or {}).items():
@@ -495,6 +548,8 @@ def figure_sections(ctx: ReportContext) -> list[Section]:
             _estimated_columns(ctx),
         )
     )
+    if ctx.kind == "drive":
+        out.append(calibration_section(ctx))
     if len(ctx.health.nis) and ctx.kind not in ("drive", ""):  # a drive shows it under its innovation plots
         out.append(
             _table_section(
