@@ -98,9 +98,10 @@ class Aiding(NamedTuple):
 
 
 class History(NamedTuple):
-    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias; reversed rows
-    with `Settings.reverse_out`) and per
-    covariance epoch ep_idx, ep_P (after the updates), ep_dx (correction fed back), and with
+    """Outputs, preallocated: nominal after feedback (nav, C, bias) at the samples `rows` (K,)
+    (increasing, in the run's own time; row r holds rows[r], row K-1-r with `Settings.reverse_out`) and per
+    covariance epoch ep_idx, ep_P (after the updates; exactly symmetric, stored as its lower triangle
+    by rows, `store_tril`), ep_dx (correction fed back), and with
     store_rts the transition from the previous epoch, which is block diagonal (the extra states
     have their own scalar dynamics): ep_Phi (E, 15, 15) its navigation block and ep_phi_extra
     (E, n_extra) its diagonal beyond, and ep_Ppred (E, n (n + 1) / 2) the predicted covariance
@@ -109,6 +110,7 @@ class History(NamedTuple):
     nav: np.ndarray
     C: np.ndarray
     bias: np.ndarray
+    rows: np.ndarray
     ep_idx: np.ndarray
     ep_Phi: np.ndarray
     ep_phi_extra: np.ndarray
@@ -167,6 +169,15 @@ def store_tril(dst, k, S):
         for j in range(i + 1):
             dst[k, c] = S[i, j]
             c += 1
+
+
+@njit(cache=True)
+def _store_nominal(out, r, reverse_out, nav, C, bias):
+    """The nominal into row r of the history (row K-1-r with reverse_out)."""
+    row = out.rows.shape[0] - 1 - r if reverse_out else r
+    _store(out.nav, row, nav)
+    _store2(out.C, row, C)
+    _store(out.bias, row, bias)
 
 
 @njit(cache=True)
@@ -235,7 +246,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     # covariance epoch 0 is the prior at sample 0 (what the smoothers start from)
     ep = 0  # (indexed by `ep`, not by the literal 0: numba would compile the stores once more for it)
     out.ep_idx[ep] = 0
-    _store2(out.ep_P, ep, P)
+    store_tril(out.ep_P, ep, P)
     out.ep_dx[ep] = 0.0
     if st.store_rts:
         out.ep_Phi[ep] = 0.0
@@ -243,10 +254,11 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             out.ep_Phi[ep, i, i] = 1.0
         out.ep_phi_extra[ep] = 1.0
         store_tril(out.ep_Ppred, ep, P)
-    row = n_t - 1 if st.reverse_out else 0  # where the nominal of sample 0 is stored
-    _store(out.nav, row, nav)
-    _store2(out.C, row, C)
-    _store(out.bias, row, bias)
+    n_rows = out.rows.shape[0]
+    r = 0  # the next row of the nominal history
+    if n_rows > 0 and out.rows[0] == 0:
+        _store_nominal(out, r, st.reverse_out, nav, C, bias)
+        r += 1
     e = 0
     while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
         e += 1
@@ -303,12 +315,11 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 e += 1
             _store(out.ep_dx, ep, dx_sum)  # x stays 0 between epochs (closed loop: Phi 0 = 0)
             dx_sum[:] = 0.0
-            _store2(out.ep_P, ep, P)
+            store_tril(out.ep_P, ep, P)
             last = k
             f_sum[:] = 0.0
             dt_sum = 0.0
-        row = n_t - 1 - k if st.reverse_out else k
-        _store(out.nav, row, nav)
-        _store2(out.C, row, C)
-        _store(out.bias, row, bias)
+        if r < n_rows and out.rows[r] == k:
+            _store_nominal(out, r, st.reverse_out, nav, C, bias)
+            r += 1
     return ep + 1, 0
