@@ -185,8 +185,11 @@ class SymmetricStack:
 
     def __getitem__(self, key) -> np.ndarray:
         key = key if isinstance(key, tuple) else (key,)
-        e, at = key[0], self._at[key[1:]]
-        if isinstance(e, slice) or np.ndim(e) == 0:
+        e, at = key[0], np.asarray(self._at[key[1:]])
+        m = int(at.max()) + 1  # the entries asked for lie in the first m of each triangle
+        if 2 * at.size >= m:  # a leading block (e.g. [:9, :9]: a prefix of the rows), or most of them
+            return np.take(self.tril[e, :m], at, axis=-1)
+        if isinstance(e, slice) or np.ndim(e) == 0:  # a few entries
             return self.tril[e][..., at]
         e = np.asarray(e)
         e = np.flatnonzero(e) if e.dtype == bool else e
