@@ -228,12 +228,9 @@ def _disagreement_nis(ef, eb, f_P, b_P, d, vel, oc):
     touches: c = S[:9, oc], s_cc = S[oc, oc], V = [vel, 0]) and d9 - V d[oc]. NaN where S9 is not PD."""
     K = ef.shape[0]
     nis = np.empty(K)
-    S = np.empty((9, 9))
-    L = np.empty((9, 9))
-    c = np.zeros(9)
-    v = np.zeros(9)
-    dd = np.empty(9)
-    w = np.empty(9)
+    S, L = np.empty((9, 9)), np.empty((9, 9))  # T S T^T and its Cholesky factor
+    c, v = np.zeros(9), np.zeros(9)  # S[:9, oc] and V's row
+    dd, w = np.empty(9), np.empty(9)  # d9 and L^-1 d9
     for k in range(K):
         for i in range(9):
             for j in range(i + 1):
