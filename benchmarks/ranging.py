@@ -41,7 +41,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from drive import reference_loop  # noqa: E402  (issue 16's yardstick, the same for every chain)
+from drive import reference_loop, run_measured  # noqa: E402  (issue 16's yardstick, the same for every chain)
 
 from tpos_cli.frames import geodetic  # noqa: E402
 from tpos_cli.pipeline import process_session  # noqa: E402
@@ -85,17 +85,6 @@ def evaluate(case: str, seed: int, work: Path, overrides: dict | None = None) ->
 
 
 # --------------------------------------------------------------------------- speed
-def _process(cmd, env, cwd) -> tuple[float, float]:
-    """Run `tpos process` in a child; (its own peak RSS in MB, its CPU seconds), from the kernel's
-    accounting of that child."""
-    child = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=subprocess.DEVNULL)
-    _, status, usage = os.wait4(child.pid, 0)
-    child.returncode = os.waitstatus_to_exitcode(status)
-    if child.returncode != 0:
-        raise subprocess.CalledProcessError(child.returncode, cmd)
-    return usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
-
-
 def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate_ranging(duration_s, seed=7)
@@ -106,13 +95,11 @@ def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
         print(f"simulated {duration_s:.0f} s ranging log: {n} IMU samples, {n_ranges} ranges")
         cmd = [sys.executable, "-m", "tpos_cli", "process", str(path), "-o", str(Path(tmp) / "run"), "-q"]
         env = dict(os.environ, PYTHONPATH=str(REPO))
-        _process(cmd, env, tmp)  # warm the numba cache (a compile's memory is not the run's)
+        run_measured(cmd, env, tmp, subprocess.DEVNULL)  # warm the numba cache (a compile's memory is not the run's)
         reference_loop(1000, 100)  # and compile (or load) the reference kernels before timing them
         runs, refs, rss, cpu = [], [], [], []
         for _ in range(repeats):  # interleaved: the machine's load drifts
-            t1 = time.perf_counter()
-            mb, cpu_s = _process(cmd, env, tmp)
-            wall = time.perf_counter() - t1
+            mb, cpu_s, wall = run_measured(cmd, env, tmp, subprocess.DEVNULL)  # the process's own figures
             rss.append(mb)
             summ = json.loads((Path(tmp) / "run" / "summary.json").read_text())
             runs.append((wall, summ))

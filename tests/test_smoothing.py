@@ -70,8 +70,8 @@ def test_closed_loop_rts_equals_batch_solution(n):
         x_new = x + G @ (zs[k] - H @ x)
         edx[k] = x - x_new
         x, P = x_new, (np.eye(n) - G @ H) @ P
-        ePfilt[k], xf[k] = P, x
-    xs_post, xs_pre, Ps = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), ePfilt, edx)
+        ePfilt[k], xf[k] = 0.5 * (P + P.T), x  # stored symmetric too (`SymmetricStack`: a triangle)
+    xs_post, xs_pre, Ps = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), _tril(ePfilt), edx)
     mean, cov = _batch_smoother(Phi, Q, H, R, P0, zs)
     # both exact; differences are rounding of a 120x120 inverse (~1e-12)
     np.testing.assert_allclose(xf - xs_post, mean, rtol=0, atol=1e-9)
@@ -95,9 +95,9 @@ def test_rts_block_diagonal_transition_equals_full():
     ePfilt = np.array([P0 * (0.5 + 0.1 * k) for k in range(K)])
     ePpred = ePfilt + np.diag(np.diag(Q))[None]
     dx = 0.1 * rng.standard_normal((K, n))
-    full = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), ePfilt, dx)
+    full = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), _tril(ePfilt), dx)
     block = rts_closed_loop(np.ascontiguousarray(ePhi[:, :p, :p]), np.ascontiguousarray(ePhi[:, [4, 5], [4, 5]]),
-                            _tril(ePpred), ePfilt, dx)
+                            _tril(ePpred), _tril(ePfilt), dx)
     for a, b in zip(full, block):
         np.testing.assert_array_equal(a, b)
 
@@ -109,7 +109,7 @@ def test_rts_without_feedback_bookkeeping_is_wrong():
     ePhi = np.repeat(Phi[None], K, 0)
     ePpred = np.repeat(P0[None], K, 0)
     ePfilt = np.repeat(0.5 * P0[None], K, 0)
-    xs_post, _, _ = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), ePfilt, np.zeros((K, n)))
+    xs_post, _, _ = rts_closed_loop(ePhi, np.zeros((K, 0)), _tril(ePpred), _tril(ePfilt), np.zeros((K, n)))
     np.testing.assert_array_equal(xs_post, 0.0)
 
 

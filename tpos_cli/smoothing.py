@@ -30,7 +30,14 @@ from numba import njit
 from tpos_cli.filters.gating import (
     chi2_threshold,  # scipy.special: scipy.stats costs 0.3 s to import
 )
-from tpos_cli.filters.kalman import cho_solve_matrix_into, cholesky_into, matmul_into, sandwich_into, symmetrize
+from tpos_cli.filters.kalman import (
+    cho_solve_matrix_into,
+    cholesky_into,
+    forward_substitute,
+    matmul_into,
+    sandwich_into,
+    symmetrize,
+)
 from tpos_cli.frames import earth, rotation
 from tpos_cli.fusion.engine import FilterRun, epoch_of
 from tpos_cli.fusion.layout import Block
@@ -42,7 +49,19 @@ from tpos_cli.trajectory import Solution
 
 
 @njit(cache=True)
-def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt, dx):
+def unpack_tril(tril, e, S):
+    """S (n, n) = the symmetric matrix whose lower triangle by rows is tril[e] (numpy's
+    `tril_indices` order, `fusion.engine.SymmetricStack`)."""
+    c = 0
+    for i in range(S.shape[0]):
+        for j in range(i + 1):
+            S[i, j] = tril[e, c]
+            S[j, i] = tril[e, c]
+            c += 1
+
+
+@njit(cache=True)
+def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
     """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n),
     Ps9 (E,m,m)), Ps9 the leading m = min(n, 9) block (navigation) of the smoothed covariance: the
     recursion keeps the full one of the next epoch only (the full history would be the largest array
@@ -51,7 +70,8 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt, dx):
     Of the forward run's covariance epochs: the transitions, block diagonal, as Phi_nav (E, p, p)
     (p <= n) and phi_extra (E, n - p) the diagonal beyond (`FilterRun.ep_Phi`, `ep_phi_extra`),
     the predicted covariances Ppred_tril (E, n (n + 1) / 2) as lower triangles by rows
-    (`FilterRun.ep_Ppred`, numpy's `tril_indices` order), Pfilt (E, n, n) and dx (E, n).
+    (`FilterRun.ep_Ppred`, numpy's `tril_indices` order), the filtered ones Pfilt_tril likewise
+    (`FilterRun.ep_P.tril`) and dx (E, n).
     xs_pre[e] = xs_post[e] + dx[e] is the smoothed error about the pre-update nominal.
     Element loops and Cholesky solves (`filters.kalman`): see there for why.
     """
@@ -68,20 +88,16 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt, dx):
     PPhit = np.empty((n, n))
     Phi = np.zeros((n, n))  # the transition of epoch e + 1 (its off-diagonal blocks stay 0)
     Pp = np.empty((n, n))  # the predicted covariance of epoch e + 1
+    Pf = np.empty((n, n))  # the filtered covariance of epoch e
     for i in range(n):
         xs_pre[E - 1, i] = dx[E - 1, i]
-        for j in range(n):
-            Ps[i, j] = Pfilt[E - 1, i, j]
+    unpack_tril(Pfilt_tril, E - 1, Ps)
     for i in range(m):
         for j in range(m):
             Ps9[E - 1, i, j] = Ps[i, j]
     for e in range(E - 2, -1, -1):
-        c = 0
-        for i in range(n):
-            for j in range(i + 1):
-                Pp[i, j] = Ppred_tril[e + 1, c]
-                Pp[j, i] = Ppred_tril[e + 1, c]
-                c += 1
+        unpack_tril(Ppred_tril, e + 1, Pp)
+        unpack_tril(Pfilt_tril, e, Pf)
         for i in range(p):
             for j in range(p):
                 Phi[i, j] = Phi_nav[e + 1, i, j]
@@ -92,7 +108,7 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt, dx):
             raise ValueError("rts: a predicted covariance is not positive definite")
         # (P_e Phi^T)^T = Phi P_e (P_e symmetric; matmul_into skips Phi's zeros), then
         # A^T = (P^-)^-1 Phi P_e for all columns at once
-        matmul_into(Phi, Pfilt[e], PPhit)
+        matmul_into(Phi, Pf, PPhit)
         cho_solve_matrix_into(L, PPhit, PPhit)
         for i in range(n):
             for j in range(n):
@@ -108,7 +124,7 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt, dx):
         sandwich_into(A, D, Ps)
         for i in range(n):
             for j in range(n):
-                Ps[i, j] += Pfilt[e, i, j]
+                Ps[i, j] += Pf[i, j]
         symmetrize(Ps)
         for i in range(m):
             for j in range(m):
@@ -136,7 +152,7 @@ def _corrected(run: FilterRun, out_idx, xs):
     """(nav, C, bias) of `run` at `out_idx` corrected by the error estimates xs (K, n)."""
     K = out_idx.size
     o_nav, o_C, o_bias = np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, run.bias.shape[1]))
-    _corrected_rows(np.ascontiguousarray(out_idx, dtype=np.int64), run.nav, run.C_nb, run.bias,
+    _corrected_rows(np.ascontiguousarray(run.rows(out_idx), dtype=np.int64), run.nav, run.C_nb, run.bias,
                     np.ascontiguousarray(xs, dtype=float), o_nav, o_C, o_bias)
     return o_nav, o_C, o_bias
 
@@ -147,7 +163,7 @@ def rts(run: FilterRun, out_idx) -> Solution:
     Between epochs the smoothed error is interpolated linearly in time."""
     if run.ep_Phi is None:
         raise ValueError("`run` holds no RTS history (run the forward filter with store_rts=True)")
-    xs_post, xs_pre, Ps9 = rts_closed_loop(run.ep_Phi, run.ep_phi_extra, run.ep_Ppred, run.ep_P, run.ep_dx)
+    xs_post, xs_pre, Ps9 = rts_closed_loop(run.ep_Phi, run.ep_phi_extra, run.ep_Ppred, run.ep_P.tril, run.ep_dx)
     ep = run.ep_idx
     E = ep.size
     e = np.clip(np.searchsorted(ep, out_idx, side="right") - 1, 0, E - 1)  # the last epoch at or before
@@ -183,8 +199,9 @@ def _pairs(fwd: FilterRun, bwd: FilterRun, out_idx):
     the backward state as an error of the forward nominal (K, n))."""
     ef = np.clip(np.searchsorted(fwd.ep_idx, out_idx, side="right") - 1, 0, fwd.ep_idx.size - 1)
     eb = np.minimum(np.searchsorted(bwd.ep_idx, out_idx, side="left"), bwd.ep_idx.size - 1)
-    d = state_difference(fwd.nav[out_idx], fwd.C_nb[out_idx], fwd.bias[out_idx], bwd.nav[out_idx],
-                         bwd.C_nb[out_idx], bwd.bias[out_idx], np.empty((out_idx.size, fwd.ep_P.shape[1])))
+    rf, rb = fwd.rows(out_idx), bwd.rows(out_idx)
+    d = state_difference(fwd.nav[rf], fwd.C_nb[rf], fwd.bias[rf], bwd.nav[rb], bwd.C_nb[rb], bwd.bias[rb],
+                         np.empty((out_idx.size, fwd.ep_P.shape[1])))
     return ef, eb, d
 
 
@@ -195,41 +212,80 @@ def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability, v
     positions are compared where they are delivered, on the GPS clock: p - v d, i.e. d9 = T d
     and S = T (P_f + P_b) T^T with T = [I_9 | -v at the clock column] (two runs that place a fix
     at different IMU times agree on where the platform was when the fix was taken)."""
-    S9 = fwd.ep_P[ef, :9, :9] + bwd.ep_P[eb, :9, :9]
-    d9 = d[:, :9]
     oc = fwd.layout.offset(Block.CLOCK)
-    if oc >= 0 and vel_ned is not None:  # T S T^T from the blocks it touches: S9 - V c^T - c V^T + s_cc V V^T
-        V = np.zeros((d.shape[0], 9))
-        V[:, :3] = vel_ned
-        c = fwd.ep_P[ef, :9, oc] + bwd.ep_P[eb, :9, oc]
-        s_cc = fwd.ep_P[ef, oc, oc] + bwd.ep_P[eb, oc, oc]
-        S9 = S9 - V[:, :, None] * c[:, None, :] - c[:, :, None] * V[:, None, :] + s_cc[:, None, None] * V[:, :, None] * V[:, None, :]
-        d9 = d9 - V * d[:, oc, None]
-    nis = np.einsum("ki,ki->k", d9, np.linalg.solve(S9, d9[:, :, None])[:, :, 0])
+    if oc < 0 or vel_ned is None:
+        oc, vel_ned = -1, np.zeros((d.shape[0], 3))
+    nis = _disagreement_nis(np.asarray(ef, dtype=np.int64), np.asarray(eb, dtype=np.int64), fwd.ep_P.tril, bwd.ep_P.tril,
+                            np.ascontiguousarray(d, dtype=float), np.ascontiguousarray(vel_ned, dtype=float), oc)
     return nis > float(chi2_threshold(flag_probability, 9)[9]), nis
+
+
+@njit(cache=True)
+def _disagreement_nis(ef, eb, f_P, b_P, d, vel, oc):
+    """nis (K,) of `_disagreement` by a Cholesky solve per row: S9 = (P_f + P_b)[:9, :9] from the
+    runs' covariance triangles f_P, b_P (E, n (n + 1) / 2) at epochs ef, eb, d9 = d[:, :9]; with a
+    clock state (its column oc >= 0) T S T^T = S9 - V c^T - c V^T + s_cc V V^T (the blocks T
+    touches: c = S[:9, oc], s_cc = S[oc, oc], V = [vel, 0]) and d9 - V d[oc]. NaN where S9 is not PD."""
+    K = ef.shape[0]
+    nis = np.empty(K)
+    S, L = np.empty((9, 9)), np.empty((9, 9))  # T S T^T and its Cholesky factor
+    c, v = np.zeros(9), np.zeros(9)  # S[:9, oc] and V's row
+    dd, w = np.empty(9), np.empty(9)  # d9 and L^-1 d9
+    for k in range(K):
+        for i in range(9):
+            for j in range(i + 1):
+                t = i * (i + 1) // 2 + j  # entry (i, j), i >= j, of a triangle by rows
+                S[i, j] = f_P[ef[k], t] + b_P[eb[k], t]
+                S[j, i] = S[i, j]
+            dd[i] = d[k, i]
+        if oc >= 0:
+            t = oc * (oc + 1) // 2
+            s_cc = f_P[ef[k], t + oc] + b_P[eb[k], t + oc]
+            for i in range(9):
+                c[i] = f_P[ef[k], t + i] + b_P[eb[k], t + i]
+            for i in range(3):
+                v[i] = vel[k, i]
+            for i in range(9):
+                dd[i] -= v[i] * d[k, oc]
+                for j in range(9):
+                    S[i, j] += s_cc * v[i] * v[j] - v[i] * c[j] - c[i] * v[j]
+        if not cholesky_into(S, L):
+            nis[k] = np.nan
+            continue
+        forward_substitute(L, dd, w)
+        s = 0.0
+        for i in range(9):
+            s += w[i] * w[i]
+        nis[k] = s
+    return nis
 
 
 @njit(cache=True)
 def _combine(ef, eb, f_P, b_P, d, out_w, o_xs, o_P9, mode):
     """Error estimates o_xs (K, n) about the forward nominal and their covariances o_P9 (K, 9, 9).
+    f_P, b_P: the runs' covariances as lower triangles (`fusion.engine.SymmetricStack.tril`).
     mode 0: two-filter (full covariances); 1: simplified (paper 003). out_w (K,): weight of the
     backward solution inside outages, NaN outside."""
     last_f = -1
     last_b = -1
-    n = f_P.shape[1]
+    n = d.shape[1]
     K = np.zeros((n, n))
     Pc = np.zeros((n, n))
+    Pf = np.empty((n, n))
+    Pb = np.empty((n, n))
     for k in range(ef.shape[0]):
-        Pf = f_P[ef[k]]
-        Pb = b_P[eb[k]]
+        new = ef[k] != last_f or eb[k] != last_b
+        if new:
+            unpack_tril(f_P, ef[k], Pf)
+            unpack_tril(b_P, eb[k], Pb)
+            last_f = ef[k]
+            last_b = eb[k]
         if mode == 0:
-            if ef[k] != last_f or eb[k] != last_b:
+            if new:
                 S = Pf + Pb
                 K = np.ascontiguousarray(np.linalg.solve(S, Pf).T)  # P_f S^-1 (both symmetric)
                 Pc = Pf - K @ Pf
                 Pc = 0.5 * (Pc + Pc.T)
-                last_f = ef[k]
-                last_b = eb[k]
             o_xs[k] = K @ d[k]
             o_P9[k] = Pc[:9, :9]
         else:
@@ -252,7 +308,7 @@ def _run_combine(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, mode):
     Kn = out_idx.size
     o_xs, o_P9 = np.empty((Kn, d.shape[1])), np.empty((Kn, 9, 9))
     w = outage_weight(fwd.t_s[out_idx], outages_s)
-    _combine(ef, eb, fwd.ep_P, bwd.ep_P, d, w, o_xs, o_P9, mode)
+    _combine(ef, eb, fwd.ep_P.tril, bwd.ep_P.tril, d, w, o_xs, o_P9, mode)
     o_nav, o_C, o_bias = _corrected(fwd, out_idx, o_xs)
     return o_nav, o_C, o_P9, o_bias, (ef, eb, d)
 
@@ -269,13 +325,13 @@ def outage_weight(t_s, outages_s) -> np.ndarray:
 def two_filter(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,))."""
     nav, C, P9, bias, pairs = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), 0)
-    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability, fwd.nav[out_idx, 3:6])
+    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability, fwd.nav[fwd.rows(out_idx), 3:6])
     return Solution("two_filter", out_idx, nav, C, P9, bias), flag, nis
 
 
 def disagreement(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
     """(flag (K,), nis (K,)): forward/backward NIS of the 9 navigation states against chi-square."""
-    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability, fwd.nav[out_idx, 3:6])
+    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability, fwd.nav[fwd.rows(out_idx), 3:6])
 
 
 def simplified(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s) -> Solution:
@@ -287,4 +343,5 @@ def simplified(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s) -> Solution:
 def filter_solution(run: FilterRun, out_idx, name) -> Solution:
     """A filter run itself as a `Solution` (covariance of the nearest epoch on the data side)."""
     e = epoch_of(run, out_idx)
-    return Solution(name, out_idx, run.nav[out_idx], run.C_nb[out_idx], run.ep_P[e, :9, :9], run.bias[out_idx])
+    r = run.rows(out_idx)
+    return Solution(name, out_idx, run.nav[r], run.C_nb[r], run.ep_P[e, :9, :9], run.bias[r])

@@ -11,6 +11,7 @@ from tpos_cli.fusion.engine import (
     FilterRun,
     InitialState,
     Measurements,
+    SymmetricStack,
     backward_start,
     epoch_of,
     run_filter,
@@ -60,6 +61,45 @@ def test_backward_run_at_rest_returns_to_the_start_with_forward_time_signs():
     # covariances in forward order: the backward run is most certain near its start, the end of the log
     assert bwd.ep_P[-1, 0, 0] < bwd.ep_P[0, 0, 0]
     assert np.all(np.isfinite(fwd.ev_nis)) and fwd.ev_accepted.all()
+
+
+def test_nominal_kept_at_chosen_samples_equals_the_full_history():
+    """`FilterConfig.nominal_idx`: the runs store the nominal at those samples (and the ends) only,
+    the same numbers as a run that stores every sample; covariances and residuals unchanged."""
+    t, gyro, acc, init, cfg = _still(n=501)
+    acc = acc + 0.01 * np.sin(np.arange(t.size) / 7.0)[:, None]  # not at rest: the nominal moves
+    zupt = Measurements.rows(np.arange(0.05, 5.0, 0.5), Kind.ZUPT, np.zeros((10, 3)), np.tile(1e-4 * np.eye(3), (10, 1, 1)),
+                             dim=3, gated=False)
+    keep = np.array([3, 40, 41, 250, 333])
+    cfg_k = FilterConfig(cfg.q, cfg.tau_acc_s, cfg.tau_gyro_s, cfg.cov_step, nominal_idx=keep)
+    for backward in (False, True):
+        start = init if not backward else backward_start(run_filter(t, gyro, acc, init, cfg, zupt), init.P0)
+        full = run_filter(t, gyro, acc, start, cfg, zupt, backward=backward)
+        part = run_filter(t, gyro, acc, start, cfg_k, zupt, backward=backward)
+        idx = np.r_[0, keep, t.size - 1]
+        assert list(part.idx) == list(idx) and list(part.rows(keep)) == [1, 2, 3, 4, 5]
+        for a in ("nav", "C_nb", "bias"):
+            np.testing.assert_array_equal(getattr(part, a), getattr(full, a)[idx])
+        np.testing.assert_array_equal(part.ep_P.tril, full.ep_P.tril)
+        np.testing.assert_array_equal(part.ev_nu, full.ev_nu)
+        with pytest.raises(ValueError, match="nominal_idx"):
+            part.rows([5])
+
+
+def test_symmetric_stack_indexes_like_the_full_array():
+    rng = np.random.default_rng(0)
+    E, n = 50, 7
+    A = rng.standard_normal((E, n, n))
+    P = A @ A.transpose(0, 2, 1)
+    i, j = np.tril_indices(n)
+    S = SymmetricStack(np.ascontiguousarray(P[:, i, j]), n)
+    e = rng.integers(0, E, 30)
+    keys = [3, -1, (slice(None), 3, 3), (slice(2, 9), slice(None, 4), slice(None, 4)), (e,), (e, slice(None, 5), slice(None, 5)),
+            (e, 6, 6), (e, slice(None, 3), 6), (rng.random(E) > 0.5, 2, slice(None)), (e, 4), (5, slice(1, 3), 0)]
+    for k in keys:
+        np.testing.assert_array_equal(S[k], P[k])
+    assert S.shape == P.shape and S.take(np.array([0, E - 1]))[1].tolist() == P[-1].tolist()
+    np.testing.assert_array_equal(S.leading(4)[:], P[:, :4, :4])
 
 
 def test_epoch_of_takes_the_data_side():

@@ -100,7 +100,7 @@ def test_error_states_are_consistent_forward_and_backward(correlated_runs):
             e = epoch_of(run, k[m])  # the covariance of the nearest epoch on the data side
             o = run.layout.offset(Block.GPS_ERROR)
             sd = np.sqrt(np.diagonal(run.ep_P[e][:, o:o + 2, o:o + 2], axis1=1, axis2=2))
-            z = (run.extra(Block.GPS_ERROR)[k[m], :2] - b_true[m, :2]) / sd
+            z = (run.extra(Block.GPS_ERROR, k[m])[:, :2] - b_true[m, :2]) / sd
             assert np.mean(np.abs(z) < 2.0) > 0.6  # one run is ~10 correlation times: a loose floor
             z2.append(np.mean(z**2))
     # six runs of ~10 effective samples per axis: the mean of z^2 is 1 to about +-0.4 (2 SD)

@@ -553,16 +553,17 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     sols = {}
+    cfg_out = dataclasses.replace(cfg, nominal_idx=out_idx)  # the runs' nominal at the output rows only
     with stage("forward"):
-        fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg, store_rts=need_rts, extra=extra)
+        fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg_out, store_rts=need_rts, extra=extra)
     if need_rts:
         with stage("smoothing_rts"):
             sols["rts"] = smoothing.rts(fwd, out_idx)
             # drop the RTS history before the backward run: it is the largest array of the run
             fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)
     with stage("backward"):
-        bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg, backward=True,
-                         extra=extra)
+        bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg_out,
+                         backward=True, extra=extra)
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
@@ -710,7 +711,7 @@ def clock_track(res: DriveResult, idx) -> tuple[np.ndarray, np.ndarray] | None:
     parts = []
     for run in (res.forward, res.backward):
         e = epoch_of(run, idx)
-        parts.append((run.extra(Block.CLOCK)[idx], np.stack([run.ep_P[e, o, o], run.ep_P[e, o + 1, o + 1]], axis=1)))
+        parts.append((run.extra(Block.CLOCK, idx), np.stack([run.ep_P[e, o, o], run.ep_P[e, o + 1, o + 1]], axis=1)))
     (df, vf), (db, vb) = parts
     w = vb / (vf + vb)
     return w * df + (1.0 - w) * db, np.sqrt(vf * vb / (vf + vb))
@@ -798,6 +799,6 @@ def without_histories(res: DriveResult) -> DriveResult:
     def slim(run: FilterRun) -> FilterRun:
         ends = np.array([0, run.ep_idx.size - 1])
         return dataclasses.replace(run, nav=run.nav[[0, -1]], C_nb=run.C_nb[[0, -1]], bias=run.bias[[0, -1]],
-                                   ep_idx=run.ep_idx[ends], ep_P=run.ep_P[ends], ep_Phi=None, ep_Ppred=None, ep_dx=None,
-                                   ep_phi_extra=None)
+                                   idx=np.array([0, run.t_s.size - 1]), ep_idx=run.ep_idx[ends], ep_P=run.ep_P.take(ends),
+                                   ep_Phi=None, ep_Ppred=None, ep_dx=None, ep_phi_extra=None)
     return dataclasses.replace(res, forward=slim(res.forward), backward=slim(res.backward))

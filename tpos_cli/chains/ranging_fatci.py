@@ -247,6 +247,7 @@ def run(session: Session, p: RangingParams, ctx: RunContext) -> ChainOutput:
         st = start(session, p, rg, ctx, results)
     common = common_events(rg, st, p, ctx)
     out_idx = output_indices(imu.t_s.size - st.init.k0, max(1, int(round(1.0 / (p.output_rate_hz * float(np.median(np.diff(imu.t_s))))))))
+    st = dataclasses.replace(st, cfg=dataclasses.replace(st.cfg, nominal_idx=out_idx))  # the runs' nominal at the output rows only
     rows, innov, per_sol, smooth_rows = {}, {}, {}, None
     source = p.smooth_source if p.smoothed else None
     # the smoothed solution's source runs first and is smoothed at once: its RTS history (the
@@ -257,7 +258,7 @@ def run(session: Session, p: RangingParams, ctx: RunContext) -> ChainOutput:
             run_ = run_ranging(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, st.init, Measurements.merge(ev, common),
                                session.anchors.ned_m, session.anchors.origin_lla, st.cfg,
                                store_rts=name == source and p.smoother == "rts")
-            rb = run_.extra(Block.RANGE_BIAS)[out_idx, 0]
+            rb = run_.extra(Block.RANGE_BIAS, out_idx)[:, 0]
             rows[name] = _rows(smoothing.filter_solution(run_, out_idx, name), run_, session.t0_s, rb)
             per_sol[name] = _report(run_, name, ids, session.t0_s, p, ctx, st.t_used_s) | extra
             innov[name] = _innovations(run_, name, ids, session.t0_s)
@@ -287,12 +288,12 @@ def _combined_range_bias(src: FilterRun, bwd: FilterRun, out_idx) -> np.ndarray:
     o = src.layout.offset(Block.RANGE_BIAS)
     vf = src.ep_P[epoch_of(src, out_idx), o, o]
     vb = bwd.ep_P[epoch_of(bwd, out_idx), o, o]
-    return (src.extra(Block.RANGE_BIAS)[out_idx, 0] * vb + bwd.extra(Block.RANGE_BIAS)[out_idx, 0] * vf) / (vf + vb)
+    return (src.extra(Block.RANGE_BIAS, out_idx)[:, 0] * vb + bwd.extra(Block.RANGE_BIAS, out_idx)[:, 0] * vf) / (vf + vb)
 
 
 def _nav15(run: FilterRun) -> FilterRun:
     """The run with its covariances reduced to the 15 navigation states (the two-filter smoother's layout)."""
-    return dataclasses.replace(run, ep_P=np.ascontiguousarray(run.ep_P[:, :15, :15]))
+    return dataclasses.replace(run, ep_P=run.ep_P.leading(15))
 
 
 _FLOOR_UNKNOWN_SD_M = 1.0  # floor taken at the anchors' height: its error is metres, the ranges refine it

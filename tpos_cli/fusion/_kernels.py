@@ -98,9 +98,10 @@ class Aiding(NamedTuple):
 
 
 class History(NamedTuple):
-    """Outputs, preallocated: nominal after feedback at every sample (nav, C, bias; reversed rows
-    with `Settings.reverse_out`) and per
-    covariance epoch ep_idx, ep_P (after the updates), ep_dx (correction fed back), and with
+    """Outputs, preallocated: nominal after feedback (nav, C, bias) at the samples `rows` (K,)
+    (increasing, in the run's own time; row r holds rows[r], row K-1-r with `Settings.reverse_out`) and per
+    covariance epoch ep_idx, ep_P (after the updates; exactly symmetric, stored as its lower triangle
+    by rows, `store_tril`), ep_dx (correction fed back), and with
     store_rts the transition from the previous epoch, which is block diagonal (the extra states
     have their own scalar dynamics): ep_Phi (E, 15, 15) its navigation block and ep_phi_extra
     (E, n_extra) its diagonal beyond, and ep_Ppred (E, n (n + 1) / 2) the predicted covariance
@@ -109,6 +110,7 @@ class History(NamedTuple):
     nav: np.ndarray
     C: np.ndarray
     bias: np.ndarray
+    rows: np.ndarray
     ep_idx: np.ndarray
     ep_Phi: np.ndarray
     ep_phi_extra: np.ndarray
@@ -235,7 +237,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     # covariance epoch 0 is the prior at sample 0 (what the smoothers start from)
     ep = 0  # (indexed by `ep`, not by the literal 0: numba would compile the stores once more for it)
     out.ep_idx[ep] = 0
-    _store2(out.ep_P, ep, P)
+    store_tril(out.ep_P, ep, P)
     out.ep_dx[ep] = 0.0
     if st.store_rts:
         out.ep_Phi[ep] = 0.0
@@ -243,10 +245,16 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             out.ep_Phi[ep, i, i] = 1.0
         out.ep_phi_extra[ep] = 1.0
         store_tril(out.ep_Ppred, ep, P)
-    row = n_t - 1 if st.reverse_out else 0  # where the nominal of sample 0 is stored
-    _store(out.nav, row, nav)
-    _store2(out.C, row, C)
-    _store(out.bias, row, bias)
+    rows = out.rows
+    n_rows = rows.shape[0]
+    every = n_rows == n_t  # every sample's nominal (rows = 0..n_t-1)
+    r = 0  # the next row of the nominal history
+    if n_rows > 0 and rows[0] == 0:
+        row = n_rows - 1 if st.reverse_out else 0
+        _store(out.nav, row, nav)
+        _store2(out.C, row, C)
+        _store(out.bias, row, bias)
+        r += 1
     e = 0
     while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
         e += 1
@@ -303,12 +311,14 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 e += 1
             _store(out.ep_dx, ep, dx_sum)  # x stays 0 between epochs (closed loop: Phi 0 = 0)
             dx_sum[:] = 0.0
-            _store2(out.ep_P, ep, P)
+            store_tril(out.ep_P, ep, P)
             last = k
             f_sum[:] = 0.0
             dt_sum = 0.0
-        row = n_t - 1 - k if st.reverse_out else k
-        _store(out.nav, row, nav)
-        _store2(out.C, row, C)
-        _store(out.bias, row, bias)
+        if every or (r < n_rows and rows[r] == k):  # (stores inline: a helper taking the arrays cost 8 % of a run)
+            row = n_rows - 1 - r if st.reverse_out else r
+            _store(out.nav, row, nav)
+            _store2(out.C, row, C)
+            _store(out.bias, row, bias)
+            r += 1
     return ep + 1, 0

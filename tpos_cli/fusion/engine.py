@@ -47,7 +47,10 @@ class FilterConfig:
     chi-square gate; max_consecutive_rejections: then the next one of that slot is applied
     (0 = no gating); lever_arm_b_m (3,): GPS antenna in the body frame; ungated_after_gap_s > 0:
     the first GPS fix after a longer gap between fixes is not gated (`fusion.insgps`);
-    layout: the states beyond the 15 navigation errors (`fusion.layout`)."""
+    layout: the states beyond the 15 navigation errors (`fusion.layout`); nominal_idx: the
+    run-local samples whose nominal a run stores (None: every sample; the run's first and last
+    samples are always stored): a smoother that needs the nominal at its output rows only keeps
+    a tenth of the largest arrays of a run (`FilterRun.rows`)."""
 
     q: np.ndarray
     tau_acc_s: float
@@ -59,6 +62,7 @@ class FilterConfig:
     ungated_after_gap_s: float = 0.0
     layout: StateLayout = field(default_factory=StateLayout)
     C_vb: np.ndarray = field(default_factory=lambda: np.eye(3))  # IMU body -> vehicle axes (NHC rows)
+    nominal_idx: np.ndarray | None = None
 
     @property
     def n_states(self) -> int:
@@ -157,14 +161,59 @@ class Measurements:
                             self.slot[r], self.par[r], self.anchors_ned_m, self.origin_lla, self.sens)
 
 
+class SymmetricStack:
+    """A stack of symmetric matrices (E, n, n) stored as their lower triangles by rows, tril
+    (E, n (n + 1) / 2) (numpy's `tril_indices` order): a run's covariances are exactly symmetric
+    (`filters.kalman`), so the triangle loses nothing and halves the largest array of a run.
+    Indexed like the full array (`P[e]`, `P[e, :9, :9]`, `P[:, 3, 3]`, e an index, a slice or
+    an index array): only the entries asked for are gathered."""
+
+    def __init__(self, tril: np.ndarray, n: int):
+        self.tril = tril
+        self.n = int(n)
+        i, j = np.tril_indices(self.n)
+        at = np.empty((self.n, self.n), dtype=np.int64)
+        at[i, j] = at[j, i] = np.arange(i.size)
+        self._at = at  # position of entry (i, j) in a triangle
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (self.tril.shape[0], self.n, self.n)
+
+    def __len__(self) -> int:
+        return self.tril.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        key = key if isinstance(key, tuple) else (key,)
+        e, at = key[0], np.asarray(self._at[key[1:]])
+        m = int(at.max()) + 1  # the entries asked for lie in the first m of each triangle
+        if 2 * at.size >= m:  # a leading block (e.g. [:9, :9]: a prefix of the rows), or most of them
+            return np.take(self.tril[e, :m], at, axis=-1)
+        if isinstance(e, slice) or np.ndim(e) == 0:  # a few entries
+            return self.tril[e][..., at]
+        e = np.asarray(e)
+        e = np.flatnonzero(e) if e.dtype == bool else e
+        return self.tril[e.reshape(e.shape + (1,) * at.ndim), at]
+
+    def take(self, e) -> SymmetricStack:
+        """The matrices e (indices), still stored as triangles."""
+        return SymmetricStack(self.tril[e], self.n)
+
+    def leading(self, m: int) -> SymmetricStack:
+        """The leading (m, m) blocks (a view: their triangles are the first m (m + 1) / 2 entries)."""
+        return SymmetricStack(self.tril[:, : m * (m + 1) // 2], m)
+
+
 @dataclass(frozen=True)
 class FilterRun:
     """One filter run over the IMU samples k0..N-1, in forward time order (run-local index j = k - k0).
 
-    t_s (N-k0,) session seconds; nav (N-k0, 6), C_nb (N-k0, 3, 3), bias (N-k0, 6 + n_extra): the
-    nominal after feedback at every sample (`Nominal`; the extra states' nominal after the IMU
-    biases). ep_idx (E,) run-local sample of each covariance epoch, increasing; ep_P (E, n, n) the
-    covariance after the updates there, forward-time signs; forward runs also hold ep_dx (E, n)
+    t_s (N-k0,) session seconds; nav (K, 6), C_nb (K, 3, 3), bias (K, 6 + n_extra): the nominal
+    after feedback (`Nominal`; the extra states' nominal after the IMU biases) at the run-local
+    samples idx (K,) (increasing, the first and last sample included; None: every sample, K = N-k0);
+    `rows` maps samples to rows. ep_idx (E,) run-local sample of each covariance epoch, increasing;
+    ep_P (E, n, n) the covariance after the updates there, forward-time signs (a `SymmetricStack`:
+    lower triangles, indexed like the full array); forward runs also hold ep_dx (E, n)
     (correction fed back at the epoch) and, stored for RTS, the transition from the previous
     epoch, block diagonal: ep_Phi (E, 15, 15) its navigation block, ep_phi_extra (E, n - 15) its
     diagonal beyond, and the predicted covariance ep_Ppred (E, n (n + 1) / 2) as its lower
@@ -181,7 +230,7 @@ class FilterRun:
     C_nb: np.ndarray
     bias: np.ndarray
     ep_idx: np.ndarray
-    ep_P: np.ndarray
+    ep_P: SymmetricStack
     ep_Phi: np.ndarray | None
     ep_Ppred: np.ndarray | None
     ep_dx: np.ndarray | None
@@ -193,14 +242,28 @@ class FilterRun:
     ev_logdet: np.ndarray
     ev_accepted: np.ndarray
     ep_phi_extra: np.ndarray | None = None
+    idx: np.ndarray | None = None
 
-    def extra(self, block: Block) -> np.ndarray:
-        """Nominal of an extra block at every sample, (N-k0, size); (N-k0, 0) when absent."""
+    def rows(self, idx) -> np.ndarray:
+        """Rows of nav, C_nb and bias that hold the run-local samples idx (which the run must have
+        stored: `FilterConfig.nominal_idx`)."""
+        i = np.asarray(idx, dtype=np.int64)
+        if self.idx is None:
+            return i
+        r = np.minimum(np.searchsorted(self.idx, i), self.idx.size - 1)
+        if not np.array_equal(self.idx[r], i):
+            raise ValueError("the run did not store the nominal at every requested sample (`FilterConfig.nominal_idx`)")
+        return r
+
+    def extra(self, block: Block, idx=None) -> np.ndarray:
+        """Nominal of an extra block at the run-local samples idx (None: every stored row), (K, size);
+        (K, 0) when absent."""
+        r = slice(None) if idx is None else self.rows(idx)
         o = self.layout.offset(block)
         if o < 0:
-            return np.zeros((self.nav.shape[0], 0))
+            return np.zeros((self.bias[r].shape[0], 0))
         size = next(b.size for b in self.layout.blocks if b.block == block)
-        return self.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + size]
+        return self.bias[r, 6 + o - N_NAV: 6 + o - N_NAV + size]
 
 
 def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfig, meas: Measurements, *,
@@ -259,9 +322,12 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     aid = _aiding(cfg, meas, backward)
     n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), np.unique(k_o))
     nr = n_ep if store_rts else 1
-    out = History(np.empty((n, 6)), np.empty((n, 3, 3)), np.empty((n, nb)), np.zeros(n_ep, np.int64),
+    keep = _nominal_idx(cfg.nominal_idx, n)
+    rows = np.arange(n) if keep is None else (n - 1 - keep[::-1] if backward else keep)  # in the run's own time
+    K = rows.size
+    out = History(np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, nb)), rows, np.zeros(n_ep, np.int64),
                   np.empty((nr, N_NAV, N_NAV)), np.empty((nr, ns - N_NAV)), np.empty((nr, ns * (ns + 1) // 2)),
-                  np.empty((n_ep, ns, ns)), np.empty((n_ep, ns)))
+                  np.empty((n_ep, ns * (ns + 1) // 2)), np.empty((n_ep, ns)))
     m = order.size
     res = EventResults(np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan), np.full(m, np.nan),
                        np.zeros(m, np.bool_))
@@ -291,16 +357,27 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
         bias[:, 6:][:, odd] *= -1.0
         ep_idx = (n - 1 - ep_idx)[::-1]
         ep_P = ep_P[::-1]
-        ep_P *= np.outer(sign, sign)  # in place: this array is the run's largest
+        ep_P *= np.outer(sign, sign)[np.tril_indices(ns)]  # in place: this array is the run's largest
         nu[np.isin(meas.kind, _VELOCITY_KINDS)] *= -1.0
         ep_dx = None
     if not np.all(np.isfinite(nav)):
         bad = int(np.argmax(~np.all(np.isfinite(nav), axis=1)))
+        bad = bad if keep is None else int(keep[bad])
         raise ProcessingError(f"filter diverged at t_s = {np.asarray(t_s)[k0 + bad]:.3f} (session epoch removed)")
     rts = store_rts and not backward
-    return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, ep_P,
+    return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, SymmetricStack(ep_P, ns),
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
-                     lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None)
+                     lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None, keep)
+
+
+def _nominal_idx(idx, n: int) -> np.ndarray | None:
+    """`FilterConfig.nominal_idx` as sorted unique run-local samples with both ends (None: every sample)."""
+    if idx is None:
+        return None
+    i = np.asarray(idx, dtype=np.int64)
+    if i.size and (i.min() < 0 or i.max() >= n):
+        raise ValueError(f"`nominal_idx` must lie in [0, {n}), got {i.min()}..{i.max()}")
+    return np.union1d(i, [0, n - 1])
 
 
 def epoch_count(n: int, cov_step: int, k_meas) -> int:

@@ -74,7 +74,10 @@ def write_parquet(df: pd.DataFrame, path: Path, metadata: Mapping[str, str] | No
         meta = dict(table.schema.metadata or {})
         meta.update({f"tpos.{k}".encode(): str(v).encode() for k, v in metadata.items()})
         table = table.replace_schema_metadata(meta)
-    pq.write_table(table, path)
+    # dictionary encoding for the columns that repeat (names, kinds, counts, flags), not for the
+    # floats: trying it on them was most of the write time (0.17 of 0.2 s on a ranging hour's
+    # trajectory), and they come out smaller without it. The values read back are the same.
+    pq.write_table(table, path, use_dictionary=[f.name for f in table.schema if not pa.types.is_floating(f.type)])
 
 
 def remove_stale_partials(out_dir: Path) -> None:
