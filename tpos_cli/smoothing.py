@@ -205,31 +205,64 @@ def _pairs(fwd: FilterRun, bwd: FilterRun, out_idx):
     return ef, eb, d
 
 
-def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability, vel_ned=None):
-    """(flag (K,), nis (K,)): d[:9]^T (P_f + P_b)[:9, :9]^-1 d[:9] against chi-square (9 d.o.f.).
-
-    With an IMU-GPS clock state (`fusion.layout.clock_block`) and the velocities vel_ned (K, 3),
-    positions are compared where they are delivered, on the GPS clock: p - v d, i.e. d9 = T d
-    and S = T (P_f + P_b) T^T with T = [I_9 | -v at the clock column] (two runs that place a fix
-    at different IMU times agree on where the platform was when the fix was taken)."""
+def delivered_position_rows(fwd: FilterRun, out_idx, C_vb=None) -> tuple[np.ndarray, np.ndarray]:
+    """(cols (m,), G (K, 3, m)): the extra states that move the position the fixes measure, and how
+    (the position rows of `fusion.measurements.measure`): an IMU-GPS clock offset by +v (a fix
+    stamped t holds at IMU time t + d: p + v d; `layout.clock_block`) and a lever-arm correction by
+    C_nb C_vb^T (`layout.lever_arm_block`), from the forward run's nominal at out_idx; C_vb: the
+    runs' IMU-to-vehicle rotation (identity: the IMU's own axes)."""
+    rows = fwd.rows(out_idx)
+    cols, parts = [], []
     oc = fwd.layout.offset(Block.CLOCK)
-    if oc < 0 or vel_ned is None:
-        oc, vel_ned = -1, np.zeros((d.shape[0], 3))
+    if oc >= 0:
+        cols.append(oc)
+        parts.append(fwd.nav[rows, 3:6][:, :, None])
+    ol = fwd.layout.offset(Block.LEVER)
+    if ol >= 0:
+        C_vb = np.eye(3) if C_vb is None else np.asarray(C_vb, dtype=float)
+        cols += [ol, ol + 1]
+        parts.append(fwd.C_nb[rows] @ C_vb[:2].T)
+    if not cols:
+        return np.zeros(0, dtype=np.int64), np.zeros((rows.size, 3, 0))
+    return np.asarray(cols, dtype=np.int64), np.ascontiguousarray(np.concatenate(parts, axis=2))
+
+
+def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability, delivered=None):
+    """(flag (K,), nis (K,)): d9^T S^-1 d9 of the two runs' difference against chi-square (9 d.o.f.).
+
+    d9 is the difference of what the runs deliver: velocity and attitude, and the position the
+    fixes measure (`delivered_position_rows`: (cols, G)), d9 = T d and S = T (P_f + P_b) T^T with
+    T = [I_9 | G on the position rows at cols]. Two runs that split a fix between the IMU's
+    position, the clock offset and the lever arm differently still agree on where the antenna
+    was when the fix was taken; their IMU positions alone would be tested on a split the fixes
+    cannot tell (d = f - b: the delivered difference is dp + v dd_clock + C C_vb^T dd_lever)."""
+    cols, G = delivered if delivered is not None else (np.zeros(0, dtype=np.int64), np.zeros((d.shape[0], 3, 0)))
     nis = _disagreement_nis(np.asarray(ef, dtype=np.int64), np.asarray(eb, dtype=np.int64), fwd.ep_P.tril, bwd.ep_P.tril,
-                            np.ascontiguousarray(d, dtype=float), np.ascontiguousarray(vel_ned, dtype=float), oc)
+                            np.ascontiguousarray(d, dtype=float), np.asarray(cols, dtype=np.int64),
+                            np.ascontiguousarray(G, dtype=float))
     return nis > float(chi2_threshold(flag_probability, 9)[9]), nis
 
 
 @njit(cache=True)
-def _disagreement_nis(ef, eb, f_P, b_P, d, vel, oc):
+def _tri(P, e, i, j):
+    """Entry (i, j) of the covariance triangle P[e] (lower, by rows)."""
+    if i < j:
+        i, j = j, i
+    return P[e, i * (i + 1) // 2 + j]
+
+
+@njit(cache=True)
+def _disagreement_nis(ef, eb, f_P, b_P, d, cols, G):
     """nis (K,) of `_disagreement` by a Cholesky solve per row: S9 = (P_f + P_b)[:9, :9] from the
-    runs' covariance triangles f_P, b_P (E, n (n + 1) / 2) at epochs ef, eb, d9 = d[:, :9]; with a
-    clock state (its column oc >= 0) T S T^T = S9 - V c^T - c V^T + s_cc V V^T (the blocks T
-    touches: c = S[:9, oc], s_cc = S[oc, oc], V = [vel, 0]) and d9 - V d[oc]. NaN where S9 is not PD."""
+    runs' covariance triangles f_P, b_P (E, n (n + 1) / 2) at epochs ef, eb, d9 = d[:, :9]; with
+    extra columns cols (m,) on the position rows G (K, 3, m): T S T^T = S9 + E c^T + c E^T + E s E^T
+    (E (9, m): G on rows 0-2; c = S[:9, cols], s = S[cols, cols]) and d9 + E d[cols]. NaN where
+    the result is not positive definite."""
     K = ef.shape[0]
+    m = cols.shape[0]
     nis = np.empty(K)
     S, L = np.empty((9, 9)), np.empty((9, 9))  # T S T^T and its Cholesky factor
-    c, v = np.zeros(9), np.zeros(9)  # S[:9, oc] and V's row
+    c, s = np.empty((9, m)), np.empty((m, m))
     dd, w = np.empty(9), np.empty(9)  # d9 and L^-1 d9
     for k in range(K):
         for i in range(9):
@@ -238,25 +271,36 @@ def _disagreement_nis(ef, eb, f_P, b_P, d, vel, oc):
                 S[i, j] = f_P[ef[k], t] + b_P[eb[k], t]
                 S[j, i] = S[i, j]
             dd[i] = d[k, i]
-        if oc >= 0:
-            t = oc * (oc + 1) // 2
-            s_cc = f_P[ef[k], t + oc] + b_P[eb[k], t + oc]
-            for i in range(9):
-                c[i] = f_P[ef[k], t + i] + b_P[eb[k], t + i]
+        if m > 0:
+            for j in range(m):
+                for i in range(9):
+                    c[i, j] = _tri(f_P, ef[k], cols[j], i) + _tri(b_P, eb[k], cols[j], i)
+                for q in range(m):
+                    s[j, q] = _tri(f_P, ef[k], cols[j], cols[q]) + _tri(b_P, eb[k], cols[j], cols[q])
             for i in range(3):
-                v[i] = vel[k, i]
-            for i in range(9):
-                dd[i] -= v[i] * d[k, oc]
-                for j in range(9):
-                    S[i, j] += s_cc * v[i] * v[j] - v[i] * c[j] - c[i] * v[j]
+                for j in range(m):
+                    dd[i] += G[k, i, j] * d[k, cols[j]]
+            for a in range(9):
+                for b in range(9):
+                    add = 0.0
+                    for j in range(m):
+                        if a < 3:
+                            add += G[k, a, j] * c[b, j]
+                        if b < 3:
+                            add += c[a, j] * G[k, b, j]
+                    if a < 3 and b < 3:
+                        for j in range(m):
+                            for q in range(m):
+                                add += G[k, a, j] * s[j, q] * G[k, b, q]
+                    S[a, b] += add
         if not cholesky_into(S, L):
             nis[k] = np.nan
             continue
         forward_substitute(L, dd, w)
-        s = 0.0
+        acc = 0.0
         for i in range(9):
-            s += w[i] * w[i]
-        nis[k] = s
+            acc += w[i] * w[i]
+        nis[k] = acc
     return nis
 
 
@@ -322,16 +366,17 @@ def outage_weight(t_s, outages_s) -> np.ndarray:
     return w
 
 
-def two_filter(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
-    """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,))."""
+def two_filter(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999, C_vb=None):
+    """Optimal forward/backward combination; returns (Solution, flag (K,), nis (K,)) (`disagreement`)."""
     nav, C, P9, bias, pairs = _run_combine(fwd, bwd, out_idx, np.zeros((0, 2)), 0)
-    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability, fwd.nav[fwd.rows(out_idx), 3:6])
+    flag, nis = _disagreement(fwd, bwd, *pairs, flag_probability, delivered_position_rows(fwd, out_idx, C_vb))
     return Solution("two_filter", out_idx, nav, C, P9, bias), flag, nis
 
 
-def disagreement(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999):
-    """(flag (K,), nis (K,)): forward/backward NIS of the 9 navigation states against chi-square."""
-    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability, fwd.nav[fwd.rows(out_idx), 3:6])
+def disagreement(fwd: FilterRun, bwd: FilterRun, out_idx, *, flag_probability=0.999, C_vb=None):
+    """(flag (K,), nis (K,)): forward/backward NIS of the 9 delivered navigation states (position
+    where the fixes measure it: `delivered_position_rows`, C_vb the runs' mounting) against chi-square."""
+    return _disagreement(fwd, bwd, *_pairs(fwd, bwd, out_idx), flag_probability, delivered_position_rows(fwd, out_idx, C_vb))
 
 
 def simplified(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s) -> Solution:

@@ -472,14 +472,15 @@ def _block_at_end(run: FilterRun, block: Block, size: int):
     return run.extra(block)[j], np.sqrt(np.diagonal(run.ep_P[j])[o:o + size])
 
 
-def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothParams, names, sols: dict):
+def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothParams, names, sols: dict, C_vb=None):
     """The requested solutions from the forward and backward runs (`sols` may hold `rts` already);
-    returns (solutions, flag, forward/backward NIS) at out_idx."""
+    returns (solutions, flag, forward/backward NIS) at out_idx. C_vb: the runs' mounting (the
+    lever-arm states' axes in the disagreement test)."""
     wanted = set(names) | ({p.smoother} if "smoothed" in names else set())
     if "two_filter" in wanted:
-        sols["two_filter"], flag, nis = smoothing.two_filter(fwd, bwd, out_idx, flag_probability=p.flag_probability)
+        sols["two_filter"], flag, nis = smoothing.two_filter(fwd, bwd, out_idx, flag_probability=p.flag_probability, C_vb=C_vb)
     else:
-        flag, nis = smoothing.disagreement(fwd, bwd, out_idx, flag_probability=p.flag_probability)
+        flag, nis = smoothing.disagreement(fwd, bwd, out_idx, flag_probability=p.flag_probability, C_vb=C_vb)
     if "forward" in wanted:
         sols["forward"] = smoothing.filter_solution(fwd, out_idx, "forward")
     if "backward" in wanted:
@@ -566,7 +567,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                          backward=True, extra=extra)
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
-        sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols)
+        sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols, cfg.C_vb)
     sols = {k: at_stated_lever_arm(v, cfg) for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
