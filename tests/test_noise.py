@@ -73,10 +73,13 @@ def test_report_has_allan_page_for_a_static_log(tmp_path):
     imu.to_parquet(s / "imu.parquet")
     (s / "imu.csv").unlink()
     (s / "session.toml").write_text((s / "session.toml").read_text().replace("rate_hz = 10.0", "rate_hz = 100.0"))
-    traj = synth.trajectory_rows("forward", np.arange(0.0, 20.0 + 1e-9, 0.1), [1.0, 0.0, 0.0])
+    # the solution stands still over the IMU's 150 s at rest (the report takes the Allan window
+    # where the solution's speed says so, `report.rest`)
+    traj = synth.trajectory_rows("forward", np.arange(0.0, 150.0 + 1e-9, 0.1), [1.0, 0.0, 0.0])
+    traj[["vn", "ve", "vd"]] = 0.0
     r = synth.write_run(tmp_path / "r", s, traj)
     pages = make_report(r).pages
     assert pages.count("allan") == 1
     # the 20 s synthetic session of the report tests is not static long enough: no Allan page
     s2 = synth.write_session(tmp_path / "s2")
-    assert "allan" not in make_report(synth.write_run(tmp_path / "r2", s2, traj)).pages
+    assert "allan" not in make_report(synth.write_run(tmp_path / "r2", s2, traj[traj["t"] <= synth.T0 + 20.0])).pages
