@@ -5,7 +5,7 @@
     python benchmarks/drive.py --only accuracy --drives 40   # NEES inside outages to +-0.7
 
 Speed: a simulated one-hour drive (100 Hz IMU, 1 Hz GPS) processed by `tpos process` in a
-subprocess (stage timings from summary.json, peak RSS of that process), against a bare numba
+subprocess (stage timings from summary.json; its own peak RSS and CPU, `run_measured`), against a bare numba
 reference loop of the same algebra (15-state predict at every IMU sample, 6-dim update at
 1 Hz, forward storing the states, backward, per-sample blend).
 Accuracy: simulated MEMS drives with one 30 s outage and with two 60 s outages; horizontal
