@@ -134,6 +134,12 @@ def test_clock_offset_columns():
     assert_allclose(H[:, o], 0.0, atol=0)
     sign = backward_sign(lay.n_states, lay)
     assert sign[o] == sign[o + 1] == -1.0 and sign[3] == -1.0 and sign[0] == 1.0
+    # with a lever arm the fix is the antenna's: it moves on by the antenna's velocity v + C (w x l)
+    lever, w_b = np.array([0.8, 0.5, -1.0]), np.radians([1.0, -2.0, 17.0])
+    aid_l = aid._replace(lever_b=lever)
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid_l, None, nav, C, bias, w_b, acc, lay.offsets(), _no_P(H),
+            z, H, R)
+    assert_allclose(H[:, o], nav[3:6] + C @ np.cross(w_b, lever), atol=1e-12)
 
 
 def test_lever_arm_columns_are_the_residuals_exact_change():
