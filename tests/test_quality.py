@@ -164,11 +164,12 @@ def test_finding_levels_are_checked():
     assert q.verdict == "unreliable" and q.reasons == ("B", "A")
 
 
-def test_lever_state_finding_names_the_estimate_in_the_logged_axes():
+def test_lever_state_finding_candidates_in_the_logged_axes():
     """A drive run that estimated the lever arm (`summary.json` lever_arm): insignificant or
-    immaterial corrections are ok; a significant one is named with the estimate written in the
-    IMU's logged axes (RFU here: x right, y forward, z up); one that matches the stated lever arm
-    with its sign flipped suggests the flip, vertical part included (issue 12)."""
+    immaterial corrections are no candidate; a significant one is, written in the IMU's logged axes
+    (RFU here: x right, y forward, z up); one that matches the stated lever arm with its sign
+    flipped proposes the flip, vertical part included. Without a re-run to try it (no runner),
+    nothing is suggested (the end-to-end test below tries it, issue 12)."""
     from types import SimpleNamespace
 
     from tpos_cli.advice import lever_state_finding
@@ -177,13 +178,15 @@ def test_lever_state_finding_names_the_estimate_in_the_logged_axes():
     state = {"stated_m": [0.0, 0.0, -1.0], "estimate_m": [0.8, 0.3, -1.0], "correction_forward_right_m": [0.8, 0.3],
              "sigma_forward_right_m": [0.05, 0.05], "flip_needs_forward_right_m": [0.0, 0.0]}
     f = lever_state_finding(session, state, 0.02)[0]
-    assert f.level == "suspect" and "lever_arm_m = [0.3, 0.8, 1]" in f.reason  # FRD (0.8, 0.3, -1) in RFU
-    assert lever_state_finding(session, {**state, "sigma_forward_right_m": [0.5, 0.5]}, 0.02)[0].level == "ok"  # chi2 2.9
-    assert lever_state_finding(session, state, 0.5)[0].level == "ok"  # 0.85 m is under 3 position sigmas (1.5 m)
+    assert f.level == "ok" and f.figures["candidate_lever_arm_m"] == [0.3, 0.8, 1.0]  # FRD (0.8, 0.3, -1) in RFU
+    assert not f.figures["sign_flipped"]
+    no = lever_state_finding(session, {**state, "sigma_forward_right_m": [0.5, 0.5]}, 0.02)[0]  # chi2 2.9
+    assert "candidate_lever_arm_m" not in no.figures
+    assert "candidate_lever_arm_m" not in lever_state_finding(session, state, 0.5)[0].figures  # 0.85 m < 3 x 0.5 m
     flip = {"stated_m": [-1.0, 0.0, 1.5], "estimate_m": [0.95, 0.02, 1.5], "correction_forward_right_m": [1.95, 0.02],
             "sigma_forward_right_m": [0.1, 0.05], "flip_needs_forward_right_m": [2.0, 0.0]}
     f = lever_state_finding(SimpleNamespace(meta=SimpleNamespace(axes="FRD")), flip, 0.1)[0]
-    assert f.level == "suspect" and "sign flipped" in f.reason and "lever_arm_m = [1, 0, -1.5]" in f.reason
+    assert f.figures["sign_flipped"] and f.figures["candidate_lever_arm_m"] == [1.0, 0.0, -1.5]
 
 
 # ---------------------------------------------------------------------------- planted mistakes, end to end
