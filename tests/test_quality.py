@@ -166,10 +166,10 @@ def test_finding_levels_are_checked():
 
 def test_lever_state_finding_candidates_in_the_logged_axes():
     """A drive run that estimated the lever arm (`summary.json` lever_arm): insignificant or
-    immaterial corrections are no candidate; a significant one is, written in the IMU's logged axes
-    (RFU here: x right, y forward, z up); one that matches the stated lever arm with its sign
-    flipped proposes the flip, vertical part included. Without a re-run to try it (no runner),
-    nothing is suggested (the end-to-end test below tries it, issue 12)."""
+    immaterial corrections are not named; a significant one is, its candidate written in the IMU's
+    logged axes (RFU here: x right, y forward, z up); one that matches the stated lever arm with
+    its sign flipped proposes the flip, vertical part included. Without a re-run to try it (no
+    runner), no value is suggested (the end-to-end test below tries it, issue 12)."""
     from types import SimpleNamespace
 
     from tpos_cli.advice import lever_state_finding
@@ -178,7 +178,8 @@ def test_lever_state_finding_candidates_in_the_logged_axes():
     state = {"stated_m": [0.0, 0.0, -1.0], "estimate_m": [0.8, 0.3, -1.0], "correction_forward_right_m": [0.8, 0.3],
              "sigma_forward_right_m": [0.05, 0.05], "flip_needs_forward_right_m": [0.0, 0.0]}
     f = lever_state_finding(session, state, 0.02)[0]
-    assert f.level == "ok" and f.figures["candidate_lever_arm_m"] == [0.3, 0.8, 1.0]  # FRD (0.8, 0.3, -1) in RFU
+    assert f.figures["candidate_lever_arm_m"] == [0.3, 0.8, 1.0]  # FRD (0.8, 0.3, -1) in RFU
+    assert f.level == "suspect" and "lever_arm_m" in f.reason and "set [gps]" not in f.reason  # named, not suggested
     assert not f.figures["sign_flipped"]
     no = lever_state_finding(session, {**state, "sigma_forward_right_m": [0.5, 0.5]}, 0.02)[0]  # chi2 2.9
     assert "candidate_lever_arm_m" not in no.figures

@@ -345,13 +345,14 @@ def _position_sigma_m(trajectory: pd.DataFrame | None) -> float:
 
 def lever_state_finding(session, state: Mapping, sigma_h_m: float, runner: _Runner | None = None) -> list[Finding]:
     """The lever-arm correction the drive filter estimated (`summary.json` lever_arm,
-    `fusion.lever_arm`). A candidate when it is significant (chi-square of its two components
-    above the 99.9 % point) and material (it moves the antenna by more than LEVER_MATERIAL_SIGMAS
-    of the solution's horizontal position sigmas): the stated lever arm with its sign flipped when
-    the correction is that flip within 3 SD, else the estimate (its vertical part as stated). As a
-    value for session.toml it is tried like any advice, on the advice window with the lever-arm
-    states off in both runs (with them on the filter corrects either statement, and the runs hardly
-    differ): suggested only when it predicts the GPS better (`compare`); in the IMU's logged axes."""
+    `fusion.lever_arm`). Named (the run already used it, as the clock offset's finding) when it is
+    significant (chi-square of its two components above the 99.9 % point) and material (it moves
+    the antenna by more than LEVER_MATERIAL_SIGMAS of the solution's horizontal position sigmas).
+    A value for session.toml is suggested only after a re-run: the stated lever arm with its sign
+    flipped when the correction is that flip within 3 SD, else the estimate (its vertical part as
+    stated), tried like any advice on the advice window with the lever-arm states off in both runs
+    (with them on, the filter corrects either statement and the runs hardly differ); suggested
+    when it predicts the GPS better (`compare`), in the IMU's logged axes."""
     dl = np.asarray(state["correction_forward_right_m"], dtype=float)
     sd = np.asarray(state["sigma_forward_right_m"], dtype=float)
     chi = float(np.sum((dl / np.maximum(sd, 1e-12)) ** 2))
@@ -367,26 +368,27 @@ def lever_state_finding(session, state: Mapping, sigma_h_m: float, runner: _Runn
     shown = np.round(axes_to_dcm(session.meta.axes).T @ cand_b, 3) + 0.0  # + 0.0: no "-0"
     fig["candidate_lever_arm_m"] = shown.tolist()
     fig["sign_flipped"] = flipped
-    if runner is None:
-        return [Finding("lever_arm", "ok", None, fig)]
-    off = {"lever_arm": "off"}
-    base = runner.output(runner.session, off)
-    cand = runner.output(with_lever_arm(runner.session, cand_b), off)
-    if base is None or cand is None:
-        return [Finding("lever_arm", "ok", None, fig)]
-    c = compare(base.tables.get("innovations"), cand.tables.get("innovations"))
-    fig["tried"] = [{"lever_arm_m": shown.tolist(), "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes}]
-    fig["window"] = runner.label
-    if not c.better:
-        return [Finding("lever_arm", "ok", None, fig)]
-    fig["suggested_lever_arm_m"] = shown.tolist()
     what = ("the stated lever arm with its sign flipped" if flipped else
             f"{np.hypot(*(est - stated)[:2]):.2f} m (horizontally) from where [gps] lever_arm_m puts it")
+    named = (f"gps: the filter places the GPS antenna at {what} (correction forward {dl[0]:+.3f} ± {sd[0]:.3f} m, right "
+             f"{dl[1]:+.3f} ± {sd[1]:.3f} m, chi2 {chi:.0f} > {thr:.0f}; the output used it)")
+    c = None
+    if runner is not None:
+        off = {"lever_arm": "off"}
+        base = runner.output(runner.session, off)
+        cand = runner.output(with_lever_arm(runner.session, cand_b), off)
+        if base is not None and cand is not None:
+            c = compare(base.tables.get("innovations"), cand.tables.get("innovations"))
+            fig["tried"] = [{"lever_arm_m": shown.tolist(), "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes}]
+            fig["window"] = runner.label
+    if c is None or not c.better:
+        return [Finding("lever_arm", "suspect", named + ": check [gps] lever_arm_m (as a stated value it was not "
+                        "confirmed by a re-run without the lever-arm states)", fig)]
+    fig["suggested_lever_arm_m"] = shown.tolist()
     return [Finding("lever_arm", "suspect",
-                    f"gps: the filter places the GPS antenna at {what} (correction forward {dl[0]:+.3f} ± {sd[0]:.3f} m, right "
-                    f"{dl[1]:+.3f} ± {sd[1]:.3f} m; the output used it); re-processing {runner.label} with it as stated and "
-                    f"no lever-arm states cuts the GPS prediction errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set "
-                    f"[gps] lever_arm_m = [{', '.join(f'{v:g}' for v in shown)}] (antenna minus IMU, in the IMU's logged axes"
+                    named + f"; re-processing {runner.label} with it as stated and no lever-arm states cuts the GPS prediction "
+                    f"errors by {100 * (1 - c.ratio):.0f} % (z = {c.z:.1f}): set [gps] lever_arm_m = "
+                    f"[{', '.join(f'{v:g}' for v in shown)}] (antenna minus IMU, in the IMU's logged axes"
                     + ("" if flipped else "; the vertical part is not estimated") + ")", fig)]
 
 
