@@ -596,13 +596,17 @@ def with_gyro_scale(session, factor: float):
     return dataclasses.replace(session, imu=imu)
 
 
-def units_advice(session, output, runner: _Runner, gate_probability: float | None) -> list[Finding]:
-    """Gyro units: when the filter's errors dwarf its sigmas (an unreliable NIS), the log is re-run
-    with the gyro read as deg/s; the named cause is given when that predicts the GPS far better."""
+def units_advice(session, output, runner: _Runner, gate_probability: float | None,
+                 flag_probability: float | None = None) -> list[Finding]:
+    """Gyro units: when the filter's errors dwarf its sigmas (an unreliable NIS, or forward and
+    backward runs that disagree at an unreliable share of epochs: the adaptive parts of a filter
+    can keep its NIS near band while it fits a 57x gyro), the log is re-run with the gyro read as
+    deg/s; the named cause is given when that predicts the GPS far better."""
     inn = output.tables.get("innovations") if output is not None else None
     if inn is None:
         return []
     bad = [f for f in quality.nis_findings(inn, gate_probability) if f.check == "nis" and f.level == "unreliable"]
+    bad += [f for f in quality.flag_findings(getattr(output, "trajectory", None), flag_probability) if f.level == "unreliable"]
     if not bad:
         return []
     base = runner.base()
@@ -627,7 +631,7 @@ def review(session, output, *, chain: str, config: Mapping | None, params, run: 
         runner = _Runner(session, output, run, params)
         off = conventions.gps_clock_estimate(session, max_span_s=WINDOW_S)
         gate = ((config or {}).get(chain) or {}).get("gate_probability")
-        findings += units_advice(session, output, runner, gate)
+        findings += units_advice(session, output, runner, gate, ((config or {}).get(chain) or {}).get("flag_probability"))
         findings += clock_advice(session, output, runner, off)
         findings += lever_arm_advice(session, output, runner)
     if chain == "ranging_fatci" and output is not None:
