@@ -352,7 +352,8 @@ def lever_state_finding(session, state: Mapping, sigma_h_m: float, runner: _Runn
     flipped when the correction is that flip within 3 SD, else the estimate (its vertical part as
     stated), tried like any advice on the advice window with the lever-arm states off in both runs
     (with them on, the filter corrects either statement and the runs hardly differ); suggested
-    when it predicts the GPS better (`compare`), in the IMU's logged axes."""
+    when it predicts the GPS better (`compare`) there and no worse with the states on (the default
+    pipeline the user re-runs), in the IMU's logged axes."""
     dl = np.asarray(state["correction_forward_right_m"], dtype=float)
     sd = np.asarray(state["sigma_forward_right_m"], dtype=float)
     chi = float(np.sum((dl / np.maximum(sd, 1e-12)) ** 2))
@@ -381,9 +382,17 @@ def lever_state_finding(session, state: Mapping, sigma_h_m: float, runner: _Runn
             c = compare(base.tables.get("innovations"), cand.tables.get("innovations"))
             fig["tried"] = [{"lever_arm_m": shown.tolist(), "ratio": c.ratio, "z": c.z, "fixes": c.n_fixes}]
             fig["window"] = runner.label
+    if c is not None and c.better:  # and the default pipeline (states on) must not predict the GPS worse with it
+        base_on = runner.base()
+        cand_on = runner.innovations(with_lever_arm(runner.session, cand_b)) if base_on is not None else None
+        c_on = compare(base_on, cand_on) if cand_on is not None else None
+        fig["tried"].append({"lever_arm_m": shown.tolist(), "lever_arm_states": True,
+                             **({"ratio": c_on.ratio, "z": c_on.z, "fixes": c_on.n_fixes} if c_on is not None else {})})
+        if c_on is None or not c_on.ratio <= 1.0:
+            c = None
     if c is None or not c.better:
         return [Finding("lever_arm", "suspect", named + ": check [gps] lever_arm_m (as a stated value it was not "
-                        "confirmed by a re-run without the lever-arm states)", fig)]
+                        "confirmed by re-runs with and without the lever-arm states)", fig)]
     fig["suggested_lever_arm_m"] = shown.tolist()
     return [Finding("lever_arm", "suspect",
                     named + f"; re-processing {runner.label} with it as stated and no lever-arm states cuts the GPS prediction "
