@@ -151,3 +151,14 @@ def test_bad_mounting_rpy_deg_is_refused(tmp_path, value, message):
     with pytest.raises(InvalidInputError) as exc:
         load_session(d)
     assert "[imu] mounting_rpy_deg" in str(exc.value) and message in str(exc.value)
+
+
+def test_truth_is_read_for_reports_only(tmp_path):
+    """`load_session(with_truth=False)` (what `tpos process` uses) leaves the truth table unread, so a
+    broken truth file is the report's problem, not the processing's; the full load still refuses it."""
+    d = write_minimal_session(tmp_path / "s")
+    (d / "truth.csv").write_text("t,lat,lon,h\n0.0,45.0,7.0,not-a-number\n")
+    with pytest.raises(InvalidInputError, match="truth"):
+        load_session(d)
+    s = load_session(d, with_truth=False)
+    assert s.truth is None and s.imu.t_s.size > 0

@@ -161,7 +161,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     # the configuration first: a bad key or value is refused before any data is read
     cfg = _resolve_before_reading(session_dir, pipeline, overrides)
     with ctx.stage("ingest"):
-        session = load_session(session_dir)
+        session = load_session(session_dir, with_truth=False)  # reports read the truth, processing never does
     if cfg is None:
         cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
     pipe = cfg.pipeline

@@ -880,8 +880,10 @@ def _load_truth(c: _Collector, t0: float):
                  extra={k: df[k].to_numpy()[keep] for k in extra_cols if k in df.columns})
 
 
-def load_session(path: str | Path) -> Session:
-    """Load and validate a session directory; raises InvalidInputError listing every problem."""
+def load_session(path: str | Path, *, with_truth: bool = True) -> Session:
+    """Load and validate a session directory; raises InvalidInputError listing every problem.
+    with_truth=False leaves the truth table unread (`Session.truth` None): it is for reports only, never
+    an input to processing (the contract), and on a simulated hour it is a tenth of `tpos process`."""
     session_dir = Path(path)
     if not session_dir.is_dir():
         p = Problem(str(session_dir), "not a session directory (it must hold session.toml and imu.*)")
@@ -901,7 +903,7 @@ def load_session(path: str | Path) -> Session:
     range_cal = _load_range_calibration(c, anchors)
     targets = _load_targets(c)
     shots = _load_shots(c, t0)
-    truth = _load_truth(c, t0)
+    truth = _load_truth(c, t0) if with_truth else None
     if shots is not None and targets is not None:
         pass  # a shot on a new name is an unknown point: allowed by the contract
     if targets is not None and meta.observer_lla is not None:
