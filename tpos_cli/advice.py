@@ -638,7 +638,9 @@ def review(session, output, *, chain: str, config: Mapping | None, params, run: 
     findings = list(conventions.session_findings(session))
     if chain == "drive_smooth" and session.gps is not None and output is not None:
         runner = _Runner(session, output, run, params)
-        off = conventions.gps_clock_estimate(session, max_span_s=WINDOW_S)
+        # a run with clock states names its own estimate (`clock_state_finding`): no raw-data scan
+        has_state = (getattr(output, "summary", None) or {}).get("gps_clock_offset") is not None
+        off = None if has_state else conventions.gps_clock_estimate(session, max_span_s=WINDOW_S)
         gate = ((config or {}).get(chain) or {}).get("gate_probability")
         findings += units_advice(session, output, runner, gate, ((config or {}).get(chain) or {}).get("flag_probability"))
         findings += clock_advice(session, output, runner, off)
