@@ -15,6 +15,8 @@ import numpy as np
 from tpos_cli.frames.earth import ned_rate_to_lla_rate
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout
 
+LEVEL_MAX_TILT_DEG = 20.0  # without vehicle axes, the IMU's own x, y serve when its z is this close to vertical
+
 
 def course_span_deg(vel_ned_mps, min_speed_mps: float) -> float:
     """Range (deg) of the unwrapped course over ground of the rows faster than min_speed_mps, in
@@ -26,9 +28,6 @@ def course_span_deg(vel_ned_mps, min_speed_mps: float) -> float:
         return 0.0
     course = np.unwrap(np.arctan2(v[ok, 1], v[ok, 0]))
     return float(np.degrees(course.max() - course.min()))
-
-
-LEVEL_MAX_TILT_DEG = 20.0  # without vehicle axes, the IMU's own x, y serve when its z is this close to vertical
 
 
 def lever_arm_wanted(mode: str, axes: str | None, sigma_h_fix_m: float, span_deg: float, prior_sd_m: float,
@@ -78,7 +77,7 @@ def at_stated_point(nav, C_nb, dl_b) -> np.ndarray:
     `lever_correction_b`). A new array; velocities stay the IMU's (as the attitude does)."""
     d_ned = np.einsum("kij,kj->ki", C_nb, dl_b)
     out = np.array(nav, copy=True)
-    out[:, :3] += ned_rate_to_lla_rate(out[:, 0], out[:, 2], d_ned)
+    out[:, :3] += ned_rate_to_lla_rate(out[:, 0], out[:, 2], d_ned)  # a metre-sized NED step: the same linear map
     return out
 
 
