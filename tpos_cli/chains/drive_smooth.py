@@ -492,12 +492,14 @@ def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothPar
     return {k: v for k, v in sols.items() if k in names}, flag, nis
 
 
-def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False) -> Solution:
+def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False, attitude_only: bool = False) -> Solution:
     """A solution's attitude in the vehicle's axes when the run applied a mounting C_vb (and its
     residual misalignment states, `fusion.mounting.vehicle_attitude`, their SD that of the forward
     run's end, the unobserved roll the states' prior SD); the IMU's otherwise. Targets keep the
     IMU's attitude: the rangefinders sit on the IMU.
-    own: the caller owns sol.P9 (a `Solution.rows` copy), which is then updated in place."""
+    own: the caller owns sol.P9 (a `Solution.rows` copy), which is then updated in place;
+    attitude_only: sol.P9 is passed on as it is, for checks that read the attitude only
+    (`mounting_check`): the drive hour's P9 is 23 MB, not copied."""
     if C_vb is None:
         return sol
     o = run.layout.offset(Block.MOUNTING)
@@ -506,20 +508,11 @@ def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False) -> S
     prior = next((b for b in run.layout.blocks if b.block == Block.MOUNTING), None)
     roll_sd = float(np.sqrt(prior.P0[0, 0])) if prior is not None else 0.0
     C_nv, P_att = vehicle_attitude(sol.C_nb, sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
-    P9 = sol.P9 if own else np.array(sol.P9, copy=True)  # (the hour's P9 is 23 MB: callers that own it save the copy)
+    if attitude_only:
+        return Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
+    P9 = sol.P9 if own else np.array(sol.P9, copy=True)
     P9[:, 6:9, 6:9] = P_att
     return Solution(sol.name, sol.idx, sol.nav, C_nv, P9, sol.bias)
-
-
-def vehicle_yaw_rows(sol: Solution, C_vb, run: FilterRun) -> Solution:
-    """`sol` with the vehicle's attitude (`in_vehicle_axes`) but its covariance left as it is: for
-    checks that read the attitude only (`mounting_check`), without a copy of P9."""
-    if C_vb is None:
-        return sol
-    o = run.layout.offset(Block.MOUNTING)
-    m = sol.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + 2] if (o >= 0 and sol.bias is not None) else None
-    C_nv, _ = vehicle_attitude(sol.C_nb, np.zeros((sol.C_nb.shape[0], 3, 3)), C_vb, m)
-    return Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
 
 
 def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s) -> dict | None:
@@ -583,7 +576,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     sols = {k: at_stated_lever_arm(v, cfg) for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
-                       mounting_check(sols, imu.t, p, lambda s: vehicle_yaw_rows(s, C_vb, fwd)), C_vb)
+                       mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True)), C_vb)
 
 
 def nis_band(nis, innovation) -> dict | None:
