@@ -55,6 +55,7 @@ from tpos_cli.ins.mechanization import decimate_imu
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
+from tpos_cli.timeoffset import gps_velocity
 from tpos_cli.trajectory import Solution, solution_table
 
 DEG = np.pi / 180.0
@@ -367,13 +368,11 @@ def lever_arm_states(p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, 
     """`cfg` with the lever-arm correction states (`fusion.layout.lever_arm_block`) when
     `fusion.lever_arm.lever_arm_wanted` says so for these fixes (in `lever_axes`: the vehicle's, or
     a level IMU's own): their median horizontal SD, and the span of their course (reported
-    velocities, else differenced positions) above ten times the velocity SD (a course good to about
-    6 deg). Records the decision in info["lever_arm"]."""
+    velocities, else differenced positions: `timeoffset.gps_velocity`) above ten times the
+    velocity SD (a course good to about 6 deg). Records the decision in info["lever_arm"]."""
     sd = fixes.sigma_pos_ned_m
     sig_h = float(np.median(np.sqrt(0.5 * (sd[:, 0] ** 2 + sd[:, 1] ** 2)))) if sd.size else np.inf
-    vel = fixes.vel_ned_mps
-    if fixes.t_s.size > 1 and not np.isfinite(vel[:, :2]).all():
-        vel = np.gradient(lla_to_ned(fixes.lla, fixes.lla[0]), fixes.t_s, axis=0)
+    vel = gps_velocity(fixes.t_s, fixes.lla, fixes.vel_ned_mps) if fixes.t_s.size > 1 else fixes.vel_ned_mps
     sig_v = float(np.median(fixes.sigma_vel_mps[:, :2])) if fixes.sigma_vel_mps.size else p.gps_sigma_vel_mps
     span = course_span_deg(vel, 10.0 * sig_v) if fixes.t_s.size > 1 else 0.0
     axes = lever_axes(cfg.layout.offset(Block.MOUNTING) >= 0, init.C_nb)  # cfg.C_vb: the vehicle's, else identity
