@@ -267,8 +267,7 @@ def _disagreement_nis(ef, eb, f_P, b_P, d, cols, G):
     for k in range(K):
         for i in range(9):
             for j in range(i + 1):
-                t = i * (i + 1) // 2 + j  # entry (i, j), i >= j, of a triangle by rows
-                S[i, j] = f_P[ef[k], t] + b_P[eb[k], t]
+                S[i, j] = _tri(f_P, ef[k], i, j) + _tri(b_P, eb[k], i, j)
                 S[j, i] = S[i, j]
             dd[i] = d[k, i]
         if m > 0:
