@@ -36,6 +36,7 @@ from scipy.stats import chi2
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from tests.helpers import mistakes as M  # noqa: E402
 from tpos_cli.chains.drive_smooth import in_vehicle_axes, lever_arm_report, process_drive  # noqa: E402
 from tpos_cli.config import DriveSmoothParams  # noqa: E402
 from tpos_cli.frames.geodetic import lla_to_ned  # noqa: E402
@@ -182,9 +183,7 @@ REAL_CAR = {"gps_sigma_h_m": 0.02, "gps_sigma_v_m": 0.03, "gps_sigma_vel_mps": 0
 
 def _unstated_lever_arm(path: Path) -> None:
     """session.toml's [gps] lever_arm_m set to zero, as a user who never measured it writes it."""
-    toml = (path / "session.toml").read_text()
-    lines = [("lever_arm_m = [0.0, 0.0, 0.0]" if ln.startswith("lever_arm_m") else ln) for ln in toml.splitlines()]
-    (path / "session.toml").write_text("\n".join(lines) + "\n")
+    M.set_toml(path, "gps", "lever_arm_m", "[0.0, 0.0, 0.0]")
 
 
 def accuracy_case(label, outages, seeds, duration_s=600.0, overrides=None, grade="mems", sim_kw=None):
