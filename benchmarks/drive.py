@@ -42,6 +42,7 @@ from tpos_cli.config import DriveSmoothParams  # noqa: E402
 from tpos_cli.frames.geodetic import lla_to_ned  # noqa: E402
 from tpos_cli.session import load_session  # noqa: E402
 from tpos_cli.sim.drive import simulate_drive  # noqa: E402
+from tpos_cli.timeoffset import vertical_rate_rps  # noqa: E402
 
 REAL = REPO.parent / "shared" / "data" / "real"
 SOLUTIONS = ("forward", "backward", "smoothed", "two_filter", "rts", "simplified")
@@ -286,14 +287,46 @@ def moving_windows(truth_t, speed, n=3, length=30.0, min_speed=0.3, t_start=40.0
     return [(c, c + length) for c in cands]
 
 
-def _yaw_rms_deg(d, truth):
-    """(RMS, median) of solution yaw - truth yaw, deg: a median far from 0 with a small spread is
-    a fixed mounting rotation between the IMU axes and the truth's body axes, not a filter error."""
+def _yaw_rms_deg(d, truth, after_s: float = -np.inf, skip=None):
+    """(RMS, median) of solution yaw - truth yaw, deg, over truth rows after `after_s` and not in
+    `skip`: a median far from 0 with a small spread is a fixed mounting rotation between the IMU
+    axes and the truth's body axes, not a filter error."""
     if "yaw" not in truth.columns or truth["yaw"].isna().all():
         return float("nan"), float("nan")
     y = np.degrees(np.unwrap(np.radians(d["yaw"].to_numpy())))
     dy = (np.interp(truth["t"], d["t"], y) - truth["yaw"].to_numpy() + 180.0) % 360.0 - 180.0
+    dy = dy[(truth["t"].to_numpy() > after_s) & (True if skip is None else ~skip)]
     return float(np.sqrt(np.nanmean(dy**2))), float(np.nanmedian(dy))
+
+
+TRUTH_STEP_DEG = 5.0  # a truth yaw change this far from the gyro's over one truth interval (0.45 s on
+# navego) is the truth's own jump: an uncalibrated MEMS gyro's bias (<= 1 deg/s) explains < 0.5 deg of it
+
+
+def _truth_yaw_steps(sdir: Path, truth: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(step times, spike rows) of the truth's yaw against the IMU's own rotation about the local
+    vertical (`timeoffset.vertical_rate_rps`, integrated over each truth interval): an interval
+    whose truth yaw change is more than TRUTH_STEP_DEG from the gyro's is a jump of the reference
+    (a visual or GNSS fix pulling its pose), not motion. Two such intervals in a row that cancel
+    make one truth row a spike (a bool mask over truth rows); the others are steps (the times
+    that end them, s). `real_logs` scores yaw also after the last step, without the spikes."""
+    n = len(truth)
+    if "yaw" not in truth.columns or truth["yaw"].isna().all():
+        return np.zeros(0), np.zeros(n, bool)
+    s = load_session(sdir, with_truth=False)
+    rate = vertical_rate_rps(s.imu.t_s, s.imu.gyro_b_rps, s.imu.acc_b_mps2)
+    t_imu = s.imu.t_s + s.t0_s
+    turned = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t_imu))])
+    tt, yaw = truth["t"].to_numpy(), np.radians(truth["yaw"].to_numpy())
+    wrap = lambda x: (x + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
+    off = np.degrees(wrap(wrap(np.diff(yaw)) - np.diff(np.interp(tt, t_imu, turned))))
+    big = (np.abs(off) > TRUTH_STEP_DEG) & (tt[1:] > t_imu[0]) & (tt[:-1] < t_imu[-1])
+    spike = np.zeros(n, bool)
+    for i in np.flatnonzero(big[:-1] & big[1:]):
+        if abs(off[i] + off[i + 1]) < TRUTH_STEP_DEG and not spike[i]:
+            spike[i + 1] = True
+            big[i] = big[i + 1] = False
+    return tt[1:][big], spike
 
 
 PART1 = "rtklibexplorer_drive_0708_part1"
@@ -339,6 +372,8 @@ def real_logs(overrides: dict | None = None, logs: tuple | None = None) -> None:
         inside = np.zeros(tt.size, bool)
         for a, b in wins:
             inside |= (tt >= a) & (tt < b)
+        steps, spikes = _truth_yaw_steps(sdir, truth)
+        yaw_after = {}
         variants = [("none", {"drive_smooth.platform": "none"}), ("auto", {})]
         if (sdir / "odometry.csv").exists() or (sdir / "odometry.parquet").exists():
             variants.insert(1, ("auto-odo", {"drive_smooth.use_odometry": False}))  # constraints, odometry off
@@ -361,8 +396,15 @@ def real_logs(overrides: dict | None = None, logs: tuple | None = None) -> None:
                 mx = eh[inside].max() if inside.any() else float("nan")
                 rout = np.sqrt(np.mean(eh[~inside & (tt > tt[0] + 20)] ** 2))
                 yr, ym = _yaw_rms_deg(d, truth)
+                if steps.size or spikes.any():
+                    yaw_after[sol] = _yaw_rms_deg(d, truth, steps[-1] if steps.size else -np.inf, spikes)[0]
                 print(f"{label:26s} {platform:9s} {sol:9s} {rin:9.2f} {mx:9.2f} {cover:8.2f} {rout:10.3f} {yr:12.1f} {ym:10.1f} {nan:4d}")
                 label = ""
+            if yaw_after:
+                print(f"{'':26s} truth yaw jumps the gyro does not see (> {TRUTH_STEP_DEG:.0f} deg in one truth interval): "
+                      f"steps at {[round(float(x - tt[0]), 1) for x in steps]} s, one-row spikes at "
+                      f"{[round(float(x - tt[0]), 1) for x in tt[spikes]]} s; yaw RMS after the last step, spikes left out: "
+                      + ", ".join(f"{k} {v:.1f}" for k, v in yaw_after.items()) + " deg")
             res = summ["results"]
             c = res.get("constraints", {})
             mnt = c.get("mounting", {})

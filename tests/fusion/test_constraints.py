@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from tpos_cli.frames.earth import normal_gravity_mps2
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion.constraints import (
     detect_stops,
@@ -11,6 +12,7 @@ from tpos_cli.fusion.constraints import (
     stop_measurements,
     travel_direction,
 )
+from tpos_cli.fusion.engine import FilterConfig, InitialState, backward_start, run_filter
 from tpos_cli.fusion.insgps import GpsFixes, velocity_latency_s
 from tpos_cli.fusion.measurements import Kind
 
@@ -36,7 +38,7 @@ def test_zaru_rows_are_the_mean_gyro_of_each_block():
     bias = np.array([1e-3, -2e-3, 5e-4])
     gyro = bias + 1e-3 * rng.standard_normal((t.size, 3))
     st = detect_stops(np.arange(0.0, 20.0, 0.25), np.zeros((80, 3)))
-    m = stop_measurements(t, gyro, st, zupt_sigma_mps=0.02)
+    m = stop_measurements(t, gyro, np.zeros_like(gyro), st, zupt_sigma_mps=0.02)
     zaru = m.kind == Kind.ZARU
     assert (m.kind == Kind.ZUPT).sum() == zaru.sum() > 30
     # 50-sample means: the scatter about the bias is 1e-3 / sqrt(50) per axis; the rows' SDs are
@@ -44,6 +46,41 @@ def test_zaru_rows_are_the_mean_gyro_of_each_block():
     sd = np.sqrt(np.diagonal(m.R[zaru], axis1=1, axis2=2))
     assert np.all(np.abs(m.z[zaru] - bias) < 5 * sd)
     assert np.allclose(sd, 2e-3 / np.sqrt(50), rtol=0.3)
+
+
+def test_zupt_on_an_idling_engine_holds_the_block_mean_not_one_phase_of_the_vibration():
+    """A car standing 60 s with its engine at 20 Hz (30 mg, IMU at 100 Hz): a ZUPT row every 0.5 s
+    (10 engine cycles) samples the IMU's velocity wobble (A / omega = 2.3 mm/s) at one phase.
+    Rows that say "this instant is still" make the INS creep at that phase's velocity (12 cm in
+    60 s, the control below); rows that say "the block's mean is still" (the wobble from the
+    block's own specific force) keep it within 1 cm (a tenth of that), forward and backward."""
+    lat = np.radians(45.0)
+    t = np.arange(6001) * 0.01
+    w = 2 * np.pi * 20.0
+    acc = np.tile([0.0, 0.0, -normal_gravity_mps2(lat, 100.0)], (t.size, 1))
+    acc[:, 0] += 30e-3 * 9.80665 * np.sin(w * t)
+    w_ie = 7.292115e-5
+    gyro = np.tile([w_ie * np.cos(lat), 0.0, -w_ie * np.sin(lat)], (t.size, 1))  # body = NED, at rest
+    nav = np.array([lat, np.radians(7.0), 100.0, 0.0, 0.0, 0.0])
+    P0 = np.diag(np.r_[np.full(3, 1.0), np.full(3, 0.1), np.full(3, 1e-3), np.full(3, 1e-3), np.full(3, 1e-5)] ** 2)
+    init = InitialState(nav, np.eye(3), np.zeros(6), P0)
+    cfg = FilterConfig(np.array([1e-4, 1e-8, 1e-12, 1e-14]), 0.0, 0.0, cov_step=10)
+    stops = detect_stops(np.arange(0.0, 61.0, 0.25), np.zeros((244, 3)))
+    rows = stop_measurements(t, gyro, acc, stops, zupt_sigma_mps=0.02)
+    zupt = rows.select(rows.kind == Kind.ZUPT)
+    assert np.abs(zupt.z[:, 0]).max() > 1e-3  # the wobble at the rows' phase, mm/s
+
+    def creep_m(m, backward):
+        start = init if not backward else backward_start(run_filter(t, gyro, acc, init, cfg, m), init.P0)
+        run = run_filter(t, gyro, acc, start, cfg, m, backward=backward)
+        north_m = (run.nav[:, 0] - lat) * 6.37e6
+        return float(np.abs(north_m[-1] - north_m[0]))
+
+    for backward in (False, True):
+        assert creep_m(zupt, backward) < 0.01
+    still_instant = zupt.select(np.ones(len(zupt), dtype=bool))
+    still_instant.z[:] = 0.0
+    assert creep_m(still_instant, False) > 0.05 and creep_m(still_instant, True) > 0.05
 
 
 def test_nhc_rows_skip_stops_and_the_yaw_search():

@@ -292,7 +292,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     if mounting is not None:
         C_vb = euler_to_dcm(*np.radians(np.asarray(mounting, dtype=float)))
         out["mounting"] = {"source": "session", "mounting_rpy_deg": [float(v) for v in mounting]}
-    zu_rows = stop_measurements(imu.t, imu.gyro, stops, zupt_sigma_mps=p.zupt_sigma_mps)
+    zu_rows = stop_measurements(imu.t, imu.gyro, imu.acc, stops, zupt_sigma_mps=p.zupt_sigma_mps)
     if platform == "auto" or (platform in WHEELED and C_vb is None):
         zu = zu_rows if platform in WHEELED else None
         # a coarse pass (IMU at about 25 Hz, 1 s covariance steps, as the GPS noise passes) serves

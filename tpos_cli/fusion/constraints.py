@@ -2,7 +2,7 @@
 
 - Stops (`detect_stops`): intervals where the GPS speed or the odometer says the vehicle stands
   (an engine's vibration fails a raw-IMU stillness test, so the IMU alone does not decide).
-- ZUPT (`Kind.ZUPT`, NED velocity 0) and ZARU (`Kind.ZARU`, mean raw gyro = gyro bias + Earth rate)
+- ZUPT (`Kind.ZUPT`, the block's mean NED velocity 0) and ZARU (`Kind.ZARU`, mean raw gyro = gyro bias + Earth rate)
   rows on the stops (`stop_measurements`).
 - Non-holonomic constraints (`Kind.NHC`: the vehicle's lateral and vertical velocity are 0,
   Groves 2013 Sec. 15.4.3) while it is not stopped (`nhc_measurements`), in the vehicle axes given
@@ -96,29 +96,45 @@ def detect_stops(gps_t_s, gps_vel_ned_mps, odo_t_s=None, odo_speed_mps=None, *, 
     return Stops(np.array(merged, dtype=float).reshape(-1, 2), src)
 
 
-def stop_measurements(t_imu_s, gyro_b_rps, stops: Stops, *, zupt_sigma_mps: float, block_s: float = 0.5,
+def stop_measurements(t_imu_s, gyro_b_rps, acc_b_mps2, stops: Stops, *, zupt_sigma_mps: float, block_s: float = 0.5,
                       min_gyro_sigma_rps: float = np.radians(0.005)) -> Measurements | None:
-    """ZUPT and ZARU rows every block_s inside the stops. ZARU: z = the block's mean raw gyro; its
-    SD is the sample scatter over sqrt(N), doubled for vibration correlated between samples, at
-    least min_gyro_sigma_rps."""
+    """ZUPT and ZARU rows every block_s inside the stops.
+
+    ZUPT: the vehicle's mean velocity over the block is 0, not the IMU's velocity at one instant:
+    an idling engine shakes the IMU (tens of mg at 10-50 Hz, mm/s of velocity), and a row taken
+    every block_s samples one phase of an engine line whose frequency is a multiple of 1/block_s,
+    which the filter would read as a steady velocity error. z (body frame, m/s) is the IMU's
+    velocity at the row's sample relative to the block's mean, from the block's own specific
+    force: u_j = sum_{m <= j} f_m dt_m (the mechanization's interval convention; the attitude is
+    constant at rest), z = u_last less the block's least-squares line through u (gravity and the
+    bias make a ramp; a mean of f would carry a partial cycle of the vibration into it);
+    `fusion.measurements` rotates z to NED.
+    ZARU: z = the block's mean raw gyro; its SD is the sample scatter over sqrt(N), doubled for
+    vibration correlated between samples, at least min_gyro_sigma_rps."""
     t = np.asarray(t_imu_s, dtype=float)
     gyro = np.asarray(gyro_b_rps, dtype=float)
-    tz, zz, Rz = [], [], []
+    acc = np.asarray(acc_b_mps2, dtype=float)
+    tz, zv, zz, Rz = [], [], [], []
     for a, b in stops.intervals_s:
         edges = np.arange(a, b + 1e-9, block_s)
         for lo, hi in zip(edges[:-1], edges[1:]):
             i0, i1 = np.searchsorted(t, [lo, hi])
-            if i1 - i0 < 3:
+            if i1 - i0 < 3 or i0 < 1:
                 continue
             g = gyro[i0:i1]
             sd = np.maximum(2.0 * g.std(axis=0, ddof=1) / np.sqrt(i1 - i0), min_gyro_sigma_rps)
+            u = np.cumsum(acc[i0:i1] * np.diff(t[i0 - 1:i1])[:, None], axis=0)  # the IMU's velocity change
+            tc = t[i0:i1] - t[i0:i1].mean()
+            u -= u.mean(axis=0)
+            slope = tc @ u / (tc @ tc)  # gravity and the accelerometer bias: a ramp
             tz.append(t[i1 - 1])
+            zv.append(u[-1] - slope * tc[-1])
             zz.append(g.mean(axis=0))
             Rz.append(np.diag(sd**2))
     if not tz:
         return None
     n = len(tz)
-    zupt = Measurements.rows(tz, Kind.ZUPT, np.zeros((n, 3)), np.broadcast_to(zupt_sigma_mps**2 * np.eye(3), (n, 3, 3)),
+    zupt = Measurements.rows(tz, Kind.ZUPT, np.array(zv), np.broadcast_to(zupt_sigma_mps**2 * np.eye(3), (n, 3, 3)),
                              dim=3, gated=True, slot=_SLOT_ZUPT)
     zaru = Measurements.rows(tz, Kind.ZARU, np.array(zz), np.array(Rz), dim=3, gated=True, slot=_SLOT_ZARU)
     return Measurements.merge(zupt, zaru)

@@ -165,10 +165,13 @@ def range_jacobian(p_ned, anchor_ned, lag_s, H, row):
 
 
 @njit(cache=True)
-def zupt_residual(nav, z):
-    """z = INS NED velocity - 0 (m/s) while the IMU stands still."""
+def zupt_residual(nav, C, vel_rel_b, z):
+    """z = INS NED velocity - the IMU's velocity while the vehicle stands (m/s): C vel_rel_b, the
+    IMU's vibration about the stop block's mean (`fusion.constraints.stop_measurements`; negated
+    with the run's velocity in reversed time by `fusion.engine`)."""
+    v = mat_vec3(C, vel_rel_b)
     for i in range(3):
-        z[i] = nav[3 + i]
+        z[i] = nav[3 + i] - v[i]
 
 
 @njit(cache=True)
@@ -394,9 +397,7 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, P, z, H, R):
         zaru_residual(nav, C, bias, aid.earth_sign, ev.z[e], z)
         zaru_jacobian(H)
     elif kind == Kind.ZUPT:
-        zupt_residual(nav, z)
-        for i in range(3):
-            z[i] -= ev.z[e, i]
+        zupt_residual(nav, C, ev.z[e], z)
         zupt_jacobian(H)
     elif ranging is not None:  # None: numba compiles no ranging branch (a drive has none)
         if kind == Kind.RANGE:
