@@ -40,6 +40,9 @@ from tpos_cli.pipeline import process_session  # noqa: E402
 from tpos_cli.sim import SCENARIOS  # noqa: E402
 from tpos_cli.sim.writer import write_session  # noqa: E402
 
+sys.path.insert(0, str(REPO / "benchmarks"))
+from drive import TRUTH_OF_THE_RECEIVER, truth_clock_overrides  # noqa: E402
+
 LEVER_M = (1.0, 0.0, -1.5)  # antenna 1 m ahead of and 1.5 m above the IMU (FRD)
 # (kind, planter, keyword a reason must contain, simulation overrides)
 PLANTED = [
@@ -60,10 +63,10 @@ PLANTED = [
 ]
 
 
-def verdict_of(session: Path, run_dir: Path) -> dict:
+def verdict_of(session: Path, run_dir: Path, overrides: dict | None = None) -> dict:
     t0 = time.perf_counter()
     try:
-        r = process_session(session, None, run_dir)
+        r = process_session(session, None, run_dir, overrides=overrides)
     except TposError as exc:
         return {"verdict": f"refused (exit {exc.exit_code})", "reasons": [str(exc)], "t_quality_s": 0.0,
                 "t_total_s": time.perf_counter() - t0}
@@ -127,11 +130,12 @@ def bench_real(tmp: Path) -> None:
     print(f"{'real log':40s} {'':24s} {'verdict':15s} {'':5s} {'verdict time':>8s}  reasons")
     for d in sorted(p for p in SHARED.iterdir() if (p / "session.toml").exists()):
         run = tmp / "runs" / d.name
-        v = verdict_of(d, run)
+        ov = truth_clock_overrides(d.name) if 'kind = "drive"' in (d / "session.toml").read_text() else None
+        v = verdict_of(d, run, ov)
         print(row(d.name, "", v, None))
         for x in v["reasons"][1:]:
             print(f"{'':93s}{x[:160]}")
-        _check_advice(tmp, d, run, v)
+        _check_advice(tmp, d, run, v, ov)
     bench_real_injected(tmp)
 
 
@@ -146,12 +150,6 @@ def bench_real_injected(tmp: Path, late_s: float = 0.3) -> None:
         v = verdict_of(d, run)
         print(row(name, f"gps_late_{late_s:g}", v, "gps_offset_s"))
         _check_advice(tmp, d, run, v)
-
-
-# real logs whose truth is the same receiver's RTK solution (the shared data README: "the same RTK
-# solution"): stamped by the same clock, so a GPS time-stamp fix applies to it as well, and at the
-# antenna, not at the IMU as the contract's truth is, so a lever-arm fix is scored at the antenna
-TRUTH_OF_THE_RECEIVER = ("rtklibexplorer_drive_0708_part1", "rtklibexplorer_walk_0827")
 
 
 def _h_rms_at_antenna(session_dir: Path, run_dir: Path) -> float:
@@ -181,8 +179,9 @@ def _h_rms_at_antenna(session_dir: Path, run_dir: Path) -> float:
     return float(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2)))
 
 
-def _check_advice(tmp: Path, d: Path, run: Path, v: dict) -> None:
-    """Each suggested fix applied alone to a copy of the session, scored against its truth."""
+def _check_advice(tmp: Path, d: Path, run: Path, v: dict, overrides: dict | None = None) -> None:
+    """Each suggested fix applied alone to a copy of the session, scored against its truth, run
+    with the `overrides` of the run that gave the advice."""
     for i, (section, key, value) in enumerate(_suggested_fixes(v)):
         fixed = tmp / f"{d.name}_fixed{i}"
         shutil.rmtree(fixed, ignore_errors=True)
@@ -195,7 +194,7 @@ def _check_advice(tmp: Path, d: Path, run: Path, v: dict) -> None:
             truth["t"] = truth["t"] + float(value)  # the receiver's truth moves with its fixes (no [time] offset before)
             truth.to_csv(fixed / "truth.csv", index=False)
             note = " (truth on the GPS clock: moved with it)"
-        process_session(fixed, None, tmp / "runs" / fixed.name)
+        process_session(fixed, None, tmp / "runs" / fixed.name, overrides=overrides)
         if receiver:
             before, after = _h_rms_at_antenna(d, run), _h_rms_at_antenna(fixed, tmp / "runs" / fixed.name)
             note += " (scored at the antenna)"

@@ -108,9 +108,10 @@ def test_measure_adds_the_extra_states_columns():
 
 
 def test_clock_offset_columns():
-    """A position stamped t taken at IMU time t + d: its rows see the nominal velocity times d; a
-    velocity taken at t + d_vel: the acceleration times d_vel; each a column of H at its clock
-    state; the states are time-odd, so a backward run flips them (issue 11)."""
+    """A position stamped t taken at IMU time t + d: its rows see the displacement over d, v d +
+    a d^2 / 2 (a: the mean acceleration over that window), with the column v + a d (the velocity at
+    t + d); a velocity taken at t + d_vel: the acceleration times d_vel, column a; each a column of
+    H at its clock state; the states are time-odd, so a backward run flips them (issue 11)."""
     nav, C = _nominal()
     aid = Aiding(np.zeros(3), np.zeros(3), np.zeros((2, 3)), geodetic.lla_to_ecef(np.array([48.0, 8.0, 480.0])),
                  geodetic.ecef_to_ned_dcm(48.0, 8.0), np.zeros((1, 2, 3)), np.eye(3), 1.0)
@@ -124,8 +125,8 @@ def test_clock_offset_columns():
     measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, lay.offsets(), _no_P(H), z, H, R)
     z0 = np.empty(3)
     gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
-    assert_allclose(z - z0, nav[3:6] * d, atol=1e-12)
-    assert_allclose(H[:, o], nav[3:6], atol=0)
+    assert_allclose(z - z0, nav[3:6] * d + 0.5 * acc * d**2, atol=1e-12)
+    assert_allclose(H[:, o], nav[3:6] + acc * d, atol=1e-15)
     assert_allclose(H[:, o + 1], 0.0, atol=0)
     v_gps = nav[3:6] + np.array([0.1, 0.2, -0.1])
     measure(0, _events(Kind.GPS_VELOCITY, v_gps, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, lay.offsets(), _no_P(H), z, H, R)
@@ -139,7 +140,7 @@ def test_clock_offset_columns():
     aid_l = aid._replace(lever_b=lever)
     measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid_l, None, nav, C, bias, w_b, acc, lay.offsets(), _no_P(H),
             z, H, R)
-    assert_allclose(H[:, o], nav[3:6] + C @ np.cross(w_b, lever), atol=1e-12)
+    assert_allclose(H[:, o], nav[3:6] + C @ np.cross(w_b, lever) + acc * d, atol=1e-12)
 
 
 def test_lever_arm_columns_are_the_residuals_exact_change():

@@ -67,3 +67,14 @@ def test_vehicle_roll_carries_the_unobserved_mounting_roll():
     _, P_b = vehicle_attitude(C_nb, P0, C_vb, np.zeros((1, 2)), np.array([0.01, 0.02]), roll_sd_rad=0.05)
     x = C_nv[0] @ [1.0, 0.0, 0.0]
     np.testing.assert_allclose(P_b[0] - P_a[0], 0.05**2 * np.outer(x, x), atol=1e-15)
+
+
+def test_vehicle_attitude_without_a_covariance_gives_the_same_attitude():
+    """P_att_rad2 None (the mounting check reads the attitude only): the same C_nv, no covariance."""
+    C_nb = euler_to_dcm(np.radians(3.0), np.radians(-2.0), np.radians(40.0))[None]
+    C_vb = euler_to_dcm(0.0, np.radians(2.0), np.radians(-4.0))
+    m = np.array([[0.01, -0.02]])
+    C_a, _ = vehicle_attitude(C_nb, np.diag([1e-6, 2e-6, 3e-6])[None], C_vb, m, np.array([0.01, 0.02]), roll_sd_rad=0.05)
+    C_b, P_b = vehicle_attitude(C_nb, None, C_vb, m, np.array([0.01, 0.02]), roll_sd_rad=0.05)
+    np.testing.assert_array_equal(C_a, C_b)
+    assert P_b is None

@@ -506,7 +506,7 @@ def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False, atti
     _, sd = _block_at_end(run, Block.MOUNTING, 2)
     prior = next((b for b in run.layout.blocks if b.block == Block.MOUNTING), None)
     roll_sd = float(np.sqrt(prior.P0[0, 0])) if prior is not None else 0.0
-    C_nv, P_att = vehicle_attitude(sol.C_nb, sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
+    C_nv, P_att = vehicle_attitude(sol.C_nb, None if attitude_only else sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
     if attitude_only:
         return Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
     P9 = sol.P9 if own else np.array(sol.P9, copy=True)

@@ -17,10 +17,15 @@ import numpy as np
 from numba import njit
 
 from tpos_cli.filters.kalman import discretize, innovation_statistics, predict, update
-from tpos_cli.frames.earth import G0_MPS2
-from tpos_cli.fusion.layout import N_NAV
-from tpos_cli.fusion.measurements import measure
-from tpos_cli.fusion.nav_errors import apply_feedback, corrected_increments, error_dynamics, process_noise
+from tpos_cli.fusion.layout import N_NAV, Block
+from tpos_cli.fusion.measurements import Kind, measure
+from tpos_cli.fusion.nav_errors import (
+    apply_feedback,
+    corrected_increments,
+    error_dynamics,
+    process_noise,
+    window_acceleration_ned,
+)
 from tpos_cli.ins._kernels import mech_step
 
 
@@ -221,7 +226,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     f_n = np.empty(3)
     f_sum = np.zeros(3)
     f_mean = np.empty(3)
-    acc_ned = np.empty(3)
+    acc_ned = np.zeros(3)  # the clock columns' acceleration (`window_acceleration_ned`)
     dth = np.empty(3)
     dv = np.empty(3)
     dth_prev = np.zeros(3)
@@ -259,6 +264,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     while e < n_ev and ev.k[e] < 1:  # measurements at or before the first sample are not used
         e += 1
     last = 0
+    o_clock = st.layout[Block.CLOCK]
     dt_sum = 0.0
     for k in range(1, n_t):
         dt = mechanize_sample(k, imu, nav, C, bias, st.earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
@@ -269,8 +275,6 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
         if has_ev or k - last >= st.cov_step or k == n_t - 1:
             for i in range(3):
                 f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
-                acc_ned[i] = f_mean[i]  # ... plus gravity: the platform's acceleration (time-even)
-            acc_ned[2] += G0_MPS2
             error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
             discretize(F, Qc, dt_sum, Phi, Qd)
             predict(x, P, Phi, Qd)
@@ -284,6 +288,10 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
             while e < n_ev and ev.k[e] == k:
                 m = ev.dim[e]
+                if o_clock >= 0 and (ev.kind[e] == Kind.GPS_POSITION or ev.kind[e] == Kind.GPS_VELOCITY):
+                    # the clock columns: the platform's mean acceleration over the window of its offset
+                    oc = o_clock + 1 if ev.kind[e] == Kind.GPS_VELOCITY else o_clock
+                    window_acceleration_ned(imu.t, imu.acc, k, C, bias, bias[6 + oc - N_NAV], acc_ned)
                 if m == 1:
                     z, H, R = z1, H1, R1
                 elif m == 2:

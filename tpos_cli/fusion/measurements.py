@@ -307,7 +307,8 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, P, z, H, R):
 
     ev: the kernel's event arrays (`fusion._kernels.EventArrays`), aid: the per-kind parameters
     (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample,
-    acc_ned (3,) the platform's NED acceleration there (m/s^2; the clock-offset columns), P (n, n)
+    acc_ned (3,) the platform's mean NED acceleration over the window of the measurement's clock
+    offset (m/s^2; the clock columns, `fusion.nav_errors.window_acceleration_ned`), P (n, n)
     the predicted covariance (the lever arm's second-order term, `_lever_second_order`).
     m = ev.dim[e] is the size of z, H and R, which the caller allocated; H is written whole.
     """
@@ -331,11 +332,12 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, P, z, H, R):
         if oc >= 0:  # the fix was taken at IMU time t + d: the antenna moved on by v_ant d (`layout.clock_block`),
             # v_ant = v + C (w x l) with the lever arm l in use (a car turning at 0.3 rad/s moves a 1 m lever
             # arm's antenna 2 cm in 0.08 s beyond the IMU's own motion)
+            # (and on by a d^2 / 2: 2 cm for a car braking at 3 m/s^2 with d = 0.12 s, an RTK fix's own SD)
             d = bias[6 + oc - N_NAV]
             v_ant = antenna_velocity(nav, C, aid, bias, w_ib, lay)
             for i in range(3):
-                z[i] += v_ant[i] * d
-                H[i, oc] = v_ant[i]
+                z[i] += (v_ant[i] + 0.5 * acc_ned[i] * d) * d
+                H[i, oc] = v_ant[i] + acc_ned[i] * d
         ol = lay[Block.LEVER]
         if ol >= 0:  # the antenna at l + C_vb^T (dl, 0) (`layout.lever_arm_block`): + C C_vb^T (dl, 0)
             for j in range(2):

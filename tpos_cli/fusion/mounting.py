@@ -76,7 +76,8 @@ def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_r
     rotated into NED (the cross-covariance is left out: the two come from different rows), and
     roll_sd_rad^2 about the vehicle's forward axis: no measurement sees how the IMU is rolled on
     the vehicle (NHC and the travel direction fix its pitch and yaw only), so the vehicle's roll
-    carries the mounting's roll uncertainty (`constraints.vehicle_axes` takes the IMU as unrolled)."""
+    carries the mounting's roll uncertainty (`constraints.vehicle_axes` takes the IMU as unrolled).
+    P_att_rad2 None: the attitude only, (C_nv, None) (checks that read no covariance)."""
     C_nb = np.asarray(C_nb, dtype=float)
     K = C_nb.shape[0]
     C_vb_k = np.broadcast_to(np.asarray(C_vb, dtype=float), (K, 3, 3)).copy()
@@ -85,6 +86,8 @@ def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_r
         m[:, 1:] = misalign_py_rad
         C_vb_k = (np.eye(3) - skew(m)) @ C_vb_k
     C_nv = C_nb @ np.swapaxes(C_vb_k, 1, 2)
+    if P_att_rad2 is None:
+        return C_nv, None
     P = np.array(P_att_rad2, dtype=float, copy=True)
     if misalign_sd_rad is not None or roll_sd_rad > 0.0:
         Dm = np.zeros((K, 3, 3))

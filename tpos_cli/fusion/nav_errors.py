@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm_into
-from tpos_cli.frames.earth import OMEGA_IE_RPS
+from tpos_cli.frames.earth import G0_MPS2, OMEGA_IE_RPS
 from tpos_cli.fusion.layout import ATT, BA, BG, N_NAV, POS, VEL
 
 
@@ -27,6 +27,44 @@ def corrected_increments(gyro_k, acc_k, bias, dt, dtheta, dv):
     for i in range(3):
         dv[i] = (acc_k[i] - bias[i]) * dt
         dtheta[i] = (gyro_k[i] - bias[3 + i]) * dt
+
+
+# the shortest window of `window_acceleration_ned`: a full cycle of 10 Hz, the low end of engine and
+# road vibration, over which a car's own acceleration changes little
+CLOCK_ACC_WINDOW_S = 0.1
+
+
+@njit(cache=True)
+def window_acceleration_ned(t_s, acc_b, k, C, bias, d_s, out):
+    """The platform's mean NED acceleration (m/s^2, time-even) over the clock-offset window from
+    t_k to t_k + d_s (the run's own time), widened about its middle to CLOCK_ACC_WINDOW_S:
+    C (mean bias-corrected specific force of the samples whose intervals lie inside) + gravity.
+    A velocity taken d later has gained its integral, v(t + d) - v(t) = a d (first order in the
+    attitude change over d); one sample of a vibrating IMU instead puts tens of mg times d into
+    the GPS-velocity clock column (`fusion.measurements.measure`). t_s (N,), acc_b (N, 3): the
+    run's IMU (row j the mean over (t_{j-1}, t_j]); bias = [acc (3), gyro (3)]."""
+    half = 0.5 * max(abs(d_s), CLOCK_ACC_WINDOW_S)
+    lo = t_s[k] + 0.5 * d_s - half
+    hi = lo + 2.0 * half
+    n = t_s.shape[0]
+    j0 = k
+    while j0 > 1 and t_s[j0 - 1] > lo:
+        j0 -= 1
+    j1 = k
+    while j1 < n - 1 and t_s[j1 + 1] <= hi:
+        j1 += 1
+    f0 = f1 = f2 = 0.0
+    w = 0.0
+    for j in range(max(j0, 1), j1 + 1):
+        dt = t_s[j] - t_s[j - 1]
+        f0 += (acc_b[j, 0] - bias[0]) * dt
+        f1 += (acc_b[j, 1] - bias[1]) * dt
+        f2 += (acc_b[j, 2] - bias[2]) * dt
+        w += dt
+    f0, f1, f2 = f0 / w, f1 / w, f2 / w
+    for i in range(3):
+        out[i] = C[i, 0] * f0 + C[i, 1] * f1 + C[i, 2] * f2
+    out[2] += G0_MPS2
 
 
 @njit(cache=True)
