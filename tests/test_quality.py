@@ -358,3 +358,23 @@ def test_clock_named_on_a_long_log(sims):
     q = _run(get("drive", duration_s=500.0, outages=((250.0, 30.0),)), root, M.gps_late(0.3))
     assert _named(q, "gps_offset_s = -0.", "estimated by the filter")
     assert q["checks"]["clock"]["suggested_gps_offset_s"] == pytest.approx(-0.3, abs=0.05)
+
+
+def test_clock_state_suggests_one_offset_only_when_positions_and_velocities_agree():
+    """The drive filter's two clock states (`summary.json` gps_clock_offset): [time] gps_offset_s
+    moves positions and velocities together, so it is suggested when both are 0.3 s late, and
+    not when the positions are 0.125 s early and the velocities on time (the real part-1 car
+    drive: the advice had moved its velocities 0.125 s off)."""
+    from tpos_cli.advice import clock_state_finding
+
+    both = {"estimate_s": -0.3, "sigma_s": 0.01, "velocity_estimate_s": -0.29, "velocity_sigma_s": 0.01, "output_clock": "gps"}
+    (f,) = clock_state_finding(both, 0.0, {})
+    assert f.level == "suspect" and "set [time] gps_offset_s = -0.300" in f.reason
+    assert f.figures["suggested_gps_offset_s"] == pytest.approx(-0.3)
+    split = {"estimate_s": 0.125, "sigma_s": 0.0045, "velocity_estimate_s": -0.0055, "velocity_sigma_s": 0.0045,
+             "output_clock": "gps"}
+    (f,) = clock_state_finding(split, 0.0, {})
+    assert f.level == "suspect" and "0.125 ± 0.004 s early" in f.reason and "set [time]" not in f.reason
+    assert "suggested_gps_offset_s" not in f.figures
+    (f,) = clock_state_finding({**split, "output_clock": "imu"}, 0.0, {})
+    assert f.level == "ok"
