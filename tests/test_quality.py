@@ -362,15 +362,18 @@ def test_clock_named_on_a_long_log(sims):
 
 def test_clock_state_suggests_one_offset_only_when_positions_and_velocities_agree():
     """The drive filter's two clock states (`summary.json` gps_clock_offset): [time] gps_offset_s
-    moves positions and velocities together, so it is suggested when both are 0.3 s late, and
-    not when the positions are 0.125 s early and the velocities on time (the real part-1 car
-    drive: the advice had moved its velocities 0.125 s off)."""
+    moves positions and velocities together, so it is suggested when both are 0.3 s late (or
+    0.26 and 0.30: the velocities end nearer on time), and not when the positions are 0.125 s
+    early and the velocities on time (the real part-1 car drive: the advice had moved its
+    velocities 0.125 s off)."""
     from tpos_cli.advice import clock_state_finding
 
     both = {"estimate_s": -0.3, "sigma_s": 0.01, "velocity_estimate_s": -0.29, "velocity_sigma_s": 0.01, "output_clock": "gps"}
     (f,) = clock_state_finding(both, 0.0, {})
     assert f.level == "suspect" and "set [time] gps_offset_s = -0.300" in f.reason
     assert f.figures["suggested_gps_offset_s"] == pytest.approx(-0.3)
+    (f,) = clock_state_finding({**both, "estimate_s": -0.26}, 0.0, {})
+    assert "set [time] gps_offset_s = -0.260" in f.reason
     split = {"estimate_s": 0.125, "sigma_s": 0.0045, "velocity_estimate_s": -0.0055, "velocity_sigma_s": 0.0045,
              "output_clock": "gps"}
     (f,) = clock_state_finding(split, 0.0, {})

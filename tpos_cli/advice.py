@@ -227,10 +227,10 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
     stamped t was taken at IMU time t + d). The run already used it (and moved its output to the
     GPS clock), so re-processing with the fix changes nothing: it is named, not tried, when it is
     significant (`output_clock` "gps") and at least `conventions.CLOCK_MIN_S`. [time]
-    gps_offset_s moves the fixes' positions and velocities together: it is suggested only when the
-    velocities' offset agrees with the positions' (within CLOCK_Z SDs of their difference); a
-    receiver whose positions are late and velocities on time (part of its processing delayed) is
-    told so, with nothing to set (the filter's two clock states take each)."""
+    gps_offset_s moves the fixes' positions and velocities together: the positions' offset is
+    suggested unless it would leave the velocities further off than they are (by more than CLOCK_Z
+    SDs of the two offsets' difference); a receiver whose positions are early and velocities on
+    time is told so, with nothing to set (the filter's two clock states take each)."""
     d, sd = float(state["estimate_s"]), float(state["sigma_s"])
     fig = {**fig, "filter_estimate_s": d, "filter_sigma_s": sd}
     if state.get("output_clock") != "gps" or abs(d) < conventions.CLOCK_MIN_S:
@@ -239,7 +239,7 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
     said = (f"gps/imu: the GPS positions are time-stamped {abs(d):.3f} ± {sd:.3f} s {late} against the IMU "
             "(estimated by the filter, whose output is on the GPS clock)")
     dv, sdv = state.get("velocity_estimate_s"), state.get("velocity_sigma_s")
-    if dv is not None and sdv is not None and abs(d - dv) > CLOCK_Z * float(np.hypot(sd, sdv)):
+    if dv is not None and sdv is not None and abs(float(dv) - d) > abs(float(dv)) + CLOCK_Z * float(np.hypot(sd, sdv)):
         fig["velocity_estimate_s"] = float(dv)
         return [Finding("clock", "suspect",
                         f"{said}, their velocities {abs(float(dv)):.3f} ± {float(sdv):.3f} s "
