@@ -9,17 +9,31 @@ one configuration for every trial; truth is read only here, for scoring. Sigma h
 motion epochs whose attitude error lies inside the 95 % ellipsoid of its own covariance (3 dof),
 rebuilt from the written Euler sigmas (`frames.rotation.attitude_cov_from_euler_sigmas`).
 
+The truth's time tags: the optical truth and the IMU disagree by a fixed ~2.4 ms on every trial (measured
+here from the gyro against the truth's own body rate, `truth_time_offset_s`; no estimator is involved).
+Every estimator that integrates this gyro, VQF included, then shows a tilt "error" tau * omega (0.35-0.7 deg
+at 150-300 deg/s) that is a time-tag difference, not an attitude error (notes marg6.md: regressing the
+tilt errors of tpos and VQF on the rate gives the same -2.1..-2.6 ms, and their fast parts are identical).
+Both figures are printed: the raw one (issue 13's metric, the VQF figures above) and the one against the
+truth moved to the IMU's time tags (`shift_truth`), which is what the sigma-honesty figures are scored on.
+The last column needs no truth: LF1's forward/backward consistency scale (`smoother.fb_scale`, mean NEES per dof
+of the two runs' difference against their own covariances; 1 for honest runs), which the smoother's global
+covariance factor is built from.
+
     pip install vqf ; python benchmarks/marg_real.py
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.ndimage import uniform_filter1d
+from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
 from tpos_cli.frames.rotation import attitude_cov_from_euler_sigmas, dcm_to_rotvec, euler_to_dcm, quat_to_dcm
@@ -53,6 +67,48 @@ def rms_deg(e):
     return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
 
 
+def truth_time_offset_s(t_s, gyro_b_rps, C_true, use, max_s=0.008, step_s=0.00025):
+    """tau (s): the truth's attitude at t + tau matches the IMU at t. The gyro's row k is the mean rate over
+    (t_k-1, t_k] (the kernels' convention; offline VQF also integrates row k into
+    its attitude at k); the truth's body rate is the rotation between its
+    consecutive samples over their interval. Both are smoothed alike (15 samples), a constant gyro bias is
+    removed, and tau minimises the RMS rate difference over rows `use` turning faster than 20 deg/s
+    (grid of `step_s`, parabolic refinement). Only the gyro and the truth enter: no estimator."""
+    ok = np.all(np.isfinite(C_true.reshape(-1, 9)), axis=1)
+    k = np.flatnonzero(ok[:-1] & ok[1:])
+    R = Rotation.from_matrix(C_true[k])
+    w_opt = (R.inv() * Rotation.from_matrix(C_true[k + 1])).as_rotvec() / (t_s[k + 1] - t_s[k])[:, None]
+    t_mid = 0.5 * (t_s[k] + t_s[k + 1])
+    w_opt = uniform_filter1d(w_opt, 15, axis=0)
+    w_imu = uniform_filter1d(gyro_b_rps, 15, axis=0)[k + 1]
+    sel = use[k + 1] & (np.linalg.norm(w_imu, axis=1) > np.radians(20.0))
+    t_imu = t_mid[sel]  # gyro row k+1 is the mean over the same interval
+    taus = np.arange(-max_s, max_s + step_s / 2, step_s)
+    rms = []
+    for tau in taus:
+        w = np.stack([np.interp(t_imu + tau, t_mid, w_opt[:, i]) for i in range(3)], axis=1)
+        d = w_imu[sel] - w
+        rms.append(np.sqrt(np.mean((d - d.mean(axis=0)) ** 2)))
+    rms = np.asarray(rms)
+    i = int(np.clip(np.argmin(rms), 1, rms.size - 2))
+    a, b, c = rms[i - 1:i + 2]
+    return float(taus[i] + 0.5 * (a - c) / (a - 2.0 * b + c) * step_s)
+
+
+def shift_truth(C_true, t_s, tau_s):
+    """(N,3,3) the truth's attitude at t + tau (geodesic interpolation between its valid samples); NaN where
+    a neighbour is missing (a capture dropout)."""
+    ok = np.all(np.isfinite(C_true.reshape(-1, 9)), axis=1)
+    out = np.full_like(C_true, np.nan)
+    tq = t_s + tau_s
+    inside = (tq >= t_s[ok][0]) & (tq <= t_s[ok][-1])
+    # both neighbours valid: the interpolation does not bridge a dropout
+    j = np.clip(np.searchsorted(t_s, tq, side="right"), 1, t_s.size - 1)
+    inside &= ok[j - 1] & ok[j]
+    out[inside] = Slerp(t_s[ok], Rotation.from_matrix(C_true[ok]))(tq[inside]).as_matrix()
+    return out
+
+
 def share_in_band(e_deg, C, sig_rpy_deg, p=0.95):
     """(share of epochs whose error is inside the p-ellipsoid of its covariance (3 dof), mean NEES per dof)."""
     P = attitude_cov_from_euler_sigmas(C, sig_rpy_deg)
@@ -65,32 +121,47 @@ def main():
     from vqf import offlineVQF
 
     T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # VQF's ENU-type frame -> NED
-    ratios = []
-    print(f"{'trial':40s} {'tpos':>6s} {'vqf':>6s} {'ratio':>6s}  {'tpos/vqf, heading offset removed':>32s}  in 95% band")
+    ratios, ratios_al = [], []
+    print(f"{'trial':40s} {'tpos':>6s} {'vqf':>6s} {'ratio':>6s}  {'heading off removed':>19s}  in 95% band (NEES/dof)"
+          f"   | truth tau ms  tpos   vqf  ratio  in 95% band (NEES/dof), truth on the IMU's time tags"
+          f"   | lf1 fwd/bwd scale tilt/heading (no truth)")
     for d in sorted(REAL.glob("broad_*")):
         s = load_session(d)
         tr = s.truth
         t = s.imu.t_s
         k = np.clip(np.round(np.interp(t, tr.t_s, np.arange(tr.t_s.size))).astype(int), 0, tr.t_s.size - 1)
         C_true = euler_to_dcm(*np.radians(tr.rpy_deg[k]).T)
-        mov = (tr.extra["movement"][k] == 1) & np.all(np.isfinite(tr.rpy_deg[k]), axis=1)
+        moving = tr.extra["movement"][k] == 1
+        mov = moving & np.all(np.isfinite(tr.rpy_deg[k]), axis=1)
+        tau = truth_time_offset_s(t, s.imu.gyro_b_rps, C_true, mov)
+        C_al = shift_truth(C_true, t, tau)
+        mov_al = moving & np.all(np.isfinite(C_al.reshape(-1, 9)), axis=1)
         with tempfile.TemporaryDirectory() as tmp:
             rs = process_session(d, "target-fkf", Path(tmp) / "run")
             traj = pd.read_parquet(rs.run_dir / "trajectory.parquet")
+            fb = json.loads((rs.run_dir / "summary.json").read_text())["results"].get(
+                "forward_backward_consistency", {}).get("lf1", {})
         q = traj[traj.solution == "fkf"]
-        C = euler_to_dcm(*np.radians(q[["roll", "pitch", "yaw"]].to_numpy()).T)[mov]
-        sig = q[["sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()[mov]
+        C_all = euler_to_dcm(*np.radians(q[["roll", "pitch", "yaw"]].to_numpy()).T)
+        sig_all = q[["sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()
         r = offlineVQF(np.ascontiguousarray(s.imu.gyro_b_rps), np.ascontiguousarray(s.imu.acc_b_mps2),
                        np.ascontiguousarray(s.imu.mag_b_ut), float(np.median(np.diff(t))))
-        C_vqf = (T @ quat_to_dcm(r["quat9D"]))[mov]
+        C_vqf_all = T @ quat_to_dcm(r["quat9D"])
+        C, sig, C_vqf = C_all[mov], sig_all[mov], C_vqf_all[mov]
         e_ours, e_vqf = error_deg(C, C_true[mov]), error_deg(C_vqf, C_true[mov])
         ours, vqf = rms_deg(e_ours), rms_deg(e_vqf)
         off = total_rms_deg(C, C_true[mov]), total_rms_deg(C_vqf, C_true[mov])
         ratios.append(ours / vqf)
         inside, nees_dof = share_in_band(e_ours, C, sig)
-        print(f"{d.name:40s} {ours:6.3f} {vqf:6.3f} {ours / vqf:6.3f}  {off[0]:15.3f}/{off[1]:.3f}"
-              f"{'':10s}  {inside:.3f} (NEES/dof {nees_dof:.2f})")
-    print(f"mean ratio {np.mean(ratios):.3f}, max {np.max(ratios):.3f} (tpos below VQF where < 1)")
+        e_al, e_vqf_al = error_deg(C_all[mov_al], C_al[mov_al]), error_deg(C_vqf_all[mov_al], C_al[mov_al])
+        ours_al, vqf_al = rms_deg(e_al), rms_deg(e_vqf_al)
+        ratios_al.append(ours_al / vqf_al)
+        inside_al, nees_al = share_in_band(e_al, C_all[mov_al], sig_all[mov_al])
+        print(f"{d.name:40s} {ours:6.3f} {vqf:6.3f} {ours / vqf:6.3f}  {off[0]:9.3f}/{off[1]:.3f}  {inside:.3f} ({nees_dof:.2f})"
+              f"   | {tau * 1e3:11.2f} {ours_al:6.3f} {vqf_al:5.3f} {ours_al / vqf_al:6.3f}  {inside_al:.3f} ({nees_al:.2f})"
+              f"   | {fb.get('tilt', np.nan):7.1f}/{fb.get('heading', np.nan):.1f}")
+    print(f"mean ratio {np.mean(ratios):.3f}, max {np.max(ratios):.3f} (tpos below VQF where < 1); on the IMU's time tags: "
+          f"mean {np.mean(ratios_al):.3f}, max {np.max(ratios_al):.3f}")
     return 0
 
 
