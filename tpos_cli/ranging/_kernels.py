@@ -75,33 +75,20 @@ def _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g, h):
 
 
 @njit(cache=True)
-def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov):
+def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov, vec, mat):
     """Weighted Gauss-Newton fix from the first k rows of anchors_ned_m (., 3), range_m and
     sigma_m of the first `nd` (2: north, east; 3: also down) coordinates of p (3,), updated in
-    place; the others stay. cov (nd, nd) <- (H^T W H)^-1 at the solution.
+    place; the others stay. cov (nd, nd) <- (H^T W H)^-1 at the solution. Scratch: vec
+    (6, >= max(k, 3)), mat (2, nd, nd) (a loop over many fixes, `fix_epochs`, allocates them once).
 
     Returns (status, rms residual m): FIX_OK, FIX_FAILED (fewer than nd + 1 ranges, a range of
     zero length, singular normal matrix, no step below tol_m within max_iter) or
     FIX_POOR_GEOMETRY (sqrt(trace(cov[:2, :2])) / RMS sigma above max_pdop).
     """
-    return _gauss_newton(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov,
-                         _workspace(max(k, 1), nd))
-
-
-@njit(cache=True)
-def _workspace(k, nd):
-    """Scratch of `_gauss_newton` for up to k ranges and nd unknowns: (w (k,), N, A (nd, nd), g, dx, e,
-    col (nd,), h (3,)); a loop over many fixes (`fix_epochs`) allocates it once."""
-    return (np.empty(k), np.empty((nd, nd)), np.empty((nd, nd)), np.empty(nd), np.empty(nd), np.empty(nd),
-            np.empty(nd), np.empty(3))
-
-
-@njit(cache=True)
-def _gauss_newton(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov, ws):
-    """`gauss_newton_fix` with its scratch ws (`_workspace`)."""
     if k < nd + 1:
         return FIX_FAILED, np.nan
-    w, N, A, g, dx, e, col, h = ws
+    w, g, dx, e, col, h = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5]
+    N, A = mat[0], mat[1]
     for i in range(k):
         w[i] = 1.0 / (sigma_m[i] * sigma_m[i])
     converged = False
@@ -160,7 +147,7 @@ def epoch_numbers(t_s, window_s):
 
 @njit(cache=True)
 def _subset_fix(idx, k, skip, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m, max_pdop,
-                a_sub, r_sub, s_sub, p, cov, ws):
+                a_sub, r_sub, s_sub, p, cov, vec, mat):
     """Fix from the ranges idx[:k] except position `skip` (-1: all); fills the first rows of a_sub,
     r_sub, s_sub with the ranges used, p and cov. Returns (status, weighted residual sum of
     squares, n used)."""
@@ -174,7 +161,7 @@ def _subset_fix(idx, k, skip, anchor, range_m, sd_m, anchors_ned_m, guess, max_i
             m += 1
     for c in range(3):
         p[c] = guess[c]
-    status, _ = _gauss_newton(a_sub, r_sub, s_sub, m, p, 2, max_iter, tol_m, max_pdop, cov, ws)
+    status, _ = gauss_newton_fix(a_sub, r_sub, s_sub, m, p, 2, max_iter, tol_m, max_pdop, cov, vec, mat)
     chi = 0.0
     for j in range(m):
         d0 = p[0] - a_sub[j, 0]
@@ -211,7 +198,7 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
     s_sub = np.empty(n_anchor)
     cov = np.empty((2, 2))
     p = np.empty(3)
-    ws = _workspace(max(n_anchor, 1), 2)
+    vec, mat = np.empty((6, max(n_anchor, 3))), np.empty((2, 2, 2))  # gauss_newton_fix's scratch, once
     n_fix = 0
     for e in range(bounds.shape[0] - 1):
         for a in range(n_anchor):
@@ -227,7 +214,7 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
             continue
         while True:
             status, chi, _ = _subset_fix(idx, k, -1, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m,
-                                         max_pdop, a_sub, r_sub, s_sub, p, cov, ws)
+                                         max_pdop, a_sub, r_sub, s_sub, p, cov, vec, mat)
             if status != FIX_OK or chi <= chi2_by_dof[k - 2]:
                 break
             if k == 3:  # no range left to spare
@@ -236,7 +223,7 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
             best, best_chi = -1, np.inf  # beyond the paper: the NLOS range is the one whose omission fits best
             for j in range(k):
                 st_j, chi_j, _ = _subset_fix(idx, k, j, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m,
-                                             max_pdop, a_sub, r_sub, s_sub, p, cov, ws)
+                                             max_pdop, a_sub, r_sub, s_sub, p, cov, vec, mat)
                 if st_j == FIX_OK and chi_j < best_chi:
                     best, best_chi = j, chi_j
             if best < 0:
