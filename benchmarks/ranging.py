@@ -3,6 +3,7 @@
     python benchmarks/ranging.py                    # everything (about 5 minutes on 2 loaded cores)
     python benchmarks/ranging.py --only speed       # or: accuracy, nees
     python benchmarks/ranging.py --only accuracy --seeds 0 1 2
+    python benchmarks/ranging.py --only speed --set 'ranging_fatci.solutions=["fatci"]'   # another configuration
 
 Speed (issue 16): a simulated one-hour ranging log (4 anchors at 10 Hz, 100 Hz IMU; `tpos simulate
 ranging OUT --duration 3600`) processed by `tpos process` in a subprocess, three times after a
@@ -85,7 +86,7 @@ def evaluate(case: str, seed: int, work: Path, overrides: dict | None = None) ->
 
 
 # --------------------------------------------------------------------------- speed
-def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
+def speed(duration_s: float = 3600.0, repeats: int = 3, overrides: tuple[str, ...] = ()) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         sim = simulate_ranging(duration_s, seed=7)
         path = sim.write(Path(tmp) / "ranging_1h")
@@ -93,7 +94,10 @@ def speed(duration_s: float = 3600.0, repeats: int = 3) -> None:
         n_ranges = sim.anchor_ranges.t_s.size
         del sim
         print(f"simulated {duration_s:.0f} s ranging log: {n} IMU samples, {n_ranges} ranges")
-        cmd = [sys.executable, "-m", "tpos_cli", "process", str(path), "-o", str(Path(tmp) / "run"), "-q"]
+        cmd = [sys.executable, "-m", "tpos_cli", "process", str(path), "-o", str(Path(tmp) / "run"), "-q",
+               *(a for o in overrides for a in ("--set", o))]
+        if overrides:
+            print(f"pipeline overrides: {' '.join(overrides)}")
         env = dict(os.environ, PYTHONPATH=str(REPO))
         run_measured(cmd, env, tmp, subprocess.DEVNULL)  # warm the numba cache (a compile's memory is not the run's)
         reference_loop(1000, 100)  # and compile (or load) the reference kernels before timing them
@@ -209,9 +213,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=["speed", "accuracy", "nees"], default=None)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="accuracy: seeds of the Table 1 runs")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="speed: a pipeline override passed to `tpos process --set` (repeatable)")
     args = ap.parse_args()
     if args.only in (None, "speed"):
-        speed()
+        speed(overrides=tuple(args.set))
     if args.only in (None, "accuracy"):
         accuracy(args.seeds)
     if args.only in (None, "nees"):

@@ -304,11 +304,12 @@ def _floor_down(anchors_ned, t, a, r, sd, p: RangingParams, ctx: RunContext) -> 
     default 0), or the median of 3-D fixes of epochs with >= 4 anchors (SD of that median)."""
     if p.floor_down_m is not None:
         return float(p.floor_down_m), float(p.floor_height_sd_m or 0.0)
-    ep = group_epochs(t, p.epoch_window_s)
+    bounds = epoch_bounds(group_epochs(t, p.epoch_window_s))  # t sorted: an epoch's ranges are rows b[e]:b[e + 1]
+    n_ep = bounds.size - 1
     downs, sds = [], []
     guess = np.array([*anchors_ned[:, :2].mean(axis=0), anchors_ned[:, 2].mean() + 2.0])  # start below the anchors
-    for e in range(0, ep.max() + 1, max(1, (ep.max() + 1) // 200)):
-        m = ep == e
+    for e in range(0, n_ep, max(1, n_ep // 200)):
+        m = slice(bounds[e], bounds[e + 1])
         if np.unique(a[m]).size < 4:
             continue
         fix = ls_fix(anchors_ned[a[m]], r[m], sd[m], guess, solve_down=True)

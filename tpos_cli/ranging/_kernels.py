@@ -49,14 +49,13 @@ def _solve_small(A, b, x):
 
 
 @njit(cache=True)
-def _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
+def _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g, h):
     """N = H^T W H and g = H^T W (r - rho) at position p over the first k ranges; H rows
-    d rho / d (n, e[, d]) (Eq. 23). False when the position coincides with an anchor."""
+    d rho / d (n, e[, d]) (Eq. 23), h (3,) scratch. False when the position coincides with an anchor."""
     for a in range(nd):
         g[a] = 0.0
         for b in range(nd):
             N[a, b] = 0.0
-    h = np.empty(3)
     for i in range(k):
         d0 = p[0] - anchors_ned_m[i, 0]
         d1 = p[1] - anchors_ned_m[i, 1]
@@ -76,10 +75,11 @@ def _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
 
 
 @njit(cache=True)
-def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov):
+def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m, max_pdop, cov, vec, mat):
     """Weighted Gauss-Newton fix from the first k rows of anchors_ned_m (., 3), range_m and
     sigma_m of the first `nd` (2: north, east; 3: also down) coordinates of p (3,), updated in
-    place; the others stay. cov (nd, nd) <- (H^T W H)^-1 at the solution.
+    place; the others stay. cov (nd, nd) <- (H^T W H)^-1 at the solution. Scratch: vec
+    (6, >= max(k, 3)), mat (2, nd, nd) (a loop over many fixes, `fix_epochs`, allocates them once).
 
     Returns (status, rms residual m): FIX_OK, FIX_FAILED (fewer than nd + 1 ranges, a range of
     zero length, singular normal matrix, no step below tol_m within max_iter) or
@@ -87,16 +87,13 @@ def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m,
     """
     if k < nd + 1:
         return FIX_FAILED, np.nan
-    w = np.empty(k)
+    w, g, dx, e, col, h = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5]
+    N, A = mat[0], mat[1]
     for i in range(k):
         w[i] = 1.0 / (sigma_m[i] * sigma_m[i])
-    N = np.empty((nd, nd))
-    A = np.empty((nd, nd))
-    g = np.empty(nd)
-    dx = np.empty(nd)
     converged = False
     for _ in range(max_iter):
-        if not _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
+        if not _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g, h):
             return FIX_FAILED, np.nan
         if not _solve_small(N, g, dx):
             return FIX_FAILED, np.nan
@@ -109,10 +106,8 @@ def gauss_newton_fix(anchors_ned_m, range_m, sigma_m, k, p, nd, max_iter, tol_m,
             break
     if not converged:
         return FIX_FAILED, np.nan
-    if not _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g):
+    if not _normal_matrix(anchors_ned_m, range_m, w, k, p, nd, N, g, h):
         return FIX_FAILED, np.nan
-    e = np.empty(nd)
-    col = np.empty(nd)
     for j in range(nd):  # the inverse column by column
         for a in range(nd):
             e[a] = 1.0 if a == j else 0.0
@@ -152,7 +147,7 @@ def epoch_numbers(t_s, window_s):
 
 @njit(cache=True)
 def _subset_fix(idx, k, skip, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m, max_pdop,
-                a_sub, r_sub, s_sub, p, cov):
+                a_sub, r_sub, s_sub, p, cov, vec, mat):
     """Fix from the ranges idx[:k] except position `skip` (-1: all); fills the first rows of a_sub,
     r_sub, s_sub with the ranges used, p and cov. Returns (status, weighted residual sum of
     squares, n used)."""
@@ -166,7 +161,7 @@ def _subset_fix(idx, k, skip, anchor, range_m, sd_m, anchors_ned_m, guess, max_i
             m += 1
     for c in range(3):
         p[c] = guess[c]
-    status, _ = gauss_newton_fix(a_sub, r_sub, s_sub, m, p, 2, max_iter, tol_m, max_pdop, cov)
+    status, _ = gauss_newton_fix(a_sub, r_sub, s_sub, m, p, 2, max_iter, tol_m, max_pdop, cov, vec, mat)
     chi = 0.0
     for j in range(m):
         d0 = p[0] - a_sub[j, 0]
@@ -203,6 +198,7 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
     s_sub = np.empty(n_anchor)
     cov = np.empty((2, 2))
     p = np.empty(3)
+    vec, mat = np.empty((6, max(n_anchor, 3))), np.empty((2, 2, 2))  # gauss_newton_fix's scratch, once
     n_fix = 0
     for e in range(bounds.shape[0] - 1):
         for a in range(n_anchor):
@@ -218,7 +214,7 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
             continue
         while True:
             status, chi, _ = _subset_fix(idx, k, -1, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m,
-                                         max_pdop, a_sub, r_sub, s_sub, p, cov)
+                                         max_pdop, a_sub, r_sub, s_sub, p, cov, vec, mat)
             if status != FIX_OK or chi <= chi2_by_dof[k - 2]:
                 break
             if k == 3:  # no range left to spare
@@ -227,7 +223,7 @@ def fix_epochs(t_s, anchor, range_m, sd_m, anchors_ned_m, bounds, guess_ned_m, m
             best, best_chi = -1, np.inf  # beyond the paper: the NLOS range is the one whose omission fits best
             for j in range(k):
                 st_j, chi_j, _ = _subset_fix(idx, k, j, anchor, range_m, sd_m, anchors_ned_m, guess, max_iter, tol_m,
-                                             max_pdop, a_sub, r_sub, s_sub, p, cov)
+                                             max_pdop, a_sub, r_sub, s_sub, p, cov, vec, mat)
                 if st_j == FIX_OK and chi_j < best_chi:
                     best, best_chi = j, chi_j
             if best < 0:
@@ -364,6 +360,13 @@ def mamdani_centroid(x, in_lo, in_hi, in_tri, out_tri, rule_in, rule_out, out_lo
             y0 = max(q[j], out_lo)
             y1 = min(q[j + 1], out_hi)
             if y1 <= y0:
+                continue
+            inside = False  # outside the fired output sets' supports the membership is 0: skip
+            for f in range(nf):  # the piece without evaluating it (it would add nothing)
+                o = rule_out[fired[f]]
+                if y1 > out_tri[o, 0] and y0 < out_tri[o, 2]:
+                    inside = True
+            if not inside:
                 continue
             h = y1 - y0
             g1 = _aggregated(y0 + 0.25 * h, w, out_tri, rule_out)

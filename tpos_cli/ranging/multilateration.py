@@ -52,7 +52,8 @@ def ls_fix(
     p = np.array(guess_ned_m, dtype=float)
     nd = 3 if solve_down else 2
     cov = np.empty((nd, nd))
-    status, rms = gauss_newton_fix(a, r, s, r.size, p, nd, int(max_iter), float(tol_m), float(max_pdop), cov)
+    status, rms = gauss_newton_fix(a, r, s, r.size, p, nd, int(max_iter), float(tol_m), float(max_pdop), cov,
+                                   np.empty((6, max(r.size, 3))), np.empty((2, nd, nd)))
     if status == FIX_FAILED:
         return Fix(np.full(3, np.nan), np.full((2, 2), np.nan), np.nan, False)
     return Fix(p, cov[:2, :2].copy(), float(rms), status == FIX_OK, cov if solve_down else None)

@@ -64,7 +64,8 @@ def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m
                          acc_step_mps2=0.05, max_speed_mps=0.05, window_s=0.5, **static_kw) -> list[tuple[float, float]]:
     """Intervals [t0, t1] (s) where the node stands still.
 
-    t_s, gyro_b_rps, acc_b_mps2 : IMU; range_t_s, anchor, range_m (R,) : anchor ranges (any order).
+    t_s, gyro_b_rps, acc_b_mps2 : IMU; range_t_s, anchor, range_m (R,) : anchor ranges (any order;
+    an anchor's ranges in a piece are thinned in time order).
     """
     t = np.asarray(t_s, dtype=float)
     if t.size < 3:
@@ -84,9 +85,10 @@ def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m
             end = start + int(out[0]) if out.size else i1
             pieces.append((start, end))  # while accelerating, pieces are short and dropped below
             start = end
-    rt = np.asarray(range_t_s, dtype=float)
-    ra = np.asarray(anchor, dtype=np.int64)
-    rr = np.asarray(range_m, dtype=float)
+    order = np.argsort(np.asarray(range_t_s, dtype=float), kind="stable")  # time order: a piece's ranges are a slice
+    rt = np.asarray(range_t_s, dtype=float)[order]
+    ra = np.asarray(anchor, dtype=np.int64)[order]
+    rr = np.asarray(range_m, dtype=float)[order]
     out_iv = []
     for s, e in pieces:
         a = s + (half if s > 0 else 0)
@@ -94,14 +96,15 @@ def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m
         if b - a < 2 or t[b - 1] - t[a] < min_duration_s:
             continue
         t0, t1 = t[a], t[b - 1]
-        inside = (rt >= t0) & (rt <= t1)
+        inside = slice(np.searchsorted(rt, t0, side="left"), np.searchsorted(rt, t1, side="right"))  # t0 <= rt <= t1
+        p_t, p_a, p_r = rt[inside], ra[inside], rr[inside]
         ok, n_resolved = True, 0
-        for i in np.unique(ra[inside]):
-            m = np.flatnonzero(inside & (ra == i))
+        for i in np.unique(p_a):
+            m = np.flatnonzero(p_a == i)
             if m.size < _MIN_RANGES:
                 continue
             m = m[:: max(1, m.size // _MAX_POINTS)]
-            slope, lo, hi = theil_sen(rt[m], rr[m], 0.997)  # (lo, hi): 3-sigma interval
+            slope, lo, hi = theil_sen(p_t[m], p_r[m], 0.997)  # (lo, hi): 3-sigma interval
             if abs(slope) >= max_speed_mps:
                 ok = False
                 break
