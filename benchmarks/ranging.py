@@ -58,6 +58,9 @@ PAPER = {
 DROPS = ((18.0, 23.0), (40.0, 45.0))
 
 
+PAPER_COMPARISON = {"ranging_fatci.solutions": ["lc", "tc", "fatci"]}  # Table 1: lc, tc beside fatci (default: fatci)
+
+
 def evaluate(case: str, seed: int, work: Path, overrides: dict | None = None) -> dict:
     kw = {} if case == "dropout" else {"dropouts": ()}
     sim = simulate_ranging(60.0, seed=seed, **kw)
@@ -135,7 +138,7 @@ def speed(duration_s: float = 3600.0, repeats: int = 3, overrides: tuple[str, ..
 def accuracy(seeds) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for case in ("dropout", "normal"):
-            runs = [evaluate(case, s, Path(tmp)) for s in seeds]
+            runs = [evaluate(case, s, Path(tmp), PAPER_COMPARISON) for s in seeds]
             print(f"\n== {case} (seeds {seeds}; mean over seeds; process wall {np.mean([r['_wall_s'] for r in runs]):.2f} s) ==")
             print(f"{'sol':6} {'x range (m)':>17} {'y range (m)':>17} {'var x':>7} {'var y':>7} {'max':>6} {'mean':>6} "
                   f"{'rms':>6} {'dropmax':>7} {'gated':>5} | paper max / mean")
@@ -180,7 +183,7 @@ def nees_grade(grade: str, seeds, duration_s: float) -> None:
         for seed in seeds:
             sim = simulate_ranging(duration_s, seed=seed, grade=grade)
             sess = sim.write(Path(tmp) / f"s{seed}")
-            rs = process_session(sess, "ranging-fatci", Path(tmp) / f"r{seed}")
+            rs = process_session(sess, "ranging-fatci", Path(tmp) / f"r{seed}", overrides=PAPER_COMPARISON)
             tr = pd.read_parquet(rs.run_dir / "trajectory.parquet")
             origin = sim.anchors.origin_lla
             for sol, g in tr.groupby("solution", sort=False):

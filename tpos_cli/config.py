@@ -203,7 +203,8 @@ RangingSolution = Literal["lc", "tc", "fatci"]
 class RangingParams(Section):
     """`[ranging_fatci]` (paper 002); see pipelines/README.md for each key."""
 
-    solutions: Annotated[tuple[RangingSolution, ...], Field(min_length=1)] = ("lc", "tc", "fatci")
+    # fatci, the paper's filter: lc and tc are its comparison (paper 002 Table 1), on request
+    solutions: Annotated[tuple[RangingSolution, ...], Field(min_length=1)] = ("fatci",)
     imu_gap_max_s: Positive = 1.0  # refuse a log with a longer IMU gap: the INS cannot be carried across it
     smoothed: bool = True
     smooth_source: RangingSolution = "fatci"

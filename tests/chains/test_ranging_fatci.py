@@ -1,4 +1,5 @@
-"""`tpos process` on a simulated ranging session (paper 002 corridor) writes lc, tc, fatci and smoothed."""
+"""`tpos process` on a simulated ranging session (paper 002 corridor): fatci and smoothed by default,
+and the paper's comparison filters lc and tc when asked for (`PAPER_COMPARISON`)."""
 
 import json
 
@@ -11,14 +12,23 @@ from tpos_cli.frames import geodetic
 from tpos_cli.pipeline import process_session
 from tpos_cli.sim.ranging import simulate_ranging
 
+PAPER_COMPARISON = {"ranging_fatci.solutions": ["lc", "tc", "fatci"]}  # paper 002 Table 1: lc, tc beside fatci
+
 
 @pytest.fixture(scope="module")
 def processed(tmp_path_factory):
     d = tmp_path_factory.mktemp("ranging")
     sim = simulate_ranging(60.0, seed=0)
     sim.write(d / "sess")
-    rs = process_session(d / "sess", None, d / "run")  # default pipeline for kind = "ranging"
+    rs = process_session(d / "sess", None, d / "run", overrides=PAPER_COMPARISON)  # default pipeline for kind = "ranging"
     return sim, rs
+
+
+def test_default_writes_the_papers_filter_and_its_smoothing(tmp_path):
+    sim = simulate_ranging(20.0, seed=4)
+    rs = process_session(sim.write(tmp_path / "sess"), None, tmp_path / "run")
+    tr = pd.read_parquet(rs.run_dir / "trajectory.parquet")
+    assert set(tr.solution) == {"fatci", "smoothed"}
 
 
 def _horizontal_errors(sim, df):
@@ -111,7 +121,7 @@ def test_nees_of_all_solutions_over_monte_carlo_runs(tmp_path):
     for seed in range(n_runs):
         sim = simulate_ranging(60.0, seed=100 + seed)
         sess = sim.write(tmp_path / f"s{seed}")
-        rs = process_session(sess, "ranging-fatci", tmp_path / f"r{seed}")
+        rs = process_session(sess, "ranging-fatci", tmp_path / f"r{seed}", overrides=PAPER_COMPARISON)
         tr = pd.read_parquet(rs.run_dir / "trajectory.parquet")
         origin = sim.anchors.origin_lla
         for sol in nees:
