@@ -9,7 +9,7 @@ from numpy.testing import assert_allclose
 
 from tests.helpers.sessions import G, write_minimal_session
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.session import load_session
+from tpos_cli.session import load_imu, load_session
 
 EXCERPTS = Path(__file__).parent / "data" / "real_excerpts"
 
@@ -162,3 +162,18 @@ def test_truth_is_read_for_reports_only(tmp_path):
         load_session(d)
     s = load_session(d, with_truth=False)
     assert s.truth is None and s.imu.t_s.size > 0
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_session_without_its_imu_and_the_imu_loaded_later(tmp_path, fmt):
+    """`with_imu=False` (reports of a processed run) reads the IMU's times only: the same t0, gaps,
+    hashes and other tables; `load_imu` then gives the IMU the full load gives."""
+    d = write_minimal_session(tmp_path / "s", fmt=fmt, with_ranges=True)
+    full, lite = load_session(d), load_session(d, with_imu=False)
+    assert lite.imu is None and lite.t0_s == full.t0_s and lite.file_hashes == full.file_hashes
+    np.testing.assert_array_equal(lite.imu_gaps_s, full.imu_gaps_s)
+    np.testing.assert_array_equal(lite.gps.t_s, full.gps.t_s)
+    imu = load_imu(lite)
+    for a in ("t_s", "gyro_b_rps", "acc_b_mps2"):
+        np.testing.assert_array_equal(getattr(imu, a), getattr(full.imu, a))
+    assert load_imu(full) is full.imu

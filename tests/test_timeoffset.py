@@ -8,7 +8,7 @@ import pytest
 
 from tests.helpers.paths import SHARED_DATA
 from tpos_cli.sim.drive import simulate_drive
-from tpos_cli.timeoffset import estimate_gps_time_offset
+from tpos_cli.timeoffset import _lowpass, estimate_gps_time_offset
 
 
 @pytest.fixture(scope="module")
@@ -69,3 +69,20 @@ def test_real_session_clock_offset_caught(tmp_path, name, injected_s):
     # stamped ~0.19 s late; the walk's PC-stamped IMU ~0.27 s late); 3 ms covers the rounding in the message
     assert value == pytest.approx(base.offset_s - injected_s, abs=3e-3)
     assert ("late" if value < 0 else "early") in msg
+
+
+def test_lowpass_is_the_centred_mean_and_its_decimated_rows_the_same_numbers():
+    """`_lowpass`: row i the mean of x[lo:hi], lo = max(i - n // 2, 0), hi = min(i - n // 2 + n, N); with
+    `step` the rows [::step] of the full result, bit for bit."""
+    import numpy as np
+
+    rng = np.random.default_rng(5)
+    for N, n in ((0, 3), (1, 4), (5, 2), (7, 30), (100, 7), (101, 8)):
+        x = rng.standard_normal((N, 3))
+        full = _lowpass(x, n)
+        for i in range(N):
+            lo, hi = max(i - n // 2, 0), min(i - n // 2 + n, N)
+            np.testing.assert_allclose(full[i], x[lo:hi].mean(axis=0), rtol=1e-12, atol=1e-12)
+        for step in (1, 2, 3, 50):
+            np.testing.assert_array_equal(_lowpass(x, n, step), full[::step])
+        np.testing.assert_array_equal(_lowpass(x[:, 0], n), full[:, 0])

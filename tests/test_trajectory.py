@@ -29,3 +29,26 @@ def test_solution_rows_have_the_contract_columns_in_order():
     assert_allclose(df["t"], [1000.0, 1000.1, 1000.2])
     assert_allclose(df[["sigma_n", "sigma_e", "sigma_u"]].to_numpy()[0], [1.0, 2.0, 3.0])
     assert_allclose(df["lat"], 45.0, atol=1e-12)
+
+
+def test_solution_table_takes_an_attitude_covariance_in_place_of_p9s():
+    """`P_att_rad2`: the attitude sigmas from it (e.g. the vehicle's axes), P9 not copied nor read there."""
+    k = 4
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((k, 9, 9)) * 1e-2
+    P9 = A @ np.swapaxes(A, 1, 2)
+    nav = np.column_stack([np.radians([45.0] * k), np.radians([7.0] * k), [100.0] * k, np.ones((k, 3))])
+    C = euler_to_dcm(rng.uniform(-0.2, 0.2, k), rng.uniform(-0.2, 0.2, k), rng.uniform(-3, 3, k))
+    B = rng.standard_normal((k, 3, 3)) * 1e-3
+    P_att = B @ np.swapaxes(B, 1, 2)
+    P9_att = P9.copy()
+    P9_att[:, 6:9, 6:9] = P_att
+    sol = Solution("x", np.arange(k), nav, C, P9)
+    a = solution_table(sol, np.arange(k) * 0.1, 0.0, P_att_rad2=P_att)
+    b = solution_table(Solution("x", np.arange(k), nav, C, P9_att), np.arange(k) * 0.1, 0.0)
+    assert a.equals(b) and not np.shares_memory(P9, P_att)
+
+
+def test_solution_column_of_an_empty_table():
+    df = trajectory_table("x", np.zeros(0), np.zeros((0, 3)), None, np.zeros((0, 3, 3)))
+    assert len(df) == 0 and "solution" in df

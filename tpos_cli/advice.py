@@ -315,7 +315,9 @@ def lever_arm_signature(session, output) -> dict | None:
     t_imu = session.imu.t_s + session.t0_s
     for sol in ("forward", "backward"):
         g = inn[(inn["solution"] == sol) & (inn["kind"] == "gps_vel")]
-        f = tr[tr["solution"] == sol].sort_values("t")
+        f = tr.loc[tr["solution"] == sol, ["t", "roll", "pitch", "yaw"]]  # the columns read below
+        if not (f["t"].is_monotonic_increasing and f["t"].is_unique):  # output rows come sorted: no sort then
+            f = f.sort_values("t")
         if len(g) < 10 or len(f) < 2:
             continue
         t = g["t"].to_numpy(float)

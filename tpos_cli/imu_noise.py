@@ -62,5 +62,7 @@ def measured_white_noise(x) -> float:
     averaged over the three axes.
     """
     d = np.diff(np.asarray(x, dtype=float), axis=0)
-    mad = np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    # medians of temporaries partitioned in place (no copies): the order of d does not matter below
+    d -= np.median(d, axis=0, overwrite_input=True)
+    mad = np.median(np.abs(d, out=d), axis=0, overwrite_input=True)
     return float(np.mean(1.4826 * mad / np.sqrt(2.0)))

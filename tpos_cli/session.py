@@ -192,7 +192,7 @@ class Session:
     path: Path
     meta: SessionMeta
     t0_s: float
-    imu: ImuData
+    imu: ImuData | None  # None only from load_session(..., with_imu=False): see load_imu
     gps: GpsData | None
     ranges: RangeData | None
     anchors: Anchors | None
@@ -459,17 +459,24 @@ def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray, h
                   f"{plausibility.H_MAX_M:g} m): feet, millimetres or a wrong column?", "h", i + 1)
 
 
-def _load_imu(c: _Collector, meta: SessionMeta):
-    cols = schema.IMU_REQUIRED + schema.IMU_MAG
-    df, fname = c.table("imu", cols, required=schema.IMU_REQUIRED)
+def _imu_table(c: _Collector, cols, required):
+    """The IMU table's columns `cols` and its checked times: (df, file name, t, rows kept), or None
+    (the problems recorded)."""
+    df, fname = c.table("imu", cols, required=required)
     if df is None:
         if not any(p.file.startswith("imu") for p in c.problems):
             c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
         return None
     t = df["t"].to_numpy()
     keep = _check_time(c, fname, t, "imu")
-    if keep is None:
+    return None if keep is None else (df, fname, t, keep)
+
+
+def _load_imu(c: _Collector, meta: SessionMeta):
+    got = _imu_table(c, schema.IMU_REQUIRED + schema.IMU_MAG, schema.IMU_REQUIRED)
+    if got is None:
         return None
+    df, fname, t, keep = got
     has_mag = [m in df.columns for m in schema.IMU_MAG]
     if any(has_mag) and not all(has_mag):
         missing = [m for m, h in zip(schema.IMU_MAG, has_mag) if not h][0]
@@ -880,10 +887,35 @@ def _load_truth(c: _Collector, t0: float):
                  extra={k: df[k].to_numpy()[keep] for k in extra_cols if k in df.columns})
 
 
-def load_session(path: str | Path, *, with_truth: bool = True) -> Session:
+def _load_imu_times(c: _Collector, meta: SessionMeta):
+    """The IMU's time column alone, with its checks (t0, span and gaps for the other tables)."""
+    got = _imu_table(c, ("t",), ("t",))
+    if got is None:
+        return None
+    t = got[2][got[3]]
+    return t, None, None, None, timebase.find_gaps(t, 1.0 / meta.rate_hz)
+
+
+def load_imu(session: Session) -> ImuData:
+    """The IMU of a session loaded with `with_imu=False`, read and checked as `load_session` does."""
+    if session.imu is not None:
+        return session.imu
+    c = _Collector(session.path)
+    imu = _load_imu(c, session.meta)
+    if c.problems or imu is None:
+        _raise(c)
+    t, gyro_b, acc_b, mag_b, _ = imu
+    return ImuData(t_s=t - session.t0_s, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
+                   mag_b_ut=None if mag_b is None else np.ascontiguousarray(mag_b))
+
+
+def load_session(path: str | Path, *, with_truth: bool = True, with_imu: bool = True) -> Session:
     """Load and validate a session directory; raises InvalidInputError listing every problem.
     with_truth=False leaves the truth table unread (`Session.truth` None): it is for reports only, never
-    an input to processing (the contract), and on a simulated hour it is a tenth of `tpos process`."""
+    an input to processing (the contract), and on a simulated hour it is a tenth of `tpos process`.
+    with_imu=False reads only the IMU's time column (t0 and the span the other tables are checked
+    against): `Session.imu` None, `load_imu` reads it when needed. For reports on a run whose recorded
+    input hashes match the session (its IMU was checked when it was processed)."""
     session_dir = Path(path)
     if not session_dir.is_dir():
         p = Problem(str(session_dir), "not a session directory (it must hold session.toml and imu.*)")
@@ -892,7 +924,7 @@ def load_session(path: str | Path, *, with_truth: bool = True) -> Session:
     meta = _parse_meta(c)
     if meta is None:
         _raise(c)
-    imu = _load_imu(c, meta)
+    imu = _load_imu(c, meta) if with_imu else _load_imu_times(c, meta)
     t0 = float(imu[0][0]) if imu is not None else 0.0
     imu_span = (0.0, float(imu[0][-1] - t0)) if imu is not None else None
     gps = _load_gps(c, meta, t0, imu_span)
@@ -920,7 +952,7 @@ def load_session(path: str | Path, *, with_truth: bool = True) -> Session:
     hashes = session_file_hashes(session_dir)
     return Session(
         path=session_dir.resolve(), meta=meta, t0_s=t0,
-        imu=ImuData(t_s=t_rel, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
+        imu=None if gyro_b is None else ImuData(t_s=t_rel, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
                     mag_b_ut=None if mag_b is None else np.ascontiguousarray(mag_b)),
         gps=gps, ranges=ranges, anchors=anchors, anchor_ranges=anchor_ranges, range_calibration=range_cal,
         targets=targets, shots=shots, truth=truth, gps_outages_s=outages, imu_gaps_s=gaps - t0,

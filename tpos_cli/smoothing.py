@@ -172,7 +172,12 @@ def rts(run: FilterRun, out_idx) -> Solution:
     on_epoch = (ep[e] == out_idx) | (e + 1 >= E)
     span = np.where(on_epoch, 1.0, t_s[ep[nxt]] - t_s[ep[e]])
     a = np.where(on_epoch, 0.0, (t_s[out_idx] - t_s[ep[e]]) / span)[:, None]
-    xs = np.where(on_epoch[:, None], xs_post[e], (1.0 - a) * xs_post[e] + a * xs_pre[nxt])
+    xs = xs_post[e]  # (1 - a) xs_post[e] + a xs_pre[nxt], in place (the hour's (K, n) temporaries)
+    xs *= 1.0 - a
+    xn = xs_pre[nxt]
+    xn *= a
+    xs += xn
+    xs[on_epoch] = xs_post[e[on_epoch]]
     o_nav, o_C, o_bias = _corrected(run, out_idx, xs)
     return Solution("rts", out_idx, o_nav, o_C, Ps9[e], o_bias)
 

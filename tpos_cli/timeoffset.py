@@ -40,12 +40,29 @@ class TimeOffset:
     r2: tuple[float, ...] = ()  # share of each tried channel's variance explained at its best offset
 
 
-def _lowpass(x: np.ndarray, n: int) -> np.ndarray:
+def _lowpass(x: np.ndarray, n: int, step: int = 1) -> np.ndarray:
+    """Centred moving mean of x (N, ...) along axis 0 over n samples (fewer at the ends), from
+    cumulative sums c: row i is (c[hi] - c[lo]) / (hi - lo) with lo = max(i - n // 2, 0) and
+    hi = min(i - n // 2 + n, N). With `step`, only rows 0, step, 2 step, ... (the same values as
+    `_lowpass(x, n)[::step]`, without the rows between). The rows whose window lies inside are
+    slices of c, only the ends gather."""
+    N = x.shape[0]
     c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
-    i = np.arange(x.shape[0])
-    lo = np.clip(i - n // 2, 0, x.shape[0])
-    hi = np.clip(i - n // 2 + n, 0, x.shape[0])
-    return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    if step > 1:
+        i = np.arange(0, N, step)
+        lo = np.clip(i - n // 2, 0, N)
+        hi = np.clip(i - n // 2 + n, 0, N)
+        return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    out = np.empty(c.shape)[:N]
+    a, b = n // 2, N - n + n // 2 + 1  # rows a..b-1: the whole window inside
+    if b > a:
+        np.subtract(c[n:], c[: N - n + 1], out=out[a:b])
+        out[a:b] /= n
+    i = np.concatenate([np.arange(min(a, N)), np.arange(max(a, b), N)])
+    lo = np.clip(i - n // 2, 0, N)
+    hi = np.clip(i - n // 2 + n, 0, N)
+    out[i] = (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    return out
 
 
 def vertical_rate_rps(t_s, gyro_b_rps, acc_b_mps2, smooth_s: float = 1.0) -> np.ndarray:
@@ -53,8 +70,8 @@ def vertical_rate_rps(t_s, gyro_b_rps, acc_b_mps2, smooth_s: float = 1.0) -> np.
     t = np.asarray(t_s, float)
     dt = float(np.median(np.diff(t)))
     f = _lowpass(np.asarray(acc_b_mps2, float), max(1, int(round(smooth_s / dt))))
-    d_b = -f / np.linalg.norm(f, axis=1, keepdims=True)  # specific force points up at rest
-    return np.einsum("ij,ij->i", np.asarray(gyro_b_rps, float), d_b)
+    f /= -np.linalg.norm(f, axis=1, keepdims=True)  # the down direction (specific force points up at rest), in place
+    return np.einsum("ij,ij->i", np.asarray(gyro_b_rps, float), f)
 
 
 def gps_velocity(t_gps_s, lla, vel_ned_mps=None, half_window_s: float = 0.5) -> np.ndarray:

@@ -62,7 +62,7 @@ def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=N
     cols: dict = {"t": t, "lat": lla[:, 0].copy(), "lon": lla[:, 1].copy(), "h": lla[:, 2].copy(),
                   "vn": vel[:, 0], "ve": vel[:, 1], "vd": vel[:, 2],
                   "roll": np.degrees(r), "pitch": np.degrees(p), "yaw": np.degrees(y),
-                  "solution": np.full(k, name, dtype=object)}
+                  "solution": name if k else np.full(k, name, dtype=object)}  # a scalar: pandas repeats it
     if P_pos_ned_m2 is not None:
         sd = _sd(P_pos_ned_m2)
         cols.update({"sigma_n": sd[:, 0], "sigma_e": sd[:, 1], vertical_sigma: sd[:, 2]})
@@ -77,10 +77,12 @@ def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=N
 
 
 def solution_table(sol: Solution, t_s, t0_s: float, *, vertical_sigma: str = "sigma_d",
-                   extra: Mapping[str, object] | None = None) -> pd.DataFrame:
+                   extra: Mapping[str, object] | None = None, P_att_rad2=None) -> pd.DataFrame:
     """`trajectory_table` of a navigation `Solution`; t_s the run's sample times (session s), t0_s
-    the session epoch on the logger clock."""
+    the session epoch on the logger clock; P_att_rad2 (K, 3, 3): the attitude-error covariance to
+    use instead of sol.P9[:, 6:9, 6:9] (an attitude moved to other axes, without a copy of P9)."""
     lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
     return trajectory_table(sol.name, np.asarray(t_s)[sol.idx] + t0_s, lla, sol.nav[:, 3:6], sol.C_nb,
                             P_pos_ned_m2=sol.P9[:, 0:3, 0:3], P_vel_ned_m2ps2=sol.P9[:, 3:6, 3:6],
-                            P_att_rad2=sol.P9[:, 6:9, 6:9], vertical_sigma=vertical_sigma, extra=extra)
+                            P_att_rad2=sol.P9[:, 6:9, 6:9] if P_att_rad2 is None else P_att_rad2,
+                            vertical_sigma=vertical_sigma, extra=extra)

@@ -7,6 +7,7 @@ from numpy.testing import assert_allclose
 
 from tpos_cli.frames.earth import normal_gravity_mps2
 from tpos_cli.fusion.engine import (
+    ENDS_ONLY,
     FilterConfig,
     FilterRun,
     InitialState,
@@ -84,6 +85,22 @@ def test_nominal_kept_at_chosen_samples_equals_the_full_history():
         np.testing.assert_array_equal(part.ev_nu, full.ev_nu)
         with pytest.raises(ValueError, match="nominal_idx"):
             part.rows([5])
+        # a tuning pass's run: the ends only, the same measurement results and end state
+        ends = run_filter(t, gyro, acc, start, FilterConfig(cfg.q, cfg.tau_acc_s, cfg.tau_gyro_s, cfg.cov_step,
+                                                            nominal_idx=ENDS_ONLY), zupt, backward=backward)
+        assert list(ends.idx) == [0, t.size - 1]
+        np.testing.assert_array_equal(ends.nav, full.nav[[0, -1]])
+        np.testing.assert_array_equal(ends.ev_nis, full.ev_nis)
+        np.testing.assert_array_equal(ends.ep_P.tril, full.ep_P.tril)
+
+
+@pytest.mark.parametrize("idx", [[0, 5, 9], [5], [3, 4], [9, 0], [2, 2, 3], [], [0, 9], [1, 8]])
+def test_nominal_rows_are_sorted_unique_with_both_ends(idx):
+    from tpos_cli.fusion.engine import _nominal_idx
+
+    got = _nominal_idx(np.array(idx, dtype=np.int64), 10)
+    np.testing.assert_array_equal(got, np.union1d(np.array(idx, dtype=np.int64), [0, 9]))
+    assert got.dtype == np.int64
 
 
 def test_symmetric_stack_indexes_like_the_full_array():

@@ -33,7 +33,7 @@ from tpos_cli.fusion.constraints import (
     stop_measurements,
     travel_direction,
 )
-from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
+from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
@@ -153,9 +153,10 @@ def fix_outages(t_fix, t_end_s, min_gap_s) -> np.ndarray:
     return np.array(out, dtype=float).reshape(-1, 2)
 
 
-def solution_rows(sol: Solution, t_s, t0_s: float, outage, flag) -> pd.DataFrame:
-    """Contract trajectory rows of one solution, with sigma, outage and flag columns."""
-    return solution_table(sol, t_s, t0_s, extra={"outage": outage, "flag": flag})
+def solution_rows(sol: Solution, t_s, t0_s: float, outage, flag, P_att_rad2=None) -> pd.DataFrame:
+    """Contract trajectory rows of one solution, with sigma, outage and flag columns (P_att_rad2:
+    the attitude-error covariance in place of sol.P9's, `trajectory.solution_table`)."""
+    return solution_table(sol, t_s, t0_s, extra={"outage": outage, "flag": flag}, P_att_rad2=P_att_rad2)
 
 
 @dataclass(frozen=True)
@@ -418,7 +419,8 @@ def nhc_trial(imu_coarse, fixes: GpsFixes, init: InitialState, coarse: FilterCon
     if rows is None or not len(rows):
         return None
     cfg = dataclasses.replace(coarse, C_vb=np.asarray(C_vb, dtype=float), layout=StateLayout(
-        (*coarse.layout.blocks, mounting_block(np.radians(sigma_deg or p.mounting_sigma_assumed_deg), p.nhc_axle_sigma_m))))
+        (*coarse.layout.blocks, mounting_block(np.radians(sigma_deg or p.mounting_sigma_assumed_deg), p.nhc_axle_sigma_m))),
+        nominal_idx=ENDS_ONLY)  # the rows' NIS and the end state are read, not the nominal history
     run = run_insgps(t, g, a, fixes, init, cfg, store_rts=False, extra=rows)
     nhc = constraint_summary(run).get("nhc")
     if nhc is None or nhc["nis"] is None or not nhc["rows"]:
@@ -501,17 +503,24 @@ def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False, atti
     (`mounting_check`): the drive hour's P9 is 23 MB, not copied."""
     if C_vb is None:
         return sol
-    o = run.layout.offset(Block.MOUNTING)
-    m = sol.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + 2] if (o >= 0 and sol.bias is not None) else None
-    _, sd = _block_at_end(run, Block.MOUNTING, 2)
-    prior = next((b for b in run.layout.blocks if b.block == Block.MOUNTING), None)
-    roll_sd = float(np.sqrt(prior.P0[0, 0])) if prior is not None else 0.0
-    C_nv, P_att = vehicle_attitude(sol.C_nb, None if attitude_only else sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
+    C_nv, P_att = vehicle_axes_attitude(sol, C_vb, run, attitude_only)
     if attitude_only:
         return Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
     P9 = sol.P9 if own else np.array(sol.P9, copy=True)
     P9[:, 6:9, 6:9] = P_att
     return Solution(sol.name, sol.idx, sol.nav, C_nv, P9, sol.bias)
+
+
+def vehicle_axes_attitude(sol: Solution, C_vb, run: FilterRun, attitude_only: bool = False):
+    """(C_nv (K, 3, 3), P_att (K, 3, 3) rad^2): a solution's attitude and its NED attitude-error
+    covariance in the vehicle's axes (`in_vehicle_axes`, which see), for a mounting C_vb;
+    attitude_only: P_att None (not computed)."""
+    o = run.layout.offset(Block.MOUNTING)
+    m = sol.bias[:, 6 + o - N_NAV: 6 + o - N_NAV + 2] if (o >= 0 and sol.bias is not None) else None
+    _, sd = _block_at_end(run, Block.MOUNTING, 2)
+    prior = next((b for b in run.layout.blocks if b.block == Block.MOUNTING), None)
+    roll_sd = float(np.sqrt(prior.P0[0, 0])) if prior is not None else 0.0
+    return vehicle_attitude(sol.C_nb, None if attitude_only else sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
 
 
 def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s) -> dict | None:
@@ -769,8 +778,14 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
     o = res.forward.layout.offset(Block.CLOCK) - N_NAV + 6  # the position clock in a solution's bias row
     frames = []
     for n in names:
-        sol = in_vehicle_axes(res.solutions[n].rows(keep), res.C_vb, res.forward, own=True)
-        rows = solution_rows(sol, t, session.t0_s, outage, flag)
+        # the rows kept, without copying a solution that keeps them all; its attitude in the
+        # vehicle's axes, the covariance's attitude block passed on (P9 not copied to hold it)
+        sol = res.solutions[n] if keep.all() else res.solutions[n].rows(keep)
+        P_att = None
+        if res.C_vb is not None:
+            C_nv, P_att = vehicle_axes_attitude(sol, res.C_vb, res.forward)
+            sol = Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
+        rows = solution_rows(sol, t, session.t0_s, outage, flag, P_att)
         if clock is not None and clock["output_clock"] == "gps":
             # each solution's own clock estimate: the one its positions were fitted with
             rows = on_gps_clock(rows, sol.bias[:, o], clock["sigma_s"])

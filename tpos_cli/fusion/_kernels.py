@@ -135,13 +135,14 @@ class EventResults(NamedTuple):
     accepted: np.ndarray
 
 
-@njit(cache=True)
-def mechanize_sample(k, imu, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum):
+@njit(cache=True, inline="always")
+def mechanize_sample(k, imu, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum, work):
     """Advance the nominal over IMU interval k (bias-corrected increments, coning/sculling memory)
-    and accumulate the navigation-frame specific force over the current covariance interval; returns dt."""
+    and accumulate the navigation-frame specific force over the current covariance interval; returns dt.
+    work (3, 3, 3): `ins._kernels.mech_step`'s scratch."""
     dt = imu.t[k] - imu.t[k - 1]
     corrected_increments(imu.gyro[k], imu.acc[k], bias, dt, dth, dv)
-    mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
+    mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n, work)
     for i in range(3):
         dth_prev[i] = dth[i]
         dv_prev[i] = dv[i]
@@ -234,6 +235,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     w_ib = np.zeros(3)
     dx_sum = np.zeros(n)
     R_fb = np.empty((3, 3))  # apply_feedback's scratch
+    work = np.empty((3, 3, 3))  # mech_step's
     n_ev = ev.k.shape[0]
     n_slots = 1
     for e in range(n_ev):
@@ -267,7 +269,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     o_clock = st.layout[Block.CLOCK]
     dt_sum = 0.0
     for k in range(1, n_t):
-        dt = mechanize_sample(k, imu, nav, C, bias, st.earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum)
+        dt = mechanize_sample(k, imu, nav, C, bias, st.earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum, work)
         for i in range(3):
             w_ib[i] = dth[i] / dt
         dt_sum += dt

@@ -37,6 +37,9 @@ from tpos_cli.ins.mechanization import reverse_imu
 
 # residuals odd in time (velocities, rates): their measured value and residual flip sign in reversed time
 _VELOCITY_KINDS = (Kind.GPS_VELOCITY, Kind.ZUPT, Kind.NHC, Kind.ZARU, Kind.ODOMETER)
+# `FilterConfig.nominal_idx` of a run whose nominal history nobody reads (tuning passes: their
+# measurement results and the end state serve): its first and last samples only
+ENDS_ONLY = np.zeros(0, dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -377,6 +380,8 @@ def _nominal_idx(idx, n: int) -> np.ndarray | None:
     i = np.asarray(idx, dtype=np.int64)
     if i.size and (i.min() < 0 or i.max() >= n):
         raise ValueError(f"`nominal_idx` must lie in [0, {n}), got {i.min()}..{i.max()}")
+    if i.ndim == 1 and i.size and np.all(i[1:] > i[:-1]):  # the usual output rows: sorted already, no sort
+        return np.concatenate([[0][: int(i[0] != 0)], i, [n - 1][: int(i[-1] != n - 1)]]).astype(np.int64)
     return np.union1d(i, [0, n - 1])
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.fusion.engine import FilterConfig, InitialState, Measurements
+from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState, Measurements
 from tpos_cli.fusion.initial import fixes_before
 from tpos_cli.fusion.insgps import GpsFixes, gps_innovations, run_insgps
 from tpos_cli.ins.mechanization import decimate_imu
@@ -154,7 +154,7 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     (the final filter's GPS NIS then falls below its band).
     """
     td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
-    pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))))
+    pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), nominal_idx=ENDS_ONLY)  # innovations only
     lo, hi = np.log(scale_bounds[0]), np.log(scale_bounds[1])
     log_s = np.zeros(4)
     hist: list[list[tuple[float, float]]] = [[] for _ in range(4)]

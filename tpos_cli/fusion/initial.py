@@ -16,7 +16,7 @@ from tpos_cli import alignment
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm, wrap_angle_rad
-from tpos_cli.fusion.engine import FilterConfig, InitialState
+from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState
 from tpos_cli.fusion.insgps import GpsFixes, run_insgps
 from tpos_cli.ins.mechanization import integrate
 
@@ -239,7 +239,8 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     hyps = np.asarray(wrap_angle_rad(yaw0 + spacing * np.arange(n_hypotheses)))
     sigmas = np.full(hyps.size, spacing / 2.0)
     sigmas[0] = min(sig0, spacing / 2.0)
-    scfg = dataclasses.replace(cfg, max_consecutive_rejections=0)  # ungated: every innovation counts
+    # ungated: every innovation counts; the NIS is all a hypothesis is scored on (no nominal history)
+    scfg = dataclasses.replace(cfg, max_consecutive_rejections=0, nominal_idx=ENDS_ONLY)
     sub = fixes_before(fixes, t[i_end - 1])
     scores = np.full(hyps.size, np.inf)
     for h, (yaw, sy) in enumerate(zip(hyps, sigmas)):

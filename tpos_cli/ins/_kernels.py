@@ -42,7 +42,7 @@ def nav_rates(nav, earth_sign, w_ie, w_en):
 
 
 @njit(cache=True)
-def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n):
+def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n, work=None):
     """One strapdown update over an IMU interval of length dt, in place on `nav` and `C`.
 
     dtheta, dv (3,): bias-corrected body increments over the interval (rad, m/s);
@@ -53,7 +53,8 @@ def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n):
     Position: trapezoidal in velocity. Attitude: C <- R(-zeta) C R(phi), with phi the
     coning-corrected body rotation vector and zeta the nav-frame rotation over dt.
     Writes the mean specific force in NED over the interval to `f_n` (for the error model).
-    Scalar code, no temporaries: this runs at every IMU sample.
+    work (3, 3, 3): scratch for the two rotations and their product, which a loop over samples
+    allocates once (None: allocated here). Scalar code, no temporaries: this runs at every IMU sample.
     """
     lat, lon, h = nav[0], nav[1], nav[2]
     v0, v1_, v2 = nav[3], nav[4], nav[5]
@@ -108,9 +109,9 @@ def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n):
     nav[4] = n1
     nav[5] = n2
     # C <- R(-zeta) C R(phi)
-    Rb = np.empty((3, 3))
-    Rn = np.empty((3, 3))
-    T = np.empty((3, 3))
+    if work is None:
+        work = np.empty((3, 3, 3))
+    Rb, Rn, T = work[0], work[1], work[2]
     rotvec_to_dcm_into(f0, f1, f2, Rb)
     rotvec_to_dcm_into(-z0, -z1, -z2, Rn)
     for i in range(3):
@@ -141,6 +142,7 @@ def integrate_kernel(t, gyro, acc, nav0, C0, earth_sign, out_nav, out_C):
     dth_prev = np.zeros(3)
     dv_prev = np.zeros(3)
     f_n = np.empty(3)
+    work = np.empty((3, 3, 3))
     for i in range(6):
         nav[i] = nav0[i]
         out_nav[0, i] = nav[i]
@@ -153,7 +155,7 @@ def integrate_kernel(t, gyro, acc, nav0, C0, earth_sign, out_nav, out_C):
         for i in range(3):
             dth[i] = gyro[k, i] * dt
             dv[i] = acc[k, i] * dt
-        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n)
+        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n, work)
         if k % 1000 == 0:  # keep C orthonormal (rounding only): C <- 1.5 C - 0.5 C C^T C
             for i in range(3):
                 for j in range(3):
