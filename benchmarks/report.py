@@ -16,6 +16,12 @@ process's (goal <= 2).
 Stages: one in-process report after a first one (which pays the lazy imports and font loading);
 CPU seconds and share of each stage (`tpos_cli.report.stages`): loading, accuracy tables, each
 figure, PDF writing. The CLI's interpreter start and imports are timed on their own.
+Bytecode: the timed `tpos` children run as an installed package does, with the package's bytecode
+cached (pip compiles it at install; an editable install writes __pycache__ on first import):
+PYTHONDONTWRITEBYTECODE, set in some shells, is dropped from their environment, so the untimed
+warm-up run writes it. Each ratio is also printed without bytecode: the package imported from a copy
+of its source without __pycache__ and PYTHONDONTWRITEBYTECODE=1, so that every run compiles it (the
+libraries keep their installed bytecode either way).
 Accuracy: every solution's errors recomputed here at full rate in the plainest way (truth at the
 solution's epochs, pymap3d's geodetic2ned about the truth point, wrapped Euler differences) and
 compared with the report's accuracy.parquet (segment `all`): the largest relative difference is
@@ -29,6 +35,7 @@ import gc
 import os
 import re
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -53,9 +60,28 @@ def _child_cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def _run(cmd, cwd) -> tuple[float, float, str]:
-    """Wall and CPU seconds (user + system) of one subprocess, and its stdout."""
+def _env(src: Path | None = None) -> dict:
+    """A timed child's environment: the package with its bytecode cached (PYTHONDONTWRITEBYTECODE dropped),
+    or, given `src` (`_source_copy`), from that copy compiled on every run (module docstring)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
+    if src is None:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    else:
+        env.update(PYTHONPATH=str(src), PYTHONDONTWRITEBYTECODE="1")
+    return env
+
+
+def _source_copy(tmp: Path) -> Path:
+    """The package's source (and its pipelines, as installed) copied without bytecode or numba caches."""
+    caches = shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc")
+    shutil.copytree(REPO / "tpos_cli", tmp / "src" / "tpos_cli", ignore=caches)
+    shutil.copytree(REPO / "pipelines", tmp / "src" / "tpos_cli" / "pipelines", ignore=caches)
+    return tmp / "src"
+
+
+def _run(cmd, cwd, env: dict | None = None) -> tuple[float, float, str]:
+    """Wall and CPU seconds (user + system) of one subprocess, and its stdout."""
+    env = _env() if env is None else env
     c0, t0 = _child_cpu_s(), time.perf_counter()
     p = subprocess.run(cmd, check=True, env=env, cwd=cwd, capture_output=True, text=True)
     return time.perf_counter() - t0, _child_cpu_s() - c0, p.stdout
@@ -192,22 +218,29 @@ def drive(tmp: Path) -> None:
     run = tmp / "drive_run"
     _run([sys.executable, "-m", "tpos_cli", "process", str(session), "-o", str(run), "-q"], tmp)
     cmd = [sys.executable, "-m", "tpos_cli", "report", str(run)]
-    _run(cmd, tmp)  # warm the file cache
+    envs = {"": _env(), " (no bytecode)": _env(_source_copy(tmp))}
+    for env in envs.values():
+        _run(cmd, tmp, env)  # warm the file cache; with bytecode: write it
     reference_loop(n, 100)  # compile
-    rep_wall, rep_cpu, ref_wall, ref_cpu = [], [], [], []
+    rep_wall, rep_cpu = {k: [] for k in envs}, {k: [] for k in envs}
+    ref_wall, ref_cpu = [], []
     out = ""
-    for _ in range(RUNS):  # alternately: both see the same load
-        w, c, out = _run(cmd, tmp)
-        rep_wall.append(w)
-        rep_cpu.append(c)
+    for _ in range(RUNS):  # alternately: all see the same load
+        for k, env in envs.items():
+            w, c, out = _run(cmd, tmp, env)
+            rep_wall[k].append(w)
+            rep_cpu[k].append(c)
         c0 = time.process_time()
         ref_wall.append(reference_loop(n, 100))
         ref_cpu.append(time.process_time() - c0)
-    w, c, rw, rc = (_median(x) for x in (rep_wall, rep_cpu, ref_wall, ref_cpu))
-    print(f"drive hour ({n} IMU samples), {_pages(out)} pages; medians of {RUNS}:")
-    print(f"  tpos report  wall {w:5.2f} s, CPU {c:5.2f} s")
-    print(f"  reference    wall {rw:5.2f} s, CPU {rc:5.2f} s")
-    print(f"  ratio report/reference: wall {w / rw:.2f}, CPU {c / rc:.2f} (goal <= 1.5)")
+    rw, rc = _median(ref_wall), _median(ref_cpu)
+    w, c = _median(rep_wall[""]), _median(rep_cpu[""])
+    print(f"drive hour ({n} IMU samples), {_pages(out)} pages; medians of {RUNS}; tpos_cli bytecode cached unless said:")
+    for k in envs:
+        print(f"  tpos report{k:15s} wall {_median(rep_wall[k]):5.2f} s, CPU {_median(rep_cpu[k]):5.2f} s")
+    print(f"  reference{'':17s} wall {rw:5.2f} s, CPU {rc:5.2f} s")
+    for k in envs:
+        print(f"  ratio report/reference{k}: wall {_median(rep_wall[k]) / rw:.2f}, CPU {_median(rep_cpu[k]) / rc:.2f} (goal <= 1.5)")
     imports = "import tpos_cli.cli, tpos_cli.report.build, tpos_cli.report.pdf, matplotlib.backends.backend_pdf"
     imp = [_run([sys.executable, "-c", imports], tmp) for _ in range(RUNS)]
     iw, ic = _median(x[0] for x in imp), _median(x[1] for x in imp)
@@ -224,21 +257,26 @@ def target(tmp: Path) -> None:
     run = tmp / "target_run"
     proc_cmd = [sys.executable, "-m", "tpos_cli", "process", str(session), "-o", str(run), "-q"]
     cmd = [sys.executable, "-m", "tpos_cli", "report", str(run)]
-    _run(proc_cmd, tmp)  # numba cache
-    proc_wall, proc_cpu, rep_wall, rep_cpu = [], [], [], []
+    envs = {"": _env(), " (no bytecode)": _env(_source_copy(tmp))}
+    for env in envs.values():
+        _run(proc_cmd, tmp, env)  # numba cache (of each copy); with bytecode: write it
+        _run(cmd, tmp, env)
+    times = {k: ([], [], [], []) for k in envs}  # process wall, CPU; report wall, CPU
     out = ""
     for _ in range(RUNS):
-        w, c, _ = _run(proc_cmd, tmp)
-        proc_wall.append(w)
-        proc_cpu.append(c)
-        w, c, out = _run(cmd, tmp)
-        rep_wall.append(w)
-        rep_cpu.append(c)
-    pw, pc, w, c = (_median(x) for x in (proc_wall, proc_cpu, rep_wall, rep_cpu))
-    print(f"target hour, {_pages(out)} pages; medians of {RUNS}:")
-    print(f"  tpos process wall {pw:5.2f} s, CPU {pc:5.2f} s")
-    print(f"  tpos report  wall {w:5.2f} s, CPU {c:5.2f} s")
-    print(f"  ratio report/process: wall {w / pw:.2f}, CPU {c / pc:.2f} (goal <= 2)")
+        for k, env in envs.items():
+            w, c, _ = _run(proc_cmd, tmp, env)
+            times[k][0].append(w)
+            times[k][1].append(c)
+            w, c, out = _run(cmd, tmp, env)
+            times[k][2].append(w)
+            times[k][3].append(c)
+    print(f"target hour, {_pages(out)} pages; medians of {RUNS}; tpos_cli bytecode cached unless said:")
+    for k in envs:
+        pw, pc, w, c = (_median(x) for x in times[k])
+        print(f"  tpos process{k:15s} wall {pw:5.2f} s, CPU {pc:5.2f} s")
+        print(f"  tpos report{k:16s} wall {w:5.2f} s, CPU {c:5.2f} s")
+        print(f"  ratio report/process{k}: wall {w / pw:.2f}, CPU {c / pc:.2f} (goal <= 2)")
     stages_in_fresh_process(run)
     accuracy_check(run, session)
 
