@@ -61,3 +61,29 @@ def test_without_solution_velocity_the_imu_alone_decides():
     assert ctx.session.imu.t_s[0] == 0.0
     nf, (w0, w1) = _static_noise(ctx)
     assert w0 == 1000.0 and w1 > 1149.0
+
+
+def test_a_drive_report_reads_no_imu_rows(tmp_path, monkeypatch):
+    """A run that recorded its inputs' hashes: the report reads the IMU's time column only (no page of
+    a drive without a long stop draws the IMU); the pages that do load it on demand."""
+    import shutil
+
+    from tests.helpers.paths import REPO
+    from tpos_cli import session as session_module
+    from tpos_cli.pipeline import process_session
+    from tpos_cli.report.build import make_report
+
+    s = shutil.copytree(REPO / "sample_logs" / "drive_outage", tmp_path / "s")
+    run = process_session(s, None, tmp_path / "run").run_dir
+
+    def no_imu_rows(*_args, **_kwargs):
+        raise AssertionError("the IMU rows were read")
+
+    with monkeypatch.context() as m:
+        m.setattr(session_module, "_load_imu", no_imu_rows)
+        res = make_report(run)
+    assert res.pages and (run / "report.pdf").exists()
+    full = session_module.load_session(s)
+    lazy = session_module.load_session(s, with_imu=False)
+    assert lazy.imu is None and lazy.t0_s == full.t0_s and lazy.file_hashes == full.file_hashes
+    np.testing.assert_array_equal(session_module.load_imu(lazy).gyro_b_rps, full.imu.gyro_b_rps)

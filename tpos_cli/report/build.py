@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -188,7 +188,7 @@ def build_summary(ctx: ReportContext) -> dict:
 
 def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | None, str, str, list[str]]:
     """The session to report with: (session, why its data are not shown, inputs note, notes)."""
-    from tpos_cli.session import load_session, session_file_hashes
+    from tpos_cli.session import load_imu, load_session, session_file_hashes
 
     notes: list[str] = []
     if truth_session is not None:
@@ -214,12 +214,18 @@ def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | No
             else "summary.json names no session: no truth, GPS or sensor data; give it with --truth SESSION"
         )
         return None, "session not found", "no (session not found)", notes
+    # A run that recorded its inputs' hashes is checked against them below: its IMU is then the one that
+    # was read and checked when it was processed, and only its time column is read here (t0, span); the
+    # IMU itself only for the pages that draw it (target: magnetometer; a log at rest: Allan page).
+    verifiable = bool(run.summary.get("inputs"))
     try:
-        session = load_session(sdir)  # records the hashes of its files: they are not hashed twice
+        session = load_session(sdir, with_imu=not verifiable)  # records the hashes of its files: they are not hashed twice
     except InvalidInputError:
         check_inputs(run.summary.get("inputs"), session_file_hashes(sdir), run.path.name)  # a changed input explains it
         raise
     changed = check_inputs(run.summary.get("inputs"), session.file_hashes, run.path.name)
+    if session.imu is None and session.meta.kind == "target":
+        session = replace(session, imu=load_imu(session))
     for name in changed:
         notes.append(f"{name} changed since the run was processed: the report uses the current one")
     if not run.summary.get("inputs"):

@@ -4,6 +4,7 @@ with the provenance and page numbers on every page (vector output through matplo
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -58,13 +59,17 @@ def _static_noise(ctx: ReportContext):
     too (`rest.rest_stretches`: the IMU test alone also passes driving straight at constant speed);
     None when no such stretch lasts `noise.MIN_STATIC_S`."""
     from tpos_cli.noise import MIN_STATIC_S, identify_noise, longest_static_window, session_noise
+    from tpos_cli.session import load_imu
 
     vel = solution_velocity(ctx.run.trajectory, ctx.best)
     if vel is None:
-        return session_noise(ctx.session)
-    imu, t0 = ctx.session.imu, ctx.session.t0_s
+        return session_noise(ctx.session if ctx.session.imu is not None else replace(ctx.session, imu=load_imu(ctx.session)))
+    stretches = rest_stretches(*vel, MIN_STATIC_S)  # usually none (a drive) or a few stops
+    if len(stretches) == 0:
+        return None
+    imu, t0 = load_imu(ctx.session), ctx.session.t0_s  # read only now (build._load_session)
     best = (0, 0)
-    for a, b in rest_stretches(*vel, MIN_STATIC_S):  # usually none (a drive) or a few stops
+    for a, b in stretches:
         i0, i1 = int(np.searchsorted(imu.t_s, a - t0, side="left")), int(np.searchsorted(imu.t_s, b - t0, side="right"))
         j0, j1 = longest_static_window(imu.t_s[i0:i1], imu.gyro_b_rps[i0:i1], imu.acc_b_mps2[i0:i1])
         if j1 > j0 and (best == (0, 0) or imu.t_s[i0 + j1 - 1] - imu.t_s[i0 + j0] > imu.t_s[best[1] - 1] - imu.t_s[best[0]]):
