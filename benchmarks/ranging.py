@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -42,7 +41,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from drive import reference_loop, run_measured  # noqa: E402  (issue 16's yardstick, the same for every chain)
+from drive import child_env, reference_loop, run_measured  # noqa: E402  (issue 16's yardstick, the same for every chain)
 
 from tpos_cli.frames import geodetic  # noqa: E402
 from tpos_cli.pipeline import process_session  # noqa: E402
@@ -101,8 +100,8 @@ def speed(duration_s: float = 3600.0, repeats: int = 3, overrides: tuple[str, ..
                *(a for o in overrides for a in ("--set", o))]
         if overrides:
             print(f"pipeline overrides: {' '.join(overrides)}")
-        env = dict(os.environ, PYTHONPATH=str(REPO))
-        run_measured(cmd, env, tmp, subprocess.DEVNULL)  # warm the numba cache (a compile's memory is not the run's)
+        env = child_env()  # bytecode cached, as installed
+        run_measured(cmd, env, tmp, subprocess.DEVNULL)  # warm the numba cache and the bytecode (a compile's memory is not the run's)
         reference_loop(1000, 100)  # and compile (or load) the reference kernels before timing them
         runs, refs, rss, cpu = [], [], [], []
         for _ in range(repeats):  # interleaved: the machine's load drifts

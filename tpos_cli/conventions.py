@@ -128,9 +128,9 @@ def tilt_gains(t, gyro_b, acc_b, smooth_s: float = 0.3):
     n = max(1, int(round(smooth_s / dt)))
     # low-passed over n samples, the series keep nothing above ~1/smooth_s: every (n // 4)-th sample suffices
     step = max(1, n // 4)
-    f = _lowpass(acc_b, n)[::step]
+    f = _lowpass(acc_b, n, step)
     u = f / np.linalg.norm(f, axis=1, keepdims=True)
-    w = _lowpass(gyro_b, n)[::step]
+    w = _lowpass(gyro_b, n, step)
     t = t[::step]
     n = max(1, n // step)
     if t.size < 10:
