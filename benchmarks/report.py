@@ -72,7 +72,10 @@ def _env(src: Path | None = None) -> dict:
 
 
 def _source_copy(tmp: Path) -> Path:
-    """The package's source (and its pipelines, as installed) copied without bytecode or numba caches."""
+    """The package's source (and its pipelines, as installed) copied without bytecode or numba caches
+    (once per `tmp`: the drive and target parts share it)."""
+    if (tmp / "src" / "tpos_cli").exists():
+        return tmp / "src"
     caches = shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc")
     shutil.copytree(REPO / "tpos_cli", tmp / "src" / "tpos_cli", ignore=caches)
     shutil.copytree(REPO / "pipelines", tmp / "src" / "tpos_cli" / "pipelines", ignore=caches)
