@@ -167,7 +167,7 @@ def accuracy(seeds) -> None:
 NEES_SEEDS = tuple(range(300, 306))  # used by no test
 
 
-def nees(seeds=NEES_SEEDS, duration_s: float = 120.0, grades=("paper", "mems")) -> None:
+def nees(seeds=NEES_SEEDS, duration_s: float = 120.0, grades=("paper", "mems", "tactical")) -> None:
     for grade in grades:
         nees_grade(grade, seeds, duration_s)
 
