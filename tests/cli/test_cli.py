@@ -136,28 +136,3 @@ def test_objects_are_kept_from_the_collector_only_in_a_one_shot_process(monkeypa
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
-
-
-def test_a_command_imports_only_its_own_module():
-    """`tpos report RUN` neither imports the other commands' modules nor builds their Click commands;
-    the help still lists all of them, in order, and a near miss still gets its suggestion."""
-    code = (
-        "import sys\n"
-        "import tpos_cli.cli as c\n"
-        "assert not [m for m in sys.modules if m.startswith('tpos_cli.cli.') and m != 'tpos_cli.cli._common'], sys.modules\n"
-        "sys.argv = ['tpos', 'report', '--help']\n"
-        "try:\n"
-        "    c.main()\n"
-        "except SystemExit as e:\n"
-        "    assert e.code == 0\n"
-        "print(sorted(m for m in sys.modules if m.startswith('tpos_cli.cli.')))\n"
-    )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert res.returncode == 0, res.stderr
-    assert res.stdout.splitlines()[-1] == "['tpos_cli.cli._common', 'tpos_cli.cli.report']"
-    res = runner.invoke(app, ["--help"])
-    names = [line.split()[0] for line in res.output.split("Commands:")[1].splitlines() if line.strip()]
-    assert names == ["validate", "inspect", "process", "report", "export", "pipelines", "simulate", "batch", "import",
-                     "noise", "calibrate-mag"]
-    res = runner.invoke(app, ["repor"])
-    assert res.exit_code == 2 and "Did you mean 'report'" in res.output

@@ -1,85 +1,30 @@
 """The `tpos` command line: thin Typer commands over the library; exit codes 0 / 1 / 2.
 
-Each command lives in its own module and is registered below with one line of `COMMANDS`. A command's
-module is imported, and its Click command built, only when that command runs or a help page lists it:
-`tpos report RUN` neither imports nor builds the other ten.
+Each command lives in its own module and is registered below with one line.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 import sys
-from collections.abc import Iterator, MutableMapping
 from typing import Annotated
 
 import typer
-from typer.core import TyperGroup
-from typer.main import get_command_from_info
 
 from tpos_cli.cli import _common
-
-# name: (module in tpos_cli.cli, function), in the order `tpos --help` lists them
-COMMANDS = {
-    "validate": ("validate", "validate"),
-    "inspect": ("inspect", "inspect"),
-    "process": ("process", "process"),
-    "report": ("report", "report"),
-    "export": ("export", "export"),
-    "pipelines": ("pipelines", "pipelines"),
-    "simulate": ("simulate", "simulate"),
-    "batch": ("batch", "batch"),
-    "import": ("import_", "import_"),
-    "noise": ("noise", "noise"),
-    "calibrate-mag": ("calibrate_mag", "calibrate_mag"),
-}
-
-
-class _Commands(MutableMapping):
-    """The group's commands by name, each imported and built on first access (as `app.command(name)`
-    registers it, then as Typer builds it): Click and Typer look commands up by name, list them
-    (help, completion) and suggest near names from the keys, which are all known without imports."""
-
-    def __init__(self, built: dict):
-        self._built = dict(built)
-
-    def __getitem__(self, name: str):
-        cmd = self._built.get(name)
-        if cmd is None:
-            module, func = COMMANDS[name]  # KeyError: no such command
-            registrar = typer.Typer()
-            registrar.command(name)(getattr(importlib.import_module(f"tpos_cli.cli.{module}"), func))
-            cmd = self._built[name] = get_command_from_info(
-                registrar.registered_commands[0],
-                pretty_exceptions_short=app.pretty_exceptions_short,
-                rich_markup_mode=app.rich_markup_mode,
-            )
-        return cmd
-
-    def __contains__(self, name) -> bool:
-        return name in COMMANDS or name in self._built
-
-    def __setitem__(self, name: str, cmd) -> None:
-        self._built[name] = cmd
-
-    def __delitem__(self, name: str) -> None:
-        raise TypeError("tpos commands cannot be removed")
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(dict.fromkeys([*COMMANDS, *self._built]))
-
-    def __len__(self) -> int:
-        return len(set(COMMANDS) | set(self._built))
-
-
-class _LazyGroup(TyperGroup):
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.commands = _Commands(self.commands)
-
+from tpos_cli.cli import batch as _batch
+from tpos_cli.cli import calibrate_mag as _calibrate_mag
+from tpos_cli.cli import export as _export
+from tpos_cli.cli import import_ as _import
+from tpos_cli.cli import inspect as _inspect
+from tpos_cli.cli import noise as _noise
+from tpos_cli.cli import pipelines as _pipelines
+from tpos_cli.cli import process as _process
+from tpos_cli.cli import report as _report
+from tpos_cli.cli import simulate as _simulate
+from tpos_cli.cli import validate as _validate
 
 app = typer.Typer(
-    cls=_LazyGroup,
     name="tpos",
     help="Post-process navigation logs from low-cost sensors (MEMS IMU, laser rangefinders, GPS-WAAS, "
     "ranging anchors) into attitude, trajectory and target positions with an honest accuracy report.",
@@ -88,6 +33,7 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
+
 
 
 def _print_version(value: bool) -> None:
@@ -105,6 +51,19 @@ def _root(
 ) -> None:
     # Options of `tpos` itself; the help text is the app's (above).
     return None
+
+
+app.command("validate")(_validate.validate)
+app.command("inspect")(_inspect.inspect)
+app.command("process")(_process.process)
+app.command("report")(_report.report)
+app.command("export")(_export.export)
+app.command("pipelines")(_pipelines.pipelines)
+app.command("simulate")(_simulate.simulate)
+app.command("batch")(_batch.batch)
+app.command("import")(_import.import_)
+app.command("noise")(_noise.noise)
+app.command("calibrate-mag")(_calibrate_mag.calibrate_mag)
 
 
 def main() -> None:
