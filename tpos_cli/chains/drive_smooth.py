@@ -493,20 +493,20 @@ def smooth(fwd: FilterRun, bwd: FilterRun, out_idx, outages_s, p: DriveSmoothPar
     return {k: v for k, v in sols.items() if k in names}, flag, nis
 
 
-def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, own: bool = False, attitude_only: bool = False) -> Solution:
+def in_vehicle_axes(sol: Solution, C_vb, run: FilterRun, attitude_only: bool = False) -> Solution:
     """A solution's attitude in the vehicle's axes when the run applied a mounting C_vb (and its
     residual misalignment states, `fusion.mounting.vehicle_attitude`, their SD that of the forward
     run's end, the unobserved roll the states' prior SD); the IMU's otherwise. Targets keep the
     IMU's attitude: the rangefinders sit on the IMU.
-    own: the caller owns sol.P9 (a `Solution.rows` copy), which is then updated in place;
     attitude_only: sol.P9 is passed on as it is, for checks that read the attitude only
-    (`mounting_check`): the drive hour's P9 is 23 MB, not copied."""
+    (`mounting_check`): the drive hour's P9 is 23 MB, not copied (`trajectory_rows` passes the
+    attitude block to its table instead, `vehicle_axes_attitude`)."""
     if C_vb is None:
         return sol
     C_nv, P_att = vehicle_axes_attitude(sol, C_vb, run, attitude_only)
     if attitude_only:
         return Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
-    P9 = sol.P9 if own else np.array(sol.P9, copy=True)
+    P9 = np.array(sol.P9, copy=True)
     P9[:, 6:9, 6:9] = P_att
     return Solution(sol.name, sol.idx, sol.nav, C_nv, P9, sol.bias)
 
