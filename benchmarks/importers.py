@@ -41,7 +41,10 @@ def bench_walk(tmp: Path) -> None:
     t0 = time.perf_counter()
     import_into_session("csv", [raw / "imu_1730.csv"], out, mapping=MAPS / "rtklibexplorer_walk_0827_imu.toml")
     t1 = time.perf_counter()
-    import_into_session("rtklib-pos", [raw / "gnss_1730_sf.pos"], out)
+    # the .pos has no height header: the shared conversion took its heights as ellipsoidal, so this
+    # import says the same to reproduce it (they are the receiver's heights above its geoid, 21.4 m
+    # above the ellipsoid here: the same receiver's UBX NAV-PVT gives both; GPS and truth share them)
+    import_into_session("rtklib-pos", [raw / "gnss_1730_sf.pos"], out, heights="ellipsoidal")
     t2 = time.perf_counter()
     print(f"walk: import IMU CSV {t1 - t0:.2f} s, RTKLIB .pos {t2 - t1:.2f} s")
     g, g_ref = pd.read_csv(out / "gps.csv"), pd.read_csv(real / "gps.csv")

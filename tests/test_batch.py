@@ -479,6 +479,18 @@ def test_final_table_fits_80_columns():
     assert lines[3].split() == ["target_wall", "skipped", "-", "0.0312", "0.25", "fkf", "0", "0.2"]
 
 
+def test_a_fixed_observer_without_targets_has_no_position_error():
+    """A target pipeline's session with no shots (BROAD's hand-held trials): its trajectory is an
+    attitude at a point it was given, so the table shows its attitude error and no position error."""
+    acc = {"truth.fkf.trajectory.rms_pos_h_m": 0.314, "truth.fkf.trajectory.rms_att_deg": 1.2}
+    obs = b.SessionResult(name="broad_25", session_dir="", run_dir="", status="ok", exit_code=0, error="", time_s=1.0,
+                          started_utc="", worker="", pipeline="target-fkf", accuracy=acc)
+    car = b.SessionResult(name="car", session_dir="", run_dir="", status="ok", exit_code=0, error="", time_s=1.0,
+                          started_utc="", worker="", pipeline="drive-smooth", accuracy=acc)
+    assert b.headline_errors(obs) == ("fkf", None, 1.2)
+    assert b.headline_errors(car) == ("fkf", 0.314, 1.2)
+
+
 def test_batch_help_has_an_example():
     from tpos_cli.cli import app
 

@@ -816,8 +816,9 @@ def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str
     From the row's `truth.<solution>.<trajectory|targets>.<statistic>` figures: the first solution
     in `rank`'s order (the CLI passes `tpos_cli.report.solutions.rank_solutions`, best first); the
     position error is the 3-D RMS of the targets when the run has targets, else the horizontal RMS of
-    the trajectory; the attitude error is the RMS of the trajectory's attitude. ("", None, None)
-    without figures."""
+    the trajectory, except for a target pipeline's fixed observer (its trajectory is an attitude at a
+    point it was given: None, as `tpos report` leaves it out); the attitude error is the RMS of the
+    trajectory's attitude. ("", None, None) without figures."""
     rank_solutions = rank
     figures: dict[tuple[str, str, str], float] = {}
     for key, v in r.accuracy.items():
@@ -832,7 +833,8 @@ def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str
     if not sols:
         return "", None, None
     sol = sols[0]
-    return sol, figures[(sol, *pos_key)], figures.get((sol, "trajectory", "rms_att_deg"))
+    fixed_observer = not has_targets and r.pipeline.startswith("target")
+    return sol, None if fixed_observer else figures[(sol, *pos_key)], figures.get((sol, "trajectory", "rms_att_deg"))
 
 
 # The console table: (header, width, right-aligned). 79 characters with the separating spaces.

@@ -63,7 +63,7 @@ def gps_error_layout(sigma_ned_m, tau_s: float, base: StateLayout | None = None)
 
 
 def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) -> Measurements:
-    """The fixes as filter rows, interleaved (position, velocity) per fix. `t_run_s` are the
+    """The fixes as filter rows, interleaved (velocity, position) per fix. `t_run_s` are the
     run's IMU times in its own direction (negated, reversed for a backward run): with gap_s > 0
     the first fix processed more than gap_s after the previous one (or the run's start) is not
     gated (an outage: the INS has then drifted by more than a MEMS error model predicts, and
@@ -92,8 +92,11 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) 
         rows.append(Measurements.rows(t_fix[sel] - fixes.vel_latency_s, Kind.GPS_VELOCITY, np.nan_to_num(vel[sel]), R, dim=dim,
                                       gated=gated[sel], slot=_SLOT_VELOCITY, par=g[sel]))
     allm = Measurements.merge(*rows)
-    # per fix: position then velocity (merge sorts by time only; a late velocity row comes first)
-    return allm.take(np.lexsort((allm.kind, allm.par)))
+    # per fix: velocity, then position (merge sorts by time only). The position row's clock column is
+    # the nominal velocity (`measurements.measure`): after a coast that velocity is metres per second
+    # off until the fix's own velocity row has corrected it, and a column that changes by that much
+    # from one fix to the next reads as information on the clock offset that the fixes do not hold
+    return allm.take(np.lexsort((-np.asarray(allm.kind, dtype=np.int64), allm.par)))
 
 
 LAG_GRID_S = np.arange(0.0, 0.5001, 0.025)  # velocity lags tried (s)
