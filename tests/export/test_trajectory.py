@@ -23,6 +23,25 @@ def test_epochs_at_rate_keeps_real_epochs_nearest_each_tick():
         epochs_at_rate(t, 0.0)
 
 
+def test_epochs_at_rate_far_above_the_epochs_builds_no_grid(monkeypatch):
+    # `tpos export --rate 1e308` was an internal error (exit 1: a tick grid of span x rate); 1e9 on an
+    # hour at 100 Hz would be 3.6e12 ticks. Every epoch is the nearest to some tick there.
+    t = 408639.749 + np.arange(360_000) / 100.0
+    for rate in (1e9, 1e308):
+        assert np.array_equal(epochs_at_rate(t, rate), np.arange(t.size))
+    # the cell rule used above MAX_TICKS_PER_EPOCH picks the grid's epochs (irregular epochs: no
+    # tick lies exactly half-way between two of them)
+    from tpos_cli.export import trajectory as tr
+
+    rng = np.random.default_rng(5)
+    for rate in (0.5, 1.0, 3.7, 10.0):
+        t = 1000.0 + np.cumsum(rng.uniform(0.02, 0.18, 500))
+        grid = epochs_at_rate(t, rate)
+        monkeypatch.setattr(tr, "MAX_TICKS_PER_EPOCH", 0)
+        assert np.array_equal(epochs_at_rate(t, rate), grid), rate
+        monkeypatch.setattr(tr, "MAX_TICKS_PER_EPOCH", 4)
+
+
 def test_best_solution_order_and_unknown_names():
     assert rank_solutions(["forward", "backward", "smoothed"])[0] == "smoothed"
     assert rank_solutions(["gyro", "lf1", "lf2", "fkf", "fkf_raw", "fkf_cal"])[0] == "fkf_cal"

@@ -34,19 +34,25 @@ def have_pdftoppm() -> bool:
 
 
 def render_page1(image: str, work: Path) -> Path:
-    """Process and report the sample session of README image `image` in `work`/demo; returns the
-    PNG of its page 1."""
+    """Process and report the sample session of README image `image` in a scratch demo/ directory;
+    returns the PNG of its page 1, copied into `work`. The scratch directory is always a fresh
+    `tempfile` one, whoever calls: the provenance print holds its path, and a longer one (pytest's
+    tmp_path) wraps those lines differently and moves the figures above them (1.1 % of the pixels)."""
     session, pipeline = IMAGES[image]
-    demo = Path(work) / "demo"
-    shutil.copytree(REPO / "sample_logs" / session, demo / "sample_logs" / session)
-    run = f"runs/{session}-{pipeline}"
-    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    for args in (["process", f"sample_logs/{session}", "-o", run, "-q"], ["report", run]):
-        subprocess.run([sys.executable, "-m", "tpos_cli", *args], cwd=demo, env=env, check=True, capture_output=True, text=True)
-    stem = demo / f"{session}-page"
-    size = ["-scale-to-x", str(WIDTH_PX), "-scale-to-y", "-1"]
-    subprocess.run(["pdftoppm", "-f", "1", "-l", "1", "-singlefile", *size, "-png", f"{run}/report.pdf", str(stem)], cwd=demo, check=True)
-    return stem.with_suffix(".png")
+    with tempfile.TemporaryDirectory() as tmp:
+        demo = Path(tmp) / "demo"
+        shutil.copytree(REPO / "sample_logs" / session, demo / "sample_logs" / session)
+        run = f"runs/{session}-{pipeline}"
+        env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        for args in (["process", f"sample_logs/{session}", "-o", run, "-q"], ["report", run]):
+            subprocess.run([sys.executable, "-m", "tpos_cli", *args], cwd=demo, env=env, check=True, capture_output=True, text=True)
+        stem = demo / f"{session}-page"
+        size = ["-scale-to-x", str(WIDTH_PX), "-scale-to-y", "-1"]
+        page1 = ["pdftoppm", "-f", "1", "-l", "1", "-singlefile", *size, "-png", f"{run}/report.pdf", str(stem)]
+        subprocess.run(page1, cwd=demo, check=True)
+        out = Path(work) / stem.with_suffix(".png").name
+        shutil.copyfile(stem.with_suffix(".png"), out)
+    return out
 
 
 def main() -> None:

@@ -124,7 +124,7 @@ def test_report_shows_the_runs_verdict(tmp_path):
     from tpos_cli.report.summary import headline_rows
 
     res = runner.invoke(app, ["report", str(r)])
-    assert res.exit_code == 0 and "verdict: suspect (1 reason(s) on page 1)" in res.output
+    assert res.exit_code == 0 and 'verdict: suspect (1 reason(s) in report.pdf, in full under "The verdict\'s checks")' in res.output
     assert json.loads((r / "accuracy.json").read_text())["quality"]["verdict"] == "suspect"
     assert "verdict_checks" in "+".join(make_report(r).pages)
     rows = dict(headline_rows(build_context(r)))
@@ -239,3 +239,20 @@ def test_report_killed_mid_run_then_run_again(tmp_path, sig):
         os.umask(old)
     assert not list(r.glob(".*.tmp"))
     assert all(stat.S_IMODE((r / n).stat().st_mode) == 0o644 for n in ("accuracy.parquet", "accuracy.json", "report.pdf"))
+
+
+def test_truth_that_does_not_overlap_the_run_in_time(tmp_path):
+    # session 7 audit: `tpos report <comma run> --truth <walk>` exited 0 with "n=0 ... RMS n/a" lines and
+    # numpy's "Mean of empty slice" warnings on stderr
+    r = _run(tmp_path)
+    other = shutil.copytree(tmp_path / "s", tmp_path / "other")
+    tr = pd.read_csv(other / "truth.csv")
+    tr["t"] += 1.0e5  # another day (or another clock)
+    tr.to_csv(other / "truth.csv", index=False)
+    res = runner.invoke(app, ["report", str(r), "--truth", str(other)])
+    assert res.exit_code == 2 and "do not overlap in time" in res.stderr and "is it the session of this run?" in res.stderr
+    assert not (r / "report.pdf").exists()  # nothing written
+    shutil.copyfile(other / "truth.csv", tmp_path / "s" / "truth.csv")  # the run's own truth on another clock: noted, QC report
+    res = runner.invoke(app, ["report", str(r)])
+    assert res.exit_code == 0 and "do not overlap in time on the logger clock: no errors against it" in res.stderr
+    assert "truth: none (quality-control report)" in res.output and "Warning" not in res.stderr

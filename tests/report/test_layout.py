@@ -88,3 +88,19 @@ def test_scale_bar_goes_to_the_corner_it_covers_least():
     # the car log's case: a lower-left corner full of a long stop's points, a road under the
     # lower-right bar; the upper left is free
     assert axes_with(start + [(x, 6.0) for x in np.linspace(60.0, 100.0, 80)]) == (5.0, 90.0)
+
+
+def test_north_arrow_leaves_the_upper_right_only_for_data_and_never_takes_the_bars_corner():
+    # navego (session 7 audit): the track's end lies in the upper right, under the arrow
+    def arrow_with(points, taken=None):
+        ax = Figure(figsize=(5, 5)).add_axes([0.1, 0.1, 0.8, 0.8])
+        ax.set_xlim(0.0, 100.0)
+        ax.set_ylim(0.0, 100.0)
+        return L.north_arrow(ax, np.asarray(points, dtype=float), taken=taken)
+
+    assert arrow_with([(50.0, 50.0)]) == "upper right"  # nothing under it: where readers look for it
+    end = [(94.0, 90.0)] * 5
+    assert arrow_with(end) == "upper left"
+    assert arrow_with(end, taken="upper left") == "lower right"  # the scale bar holds the upper left
+    one_each = [(94.0, 90.0), (6.0, 85.0), (94.0, 15.0)]  # one point under each free corner
+    assert arrow_with(one_each, taken="lower left") == "upper right"  # covered alike: the first of equals

@@ -48,8 +48,10 @@ def report(
         typer.echo(json.dumps(res.summary, indent=1))
         return
     q = res.summary.get("quality")
+    n_reasons = len(q.get("reasons") or []) if q else 0
+    where = " in report.pdf, in full under \"The verdict's checks\""  # page 1 holds six lines of them
     typer.echo(
-        f"verdict: {q['verdict']}" + (f" ({len(q.get('reasons') or [])} reason(s) on page 1)" if q.get("reasons") else "")
+        f"verdict: {q['verdict']}" + (f" ({n_reasons} reason(s){where})" if n_reasons else "")
         if q
         else "verdict: no verdict recorded"
     )

@@ -7,6 +7,7 @@ combined, see `export.targets`) unless the trajectory is asked for; any other ru
 
 from __future__ import annotations
 
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,7 +79,11 @@ def _logger_times(run) -> np.ndarray:
 
 
 def _default_path(run_dir: Path, kind: str, solution: str, fmt: str) -> Path:
-    return run_dir / f"{kind}_{solution}.{fmt}"
+    """`run_dir`/KIND_SOLUTION.FMT. The solution name comes from the run's own tables: anything but
+    letters, digits, "_", "-" and inner "." becomes "_", so that no name ("../../x", "a/b") leads
+    the file out of `run_dir`."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]", "_", solution).strip(".") or "_"
+    return run_dir / f"{kind}_{safe.replace('..', '__')}.{fmt}"
 
 
 def export_run(
@@ -166,6 +171,7 @@ def export_run(
     if path.is_dir():
         path = _default_path(path, kind, sol, fmt)
     if not path.parent.is_dir():
-        raise InvalidInputError(f"-o {out}: directory {path.parent} does not exist")
+        raise InvalidInputError(f"-o {out}: directory {path.parent} does not exist" if out is not None
+                                else f"{run.path.name}: the run directory is gone ({path.parent})")
     write_atomic(path, lambda p: p.write_bytes(data))
     return ExportResult(path, kind, sol, len(table), zone.label, rate, notes)

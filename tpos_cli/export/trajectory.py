@@ -18,17 +18,40 @@ BASE = ("t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw")
 SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_vn", "sigma_ve", "sigma_vd", "sigma_roll", "sigma_pitch", "sigma_yaw")
 
 
+MAX_TICKS_PER_EPOCH = 4  # above this the tick grid is not built (see `epochs_at_rate`)
+
+
 def epochs_at_rate(t_s, rate_hz: float | None) -> np.ndarray:
-    """Indices of the epochs nearest each tick of a `rate_hz` grid (sorted `t_s`); all when None."""
+    """Indices of the epochs nearest each tick k / `rate_hz` (k integer) between the first and the
+    last epoch (sorted `t_s`; a tick half-way goes to the earlier epoch), with the first and the last;
+    all when None.
+
+    The grid of ticks is span x rate long (`--rate 1e9` on an hour would be 3.6e12 ticks), so above
+    `MAX_TICKS_PER_EPOCH` ticks per epoch it is not built: epoch i is the nearest to the ticks in its
+    cell (m_{i-1}, m_i], m_i = (t_i + t_{i+1}) / 2, and is kept when an integer k lies in
+    (m_{i-1} rate, m_i rate] (the same epochs up to rounding of ticks exactly half-way; a rate past
+    float range keeps every epoch)."""
     t = np.asarray(t_s, dtype=float)
     if rate_hz is None or t.size < 2:
         return np.arange(t.size)
     if not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InvalidInputError(f"--rate {rate_hz}: must be a positive number of Hz")
-    ticks = np.arange(np.ceil(t[0] * rate_hz), np.floor(t[-1] * rate_hz) + 1.0) / rate_hz
-    j = np.clip(np.searchsorted(t, ticks), 1, t.size - 1)
-    nearest = np.where(ticks - t[j - 1] <= t[j] - ticks, j - 1, j)
-    return np.unique(np.concatenate([[0], nearest, [t.size - 1]]))
+    with np.errstate(over="ignore"):
+        k0, k1 = np.ceil(t[0] * rate_hz), np.floor(t[-1] * rate_hz)
+        scaled = t * rate_hz
+    if not np.isfinite(scaled).all():
+        return np.arange(t.size)  # ticks closer than any float spacing of t: every epoch is the nearest to one
+    if k1 - k0 + 1.0 <= MAX_TICKS_PER_EPOCH * t.size:
+        ticks = np.arange(k0, k1 + 1.0) / rate_hz
+        j = np.clip(np.searchsorted(t, ticks), 1, t.size - 1)
+        nearest = np.where(ticks - t[j - 1] <= t[j] - ticks, j - 1, j)
+        return np.unique(np.concatenate([[0], nearest, [t.size - 1]]))
+    mid = (scaled[:-1] + scaled[1:]) / 2.0
+    first = np.maximum(np.floor(np.r_[k0 - 1.0, mid]) + 1.0, k0)  # smallest k above the cell's start
+    last = np.minimum(np.floor(np.r_[mid, k1]), k1)  # largest k at or below its end
+    keep = last >= first
+    keep[0] = keep[-1] = True
+    return np.flatnonzero(keep)
 
 
 def trajectory_table(traj: pd.DataFrame, solution: str, rate_hz: float | None = None) -> tuple[pd.DataFrame, UtmZone]:

@@ -29,6 +29,7 @@ from tpos_cli.importers.gpstime import (
     utc_calendar_to_clock,
 )
 from tpos_cli.importers.result import ImportResult, read_source
+from tpos_cli.importers.velocity_timing import velocity_timing_note
 from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 Q_TO_FIX = {0: 0, 1: 2, 2: 2, 3: 2, 4: 2, 5: 1, 6: 2}
@@ -210,4 +211,7 @@ def import_rtklib_pos(path: Path, *, clock: str = "gps_tow", geoid_sep_m: float 
         leap = leap_table_note(np.asarray(t, float) if clock == "unix" else np.array([]))
         if leap:
             notes.append(f"{path.name}: {leap}")
+    lag = velocity_timing_note(g, path.name)
+    if lag:
+        notes.append(lag)
     return ImportResult({"gps": g}, {}, tuple(notes))

@@ -234,6 +234,50 @@ def _load_session(run: RunData, truth_session: Path | None) -> tuple[object | No
     return session, "", "yes", notes
 
 
+def _truth_apart_in_time(truth: ReportTruth | None, series: dict) -> str | None:
+    """Why a reference trajectory cannot score the run: its time span and the run's (logger clock)
+    do not overlap, so no epoch has truth. None when they overlap or there is nothing to compare."""
+    tt = truth.trajectory if truth is not None else None
+    spans = [(float(x.t[0]), float(x.t[-1])) for x in series.values() if x.t.size]
+    if tt is None or not tt.t.size or not spans:
+        return None
+    r0, r1 = min(a for a, _ in spans), max(b for _, b in spans)
+    t0, t1 = float(tt.t[0]), float(tt.t[-1])
+    if t0 <= r1 and r0 <= t1:
+        return None
+    return (f"its truth ({tt.description.split(' (')[0]}, {t0:.2f}..{t1:.2f} s) and the run ({r0:.2f}..{r1:.2f} s) do not "
+            "overlap in time on the logger clock")
+
+
+def gps_clock_note(summary: dict, trajectory: pd.DataFrame | None, solution: str | None = None) -> str | None:
+    """A note when the run moved its output to the GPS receiver's clock (`results.gps_clock_offset.
+    output_clock` "gps": times t - d, d the estimated IMU-GPS offset) while truth.* is read on the
+    session's logger clock, as the contract has it: the two then differ by about v d along the track
+    (v the speed), which the errors against truth include. Says how large that is at the run's 95th
+    percentile speed (of `solution`'s rows when given), and how to keep the output on the logger's clock."""
+    clk = (summary.get("results") or {}).get("gps_clock_offset")
+    if not isinstance(clk, dict) or clk.get("output_clock") != "gps":
+        return None
+    try:
+        d = float(clk["estimate_s"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if trajectory is not None and solution is not None and "solution" in trajectory.columns:
+        trajectory = trajectory[trajectory["solution"].astype(str) == solution]
+    if trajectory is not None and {"vn", "ve"} <= set(trajectory.columns) and len(trajectory):
+        v = np.hypot(trajectory["vn"].to_numpy(float), trajectory["ve"].to_numpy(float))
+        v95 = float(np.nanpercentile(v, 95)) if np.isfinite(v).any() else np.nan
+    else:
+        v95 = np.nan
+    size = f": at the run's 95th-percentile speed, {v95:.1f} m/s, {abs(d) * v95:.2f} m along the track" if np.isfinite(v95) else ""
+    return (
+        f"the run's output is on the GPS receiver's clock (times moved by the estimated IMU-GPS offset, {d:+.3f} s) "
+        f"while truth.* is read on the session's logger clock{size}; right when truth.* is the receiver's own solution "
+        "(stamped by its clock), otherwise reprocess with --set drive_smooth.clock_apply_sd=1e9 to keep the output on "
+        "the logger's clock"
+    )
+
+
 def build_context(
     run_dir: Path, truth_session: Path | None = None, *, full: bool = False, clock: StageClock | None = None
 ) -> ReportContext:
@@ -263,6 +307,12 @@ def build_context(
     with timed(clock, "load: solutions"):
         series = qc.solution_series(run.trajectory)
         order = rank_solutions(series)
+    apart = _truth_apart_in_time(truth, series)
+    if apart:
+        if truth_session is not None:  # the user named it: the wrong session, or one on another clock
+            raise InvalidInputError(f"--truth {Path(truth_session).name}: {apart}; is it the session of this run?")
+        notes.append(f"{apart}: no errors against it (a quality-control report)")
+        truth = ReportTruth(None, truth.targets, truth.session_path, truth.notes)
     with timed(clock, "accuracy tables"):
         acc = compute_accuracy(run, truth, kind=kind, series=series)
     with timed(clock, "filter health"):
@@ -294,6 +344,10 @@ def build_context(
         estimated = qc.estimated_accuracy(series, order)
         shots = _shots(run, target_solution)
     verdict = run.summary.get("quality") if isinstance(run.summary.get("quality"), dict) else None
+    if truth is not None and truth.trajectory is not None and truth.trajectory.source == "truth":
+        note = gps_clock_note(run.summary, run.trajectory, order[0] if order else None)
+        if note:
+            notes.append(note)
     return ReportContext(
         run=run,
         session=session,

@@ -387,10 +387,11 @@ def length_label(m: float) -> str:
     return f"{m * 1000.0:g} mm"
 
 
-def scale_bar(ax, points=None, frac: float = 0.25) -> None:
+def scale_bar(ax, points=None, frac: float = 0.25) -> str:
     """A scale bar on an equal-aspect east/north axis in metres, in the corner (lower left, lower
-    right, upper left, in that order of preference; the north arrow holds the upper right) whose bar
-    and label cover fewest of `points` ((N, 2) east, north), so it covers no data where it can."""
+    right, upper left, in that order of preference; the north arrow prefers the upper right) whose bar
+    and label cover fewest of `points` ((N, 2) east, north), so it covers no data where it can.
+    Returns the corner used ("lower left", "lower right" or "upper left")."""
     ax.apply_aspect()
     x0, x1 = ax.get_xlim()
     y0, y1 = ax.get_ylim()
@@ -407,6 +408,7 @@ def scale_bar(ax, points=None, frac: float = 0.25) -> None:
             return int(np.sum(inside_x & (p[:, 1] > b - 0.03 * h) & (p[:, 1] < b + 0.08 * h)))
 
         xs, ys = min(corners, key=covered)  # the first of equals
+    where = ("lower left", "lower right", "upper left")[corners.index((xs, ys))]
     ax.plot([xs, xs + L], [ys, ys], color="k", lw=2.5, solid_capstyle="butt", zorder=5)
     ax.plot([xs, xs + L / 2], [ys, ys], color="w", lw=1.2, solid_capstyle="butt", zorder=6)
     ax.text(
@@ -419,11 +421,32 @@ def scale_bar(ax, points=None, frac: float = 0.25) -> None:
         zorder=6,
         bbox={"facecolor": "white", "alpha": 0.7, "edgecolor": "none", "pad": 1},
     )
+    return where
 
 
-def north_arrow(ax) -> None:
-    """A north arrow in the upper right (axes coordinates; the map's y axis is true north)."""
+NORTH_ARROW_SPOTS = {"upper right": (0.94, 0.0), "upper left": (0.06, 0.0), "lower right": (0.94, -0.70), "lower left": (0.06, -0.70)}
+
+
+def north_arrow(ax, points=None, taken: str | None = None) -> str:
+    """A north arrow (the map's y axis is true north) in the corner that covers fewest of `points`
+    ((N, 2) east, north in data units): the upper right unless data lie under it there, never the
+    corner `taken` (the scale bar's, as `scale_bar` returns it). Returns the corner used."""
+    spots = [k for k in NORTH_ARROW_SPOTS if k != taken]
+    where = spots[0]
+    if points is not None and len(points):
+        p = np.asarray(points, dtype=float)
+        x0, x1 = ax.get_xlim()
+        y0, y1 = ax.get_ylim()
+        fx, fy = (p[:, 0] - x0) / (x1 - x0), (p[:, 1] - y0) / (y1 - y0)
+
+        def covered(k) -> int:  # points under the arrow and its "N", with a margin (axes fractions)
+            x, dy = NORTH_ARROW_SPOTS[k]
+            return int(np.sum((np.abs(fx - x) < 0.04) & (fy > 0.74 + dy) & (fy < 0.97 + dy)))
+
+        where = min(spots, key=covered)  # the first of equals
+    x, dy = NORTH_ARROW_SPOTS[where]
     ax.add_patch(
-        FancyArrow(0.94, 0.83, 0.0, 0.09, width=0.012, head_width=0.035, head_length=0.035, transform=ax.transAxes, color="k", zorder=6)
+        FancyArrow(x, 0.83 + dy, 0.0, 0.09, width=0.012, head_width=0.035, head_length=0.035, transform=ax.transAxes, color="k", zorder=6)
     )
-    ax.text(0.94, 0.80, "N", transform=ax.transAxes, ha="center", va="top", fontsize=9, weight="bold", zorder=6)
+    ax.text(x, 0.80 + dy, "N", transform=ax.transAxes, ha="center", va="top", fontsize=9, weight="bold", zorder=6)
+    return where

@@ -120,7 +120,7 @@ def plan_view(ax, ctx) -> str:
                     np.where(inside[i], ned[:, 0], np.nan),
                     color="#d62728",
                     lw=2.2,
-                    label="in GPS outage",
+                    label="in GPS outage / masked" if len(ctx.run.mask_windows) else "in GPS outage",
                     zorder=3,
                 )
         ax.plot(ned[0, 1], ned[0, 0], "^", color="k", ms=7, label="start", zorder=5)
@@ -207,8 +207,8 @@ def plan_view(ax, ctx) -> str:
     ax.set_ylabel(f"north, {unit}", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.grid(True, lw=0.3, color="0.88")
-    L.scale_bar(ax, allp[:, ::-1])
-    L.north_arrow(ax)
+    bar = L.scale_bar(ax, allp[:, ::-1])
+    L.north_arrow(ax, allp[:, ::-1], taken=bar)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0.0)
     o = f"origin {origin[0]:.6f}, {origin[1]:.6f}"
     return "; ".join(caption) + f"; east/north about {o} (" + ("the observer" if static else "the start") + ")"

@@ -51,9 +51,9 @@ def _static_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         if np.isfinite(h).any():
             j = int(np.nanargmax(h))
             rows.append(
-                ("Target precision, 95 % horizontal", f"median {fmt_len(np.nanmedian(h))}, largest {fmt_len(h[j])} ({t['id'].iloc[j]})")
+                ("Target 95 %, horizontal", f"median {fmt_len(np.nanmedian(h))}, largest {fmt_len(h[j])} ({t['id'].iloc[j]})")
             )
-            rows.append(("Target precision, 95 % vertical", f"median {fmt_len(qc.Z95 * np.nanmedian(t['sigma_u']))}"))
+            rows.append(("Target 95 %, vertical", f"median {fmt_len(qc.Z95 * np.nanmedian(t['sigma_u']))}"))
     else:
         rows.append(("Targets", "none: an attitude-only session (no shots)"))
     if best is not None and best.is_static and np.isfinite(best.lla[0]).all():
@@ -78,7 +78,23 @@ def _static_rows(ctx: ReportContext) -> list[tuple[str, str]]:
                 f"(|B| off {m.reference_ut:.1f} uT by more than {m.threshold_ut:.1f} uT)",
             )
         )
+    rej = _mag_rejected(ctx)
+    if rej is not None:
+        # the attitude filter's own test (field norm or dip, tighter than the |B| band above): the
+        # figure the verdict quotes, so that page 1 does not say "8 s" beside a verdict of "59 %"
+        rows.append(("Magnetometer in the filter", f"{pct(rej)} of its samples rejected as disturbed (field norm or dip off)"))
     return rows
+
+
+def _mag_rejected(ctx: ReportContext) -> float | None:
+    """Share of magnetometer samples the attitude filter rejected (`quality.checks["magnetometer.rejected"]`)."""
+    checks = (ctx.verdict or {}).get("checks")
+    c = checks.get("magnetometer.rejected") if isinstance(checks, dict) else None
+    try:
+        v = float(c["fraction"]) if isinstance(c, dict) else None
+    except (KeyError, TypeError, ValueError):
+        return None
+    return v if v is not None and np.isfinite(v) else None
 
 
 def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
@@ -92,14 +108,29 @@ def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     est = ctx.estimated.set_index("solution").loc[best.name]
     if np.isfinite(est["h95_median_m"]):
         rows.append(
-            ("Estimated accuracy, 95 % horizontal", f"median {fmt_len(est['h95_median_m'])}, 95th percentile {fmt_len(est['h95_p95_m'])}")
+            ("Estimated 95 %, horizontal", f"median {fmt_len(est['h95_median_m'])}, 95th percentile {fmt_len(est['h95_p95_m'])}")
         )
         rows.append(
-            ("Estimated accuracy, 95 % vertical", f"median {fmt_len(est['v95_median_m'])}, 95th percentile {fmt_len(est['v95_p95_m'])}")
+            ("Estimated 95 %, vertical", f"median {fmt_len(est['v95_median_m'])}, 95th percentile {fmt_len(est['v95_p95_m'])}")
         )
     if np.isfinite(est["yaw95_median_deg"]):
         rows.append(("Estimated yaw, 95 %", f"median {est['yaw95_median_deg']:.2f} deg, 95th percentile {est['yaw95_p95_deg']:.2f} deg"))
     return rows
+
+
+def _flags_check(ctx: ReportContext) -> dict | None:
+    """The verdict's forward/backward check (`quality.checks.flags` in summary.json: epochs whose
+    whole navigation state the two runs disagree on beyond its chi-square bound), when the run has
+    it; page 1 quotes it so that its figure is the one the verdict's reason gives."""
+    checks = (ctx.verdict or {}).get("checks")
+    f = checks.get("flags") if isinstance(checks, dict) else None
+    if not isinstance(f, dict):
+        return None
+    try:
+        fig = {"fraction": float(f["fraction"]), "expected": float(f["expected"])}
+    except (KeyError, TypeError, ValueError):
+        return None
+    return fig if np.isfinite(fig["fraction"]) else None
 
 
 def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
@@ -115,11 +146,28 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         n_fix = int(np.sum(g.fix > 0))
         w = ctx.run.outage_windows
         longest = float(np.max(w[:, 1] - w[:, 0])) if len(w) else 0.0
+        m = ctx.run.mask_windows
+        # outage windows that overlap a --mask-gps window were made by the user, not by the receiver
+        n_masked = int(sum(any(a < b1 and a1 < b for a1, b1 in m) for a, b in w)) if len(m) else 0
+        used = (ctx.run.summary.get("results") or {}).get("gps_fixes")
+        # a run that thins the fixes (drive-smooth: [drive_smooth] gps_max_rate_hz) says how many it used,
+        # so that "14 of 290 rejected" below does not read as 290 of the log's 1174
+        used_text = f" ({used} used)" if isinstance(used, int) and 0 < used < n_fix else ""
         rows.append(
             (
                 "GPS",
-                f"{n_fix} fixes, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} SBAS/WAAS; "
+                f"{n_fix} fixes{used_text}, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} SBAS/WAAS; "
                 f"{len(w)} outage{'s' if len(w) != 1 else ''}" + (f", longest {fmt_duration(longest)}" if len(w) else ""),
+            )
+        )
+        if n_masked:
+            rows.append(("Withheld with --mask-gps", f"{n_masked} of the {len(w)} outages above"))
+    flags = _flags_check(ctx)
+    if flags is not None:
+        rows.append(
+            (
+                "Forward/backward agreement",
+                f"{pct(flags['fraction'])} of epochs flagged (whole state; {pct(flags['expected'])} expected)",
             )
         )
     for sep in ctx.health.separations:
@@ -127,7 +175,7 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         beyond = float(np.mean(sep.dist_h_m[ok] > sep.bound99_h_m[ok])) if ok.any() else np.nan
         rows.append(
             (
-                "Forward/backward agreement",
+                "Forward/backward, horizontal" if flags is not None else "Forward/backward agreement",
                 f"{pct(beyond)} of epochs apart by more than their 99 % bound; largest {fmt_len(np.nanmax(sep.dist_h_m))}",
             )
         )
@@ -141,13 +189,13 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
             h = np.hypot(se.err_ned_m[:, 0], se.err_ned_m[:, 1])
             rows.append(
                 (
-                    "Agreement with the GPS fixes used",
+                    "Against the GPS fixes used",
                     f"horizontal RMS {fmt_len(np.sqrt(np.nanmean(h**2)))}, vertical RMS "
-                    f"{fmt_len(np.sqrt(np.nanmean(se.err_ned_m[:, 2] ** 2)))} (the run's input: GPS noise, not accuracy)",
+                    f"{fmt_len(np.sqrt(np.nanmean(se.err_ned_m[:, 2] ** 2)))} (GPS noise, not accuracy)",
                 )
             )
     if not ctx.has_truth:
-        rows.append(("Truth", "none: a quality-control report (the run's own accuracy estimates and consistency checks)"))
+        rows.append(("Truth", "none: a quality-control report (the run's own estimates and checks)"))
         return rows
     if ctx.static_observer and ctx.acc.targets is not None and ctx.target_solution:
         te = ctx.acc.targets[ctx.acc.targets["solution"] == ctx.target_solution]
@@ -174,7 +222,11 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         )
         cons = consistency_text(ctx, ctx.best)
         if cons:
-            rows.append(("Inside the stated 95 % bound", cons + " (about 95 % for honest sigmas)"))
+            rows.append(("Inside the stated 95 % bound", cons + " (about 95 % if honest)"))
+        clk = (ctx.run.summary.get("results") or {}).get("gps_clock_offset")
+        if src == "truth" and isinstance(clk, dict) and clk.get("output_clock") == "gps":
+            d = float(clk.get("estimate_s", np.nan))
+            rows.append(("Clocks", f"output on the GPS clock ({d:+.3f} s), truth on the logger's (notes)"))
     if se is not None and se.att_err_deg is not None:
         a = se.att_err_deg
         rows.append(
@@ -223,7 +275,9 @@ def _verdict_box(fig: Figure, ctx: ReportContext, top: float) -> float:
     for ln in lines:
         wrapped += textwrap.wrap(ln, 105, subsequent_indent="  ")
     if len(wrapped) > 6:
-        wrapped = wrapped[:5] + ["  ... (every check is listed with the figures)"]
+        n_more = sum(1 for ln in wrapped[5:] if ln.startswith("- "))
+        more = f"{n_more} more reason{'s' if n_more != 1 else ''} and " if n_more else ""
+        wrapped = wrapped[:5] + [f"  ... ({more}every reason in full under \"The verdict's checks\")"]
     fig.text(0.285, top - 0.002, "\n".join(wrapped), ha="left", va="top", fontsize=7.6, linespacing=1.35)
     return top - max(0.068, 0.004 + len(wrapped) * 7.6 * 1.35 / 72 / L.A4_IN[1])
 
@@ -262,7 +316,8 @@ def _accuracy_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
     se = ctx.errors(s.name)
     if se is not None:
         L.plot_series(ax, x, np.hypot(se.err_ned_m[:, 0], se.err_ned_m[:, 1]), color=L.COLORS[1], lw=0.6, label="error against truth")
-    L.shade(ax, ctx.run.outage_windows, ctx.t_ref, ctx.time_scale, L.OUTAGE_COLOR, "GPS outage")
+    masked = len(ctx.run.mask_windows) > 0
+    L.shade(ax, ctx.run.outage_windows, ctx.t_ref, ctx.time_scale, L.OUTAGE_COLOR, "GPS outage / masked" if masked else "GPS outage")
     ax.set_xlim(*ctx.time_limits)
     ax.set_ylim(bottom=0)
     L.style_axis(ax, "horizontal, m")

@@ -476,19 +476,31 @@ def _table_section(name: str, title: str, subtitle: str, cols, font: float = FON
     return Section(name, title, _h(n, font=font), draw, subtitle, floating=True)
 
 
+REASON_WRAP = 128  # characters per line of the verdict's reasons at 7.2 pt across the text width
+
+
+def reason_lines(reasons: list[str], wrap: int = REASON_WRAP) -> list[str]:
+    """The verdict's reasons as wrapped lines, each reason a "- " item with its continuation indented."""
+    out: list[str] = []
+    for r in reasons:
+        out += textwrap.wrap(f"- {r}", wrap, subsequent_indent="  ")
+    return out
+
+
 def verdict_checks_section(ctx: ReportContext, only_failed: bool) -> Section | None:
-    """The checks behind the run's verdict and their figures: in the default report those that
-    were not ok (the reasons on page 1 name them), with --full every one."""
+    """The verdict's reasons in full (page 1 has room for six lines of them) and the checks behind
+    it with their figures: in the default report those that were not ok (the reasons name them),
+    with --full every one."""
     v = ctx.verdict
     checks = v.get("checks") if v else None
-    if not isinstance(checks, dict) or not checks:
-        return None
+    checks = checks if isinstance(checks, dict) else {}
+    reasons = [str(r) for r in (v.get("reasons") or [])] if v else []
 
     def level(n):
         return str(checks[n].get("level", "ok")) if isinstance(checks[n], dict) else ""
 
     names = [n for n in checks if not only_failed or level(n) not in ("ok", "")][:30]
-    if not names:
+    if not names and not reasons:
         return None
     figures = [
         textwrap.shorten(", ".join(_flat(checks[n])), 120, placeholder=" ...") if isinstance(checks[n], dict) else str(checks[n])
@@ -498,20 +510,23 @@ def verdict_checks_section(ctx: ReportContext, only_failed: bool) -> Section | N
         L.Column("check", names, align="left"),
         L.Column("level", [level(n) for n in names], align="left"),
         L.Column("figures", figures, align="left"),
-    ]
-    sub = (
-        "The checks of the run's verdict that were not ok, and the figures behind them."
-        if only_failed
-        else ("Each check of the run's verdict and the figures behind it.")
-    )
-    return _table_section(
-        "verdict_checks",
-        "The verdict's checks",
-        sub,
-        cols,
-        font=7.0,
-        highlight=[i for i, n in enumerate(names) if level(n) not in ("ok", "")],
-    )
+    ] if names else []
+    lines = reason_lines(reasons)
+    line_h = FONT * 1.35 / 72.0 / L.A4_IN[1]
+    text_h = len(lines) * line_h + (0.01 if lines else 0.0)
+    highlight = [i for i, n in enumerate(names) if level(n) not in ("ok", "")]
+
+    def draw(fig, top, bottom):
+        if lines:
+            fig.text(L.MARGIN_L, top, "\n".join(lines), ha="left", va="top", fontsize=FONT, linespacing=1.35)
+        if cols:
+            L.draw_table(fig, top - text_h, cols, fontsize=7.0, highlight=highlight)
+
+    what = "checks of the run's verdict that were not ok" if only_failed else "checks of the run's verdict"
+    sub = (f"The verdict ({v.get('verdict')}) and its reasons in full, then the {what} and the figures behind them."
+           if lines else f"The {what} and the figures behind them.")
+    height = text_h + (_h(len(names), font=7.0) if names else 0.0)
+    return Section("verdict_checks", "The verdict's checks", height, draw, sub, floating=True)
 
 
 def figure_sections(ctx: ReportContext) -> list[Section]:

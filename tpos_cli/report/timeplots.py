@@ -39,7 +39,8 @@ def panel_axes(fig: Figure, n: int, top: float, bottom: float, legend_each: bool
 def mark_time(ax, ctx: ReportContext, legend: bool = True, label_shots: bool = False) -> None:
     """Shade GPS outages, --mask-gps windows, shots and disturbances; a rug of flagged epochs."""
     scale = ctx.time_scale
-    L.shade(ax, ctx.run.outage_windows, ctx.t_ref, scale, L.OUTAGE_COLOR, "GPS outage / masked" if legend else None)
+    label = "GPS outage / masked" if len(ctx.run.mask_windows) else "GPS outage"
+    L.shade(ax, ctx.run.outage_windows, ctx.t_ref, scale, L.OUTAGE_COLOR, label if legend else None)
     if ctx.shots is not None and len(ctx.shots.t0):
         w = np.column_stack([ctx.shots.t0, ctx.shots.t1])
         L.shade(ax, w, ctx.t_ref, scale, L.SHOT_COLOR, "shot" if legend else None, alpha=0.6)

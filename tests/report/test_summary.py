@@ -1,0 +1,140 @@
+"""Page 1 (`report.summary`) and the verdict's checks (`report.tables.verdict_checks_section`) say
+what the run's verdict says: the same figures, every reason in full somewhere in the PDF."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from tests.report import synth
+from tpos_cli.report.build import build_context
+from tpos_cli.report.summary import _verdict_box, headline_rows
+from tpos_cli.report.tables import reason_lines, verdict_checks_section
+
+
+def _with_quality(run, quality: dict, results: dict | None = None):
+    s = json.loads((run / "summary.json").read_text())
+    s["quality"] = quality
+    if results is not None:
+        s["results"] = results
+    (run / "summary.json").write_text(json.dumps(s))
+    return run
+
+
+def _drive_run(tmp_path, quality: dict, results: dict | None = None):
+    s = synth.write_session(tmp_path / "s", movement=True)
+    t10 = np.arange(0.0, 20.0 + 1e-9, 0.1)
+    traj = synth.trajectory_rows("smoothed", t10, [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5))
+    return _with_quality(synth.write_run(tmp_path / "r", s, traj), quality, results)
+
+
+FLAGS = {"epochs": 2901, "flagged": 353, "fraction": 0.1217, "expected": 0.001, "level": "suspect"}
+
+
+def test_forward_backward_row_quotes_the_verdicts_flag_fraction(tmp_path):
+    # rtklibexplorer part 1 (session 7 audit): page 1 said "0.1 % of epochs apart by more than their
+    # 99 % bound" (horizontal only) beside a reason "disagree beyond their covariances at 12 % of
+    # epochs" (the whole state): page 1 now gives the verdict's own figure from summary.json
+    r = _drive_run(tmp_path, {"verdict": "suspect", "reasons": ["flags"], "checks": {"flags": FLAGS}})
+    rows = dict(headline_rows(build_context(r)))
+    assert rows["Forward/backward agreement"].startswith("12.2 % of epochs flagged")
+    assert "0.1 % expected)" in rows["Forward/backward agreement"]
+
+
+def test_without_the_flags_check_there_is_no_flag_row(tmp_path):
+    r = _drive_run(tmp_path, {"verdict": "ok", "reasons": [], "checks": {}})
+    assert not any("flagged" in v for _, v in headline_rows(build_context(r)))
+
+
+def test_every_reason_is_in_full_in_the_verdict_checks_when_page_1_cuts_them(tmp_path):
+    words = "the filter's sigmas are too small for this log so positions may be off by more than their sigmas"
+    reasons = [f"reason {i}: {words}; {words}" for i in range(4)]  # ~200 characters each, 2 lines each on page 1
+    q = {"verdict": "suspect", "reasons": reasons, "checks": {"flags": FLAGS}}
+    ctx = build_context(_drive_run(tmp_path, q))
+    fig = Figure()
+    _verdict_box(fig, ctx, 0.95)
+    box = next(t.get_text() for t in fig.texts if t.get_text().startswith("- reason 0"))
+    assert "reason 3" not in box  # page 1 has room for six lines: reasons 3 and 4 do not fit
+    assert box.splitlines()[-1].strip().startswith("... (2 more reasons and every reason in full")
+    sec = verdict_checks_section(ctx, only_failed=True)
+    assert sec is not None
+    text = " ".join(ln.strip() for ln in reason_lines(reasons))
+    for r in reasons:
+        assert f"- {r}" in text  # each reason whole, in order, no word lost to wrapping
+
+
+def test_reasons_without_a_failed_check_still_get_the_section(tmp_path):
+    q = {"verdict": "suspect", "reasons": ["a reason from a check that recorded no level"], "checks": {"x": {"n": 3}}}
+    sec = verdict_checks_section(build_context(_drive_run(tmp_path, q)), only_failed=True)
+    assert sec is not None and "reasons in full" in sec.subtitle
+
+
+def test_magnetometer_row_quotes_the_filters_rejections(tmp_path):
+    # BROAD trial 28 (session 7 audit): page 1 said "disturbed for 8 s" (its own |B| band) beside a
+    # verdict "rejected 59 % of its samples": page 1 now gives the filter's figure too
+    s = synth.write_session(tmp_path / "s", kind="target", truth=False)
+    traj = synth.trajectory_rows("fkf", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.0, 0.0, 0.0], sigma=(0.5, 0.5, 0.5))
+    rej = {"rejected": 30790, "samples": 52628, "fraction": 0.585, "level": "suspect"}
+    r = _with_quality(synth.write_run(tmp_path / "r", s, traj), {"verdict": "suspect", "reasons": ["m"],
+                                                                 "checks": {"magnetometer.rejected": rej}})
+    rows = dict(headline_rows(build_context(r)))
+    assert rows["Magnetometer in the filter"].startswith("58.5 % of its samples rejected")
+
+
+def test_output_on_the_gps_clock_is_said_when_scored_against_truth(tmp_path):
+    # comma2k19 (session 7 audit): the default run moves its output to the GPS clock (d = -0.109 s),
+    # truth.* is on the logger's: horizontal RMS 1.48 m against 0.55 m with the output left on the
+    # logger's clock, and nothing on the report said why. The synthetic run moves at 1 m/s north.
+    clk = {"estimate_s": -0.2, "sigma_s": 0.01, "velocity_estimate_s": -0.2, "velocity_sigma_s": 0.01, "output_clock": "gps"}
+    ctx = build_context(_drive_run(tmp_path, {"verdict": "ok", "reasons": [], "checks": {}}, {"gps_clock_offset": clk}))
+    (note,) = [n for n in ctx.notes if "GPS receiver's clock" in n]
+    assert "-0.200 s" in note and "1.0 m/s, 0.20 m along the track" in note and "clock_apply_sd=1e9" in note
+    assert dict(headline_rows(ctx))["Clocks"].startswith("output on the GPS clock (-0.200 s)")
+
+
+def test_output_on_the_logger_clock_gets_no_clock_note(tmp_path):
+    clk = {"estimate_s": -0.002, "sigma_s": 0.01, "velocity_estimate_s": 0.0, "velocity_sigma_s": 0.01, "output_clock": "imu"}
+    ctx = build_context(_drive_run(tmp_path, {"verdict": "ok", "reasons": [], "checks": {}}, {"gps_clock_offset": clk}))
+    assert not any("clock" in n for n in ctx.notes) and "Clocks" not in dict(headline_rows(ctx))
+
+
+def test_gps_row_says_which_outages_the_user_withheld(tmp_path):
+    # part 1 with two --mask-gps windows (session 7 audit): page 1 said "2 outages, longest 30 s", as if the
+    # receiver had lost them
+    s = synth.write_session(tmp_path / "s", movement=True, gps=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5))
+    r = synth.write_run(tmp_path / "r", s, traj, gps_outages=[[1002.0, 1004.0], [1010.0, 1013.0]], mask_gps=[[1010.0, 1013.0]])
+    rows = dict(headline_rows(build_context(r)))
+    assert "2 outages, longest 3 s" in rows["GPS"] and rows["Withheld with --mask-gps"] == "1 of the 2 outages above"
+    r2 = synth.write_run(tmp_path / "r2", s, traj, gps_outages=[[1002.0, 1004.0]])
+    assert "Withheld with --mask-gps" not in dict(headline_rows(build_context(r2)))
+
+
+def test_page_1_rows_keep_the_tables_font(tmp_path):
+    # the table shrinks its font to fit its longest value (layout.draw_table): the rows added in
+    # session 7 (flags, clocks, masks, magnetometer) must not make page 1 smaller to read
+    from tpos_cli.report import layout as L
+
+    clk = {"estimate_s": -0.1087, "sigma_s": 0.01, "velocity_estimate_s": -0.2, "velocity_sigma_s": 0.01, "output_clock": "gps"}
+    q = {"verdict": "suspect", "reasons": ["r"], "checks": {"flags": FLAGS, "magnetometer.rejected": {"fraction": 0.585}}}
+    s = synth.write_session(tmp_path / "s", movement=True, gps=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5))
+    r = _with_quality(synth.write_run(tmp_path / "r", s, traj, gps_outages=[[1010.0, 1013.0]], mask_gps=[[1010.0, 1013.0]]),
+                      q, {"gps_clock_offset": clk, "gps_fixes": 5})
+    qc = synth.write_session(tmp_path / "qc", movement=True, gps=True, truth=False)  # no truth: agreement with the fixes
+    tgt = synth.write_session(tmp_path / "tgt", kind="target", truth=False)
+    runs = {
+        "drive": r,
+        "qc": synth.write_run(tmp_path / "r_qc", qc, traj),
+        "target": _with_quality(synth.write_run(tmp_path / "r_tgt", tgt, traj.assign(solution="fkf")), q),
+    }
+    for name, run in runs.items():
+        rows = headline_rows(build_context(run))
+        fig = Figure(figsize=L.A4_IN)
+        cols = [L.Column("", [k for k, _ in rows], align="left"), L.Column("", [v for _, v in rows], align="left")]
+        L.draw_table(fig, 0.9, cols, fontsize=7.8, header=False)
+        assert {t.get_fontsize() for t in fig.texts} == {7.8}, (name, [v for _, v in rows if len(v) > 60])
+    keys = {k for k, _ in headline_rows(build_context(r))}
+    assert {"Forward/backward agreement", "Withheld with --mask-gps", "Clocks"} <= keys
