@@ -538,3 +538,13 @@ def test_a_session_list_that_includes_itself_is_refused(tmp_path, cli, monkeypat
     r = cli("fifo.txt", "--out", "o")
     assert r.exit_code == 2 and "regular file" in r.output
     assert not (tmp_path / "o").exists()
+
+
+def test_an_output_root_inside_a_session_is_refused(tmp_path):
+    """Runs never go into their input: a root inside (or equal to) a session directory is exit 2."""
+    ses = tmp_path / "logs" / "a"
+    ses.mkdir(parents=True)
+    for root in (ses / "runs", ses):
+        with pytest.raises(InvalidInputError, match="inside the session directory"):
+            b.plan_batch([ses], root)
+    assert len(b.plan_batch([ses], tmp_path / "runs")) == 1

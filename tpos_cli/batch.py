@@ -230,8 +230,9 @@ def plan_batch(
 
     A pipeline given as a file path is made absolute (workers may run elsewhere). Each task carries
     its session's row of the root's earlier `batch.json` (to keep the figures of an unchanged run).
-    Raises `InvalidInputError` when two sessions share a directory name (their runs would collide)
-    or the time limit is negative or not finite (0 or None: no limit).
+    Raises `InvalidInputError` when two sessions share a directory name (their runs would collide),
+    when the root lies inside a session (its runs would be written into their input) or the time
+    limit is negative or not finite (0 or None: no limit).
     """
     if timeout_s is not None and not (math.isfinite(timeout_s) and timeout_s >= 0):
         raise InvalidInputError(f"--timeout must be a number of seconds >= 0 (0: no limit), got {timeout_s}")
@@ -250,6 +251,9 @@ def plan_batch(
                 f"both would be written to {root / s.name}"
             )
         by_name[s.name] = s
+        if root == s or root.is_relative_to(s):
+            raise InvalidInputError(f"--out {out_root}: inside the session directory {s}; outputs never go into their "
+                                    "input: choose a directory outside it")
         prev = previous.get(s.name)
         if prev is not None and prev.get("run_dir") != str(root / s.name):
             prev = None
