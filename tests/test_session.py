@@ -177,3 +177,19 @@ def test_session_without_its_imu_and_the_imu_loaded_later(tmp_path, fmt):
     for a in ("t_s", "gyro_b_rps", "acc_b_mps2"):
         np.testing.assert_array_equal(getattr(imu, a), getattr(full.imu, a))
     assert load_imu(full) is full.imu
+
+
+def test_unknown_session_toml_keys_are_warned_with_a_suggestion(tmp_path):
+    """The contract ignores keys it does not define, but a misspelt one would silently lose its
+    setting: each unknown section or key is a warning naming it, with the nearest known name."""
+    import shutil
+
+    d = tmp_path / "s"
+    shutil.copytree(Path(__file__).parent.parent / "sample_logs" / "drive_outage", d)
+    toml = (d / "session.toml").read_text()
+    (d / "session.toml").write_text(toml.replace("[imu]\n", "[imu]\ngyro_noise_dsp = 0.1\n") + "\n[imu2]\nfoo = 1\n")
+    w = load_session(d, with_imu=False).warnings
+    assert "session.toml: [imu] gyro_noise_dsp: unknown key, ignored (did you mean gyro_noise_dps?)" in w
+    assert "session.toml: [imu2]: unknown section, ignored (did you mean [imu]?)" in w
+    assert not [x for x in load_session(Path(__file__).parent.parent / "sample_logs" / "drive_outage", with_imu=False).warnings
+                if "unknown" in x]

@@ -288,6 +288,36 @@ def _lla_section(c: _Collector, raw: dict, name: str) -> np.ndarray | None:
     return np.array(vals)
 
 
+def _known_keys() -> dict[str, tuple[str, ...]]:
+    """The keys session.toml's sections hold (the contract's and tpos's extensions), for `_unknown_keys`."""
+    lla = ("lat", "lon", "h")
+    return {"session": ("name", "kind", "start_utc"),
+            "imu": ("axes", "rate_hz", "mounting_rpy_deg", *ImuNoise.__dataclass_fields__),
+            "rangefinders": ("baseline_12_m", "baseline_13_m", "sigma_m"),
+            "magnetic": ("declination_deg", "hard_iron_ut", "soft_iron"),
+            "gps": ("lever_arm_m",), "observer": lla, "local": lla,
+            "time": tuple(f"{t}_offset_s" for t in (*schema.TABLES_ANY_FORMAT, *schema.TABLES_CSV_ONLY))}
+
+
+def _unknown_keys(raw: dict) -> list[str]:
+    """One warning per section or key of session.toml that tpos does not read: the contract ignores
+    them, but a misspelt key (`gyro_noise_dsp`) would silently lose its setting."""
+    import difflib
+
+    known = _known_keys()
+    out = []
+    for sec, val in raw.items():
+        if sec not in known:
+            near = difflib.get_close_matches(sec, list(known), n=1)
+            out.append(f"session.toml: [{sec}]: unknown section, ignored" + (f" (did you mean [{near[0]}]?)" if near else ""))
+            continue
+        for key in val if isinstance(val, dict) else ():
+            if key not in known[sec]:
+                near = difflib.get_close_matches(key, known[sec], n=1)
+                out.append(f"session.toml: [{sec}] {key}: unknown key, ignored" + (f" (did you mean {near[0]}?)" if near else ""))
+    return out
+
+
 def _parse_meta(c: _Collector) -> SessionMeta | None:
     path = c.dir / "session.toml"
     if not path.exists():
@@ -307,6 +337,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
             c.problem("session.toml", f"{sec} must be a table ([{sec}] with keys), got {type(raw[sec]).__name__} {raw[sec]!r:.40}")
     if len(c.problems) > n0:
         return None
+    c.warnings.extend(_unknown_keys(raw))
     s, imu = raw["session"], raw["imu"]
     name = str(s.get("name", c.dir.name))
     kind = s.get("kind")

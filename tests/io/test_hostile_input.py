@@ -286,6 +286,15 @@ def test_pipeline_name_with_a_path_never_escapes_runs(tmp_path, monkeypatch):
     assert (victim / "summary.json").read_text() == "{}" and sorted(p.name for p in victim.iterdir()) == ["summary.json"]
 
 
+def test_a_run_directory_inside_the_session_is_refused_before_the_work(tmp_path):
+    """Outputs never go into their input: `-o` inside the session directory is exit 2, nothing written."""
+    s = write_minimal_session(tmp_path / "s")
+    before = sorted(p.name for p in s.iterdir())
+    res = runner.invoke(app, ["process", str(s), "-p", "ingest", "-o", str(s / "run")])
+    assert res.exit_code == 2 and "inside the session directory" in res.output, res.output
+    assert sorted(p.name for p in s.iterdir()) == before
+
+
 # ------------------------------------------------------------------ outputs that cannot be written
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")

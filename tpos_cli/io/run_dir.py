@@ -49,6 +49,9 @@ def check_run_dir(run_dir: Path, session_dir: Path) -> Path:
     run_dir = run_dir.resolve()
     if run_dir == session_dir or session_dir.is_relative_to(run_dir):
         raise InvalidInputError(f"run directory {run_dir} would overwrite the session's input files; choose another -o")
+    if run_dir.is_relative_to(session_dir):
+        raise InvalidInputError(f"run directory {run_dir} is inside the session directory {session_dir}: outputs never go "
+                                "into their input; choose an -o outside it (or run from outside it: runs/ is made there)")
     if run_dir.exists() and not run_dir.is_dir():
         raise InvalidInputError(f"run directory {run_dir} exists and is not a directory")
     if run_dir.exists() and any(run_dir.iterdir()) and not (run_dir / "summary.json").exists():
