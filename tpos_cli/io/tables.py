@@ -120,21 +120,24 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
     (index, dtypes) is ignored: a damaged one cannot matter, the columns are all tpos reads."""
     try:
         pf = pq.ParquetFile(path)  # one open for footer, schema and columns (pq.read_table: a dataset, three opens)
-        meta = pf.metadata
-        names = pf.schema_arrow.names
     except (pa.ArrowException, OSError, ValueError) as exc:
         _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
-    if meta.num_rows > MAX_TABLE_ROWS:
-        _fail(path, f"{meta.num_rows} rows is more than the {MAX_TABLE_ROWS}-row limit for a table")
-    if meta.num_columns > MAX_TABLE_COLUMNS:
-        _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
-    columns = [c for c in names if c in wanted]
-    try:
-        with pf:
+    with pf:  # closed on every path, the refusals below included
+        try:
+            meta = pf.metadata
+            names = pf.schema_arrow.names
+        except (pa.ArrowException, OSError, ValueError) as exc:
+            _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
+        if meta.num_rows > MAX_TABLE_ROWS:
+            _fail(path, f"{meta.num_rows} rows is more than the {MAX_TABLE_ROWS}-row limit for a table")
+        if meta.num_columns > MAX_TABLE_COLUMNS:
+            _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
+        columns = [c for c in names if c in wanted]
+        try:
             table = pf.read(columns=columns)
-        df = table.to_pandas(ignore_metadata=True)
-    except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
-        _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
+            df = table.to_pandas(ignore_metadata=True)
+        except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
+            _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
     del table
     # pyarrow's memory pool keeps the decoded buffers otherwise (an hour's drive: RSS 497 -> 399 MB after ingest)
     pa.default_memory_pool().release_unused()
