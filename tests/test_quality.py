@@ -381,3 +381,12 @@ def test_clock_state_suggests_one_offset_only_when_positions_and_velocities_agre
     assert "suggested_gps_offset_s" not in f.figures
     (f,) = clock_state_finding({**split, "output_clock": "imu"}, 0.0, {})
     assert f.level == "ok"
+    # the real walk: positions 0.028 s early (under CLOCK_MIN_S), velocities 0.099 s late (backward
+    # differences of 4 Hz fixes): the velocities are named, with nothing to set
+    walk = {"estimate_s": 0.0284, "sigma_s": 0.0046, "velocity_estimate_s": -0.0989, "velocity_sigma_s": 0.0046,
+            "output_clock": "gps"}
+    (f,) = clock_state_finding(walk, 0.0, {})
+    assert f.level == "suspect" and "velocities are time-stamped 0.099 ± 0.005 s late" in f.reason
+    assert "set [time]" not in f.reason and "suggested_gps_offset_s" not in f.figures
+    (f,) = clock_state_finding({**walk, "velocity_estimate_s": -0.03}, 0.0, {})  # under CLOCK_MIN_S: nothing to say
+    assert f.level == "ok"

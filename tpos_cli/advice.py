@@ -230,15 +230,25 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
     gps_offset_s moves the fixes' positions and velocities together: the positions' offset is
     suggested unless it would leave the velocities further off than they are (by more than CLOCK_Z
     SDs of the two offsets' difference); a receiver whose positions are early and velocities on
-    time is told so, with nothing to set (the filter's two clock states take each)."""
+    time is told so, with nothing to set (the filter's two clock states take each); so is one whose
+    velocities alone are off (a receiver that differences its fixes gives velocities half a fix
+    interval late), when that offset is at least CLOCK_MIN_S and CLOCK_Z of its SDs."""
     d, sd = float(state["estimate_s"]), float(state["sigma_s"])
     fig = {**fig, "filter_estimate_s": d, "filter_sigma_s": sd}
+    dv, sdv = state.get("velocity_estimate_s"), state.get("velocity_sigma_s")
     if state.get("output_clock") != "gps" or abs(d) < conventions.CLOCK_MIN_S:
-        return [Finding("clock", "ok", None, fig)]
+        if dv is None or sdv is None or abs(float(dv)) < conventions.CLOCK_MIN_S or abs(float(dv)) <= CLOCK_Z * float(sdv):
+            return [Finding("clock", "ok", None, fig)]
+        fig["velocity_estimate_s"] = float(dv)
+        return [Finding("clock", "suspect",
+                        f"gps/imu: the GPS velocities are time-stamped {abs(float(dv)):.3f} ± {float(sdv):.3f} s "
+                        f"{'late' if dv < 0 else 'early'} against the IMU, their positions {abs(d):.3f} ± {sd:.3f} s "
+                        f"{'late' if d < 0 else 'early'} (estimated by the filter): one [time] gps_offset_s cannot put "
+                        "both right; the filter's clock states took each (velocities that are differences of the "
+                        "fixes are half a fix interval late)", fig)]
     late = "late" if d < 0 else "early"
     said = (f"gps/imu: the GPS positions are time-stamped {abs(d):.3f} ± {sd:.3f} s {late} against the IMU "
             "(estimated by the filter, whose output is on the GPS clock)")
-    dv, sdv = state.get("velocity_estimate_s"), state.get("velocity_sigma_s")
     if dv is not None and sdv is not None and abs(float(dv) - d) > abs(float(dv)) + CLOCK_Z * float(np.hypot(sd, sdv)):
         fig["velocity_estimate_s"] = float(dv)
         return [Finding("clock", "suspect",

@@ -364,8 +364,10 @@ def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
         return []
     late = "late" if off.offset_s < 0 else "early"
     return [f"gps/imu: GPS velocity changes are time-stamped {abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s {late} against the IMU "
-            f"({' and '.join(off.channels)} from {off.n_used} GPS windows): a GPS clock offset? `tpos process` tries "
-            f"[time] gps_offset_s = {f.figures['suggest_gps_offset_s']:.3f} and suggests it if the GPS then fits better"]
+            f"({' and '.join(off.channels)} from {off.n_used} GPS windows): a GPS clock offset? `tpos process` checks: "
+            "the drive pipeline estimates the positions' and velocities' offsets as filter states and names them when "
+            f"they matter; others try [time] gps_offset_s = {f.figures['suggest_gps_offset_s']:.3f} and suggest it if "
+            "the GPS then fits better"]
 
 
 def _current_gps_offset(session) -> float:
