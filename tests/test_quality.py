@@ -390,3 +390,7 @@ def test_clock_state_suggests_one_offset_only_when_positions_and_velocities_agre
     assert "set [time]" not in f.reason and "suggested_gps_offset_s" not in f.figures
     (f,) = clock_state_finding({**walk, "velocity_estimate_s": -0.03}, 0.0, {})  # under CLOCK_MIN_S: nothing to say
     assert f.level == "ok"
+    # comma2k19 with its output kept on the logger clock: both late (0.095, 0.150 s), one offset serves both
+    comma = {"estimate_s": -0.095, "sigma_s": 0.018, "velocity_estimate_s": -0.150, "velocity_sigma_s": 0.017,
+             "output_clock": "imu"}
+    assert clock_state_finding(comma, 0.0, {})[0].level == "ok"

@@ -232,12 +232,14 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
     SDs of the two offsets' difference); a receiver whose positions are early and velocities on
     time is told so, with nothing to set (the filter's two clock states take each); so is one whose
     velocities alone are off (a receiver that differences its fixes gives velocities half a fix
-    interval late), when that offset is at least CLOCK_MIN_S and CLOCK_Z of its SDs."""
+    interval late), when the positions' offset is under CLOCK_MIN_S and the velocities' is at least
+    CLOCK_MIN_S and further from it than CLOCK_Z SDs of the two offsets' difference."""
     d, sd = float(state["estimate_s"]), float(state["sigma_s"])
     fig = {**fig, "filter_estimate_s": d, "filter_sigma_s": sd}
     dv, sdv = state.get("velocity_estimate_s"), state.get("velocity_sigma_s")
     if state.get("output_clock") != "gps" or abs(d) < conventions.CLOCK_MIN_S:
-        if dv is None or sdv is None or abs(float(dv)) < conventions.CLOCK_MIN_S or abs(float(dv)) <= CLOCK_Z * float(sdv):
+        if (abs(d) >= conventions.CLOCK_MIN_S or dv is None or sdv is None or abs(float(dv)) < conventions.CLOCK_MIN_S
+                or abs(float(dv) - d) <= abs(d) + CLOCK_Z * float(np.hypot(sd, sdv))):
             return [Finding("clock", "ok", None, fig)]
         fig["velocity_estimate_s"] = float(dv)
         return [Finding("clock", "suspect",
