@@ -47,3 +47,37 @@ def test_calibrated_copy_keeps_the_session_toml_as_written(tmp_path):
     assert doc["session"]["start_utc"].year == 2015
     assert doc["magnetic"]["hard_iron_ut"] == [1.0, 2.0, 3.0]
     assert (tmp_path / "out" / "imu.csv").exists()
+
+
+def test_field_profile_shows_a_magnet_attached_for_part_of_the_log():
+    """One field keeps its magnitude range in every stretch of the log; a magnet carried for the middle
+    third (BROAD trial 33: |m| 18-63 µT then, 43-46 µT before and after) widens that stretch alone."""
+    from tpos_cli.magcal import field_profile
+
+    F = 50.0
+    R = Rotation.random(3000, random_state=2).as_matrix()
+    m = np.einsum("nji,j->ni", R, np.array([20.0, 0.0, np.sqrt(F**2 - 400.0)]))
+    m[1000:2000] += [25.0, 0.0, 0.0]  # a magnet fixed in the body
+    prof = field_profile(np.arange(3000) / 10.0, m)
+    ranges = [tuple(int(v) for v in part.split(" s ")[1].replace(" µT", "").split("-")) for part in prof.split(", ")]
+    assert ranges[0] == ranges[2] == (50, 50) and ranges[1][1] - ranges[1][0] > 30, prof
+
+
+def test_a_failed_fit_says_how_the_field_changed_along_the_log(tmp_path):
+    """When the samples do not outline an ellipsoid, the error gives the field's magnitude per stretch
+    and the --window remedy (a log holding two fields cannot be fitted whole)."""
+    import pandas as pd
+    import pytest
+
+    from tests.helpers.sessions import write_minimal_session
+    from tpos_cli.errors import ProcessingError
+    from tpos_cli.magcal import calibrate_session
+
+    s = write_minimal_session(tmp_path / "s", seconds=30.0, with_gps=False)
+    imu = pd.read_csv(s / "imu.csv")
+    # samples along one line (no ellipsoid can be fitted): |m| 67 -> 45 -> 67 µT along the log
+    imu["mag_x"], imu["mag_y"], imu["mag_z"] = np.linspace(-50.0, 50.0, len(imu)), 0.0, 45.0
+    imu.to_csv(s / "imu.csv", index=False)
+    with pytest.raises(ProcessingError, match=r"do not outline an ellipsoid.*field's magnitude along the log \(5-95 %\): "
+                                              r"1000-1010 s 4\d-6\d µT, 1010-1020 s 45-4\d µT, 1020-1030 s 4\d-6\d µT: .*--window T0:T1"):
+        calibrate_session(s)

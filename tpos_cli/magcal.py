@@ -71,6 +71,25 @@ def fit_ellipsoid(mag_ut, field_ut: float | None = None) -> MagCalibration:
     return MagCalibration(b_ut, S, F, float(np.std(nrm - F)), float(np.std(np.linalg.norm(m, axis=1))), float(ev[0] / ev[-1]))
 
 
+def field_profile(t_s, mag_ut, parts: int = 3) -> str:
+    """The field magnitude |m| (5-95 % range, µT) over `parts` equal stretches of the samples (t_s on
+    the logger clock): one field, whatever the device's attitude and its own iron, keeps the same
+    range in each; a magnet attached for part of a log does not."""
+    t = np.asarray(t_s, float)
+    nrm = np.linalg.norm(np.asarray(mag_ut, float), axis=1)
+    ok = np.isfinite(nrm) & np.isfinite(t)
+    t, nrm = t[ok], nrm[ok]
+    if t.size < parts:
+        return "too few samples"
+    edges = np.linspace(t[0], t[-1], parts + 1)
+    out = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = (t >= a) & (t <= b)
+        lo, hi = np.percentile(nrm[sel], [5, 95])
+        out.append(f"{a:.0f}-{b:.0f} s {lo:.0f}-{hi:.0f} µT")
+    return ", ".join(out)
+
+
 def calibrate_session(session_dir, window=None):
     """(MagCalibration, note) from a session's magnetometer, in its logged axes, undoing any calibration it has."""
     from tpos_cli.errors import InvalidInputError
@@ -98,7 +117,14 @@ def calibrate_session(session_dir, window=None):
 
         field = float(np.linalg.norm(field_ned_ut(pos, s.meta.start_utc or datetime(2020, 1, 1))))
         src = "the IGRF field at the session position"
-    cal = fit_ellipsoid(m_s, field)
+    try:
+        cal = fit_ellipsoid(m_s, field)
+    except ProcessingError as exc:
+        raise ProcessingError(
+            f"{exc}; the field's magnitude along the {'window' if window is not None else 'log'} (5-95 %): "
+            f"{field_profile(t[sel], m_s)}: if it changes from one stretch to the next, the samples hold more than one "
+            "field (a magnet attached for part of the log?): calibrate one stretch where the device turns in one "
+            "field, with --window T0:T1") from None
     note = (f"{int(sel.sum())} samples; |m| SD {cal.raw_norm_sd_ut:.2f} µT raw -> {cal.residual_sd_ut:.2f} µT calibrated; "
             f"scaled to {cal.field_ut:.1f} µT ({src}); orientation coverage {cal.coverage:.2f} (1 = all directions)")
     if cal.coverage < 0.1:
