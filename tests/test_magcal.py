@@ -81,3 +81,15 @@ def test_a_failed_fit_says_how_the_field_changed_along_the_log(tmp_path):
     with pytest.raises(ProcessingError, match=r"do not outline an ellipsoid.*field's magnitude along the log \(5-95 %\): "
                                               r"1000-1010 s 4\d-6\d µT, 1010-1020 s 45-4\d µT, 1020-1030 s 4\d-6\d µT: .*--window T0:T1"):
         calibrate_session(s)
+
+
+def test_samples_that_do_not_surround_the_centre_are_refused():
+    """A magnetometer swept along a line (or an arc) can admit an ellipsoid far from every sample
+    (centre 111 µT away, |m| <= 67 µT, "field" 1e7 µT): the fit is refused, not written with a warning."""
+    import pytest
+
+    from tpos_cli.errors import ProcessingError
+
+    m = np.column_stack([np.linspace(0.0, 50.0, 3000), np.zeros(3000), np.full(3000, 45.0)])
+    with pytest.raises(ProcessingError, match="do not surround the fitted centre"):
+        fit_ellipsoid(m)

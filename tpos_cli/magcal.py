@@ -58,6 +58,12 @@ def fit_ellipsoid(mag_ut, field_ut: float | None = None) -> MagCalibration:
         raise ProcessingError("calibrate-mag: the samples do not outline an ellipsoid (rotate the device through many orientations)")
     center = -np.linalg.solve(M, np.array([p, q, r]))
     k = 1.0 + center @ M @ center  # (m-b)^T M (m-b) = k
+    lo, hi = m.min(axis=0) / scale, m.max(axis=0) / scale
+    if not (k > 0 and np.all((center >= lo) & (center <= hi))):
+        # samples that turn through enough orientations surround the ellipsoid's centre: a centre
+        # outside their range on an axis is a quadric fitted to an arc or a line (a degenerate fit)
+        raise ProcessingError("calibrate-mag: the samples do not surround the fitted centre (hard iron): they cover too "
+                              "few orientations to outline an ellipsoid (rotate the device through many orientations)")
     S_unit = V @ np.diag(np.sqrt(w / k)) @ V.T  # |S_unit (m - b)| = 1 (scaled units)
     b_ut = center * scale
     S_unit = S_unit / scale
