@@ -936,7 +936,12 @@ def load_imu(session: Session) -> ImuData:
     if c.problems or imu is None:
         _raise(c)
     t, gyro_b, acc_b, mag_b, _ = imu
-    return ImuData(t_s=t - session.t0_s, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
+    return _imu_data(t - session.t0_s, gyro_b, acc_b, mag_b)
+
+
+def _imu_data(t_rel_s, gyro_b, acc_b, mag_b) -> ImuData:
+    """`ImuData` of `_load_imu`'s columns (contiguous, as the kernels read them), t relative to t0."""
+    return ImuData(t_s=t_rel_s, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
                    mag_b_ut=None if mag_b is None else np.ascontiguousarray(mag_b))
 
 
@@ -983,8 +988,7 @@ def load_session(path: str | Path, *, with_truth: bool = True, with_imu: bool = 
     hashes = session_file_hashes(session_dir)
     return Session(
         path=session_dir.resolve(), meta=meta, t0_s=t0,
-        imu=None if gyro_b is None else ImuData(t_s=t_rel, gyro_b_rps=np.ascontiguousarray(gyro_b), acc_b_mps2=np.ascontiguousarray(acc_b),
-                    mag_b_ut=None if mag_b is None else np.ascontiguousarray(mag_b)),
+        imu=None if gyro_b is None else _imu_data(t_rel, gyro_b, acc_b, mag_b),
         gps=gps, ranges=ranges, anchors=anchors, anchor_ranges=anchor_ranges, range_calibration=range_cal,
         targets=targets, shots=shots, truth=truth, gps_outages_s=outages, imu_gaps_s=gaps - t0,
         counts=dict(c.counts), warnings=tuple(c.warnings), file_hashes=hashes, odometry=odometry,
