@@ -86,15 +86,25 @@ def _static_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     return rows
 
 
-def _mag_rejected(ctx: ReportContext) -> float | None:
-    """Share of magnetometer samples the attitude filter rejected (`quality.checks["magnetometer.rejected"]`)."""
+def _verdict_check(ctx: ReportContext, key: str, fields: tuple[str, ...]) -> dict | None:
+    """The figures `fields` of the verdict's check `key` (`quality.checks` in summary.json) as
+    floats, None when the run has no such check, a field is missing or not a number, or the first
+    one is not finite (what page 1 quotes must be the figure the verdict's reason gives)."""
     checks = (ctx.verdict or {}).get("checks")
-    c = checks.get("magnetometer.rejected") if isinstance(checks, dict) else None
+    c = checks.get(key) if isinstance(checks, dict) else None
+    if not isinstance(c, dict):
+        return None
     try:
-        v = float(c["fraction"]) if isinstance(c, dict) else None
+        fig = {f: float(c[f]) for f in fields}
     except (KeyError, TypeError, ValueError):
         return None
-    return v if v is not None and np.isfinite(v) else None
+    return fig if np.isfinite(fig[fields[0]]) else None
+
+
+def _mag_rejected(ctx: ReportContext) -> float | None:
+    """Share of magnetometer samples the attitude filter rejected (`quality.checks["magnetometer.rejected"]`)."""
+    fig = _verdict_check(ctx, "magnetometer.rejected", ("fraction",))
+    return None if fig is None else fig["fraction"]
 
 
 def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
@@ -122,15 +132,7 @@ def _flags_check(ctx: ReportContext) -> dict | None:
     """The verdict's forward/backward check (`quality.checks.flags` in summary.json: epochs whose
     whole navigation state the two runs disagree on beyond its chi-square bound), when the run has
     it; page 1 quotes it so that its figure is the one the verdict's reason gives."""
-    checks = (ctx.verdict or {}).get("checks")
-    f = checks.get("flags") if isinstance(checks, dict) else None
-    if not isinstance(f, dict):
-        return None
-    try:
-        fig = {"fraction": float(f["fraction"]), "expected": float(f["expected"])}
-    except (KeyError, TypeError, ValueError):
-        return None
-    return fig if np.isfinite(fig["fraction"]) else None
+    return _verdict_check(ctx, "flags", ("fraction", "expected"))
 
 
 def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
