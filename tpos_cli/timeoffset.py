@@ -48,20 +48,21 @@ def _lowpass(x: np.ndarray, n: int, step: int = 1) -> np.ndarray:
     slices of c, only the ends gather."""
     N = x.shape[0]
     c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
-    if step > 1:
-        i = np.arange(0, N, step)
+
+    def means(i):  # the window means at rows i, gathered
         lo = np.clip(i - n // 2, 0, N)
         hi = np.clip(i - n // 2 + n, 0, N)
         return (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+
+    if step > 1:
+        return means(np.arange(0, N, step))
     out = np.empty(c.shape)[:N]
     a, b = n // 2, N - n + n // 2 + 1  # rows a..b-1: the whole window inside
     if b > a:
         np.subtract(c[n:], c[: N - n + 1], out=out[a:b])
         out[a:b] /= n
     i = np.concatenate([np.arange(min(a, N)), np.arange(max(a, b), N)])
-    lo = np.clip(i - n // 2, 0, N)
-    hi = np.clip(i - n // 2 + n, 0, N)
-    out[i] = (c[hi] - c[lo]) / (hi - lo).reshape((-1,) + (1,) * (x.ndim - 1))
+    out[i] = means(i)
     return out
 
 
