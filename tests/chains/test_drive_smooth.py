@@ -327,3 +327,43 @@ def test_a_lever_arm_the_session_does_not_state_is_estimated(tmp_path):
     sd = s[["sigma_n", "sigma_e"]].to_numpy()
     k = t > 30.0  # after the yaw search
     assert np.mean(np.abs(e[k]) < 2.0 * sd[k]) >= 0.90
+
+
+def test_fixes_without_sds_carry_their_stated_accuracy_in_the_sigmas(tmp_path, monkeypatch):
+    """A receiver that logs no SDs and whose fixes wander (0.2 m white, 1 m common over 300 s): the
+    reported position SDs add what the stated accuracy leaves beyond the matched white part, and
+    no estimate moves (`drive_smooth.considered_fix_error`)."""
+    import tpos_cli.chains.drive_smooth as ds
+    from tpos_cli.config import DriveSmoothParams
+    from tpos_cli.session import load_session
+
+    sim = simulate_drive(240.0, seed=11, outages=((120.0, 30.0),), gps_sigma_h_m=0.2, gps_sigma_v_m=0.3,
+                         gps_correlated_sigma_neu_m=(1.0, 1.0, 1.5), gps_correlated_tau_s=300.0)
+    path = sim.write(tmp_path / "s")
+    f = next(path.glob("gps.*"))
+    d = pd.read_parquet(f) if f.suffix == ".parquet" else pd.read_csv(f)
+    d = d.drop(columns=["sigma_n", "sigma_e", "sigma_u"])
+    d.to_parquet(f, index=False) if f.suffix == ".parquet" else d.to_csv(f, index=False)
+    session = load_session(path)
+    p = DriveSmoothParams(gps_sigma_h_m=float(np.hypot(0.2, 1.0)), gps_sigma_v_m=float(np.hypot(0.3, 1.5)))
+    res = ds.process_drive(session, p, None, names=("smoothed",))
+    c = res.info["gps_considered_error"]
+    white = ds.median_sigmas(res.fixes)
+    assert c["sigma_h_m"] == pytest.approx(np.sqrt(p.gps_sigma_h_m**2 - white[0] ** 2), abs=1e-4)
+    assert c["sigma_v_m"] == pytest.approx(np.sqrt(p.gps_sigma_v_m**2 - white[1] ** 2), abs=1e-4)
+    monkeypatch.setattr(ds, "considered_fix_error", lambda *a: None)
+    base = ds.process_drive(session, p, None, names=("smoothed",)).solutions["smoothed"]
+    sol = res.solutions["smoothed"]
+    np.testing.assert_array_equal(sol.nav, base.nav)
+    added = np.diagonal(sol.P9, axis1=1, axis2=2)[:, :3] - np.diagonal(base.P9, axis1=1, axis2=2)[:, :3]
+    np.testing.assert_allclose(added, np.broadcast_to([c["sigma_h_m"] ** 2] * 2 + [c["sigma_v_m"] ** 2], added.shape),
+                               rtol=1e-3)
+    # the common error is one draw per axis over this log: its 3-sigma bound holds with probability
+    # 0.997 per axis; the white-only SDs (0.2 m) do not cover a 1 m wander
+    e = sim.truth.navigation_errors(sol.idx, sol.nav, sol.C_nb)[:, :3]
+    t = sim.truth.t_s[sol.idx]
+    out = (t > 30.0) & ((t < 120.0) | (t >= 150.0))
+    sd = np.sqrt(np.diagonal(sol.P9, axis1=1, axis2=2)[:, :3])
+    sd0 = np.sqrt(np.diagonal(base.P9, axis1=1, axis2=2)[:, :3])
+    assert np.mean(np.abs(e[out]) < 3.0 * sd[out]) > 0.99
+    assert np.mean(np.abs(e[out]) < 3.0 * sd0[out]) < 0.5

@@ -129,3 +129,12 @@ def test_error_states_make_the_sigmas_cover_correlated_gps(correlated_runs):
     for key in ("in", "out"):
         rms = {m: np.sqrt(np.mean(acc[m][key])) for m in acc}
         assert rms["gauss_markov"] < rms["white"], (key, rms)
+
+
+def test_unmodelled_error_is_what_the_stated_accuracy_leaves():
+    """sigma_c^2 = stated^2 - white^2 - gm^2, and never negative (`unmodelled_error_sd_m`)."""
+    from tpos_cli.fusion.gps_error import unmodelled_error_sd_m
+
+    sd = unmodelled_error_sd_m([1.5, 2.5], [0.3, 0.4], [0.4, 0.0])
+    np.testing.assert_allclose(sd, [np.sqrt(1.5**2 - 0.3**2 - 0.4**2), np.sqrt(2.5**2 - 0.4**2)], rtol=1e-12)
+    np.testing.assert_array_equal(unmodelled_error_sd_m([1.0, 1.0], [1.2, 1.0]), [0.0, 0.0])

@@ -34,7 +34,7 @@ from tpos_cli.fusion.constraints import (
     travel_direction,
 )
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
-from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error
+from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error, unmodelled_error_sd_m
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
@@ -394,6 +394,37 @@ def at_stated_lever_arm(sol: Solution, cfg: FilterConfig) -> Solution:
     return Solution(sol.name, sol.idx, at_stated_point(sol.nav, sol.C_nb, dl_b), sol.C_nb, sol.P9, sol.bias)
 
 
+def considered_fix_error(p: DriveSmoothParams, fixes: GpsFixes, info: dict) -> np.ndarray | None:
+    """(3,) variance (m^2, NED) of the fixes' error the filter does not model, for the axes whose SDs
+    come from the pipeline's stated accuracy (the log gives none): `gps_sigma_h_m` / `gps_sigma_v_m`
+    less the matched white SD and the error states' SD (`fusion.gps_error.unmodelled_error_sd_m`).
+    None when nothing is left or the receiver states its own SDs (those are its whole error).
+    Records it in `info["gps_considered_error"]`."""
+    white = median_sigmas(fixes)
+    gm = info.get("gps_error_states", {})
+    sd = unmodelled_error_sd_m([p.gps_sigma_h_m, p.gps_sigma_v_m], white[:2],
+                               [gm.get("sigma_h_m", 0.0), gm.get("sigma_v_m", 0.0)])
+    sd = np.where(np.asarray(fixes.from_receiver[:2], dtype=bool), 0.0, sd)
+    if not np.any(sd > 0):
+        return None
+    info["gps_considered_error"] = {
+        "method": "the log gives no position SDs: the part of the stated accuracy (gps_sigma_h_m, gps_sigma_v_m) that "
+                  "the fix-to-fix scatter does not show is common to neighbouring fixes; it is added to every reported "
+                  "position SD and moves no estimate (fusion.gps_error.unmodelled_error_sd_m)",
+        "sigma_h_m": round(float(sd[0]), 4), "sigma_v_m": round(float(sd[1]), 4),
+        "white_h_m": round(float(white[0]), 3), "white_v_m": round(float(white[1]), 3)}
+    return np.array([sd[0], sd[0], sd[1]]) ** 2
+
+
+def with_considered_error(sol: Solution, var_ned_m2) -> Solution:
+    """`sol` with `var_ned_m2` (3,) added to its position variances (`considered_fix_error`)."""
+    if var_ned_m2 is None:
+        return sol
+    P9 = sol.P9.copy()
+    P9[:, (0, 1, 2), (0, 1, 2)] += var_ned_m2
+    return Solution(sol.name, sol.idx, sol.nav, sol.C_nb, P9, sol.bias)
+
+
 def nhc_start_s(info: dict) -> float:
     """Session time from which NHC rows apply: a yaw the search had to pick over the course may be
     tens of degrees off until the GPS has turned it, so NHC waits for the end of the search then
@@ -581,7 +612,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols, cfg.C_vb)
-    sols = {k: at_stated_lever_arm(v, cfg) for k, v in sols.items()}
+    considered = considered_fix_error(p, fixes, info)
+    sols = {k: with_considered_error(at_stated_lever_arm(v, cfg), considered) for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
                        mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True)), C_vb)
@@ -678,6 +710,12 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
             rejected[f"{run_name}_{kind}"] = n_rej
             ctx.count(f"{kind}_rejected_{run_name}", n_rej)
     ctx.count("flagged_rows", int(res.flag.sum()))
+    ce = res.info.get("gps_considered_error")
+    if ce is not None:
+        ctx.warn(f"gps: the log gives no position SDs, so the reported position SDs carry the pipeline's stated accuracy "
+                 f"(gps_sigma_h_m = {p.gps_sigma_h_m:g} m, gps_sigma_v_m = {p.gps_sigma_v_m:g} m) beyond the fixes' "
+                 f"{ce['white_h_m']:g} m fix-to-fix scatter; set them to your receiver's accuracy "
+                 f"(--set drive_smooth.gps_sigma_h_m=...)")
     mounting = dict(res.mounting) if res.mounting is not None else None
     if mounting is not None and "message" in mounting:
         ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
