@@ -35,7 +35,7 @@ from tpos_cli.fusion.constraints import (
 )
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
 from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error, unmodelled_error_sd_m
-from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, scaled_fixes
+from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, pass_window, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, lever_arm_block, mounting_block, odometer_block
@@ -51,7 +51,6 @@ from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, refined_mounting, vehicle_attitude
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
-from tpos_cli.ins.mechanization import decimate_imu
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
 from tpos_cli.targeting import geolocate
@@ -297,11 +296,14 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     if platform == "auto" or (platform in WHEELED and C_vb is None):
         zu = zu_rows if platform in WHEELED else None
         # a coarse pass (IMU at about 25 Hz, 1 s covariance steps, as the GPS noise passes) serves
-        # the travel direction, a degree-level figure, at a tenth of the cost of a full one
-        factor = max(1, int(round(imu.rate_hz / COARSE_RATE_HZ)))
-        td_, gd, ad = decimate_imu(imu.t, imu.gyro, imu.acc, factor)
-        coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(imu.rate_hz / factor))))
-        first = run_insgps(td_, gd, ad, fixes, init, coarse, store_rts=False, extra=zu)
+        # the travel direction, a degree-level figure, at a tenth of the cost of a full one; over the
+        # stretch the GPS noise passes cover (`gps_noise_span_s` after the heading search): the
+        # direction and the trial's mean NIS settle well within it, and an hour costs a quarter
+        after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
+        td_, gd, ad, fixes_c, _, rate_c = pass_window(imu.t, imu.gyro, imu.acc, fixes, after, p.gps_noise_span_s,
+                                                      COARSE_RATE_HZ)
+        coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_c))))
+        first = run_insgps(td_, gd, ad, fixes_c, init, coarse, store_rts=False, extra=zu)
         gap_s = max(1.0, 1.5 * float(np.median(np.diff(fixes.t_s)))) if fixes.t_s.size > 1 else 1.0
         # slow platforms count too: a sample's travel direction is good to sd_v / speed rad, so the
         # floor is a multiple of the run's horizontal velocity SD at its covariance epochs next to
@@ -322,7 +324,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
             else:
                 out["travel_direction"] = td.summary()
         if platform == "auto":
-            trial = None if td is None else nhc_trial((td_, gd, ad), fixes, init, coarse, stops, td.C_vb, p, info,
+            trial = None if td is None else nhc_trial((td_, gd, ad), fixes_c, init, coarse, stops, td.C_vb, p, info,
                                                       _mounting_sd_deg(td, p.mounting_sigma_assumed_deg))
             platform = "car" if trial is not None and trial["wheeled"] else "pedestrian"
             decided = (f"auto: {trial['why']}" if trial is not None
