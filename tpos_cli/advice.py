@@ -16,14 +16,18 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from scipy.special import chdtri, ndtri  # scipy.stats costs about a second to import
 
 from tpos_cli import consistency, conventions, quality, timebase
 from tpos_cli.errors import TposError
 from tpos_cli.frames.rotation import axes_to_dcm
+from tpos_cli.io.columns import Columns, column
+
+if TYPE_CHECKING:
+    import pandas as pd
 from tpos_cli.quality import Finding, Quality
 
 WINDOW_S = 300.0  # the part of a long log that is re-run for a candidate fix
@@ -100,10 +104,15 @@ class Comparison:
         return bool(self.z > Z_ACCEPT and self.ratio < 1.0)
 
 
-def _per_fix(innovations: pd.DataFrame, kinds, t_shift_s: float = 0.0) -> dict:
+def _per_fix(innovations: pd.DataFrame | Columns, kinds, t_shift_s: float = 0.0) -> dict:
     """{(solution, kind): Series of squared innovation norms (the NIS where the table has no
-    residual columns) indexed by fix time in ms (shift undone) and anchor, if any}."""
+    residual columns) indexed by fix time in ms (shift undone) and anchor, if any}. Imports pandas:
+    only a candidate fix re-run (rare) pays it."""
+    import pandas as pd
+
     out = {}
+    if isinstance(innovations, Columns):
+        innovations = innovations.to_pandas()
     inn = innovations[innovations["kind"].isin(kinds)]
     cols = [c for c in inn.columns if c.startswith("nu_")]
     for key, g in inn.groupby(["solution", "kind"], sort=False):
@@ -115,7 +124,8 @@ def _per_fix(innovations: pd.DataFrame, kinds, t_shift_s: float = 0.0) -> dict:
     return out
 
 
-def compare(base: pd.DataFrame, cand: pd.DataFrame, kinds=("gps_pos", "gps_vel"), cand_shift_s: float = 0.0) -> Comparison:
+def compare(base: pd.DataFrame | Columns, cand: pd.DataFrame | Columns, kinds=("gps_pos", "gps_vel"),
+            cand_shift_s: float = 0.0) -> Comparison:
     """Prediction-error comparison of two runs' innovation tables (module docstring)."""
     eb, ec = _per_fix(base, kinds), _per_fix(cand, kinds, cand_shift_s)
     tot_b, tot_c = None, None
@@ -167,7 +177,7 @@ class _Runner:
             self._base = self.output(self.session)
         return self._base
 
-    def base(self) -> pd.DataFrame | None:
+    def base(self) -> pd.DataFrame | Columns | None:
         out = self.base_output()
         return None if out is None else out.tables.get("innovations")
 
@@ -181,7 +191,7 @@ class _Runner:
         except (TposError, np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError):
             return None
 
-    def innovations(self, session) -> pd.DataFrame | None:
+    def innovations(self, session) -> pd.DataFrame | Columns | None:
         out = self.output(session)
         return None if out is None else out.tables.get("innovations")
 
@@ -204,14 +214,16 @@ def clock_signature(output) -> dict | None:
     if inn is None or tr is None or "nu_0" not in inn:
         return None
     out = {}
+    tr_sol, inn_sol, inn_kind = column(tr, "solution"), column(inn, "solution"), column(inn, "kind")
     for sol in ("forward", "backward"):
-        f = tr[tr["solution"] == sol].sort_values("t")
-        g = inn[(inn["solution"] == sol) & (inn["kind"] == "gps_pos")]
-        if len(g) < 10 or len(f) < 2:
+        rows = np.flatnonzero(tr_sol == sol)
+        rows = rows[np.argsort(column(tr, "t")[rows])]  # pandas' sort_values("t"): the same argsort
+        g = np.flatnonzero((inn_sol == sol) & (inn_kind == "gps_pos"))
+        if len(g) < 10 or len(rows) < 2:
             continue
-        t = g["t"].to_numpy(float)
-        v = np.column_stack([np.interp(t, f["t"], f[c]) for c in ("vn", "ve")])
-        nu = g[["nu_0", "nu_1"]].to_numpy(float)
+        t = column(inn, "t")[g].astype(float)
+        v = np.column_stack([np.interp(t, column(tr, "t")[rows], column(tr, c)[rows]) for c in ("vn", "ve")])
+        nu = np.column_stack([column(inn, c)[g] for c in ("nu_0", "nu_1")]).astype(float)
         ok = np.isfinite(nu).all(axis=1)
         x, y = v[ok].ravel(), nu[ok].ravel()
         if x.size < 20 or not float(x @ x) > 0:
@@ -323,23 +335,25 @@ def lever_arm_signature(session, output) -> dict | None:
 
     inn = output.tables.get("innovations") if output is not None else None
     tr = output.trajectory if output is not None else None
-    if inn is None or tr is None or not (inn["kind"] == "gps_vel").any():  # (not set(...): 14k str in Python)
+    if inn is None or tr is None or not (column(inn, "kind") == "gps_vel").any():  # (not set(...): 14k str in Python)
         return None
     out = {}
     t_imu = session.imu.t_s + session.t0_s
+    tr_sol, tr_t, inn_sol, inn_kind = column(tr, "solution"), column(tr, "t"), column(inn, "solution"), column(inn, "kind")
     for sol in ("forward", "backward"):
-        g = inn[(inn["solution"] == sol) & (inn["kind"] == "gps_vel")]
-        f = tr.loc[tr["solution"] == sol, ["t", "roll", "pitch", "yaw"]]  # the columns read below
-        if not (f["t"].is_monotonic_increasing and f["t"].is_unique):  # output rows come sorted: no sort then
-            f = f.sort_values("t")
-        if len(g) < 10 or len(f) < 2:
+        g = np.flatnonzero((inn_sol == sol) & (inn_kind == "gps_vel"))
+        rows = np.flatnonzero(tr_sol == sol)
+        ft = tr_t[rows]
+        if not (np.all(ft[1:] > ft[:-1])):  # output rows come sorted and unique: no sort then
+            rows = rows[np.argsort(ft)]  # pandas' sort_values("t"): the same argsort
+        if len(g) < 10 or len(rows) < 2:
             continue
-        t = g["t"].to_numpy(float)
-        ang = [np.interp(t, f["t"], np.unwrap(np.radians(f[c].to_numpy(float)))) for c in ("roll", "pitch", "yaw")]
+        t = column(inn, "t")[g].astype(float)
+        ang = [np.interp(t, tr_t[rows], np.unwrap(np.radians(column(tr, c)[rows].astype(float)))) for c in ("roll", "pitch", "yaw")]
         C = euler_to_dcm(*ang)
         w = np.column_stack([np.interp(t, t_imu, session.imu.gyro_b_rps[:, j]) for j in range(3)])
         A = C @ skew(w)
-        nu = g[["nu_0", "nu_1", "nu_2"]].to_numpy(float)
+        nu = np.column_stack([column(inn, c)[g] for c in ("nu_0", "nu_1", "nu_2")]).astype(float)
         ok = np.isfinite(nu).all(axis=1)
         if ok.sum() < 10:
             ok = np.isfinite(nu[:, :2]).all(axis=1)
@@ -358,14 +372,15 @@ def lever_arm_signature(session, output) -> dict | None:
     return out or None
 
 
-def _position_sigma_m(trajectory: pd.DataFrame | None) -> float:
+def _position_sigma_m(trajectory: pd.DataFrame | Columns | None) -> float:
     """Median horizontal position sigma of the run's best solution (smoothed, else forward)."""
     if trajectory is None or "sigma_n" not in trajectory:
         return float("nan")
+    sols = column(trajectory, "solution")
     for sol in ("smoothed", "forward"):
-        t = trajectory[trajectory["solution"] == sol]
-        if len(t):
-            return float(np.nanmedian(np.hypot(t["sigma_n"], t["sigma_e"]) / np.sqrt(2.0)))
+        m = sols == sol
+        if m.any():
+            return float(np.nanmedian(np.hypot(column(trajectory, "sigma_n")[m], column(trajectory, "sigma_e")[m]) / np.sqrt(2.0)))
     return float("nan")
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from tpos_cli.alignment import static_mask
 from tpos_cli.frames.earth import OMEGA_IE_RPS, normal_gravity_mps2
 from tpos_cli.frames.rotation import axes_to_dcm
+from tpos_cli.io.columns import column
 from tpos_cli.quality import Finding
 
 STILL_GYRO_MAX_RPS = 0.05  # ~3 deg/s: above any MEMS turn-on bias, far below deg/s read as rad/s
@@ -429,12 +430,12 @@ def baseline_findings(session, trajectory, solution: str = "gyro") -> list[Findi
     rf = session.meta.rangefinders
     if rf is None or session.ranges is None or trajectory is None or "solution" not in trajectory:
         return []
-    tr = trajectory[trajectory["solution"] == solution]
-    if len(tr) < 10:
+    m = column(trajectory, "solution") == solution
+    if m.sum() < 10:
         return []
-    t_att = tr["t"].to_numpy(float) - session.t0_s
+    t_att = column(trajectory, "t")[m].astype(float) - session.t0_s
     est = rangefinder_baselines(session.ranges.t_s, session.ranges.range_m, t_att,
-                                *(np.radians(tr[c].to_numpy(float)) for c in ("roll", "pitch", "yaw")))
+                                *(np.radians(column(trajectory, c)[m].astype(float)) for c in ("roll", "pitch", "yaw")))
     out = []
     for key, (b, sd, n) in est.items():
         given = float(getattr(rf, key))

@@ -20,7 +20,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli import __version__, timebase
 from tpos_cli.advice import review
@@ -28,6 +27,7 @@ from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.bounded import read_toml
+from tpos_cli.io.columns import Columns
 from tpos_cli.io.run_dir import (
     check_run_dir,
     claim_run_dir,
@@ -68,7 +68,7 @@ class RunSummary:
     summary: dict
 
 
-def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tuple[Session, pd.DataFrame | None]:
+def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tuple[Session, Columns | None]:
     """Withhold GPS fixes inside windows given on the logger clock; returns (session, withheld rows)."""
     if not windows_s:
         return session, None
@@ -100,9 +100,9 @@ def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tupl
     return dataclasses.replace(session, gps=kept, gps_outages_s=outages, counts=counts), withheld
 
 
-def gps_table(g: GpsData, t0_s: float) -> pd.DataFrame:
+def gps_table(g: GpsData, t0_s: float) -> Columns:
     """GPS rows as a contract `gps` table on the logger clock."""
-    return pd.DataFrame({
+    return Columns({
         "t": g.t_s + t0_s, "lat": g.lla[:, 0], "lon": g.lla[:, 1], "h": g.lla[:, 2], "fix": g.fix,
         "nsat": g.nsat, "hdop": g.hdop, "vn": g.vel_ned_mps[:, 0], "ve": g.vel_ned_mps[:, 1],
         "vd": g.vel_ned_mps[:, 2], "sigma_n": g.sigma_neu_m[:, 0], "sigma_e": g.sigma_neu_m[:, 1],

@@ -31,11 +31,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli import consistency
+from tpos_cli.io.columns import Columns, column, flags, groups, is_empty
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 LEVELS = ("ok", "suspect", "unreliable")
 UNRELIABLE_NIS_RATIO = 9.0  # mean NIS / expected: errors 3x their sigmas
@@ -107,22 +111,22 @@ def _param(config: Mapping | None, chain: str, key: str | None, default=None):
     return sec.get(key, default)
 
 
-def nis_findings(innovations: pd.DataFrame | None, gate_probability: float | None,
+def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: float | None,
                  model_rel_sd: Mapping[str, float] | None = None) -> list[Finding]:
     """Mean NIS and rejections per solution and kind (module docstring); one reason line per kind
     of failure, naming every solution and measurement kind it concerns. `model_rel_sd`: {kind:
     relative SD of its noise variances} when the chain estimated them (`consistency.mean_chi2`)."""
-    if innovations is None or innovations.empty or "nis" not in innovations:
+    if innovations is None or is_empty(innovations) or "nis" not in innovations:
         return []
-    inn = innovations.reset_index(drop=True)
-    dof_all = inn["dof"].to_numpy(float) if "dof" in inn else inn["kind"].map(KIND_DOF).to_numpy(float)
+    inn = innovations
+    kinds = column(inn, "kind")
+    dof_all = column(inn, "dof").astype(float) if "dof" in inn else np.array([KIND_DOF.get(k, np.nan) for k in kinds], dtype=float)
     out = []
     high, low, rej = [], [], []
     p_rej = 1.0 - gate_probability if gate_probability is not None else 0.0
-    nis_all = inn["nis"].to_numpy(float)
-    acc_all = inn["accepted"].fillna(False).to_numpy(bool) if "accepted" in inn else np.ones(len(inn), bool)
-    for (sol, kind), idx in inn.groupby(["solution", "kind"], sort=False).groups.items():
-        i = np.asarray(idx, dtype=np.int64)
+    nis_all = column(inn, "nis").astype(float)
+    acc_all = flags(inn, "accepted") if "accepted" in inn else np.ones(len(inn), bool)
+    for (sol, kind), i in groups(column(inn, "solution"), kinds):
         nis, dof, acc = nis_all[i], dof_all[i], acc_all[i]
         ok = np.isfinite(nis) & np.isfinite(dof) & (dof > 0)
         n, a = int(ok.sum()), ok & acc
@@ -182,13 +186,15 @@ def mounting_findings(results: Mapping | None) -> list[Finding]:
                     "set [imu] mounting_rpy_deg (a car has little sideslip; a walker or hand-held unit may point elsewhere)", fig)]
 
 
-def flag_findings(trajectory: pd.DataFrame | None, flag_probability: float | None) -> list[Finding]:
+def flag_findings(trajectory: pd.DataFrame | Columns | None, flag_probability: float | None) -> list[Finding]:
     """Forward/backward disagreement flags (the chain's `flag` column) against the flag rate."""
     if trajectory is None or "flag" not in trajectory or flag_probability is None:
         return []
-    sol = "forward" if "solution" in trajectory and (trajectory["solution"] == "forward").any() else None
-    f = trajectory.loc[trajectory["solution"] == sol, "flag"] if sol else trajectory["flag"]
-    flag = f.fillna(False).to_numpy(bool)
+    sols = column(trajectory, "solution") if "solution" in trajectory else None
+    sol = "forward" if sols is not None and (sols == "forward").any() else None
+    flag = flags(trajectory, "flag")
+    if sol:
+        flag = flag[sols == sol]
     n = flag.size
     if n == 0:
         return []
@@ -212,7 +218,7 @@ def flag_findings(trajectory: pd.DataFrame | None, flag_probability: float | Non
     return [Finding("flags", level, reason, fig)]
 
 
-def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> list[Finding]:
+def aiding_findings(session, innovations: pd.DataFrame | Columns | None, chain: str) -> list[Finding]:
     """A chain that needs aiding but used none; GPS fixes outside the IMU log."""
     out = []
     g = getattr(session, "gps", None)
@@ -237,10 +243,13 @@ def aiding_findings(session, innovations: pd.DataFrame | None, chain: str) -> li
     if chain in _AIDING:
         what, kinds = _AIDING[chain]
         used = 0
-        if innovations is not None and not innovations.empty and "kind" in innovations:
-            m = innovations["kind"].isin(kinds)
+        if innovations is not None and not is_empty(innovations) and "kind" in innovations:
+            k = column(innovations, "kind")
+            m = np.zeros(len(k), dtype=bool)
+            for kind in kinds:
+                m |= k == kind
             if "accepted" in innovations:
-                m &= innovations["accepted"].fillna(False).astype(bool)
+                m &= flags(innovations, "accepted")
             used = int(m.sum())
         level = "ok" if used else "unreliable"
         out.append(Finding("aiding.used", level,
@@ -319,7 +328,7 @@ def bias_findings(results: Mapping | None, config: Mapping | None, chain: str) -
     return out
 
 
-def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd.DataFrame | None = None,
+def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd.DataFrame | Columns | None = None,
            tables: Mapping | None = None, results: Mapping | None = None, counts: Mapping | None = None,
            findings: Iterable[Finding] = ()) -> Quality:
     """The verdict of one run of `chain` on `session` (module docstring).

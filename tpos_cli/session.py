@@ -15,7 +15,6 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli import schema, timebase
 from tpos_cli.errors import InvalidInputError
@@ -23,6 +22,7 @@ from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import axes_to_dcm
 from tpos_cli.io import plausibility
 from tpos_cli.io.bounded import MAX_TABLE_BYTES, read_toml, regular_file_size
+from tpos_cli.io.columns import Columns
 from tpos_cli.io.tables import Problem, find_table, read_table
 
 # Rates above this cannot be rad/s from a MEMS gyro: 2000 deg/s is the largest full scale of
@@ -237,7 +237,7 @@ class _Collector:
         if n:
             self.counts[key] = self.counts.get(key, 0) + int(n)
 
-    def table(self, name: str, numeric, text=(), required=(), csv_only=False) -> tuple[pd.DataFrame | None, str]:
+    def table(self, name: str, numeric, text=(), required=(), csv_only=False) -> tuple[Columns | None, str]:
         try:
             path = find_table(self.dir, name, csv_only=csv_only)
             if path is None:
@@ -498,7 +498,7 @@ def _imu_table(c: _Collector, cols, required):
         if not any(p.file.startswith("imu") for p in c.problems):
             c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
         return None
-    t = df["t"].to_numpy()
+    t = df["t"]
     keep = _check_time(c, fname, t, "imu")
     return None if keep is None else (df, fname, t, keep)
 
@@ -513,9 +513,9 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         missing = [m for m, h in zip(schema.IMU_MAG, has_mag) if not h][0]
         c.problem(fname, "magnetometer columns come as mag_x, mag_y, mag_z together", missing)
         return None
-    gyro = df[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
-    acc = df[["acc_x", "acc_y", "acc_z"]].to_numpy()
-    mag = df[list(schema.IMU_MAG)].to_numpy() if all(has_mag) else None
+    gyro = df.matrix(["gyro_x", "gyro_y", "gyro_z"])
+    acc = df.matrix(["acc_x", "acc_y", "acc_z"])
+    mag = df.matrix(list(schema.IMU_MAG)) if all(has_mag) else None
     finite = np.isfinite(gyro).all(axis=1) & np.isfinite(acc).all(axis=1)
     if finite.sum() < 2:
         c.problem(fname, "fewer than two complete samples (gyro and acc all present)")
@@ -584,22 +584,22 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     df, fname = c.table("gps", schema.GPS_REQUIRED + schema.GPS_OPTIONAL, required=schema.GPS_REQUIRED)
     if df is None:
         return None
-    t = df["t"].to_numpy()
+    t = df["t"]
     keep = _check_time(c, fname, t, "gps")
     if keep is None:
         return None
-    fix = df["fix"].to_numpy()
+    fix = df["fix"]
     bad = np.flatnonzero(~np.isin(fix, schema.GPS_FIX_VALUES))
     if bad.size:
         c.problem(fname, f"fix must be 0, 1 or 2, got {_v(fix[bad[0]])}", "fix", int(bad[0]) + 1)
         return None
     fix = fix.astype(np.int64)
-    lla = df[["lat", "lon", "h"]].to_numpy()
+    lla = df.matrix(["lat", "lon", "h"])
     _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
     if "vn" in df.columns and "ve" in df.columns and not any(p.file == fname for p in c.problems):
         moving = keep & (fix > 0)
         ev = plausibility.latlon_swap_evidence(t[moving], lla[moving, 0], lla[moving, 1],
-                                               df["vn"].to_numpy()[moving], df["ve"].to_numpy()[moving])
+                                               df["vn"][moving], df["ve"][moving])
         if ev is not None:
             c.problem(fname, f"lat and lon look exchanged: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) read "
                       f"the other way round, {ev[0]:.1f} m as given; swap the lat and lon columns", "lat", 1)
@@ -612,7 +612,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     c.count("gps_no_fix_rows", int(((fix == 0) & keep).sum()))
     for col in ("sigma_n", "sigma_e", "sigma_u", "hdop", "nsat"):
         if col in df.columns:
-            v = df[col].to_numpy()
+            v = df[col]
             neg = np.flatnonzero(v < 0)
             if neg.size:
                 c.problem(fname, f"{_v(v[neg[0]])} is negative", col, int(neg[0]) + 1)
@@ -620,7 +620,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
         return None
 
     def opt(cols):
-        return np.column_stack([df[k].to_numpy() if k in df.columns else np.full(len(df), np.nan) for k in cols])
+        return np.column_stack([df[k] if k in df.columns else np.full(len(df), np.nan) for k in cols])
 
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
@@ -643,11 +643,11 @@ def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
         return None
     if meta.rangefinders is None:
         c.problem("session.toml", "[rangefinders] is required when ranges.* exists (baseline_12_m, baseline_13_m)")
-    t = df["t"].to_numpy()
+    t = df["t"]
     keep = _check_time(c, fname, t, "ranges")
     if keep is None:
         return None
-    d = df[["d1", "d2", "d3"]].to_numpy()
+    d = df.matrix(["d1", "d2", "d3"])
     for j, col in enumerate(("d1", "d2", "d3")):
         neg = np.flatnonzero(d[:, j] < 0)
         if neg.size:
@@ -666,11 +666,11 @@ def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tupl
     df, fname = c.table("odometry", schema.ODOMETRY_REQUIRED, required=schema.ODOMETRY_REQUIRED)
     if df is None:
         return None
-    t = df["t"].to_numpy()
+    t = df["t"]
     keep = _check_time(c, fname, t, "odometry")
     if keep is None:
         return None
-    v = df["speed_mps"].to_numpy()
+    v = df["speed_mps"]
     neg = np.flatnonzero(v < 0)
     if neg.size:
         c.problem(fname, f"speed {_v(v[neg[0]])} m/s is negative; the contract's speed_mps is the forward speed, >= 0",
@@ -715,12 +715,14 @@ def _load_anchors(c: _Collector, meta: SessionMeta):
     empty = [i for i, v in enumerate(ids) if v == ""]
     if empty:
         c.problem(fname, "anchor id is empty", "id", empty[0] + 1)
+    import pandas as pd  # here: a drive session is read without pandas
+
     dup = pd.Series(ids).duplicated().to_numpy()
     if dup.any():
         c.problem(fname, f"anchor id {_v(ids[int(np.argmax(dup))])} appears twice", "id", int(np.argmax(dup)) + 1)
     origin = meta.local_origin_lla
     if has_lla:
-        lla = df[["lat", "lon", "h"]].to_numpy()
+        lla = df.matrix(["lat", "lon", "h"])
         _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
         nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
         if nan.size:
@@ -728,7 +730,7 @@ def _load_anchors(c: _Collector, meta: SessionMeta):
         if origin is None:
             origin = lla[0].copy()
     else:
-        enu = df[["e", "n", "u"]].to_numpy()
+        enu = df.matrix(["e", "n", "u"])
         nan = np.flatnonzero(~np.isfinite(enu).all(axis=1))
         if nan.size:
             c.problem(fname, "anchor position is incomplete", "e", int(nan[0]) + 1)
@@ -751,6 +753,8 @@ def _anchor_index(c: _Collector, fname: str, ids: np.ndarray, anchors: Anchors |
             c.problem(fname, "ranges to anchors need anchors.csv with the anchors' positions")
         return None
     lookup = {a: i for i, a in enumerate(anchors.ids)}
+    import pandas as pd  # here: a drive session is read without pandas
+
     codes, uniques = pd.factorize(np.asarray(ids, dtype=object))  # ids: str (read_table), never missing
     idx = np.array([lookup.get(a, -1) for a in uniques] + [-1], dtype=np.int64)[codes]
     bad = np.flatnonzero(idx < 0)
@@ -764,7 +768,7 @@ def _load_anchor_ranges(c: _Collector, meta: SessionMeta, t0: float, anchors: An
     df, fname = c.table("anchor_ranges", ("t", "range"), text=("id",), required=schema.ANCHOR_RANGES_REQUIRED)
     if df is None:
         return None
-    t = df["t"].to_numpy()
+    t = df["t"]
     nan = np.flatnonzero(~np.isfinite(t))
     if nan.size:
         c.problem(fname, "time is empty or not finite", "t", int(nan[0]) + 1)
@@ -773,7 +777,7 @@ def _load_anchor_ranges(c: _Collector, meta: SessionMeta, t0: float, anchors: An
     if i is not None:  # long format: several rows share one epoch, so only decreases are errors
         c.problem(fname, f"time goes backwards ({_v(t[i])} after {_v(t[i - 1])})", "t", i + 1)
         return None
-    r = df["range"].to_numpy()
+    r = df["range"]
     neg = np.flatnonzero(r < 0)
     if neg.size:
         c.problem(fname, f"negative range {_v(r[neg[0]])} m", "range", int(neg[0]) + 1)
@@ -784,6 +788,8 @@ def _load_anchor_ranges(c: _Collector, meta: SessionMeta, t0: float, anchors: An
     _check_range_unit(c, fname, r, "range")
     if any(p.file == fname for p in c.problems):
         return None
+    import pandas as pd  # here: a drive session is read without pandas
+
     pair = pd.DataFrame({"t": t, "a": idx}).duplicated().to_numpy()
     ok = np.isfinite(r) & ~pair
     c.count("anchor_ranges_missing", int((~np.isfinite(r)).sum()))
@@ -796,7 +802,7 @@ def _load_range_calibration(c: _Collector, anchors: Anchors | None):
                         required=schema.RANGE_CALIBRATION_REQUIRED, csv_only=True)
     if df is None:
         return None
-    tm, mm = df["true_m"].to_numpy(), df["measured_m"].to_numpy()
+    tm, mm = df["true_m"], df["measured_m"]
     for col, v in (("true_m", tm), ("measured_m", mm)):
         bad = np.flatnonzero(~np.isfinite(v) | (v < 0))
         if bad.size:
@@ -817,12 +823,14 @@ def _load_targets(c: _Collector):
     bad = [i for i, r in enumerate(roles) if r not in schema.TARGET_ROLES]
     if bad:
         c.problem(fname, f"role must be 'reference' or 'truth' (or empty), got {_v(roles[bad[0]])}", "role", bad[0] + 1)
+    import pandas as pd  # here: a drive session is read without pandas
+
     dup = pd.Series(ids).duplicated().to_numpy()
     if dup.any():
         i = int(np.argmax(dup))
         c.problem(fname, f"target id {_v(ids[i])} appears twice (rows {ids.index(ids[i]) + 1} and {i + 1}); "
                   "a surveyed point has one position", "id", i + 1)
-    lla = df[["lat", "lon", "h"]].to_numpy()
+    lla = df.matrix(["lat", "lon", "h"])
     _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
     nan = np.flatnonzero(~np.isfinite(lla).all(axis=1))
     if nan.size:
@@ -854,7 +862,7 @@ def _load_shots(c: _Collector, t0: float):
     df, fname = c.table("shots", ("t_start", "t_end"), text=("id",), required=schema.SHOTS_REQUIRED, csv_only=True)
     if df is None:
         return None
-    a, b = df["t_start"].to_numpy(), df["t_end"].to_numpy()
+    a, b = df["t_start"], df["t_end"]
     for col, v in (("t_start", a), ("t_end", b)):
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
@@ -891,6 +899,7 @@ def _load_truth(c: _Collector, t0: float):
         return None
     try:
         # Truth may carry extra columns (e.g. BROAD's `movement`): keep the numeric ones.
+        import pandas as pd  # here: a drive session is read without pandas
         import pyarrow.parquet as pq
 
         names = pq.read_schema(path).names if path.suffix == ".parquet" else pd.read_csv(path, nrows=0).columns.tolist()
@@ -900,13 +909,13 @@ def _load_truth(c: _Collector, t0: float):
     df, fname = c.table("truth", schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL + extra_cols, required=("t",))
     if df is None:
         return None
-    t = df["t"].to_numpy()
+    t = df["t"]
     keep = _check_time(c, fname, t, "truth")
     if keep is None:
         return None
 
     def opt(cols):
-        return np.column_stack([df[k].to_numpy() if k in df.columns else np.full(len(df), np.nan) for k in cols])
+        return np.column_stack([df[k] if k in df.columns else np.full(len(df), np.nan) for k in cols])
 
     lla = opt(["lat", "lon", "h"])
     _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
@@ -915,7 +924,7 @@ def _load_truth(c: _Collector, t0: float):
     del df_all
     return Truth(t_s=t[keep] - t0, lla=lla[keep], vel_ned_mps=opt(["vn", "ve", "vd"])[keep],
                  rpy_deg=opt(["roll", "pitch", "yaw"])[keep],
-                 extra={k: df[k].to_numpy()[keep] for k in extra_cols if k in df.columns})
+                 extra={k: df[k][keep] for k in extra_cols if k in df.columns})
 
 
 def _load_imu_times(c: _Collector, meta: SessionMeta):

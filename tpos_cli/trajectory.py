@@ -4,18 +4,23 @@
 turns any solution (also an attitude-only one) into contract rows: `t, lat, lon, h, vn, ve, vd,
 roll, pitch, yaw, solution`, the sigma columns it knows, then a chain's own columns. Attitude
 sigmas are Euler-angle SDs (`frames.rotation.euler_sigmas_deg`), never the SDs of the NED
-attitude error.
+attitude error. `trajectory_columns`/`solution_columns` give the same rows as `io.columns.Columns`
+(the drive chain: no pandas), `trajectory_table`/`solution_table` as a DataFrame.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli.frames.rotation import dcm_to_euler, euler_sigmas_deg
+from tpos_cli.io.columns import Columns
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 @dataclass(frozen=True)
@@ -44,10 +49,25 @@ def _sd(P: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(np.diagonal(P, axis1=1, axis2=2), 0.0, None))
 
 
-def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=None, P_vel_ned_m2ps2=None,
+def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, **kw) -> pd.DataFrame:
+    """`trajectory_columns` as a DataFrame (the solution's name as a scalar: pandas repeats it)."""
+    import pandas as pd
+
+    return pd.DataFrame(_trajectory_cols(name, t, lla_deg, vel_ned_mps, C_nb, **kw))
+
+
+def trajectory_columns(name: str, t, lla_deg, vel_ned_mps, C_nb, **kw) -> Columns:
+    """Contract rows of one solution (`_trajectory_cols`) as `Columns`, 'solution' an object array."""
+    cols = _trajectory_cols(name, t, lla_deg, vel_ned_mps, C_nb, **kw)
+    k = cols["t"].size
+    cols["solution"] = np.full(k, name, dtype=object)
+    return Columns(cols, k)
+
+
+def _trajectory_cols(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=None, P_vel_ned_m2ps2=None,
                      P_att_rad2=None, vertical_sigma: str = "sigma_d",
-                     extra: Mapping[str, object] | None = None) -> pd.DataFrame:
-    """Contract rows of one solution.
+                     extra: Mapping[str, object] | None = None) -> dict:
+    """Contract rows of one solution, column by column.
 
     t (K,) logger-clock s; lla_deg (K, 3) or (3,) (a static observer); vel_ned_mps (K, 3) or None
     (zeros); C_nb (K, 3, 3); optional covariances (K, 3, 3) of the NED position (m^2), velocity
@@ -73,7 +93,7 @@ def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=N
         se = euler_sigmas_deg(C_nb, P_att_rad2)
         cols.update({"sigma_roll": se[:, 0], "sigma_pitch": se[:, 1], "sigma_yaw": se[:, 2]})
     cols.update(extra or {})
-    return pd.DataFrame(cols)
+    return cols
 
 
 def solution_table(sol: Solution, t_s, t0_s: float, *, vertical_sigma: str = "sigma_d",
@@ -81,8 +101,20 @@ def solution_table(sol: Solution, t_s, t0_s: float, *, vertical_sigma: str = "si
     """`trajectory_table` of a navigation `Solution`; t_s the run's sample times (session s), t0_s
     the session epoch on the logger clock; P_att_rad2 (K, 3, 3): the attitude-error covariance to
     use instead of sol.P9[:, 6:9, 6:9] (an attitude moved to other axes, without a copy of P9)."""
+    args, cov = _solution_args(sol, t_s, t0_s, P_att_rad2)
+    return trajectory_table(*args, **cov, vertical_sigma=vertical_sigma, extra=extra)
+
+
+def solution_columns(sol: Solution, t_s, t0_s: float, *, vertical_sigma: str = "sigma_d",
+                     extra: Mapping[str, object] | None = None, P_att_rad2=None) -> Columns:
+    """`solution_table`'s rows as `Columns` (`trajectory_columns`)."""
+    args, cov = _solution_args(sol, t_s, t0_s, P_att_rad2)
+    return trajectory_columns(*args, **cov, vertical_sigma=vertical_sigma, extra=extra)
+
+
+def _solution_args(sol: Solution, t_s, t0_s: float, P_att_rad2) -> tuple[tuple, dict]:
+    """(name, t, lla_deg, vel, C_nb) and the covariances of `trajectory_table` for a `Solution`."""
     lla = np.column_stack([np.degrees(sol.nav[:, 0]), np.degrees(sol.nav[:, 1]), sol.nav[:, 2]])
-    return trajectory_table(sol.name, np.asarray(t_s)[sol.idx] + t0_s, lla, sol.nav[:, 3:6], sol.C_nb,
-                            P_pos_ned_m2=sol.P9[:, 0:3, 0:3], P_vel_ned_m2ps2=sol.P9[:, 3:6, 3:6],
-                            P_att_rad2=sol.P9[:, 6:9, 6:9] if P_att_rad2 is None else P_att_rad2,
-                            vertical_sigma=vertical_sigma, extra=extra)
+    return ((sol.name, np.asarray(t_s)[sol.idx] + t0_s, lla, sol.nav[:, 3:6], sol.C_nb),
+            {"P_pos_ned_m2": sol.P9[:, 0:3, 0:3], "P_vel_ned_m2ps2": sol.P9[:, 3:6, 3:6],
+             "P_att_rad2": sol.P9[:, 6:9, 6:9] if P_att_rad2 is None else P_att_rad2})

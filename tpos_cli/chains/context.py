@@ -8,16 +8,21 @@ import contextlib
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import pandas as pd
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from tpos_cli.io.columns import Columns
 
 
 @dataclass(frozen=True)
 class ChainOutput:
-    """What a chain returns; `pipeline` writes it."""
+    """What a chain returns; `pipeline` writes it. Tables are DataFrames or `io.columns.Columns` (the
+    drive chain's: no pandas in its process); `quality` and `advice` read either."""
 
-    trajectory: pd.DataFrame | None = None
-    targets: pd.DataFrame | None = None
+    trajectory: pd.DataFrame | Columns | None = None
+    targets: pd.DataFrame | Columns | None = None
     tables: dict = field(default_factory=dict)
     files: dict = field(default_factory=dict)
     summary: dict = field(default_factory=dict)

@@ -14,9 +14,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli import smoothing
 from tpos_cli.chains.context import ChainOutput, RunContext
@@ -51,11 +51,14 @@ from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, refined_mounting, vehicle_attitude
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
+from tpos_cli.io.columns import Columns, concat
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
-from tpos_cli.targeting import geolocate
 from tpos_cli.timeoffset import gps_velocity
-from tpos_cli.trajectory import Solution, solution_table
+from tpos_cli.trajectory import Solution, solution_columns
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 DEG = np.pi / 180.0
 SMOOTHERS = ("rts", "two_filter", "simplified")
@@ -152,10 +155,10 @@ def fix_outages(t_fix, t_end_s, min_gap_s) -> np.ndarray:
     return np.array(out, dtype=float).reshape(-1, 2)
 
 
-def solution_rows(sol: Solution, t_s, t0_s: float, outage, flag, P_att_rad2=None) -> pd.DataFrame:
+def solution_rows(sol: Solution, t_s, t0_s: float, outage, flag, P_att_rad2=None) -> Columns:
     """Contract trajectory rows of one solution, with sigma, outage and flag columns (P_att_rad2:
-    the attitude-error covariance in place of sol.P9's, `trajectory.solution_table`)."""
-    return solution_table(sol, t_s, t0_s, extra={"outage": outage, "flag": flag}, P_att_rad2=P_att_rad2)
+    the attitude-error covariance in place of sol.P9's, `trajectory.solution_columns`)."""
+    return solution_columns(sol, t_s, t0_s, extra={"outage": outage, "flag": flag}, P_att_rad2=P_att_rad2)
 
 
 @dataclass(frozen=True)
@@ -661,6 +664,10 @@ def geolocate_shots(session: Session, sol: Solution, epochs, sigma_range_m: floa
     covariances, not divided by their number: within a shot of a few seconds the trajectory
     errors that dominate are the same at every epoch (only the range noise would average out).
     """
+    import pandas as pd  # here, as targeting's: a drive without shots runs without pandas
+
+    from tpos_cli.targeting import geolocate
+
     idx, rng, shot = epochs
     k = np.searchsorted(sol.idx, idx)
     lla = np.column_stack([np.degrees(sol.nav[k, 0]), np.degrees(sol.nav[k, 1]), sol.nav[k, 2]])
@@ -681,20 +688,26 @@ def geolocate_shots(session: Session, sol: Solution, epochs, sigma_range_m: floa
     return pd.DataFrame(rows)
 
 
-def innovations_table(res: DriveResult, t0_s: float) -> pd.DataFrame:
+def innovations_table(res: DriveResult, t0_s: float) -> Columns:
     """`innovations.parquet`: one row per fix, run and kind: t, solution (forward | backward), kind
-    (gps_pos | gps_vel), nis, dof, accepted, and the residual components nu_0..nu_2 (NED m or m/s)."""
-    frames = []
+    (gps_pos | gps_vel), nis, dof, accepted, and the residual components nu_0..nu_2 (NED m or m/s);
+    sorted by solution, kind and t (stable: rows of equal keys keep the order of the runs)."""
+    parts = []
     for run_name in ("forward", "backward"):
         gi = res.innovations(run_name)
         for j, kind in enumerate(GPS_KINDS):
             m = np.isfinite(gi.nis[:, j])
             nu = gi.innovation[m, 3 * j: 3 * j + 3]
-            frames.append(pd.DataFrame({
-                "t": res.fixes.t_s[m] + t0_s, "solution": run_name, "kind": kind, "nis": gi.nis[m, j],
+            n = int(m.sum())
+            parts.append(Columns({
+                "t": res.fixes.t_s[m] + t0_s, "solution": np.full(n, run_name, dtype=object),
+                "kind": np.full(n, kind, dtype=object), "nis": gi.nis[m, j],
                 "dof": np.isfinite(nu).sum(axis=1).astype(np.int64), "accepted": gi.accepted[m, j],
-                "nu_0": nu[:, 0], "nu_1": nu[:, 1], "nu_2": nu[:, 2]}))
-    return pd.concat(frames, ignore_index=True).sort_values(["solution", "kind", "t"], kind="stable", ignore_index=True)
+                "nu_0": nu[:, 0], "nu_1": nu[:, 1], "nu_2": nu[:, 2]}, n))
+    inn = concat(parts)
+    sol_code = np.searchsorted(np.array(["backward", "forward"]), inn["solution"].astype(str))
+    kind_code = np.searchsorted(np.array(sorted(GPS_KINDS)), inn["kind"].astype(str))
+    return inn.take(np.lexsort((inn["t"], kind_code, sol_code)))  # lexsort is stable
 
 
 def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ctx: RunContext) -> dict:
@@ -787,20 +800,20 @@ def clock_offset(res: DriveResult, p: DriveSmoothParams) -> dict | None:
             "output_clock": "gps" if abs(med[0]) > p.clock_apply_sd * med_sd[0] else "imu"}
 
 
-def on_gps_clock(rows: pd.DataFrame, d_s, sd_s: float) -> pd.DataFrame:
+def on_gps_clock(rows: Columns, d_s, sd_s: float) -> Columns:
     """One solution's trajectory rows moved to the GPS clock: t - d (its own clock estimate per
     row), and the offset's SD carried into the position sigmas along the velocity (an error of e
     seconds in d puts a row v e metres off)."""
-    rows = rows.copy()
-    rows["t"] = rows["t"].to_numpy() - d_s
+    cols = {k: rows[k] for k in rows.columns}
+    cols["t"] = rows["t"] - d_s
     for sig, vel in (("sigma_n", "vn"), ("sigma_e", "ve"), ("sigma_d", "vd")):
         if sig in rows and vel in rows:
-            rows[sig] = np.hypot(rows[sig].to_numpy(), rows[vel].to_numpy() * sd_s)
-    return rows
+            cols[sig] = np.hypot(rows[sig], rows[vel] * sd_s)
+    return Columns(cols, len(rows))
 
 
 def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, names, with_shots: bool,
-                    clock: dict | None) -> pd.DataFrame:
+                    clock: dict | None) -> Columns:
     """`trajectory.parquet` of the solutions `names` at the output rate (the extra rows of range
     epochs for targeting dropped), with `outage` and `flag`, on the GPS clock when the estimated
     clock offset is significant (`clock`: `clock_offset`'s summary, taken before the runs'
@@ -830,7 +843,7 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
             # each solution's own clock estimate: the one its positions were fitted with
             rows = on_gps_clock(rows, sol.bias[:, o], clock["sigma_s"])
         frames.append(rows)
-    return pd.concat(frames, ignore_index=True)
+    return concat(frames)
 
 
 def run(session: Session, p: DriveSmoothParams, ctx: RunContext) -> ChainOutput:

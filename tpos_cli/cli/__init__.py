@@ -71,7 +71,8 @@ def main() -> None:
     _common.mark_one_shot()
     try:
         app()
-    except SystemExit:
+    except SystemExit as exc:
+        _common.end_process(exc.code)  # `tpos process`/`report`/`batch`: ends here, no teardown
         raise
     except KeyboardInterrupt:
         print("tpos: interrupted", file=sys.stderr)

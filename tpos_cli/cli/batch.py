@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from tpos_cli.cli._common import run_to_exit
 from tpos_cli.errors import InvalidInputError, TposError
 
 
@@ -29,6 +30,7 @@ def batch(
 
     Example: tpos batch 'field/2024-*' more_sessions.txt -o runs/all --jobs 2 --report
     """
+    run_to_exit(pause_collector=False)  # a one-shot process: no interpreter teardown at the end
     from tpos_cli import batch as b
 
     try:

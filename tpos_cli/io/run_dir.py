@@ -21,13 +21,17 @@ import shutil
 from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError, TposError
+from tpos_cli.io.columns import Columns, to_arrow
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 # A name that becomes one path component: no separators, no "..", no leading dot, no control characters.
 _SAFE_NAME = re.compile(r"^[^/\\\x00-\x1f.][^/\\\x00-\x1f]*$")
@@ -71,8 +75,10 @@ def json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def write_parquet(df: pd.DataFrame, path: Path, metadata: Mapping[str, str] | None = None) -> None:
-    table = pa.Table.from_pandas(df, preserve_index=False)
+def write_parquet(df: pd.DataFrame | Columns, path: Path, metadata: Mapping[str, str] | None = None) -> None:
+    """A table as Parquet with `metadata` as tpos.* schema keys; a DataFrame's file also has pandas'
+    own key, a `Columns`' has not (`io.columns.to_arrow`: written without pandas)."""
+    table = to_arrow(df) if isinstance(df, Columns) else pa.Table.from_pandas(df, preserve_index=False)
     if metadata:
         meta = dict(table.schema.metadata or {})
         meta.update({f"tpos.{k}".encode(): str(v).encode() for k, v in metadata.items()})

@@ -1,21 +1,27 @@
 """Reading contract tables (CSV or Parquet) with one-line errors naming file, column and row.
 
 Rows are numbered from 1 over the data rows (the CSV header is not a row), so that CSV row r is
-line r + 1 of the file.
+line r + 1 of the file. A table is returned as `io.columns.Columns` (numpy arrays by name). pandas
+is imported only for a CSV file or a Parquet column of an unusual type: a drive logged to Parquet
+is read without it (its import is ~0.15 s CPU of a one-shot `tpos process`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
+from tpos_cli.io.columns import Columns
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,7 +63,7 @@ def _fail(path: Path, message: str, column: str | None = None, row: int | None =
     raise InvalidInputError(str(p), [p])
 
 
-def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (), required: tuple[str, ...] = ()) -> pd.DataFrame:
+def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (), required: tuple[str, ...] = ()) -> Columns:
     """Read a contract table; numeric columns become float64, text columns str (empty for missing).
 
     Raises InvalidInputError for unreadable files, missing required columns, no data rows, a
@@ -68,22 +74,64 @@ def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (),
     except InvalidInputError as exc:
         _fail(path, str(exc).split(": ", 1)[1])
     if path.suffix == ".parquet":
-        df = _read_parquet(path, set(numeric) | set(text) | set(required))
+        table = _read_parquet(path, set(numeric) | set(text) | set(required))
+        names, n_rows = table.column_names, table.num_rows
     else:
-        df = _read_csv(path)
-    missing = [c for c in required if c not in df.columns]
+        table = _read_csv(path)
+        names, n_rows = list(table.columns), len(table)
+    missing = [c for c in required if c not in names]
     if missing:
-        _fail(path, f"required column is missing (found: {', '.join(map(str, df.columns)) or 'none'})", missing[0])
-    if len(df) == 0:
+        _fail(path, f"required column is missing (found: {', '.join(map(str, names)) or 'none'})", missing[0])
+    if n_rows == 0:
         _fail(path, "the table has a header but no data rows")
+    out = _arrow_columns(table, numeric, text) if isinstance(table, pa.Table) else None
+    if out is None:  # CSV, or Parquet columns whose conversion pandas decides (below)
+        df = _to_pandas(path, table) if isinstance(table, pa.Table) else table
+        out = {}
+        for col in numeric:
+            if col in names:
+                out[col] = _to_float(path, df[col], col)
+        for col in text:
+            if col in names:
+                out[col] = _to_text(df[col])
+        del df
+    if isinstance(table, pa.Table):
+        del table  # pyarrow's memory pool keeps the decoded buffers otherwise (an hour's drive: RSS 497 -> 399 MB after ingest)
+        pa.default_memory_pool().release_unused()
+    return Columns(out, n_rows)  # the converted columns as they are (no second copy of a 360k-row table)
+
+
+def _arrow_columns(table: pa.Table, numeric, text) -> dict[str, np.ndarray] | None:
+    """The wanted columns of a Parquet table as `_to_float`/`_to_text` would give them, straight from
+    Arrow, when each has a plain type: a floating or null-free integer column for a number (nulls of
+    a float column are NaN: pandas' conversion), a string column for text. None when any column is
+    of another type (booleans, decimals, text in a numeric column, ...): pandas converts those, with
+    its own errors."""
     out = {}
     for col in numeric:
-        if col in df.columns:
-            out[col] = _to_float(path, df[col], col)
+        if col not in table.column_names:
+            continue
+        c = table.column(col)
+        if not (pa.types.is_floating(c.type) or (pa.types.is_integer(c.type) and c.null_count == 0)):
+            return None
+        out[col] = _float_column(table, col)
     for col in text:
-        if col in df.columns:
-            out[col] = _to_text(df[col])
-    return pd.DataFrame(out, copy=False)  # the converted columns as they are (no second copy of a 360k-row table)
+        if col not in table.column_names:
+            continue
+        c = table.column(col)
+        if not (pa.types.is_string(c.type) or pa.types.is_large_string(c.type)):
+            return None
+        stripped: dict = {None: ""}  # each distinct value stripped once (an hour of ranges: 4 ids in 144k cells)
+        out[col] = np.array([stripped[v] if v in stripped else stripped.setdefault(v, v.strip())
+                             for v in c.to_pylist()], dtype=object)
+    return out
+
+
+def _float_column(table: pa.Table, col: str) -> np.ndarray:
+    """A numeric column as float64 through Arrow's tensor conversion, batch by batch (nulls: NaN):
+    pyarrow's `to_numpy` would import pandas (its conversion shares pandas' code)."""
+    parts = [rb.to_tensor(null_to_nan=True, row_major=False).to_numpy()[:, 0] for rb in table.select([col]).to_batches()]
+    return (parts[0] if len(parts) == 1 else np.concatenate(parts)).astype(np.float64, copy=False)
 
 
 def _to_text(s: pd.Series) -> np.ndarray:
@@ -93,6 +141,8 @@ def _to_text(s: pd.Series) -> np.ndarray:
     distinct values are stripped (an hour of ranges to four anchors: 144k cells, 4 values);
     other dtypes (numbers, mixed objects, whose 1, 1.0 and True a factorization would merge)
     cell by cell."""
+    import pandas as pd
+
     if isinstance(s.dtype, pd.StringDtype) and s.dtype.na_value is np.nan:
         codes, uniques = pd.factorize(s)
         values = np.array([str(v).strip() for v in uniques] + [""], dtype=object)
@@ -101,6 +151,8 @@ def _to_text(s: pd.Series) -> np.ndarray:
 
 
 def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
+    import pandas as pd
+
     if pd.api.types.is_bool_dtype(s.dtype):
         _fail(path, f"boolean values where numbers are required", col, 1)
     if pd.api.types.is_numeric_dtype(s.dtype):
@@ -115,7 +167,7 @@ def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
     return conv.to_numpy(dtype=np.float64, na_value=np.nan)
 
 
-def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
+def _read_parquet(path: Path, wanted: set[str]) -> pa.Table:
     """Only the wanted columns, after the row count in the footer is checked; the pandas metadata
     (index, dtypes) is ignored: a damaged one cannot matter, the columns are all tpos reads."""
     try:
@@ -134,17 +186,23 @@ def _read_parquet(path: Path, wanted: set[str]) -> pd.DataFrame:
             _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
         columns = [c for c in names if c in wanted]
         try:
-            table = pf.read(columns=columns)
-            df = table.to_pandas(ignore_metadata=True)
+            return pf.read(columns=columns)
         except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
             _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
-    del table
-    # pyarrow's memory pool keeps the decoded buffers otherwise (an hour's drive: RSS 497 -> 399 MB after ingest)
-    pa.default_memory_pool().release_unused()
+
+
+def _to_pandas(path: Path, table: pa.Table) -> pd.DataFrame:
+    """A Parquet table through pandas (the columns `_arrow_columns` does not convert itself)."""
+    try:
+        df = table.to_pandas(ignore_metadata=True)
+    except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
+        _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
     return df
 
 
 def _read_csv(path: Path) -> pd.DataFrame:
+    import pandas as pd
+
     try:
         with open(path, "rb") as fh:
             head = fh.read(65536)

@@ -1,0 +1,87 @@
+"""A one-shot `tpos process`/`report`/`batch` ends its process with os._exit after the command
+(`_common.run_to_exit`, `_common.end_process`): exit codes and outputs are those of the same command
+run under CliRunner, where nothing of it applies."""
+
+import gc
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from tpos_cli.cli import _common, app
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_logs" / "drive_outage"
+
+
+@pytest.fixture
+def one_shot(monkeypatch):
+    """`main()`'s marking of a one-shot process, undone after the test (collector, flags)."""
+    monkeypatch.setattr(_common, "_one_shot", True)
+    monkeypatch.setattr(_common, "_end_with_os_exit", False)
+    yield
+    gc.enable()
+
+
+def test_nothing_ends_the_process_unless_a_one_shot_command_asked(monkeypatch):
+    calls = []
+    monkeypatch.setattr(os, "_exit", calls.append)
+    _common.run_to_exit()  # not one-shot (tests, CliRunner): no effect
+    assert gc.isenabled()
+    _common.end_process(0)
+    assert calls == []
+
+
+def test_end_process_exits_with_the_commands_code(monkeypatch, one_shot):
+    calls = []
+    monkeypatch.setattr(os, "_exit", calls.append)
+    _common.run_to_exit()
+    assert not gc.isenabled()
+    for code in (None, 0, 1, 2):
+        _common.end_process(code)
+    assert calls == [0, 0, 1, 2]
+    _common.end_process("a message")  # SystemExit("...") prints it: Python's own exit does that
+    assert calls == [0, 0, 1, 2]
+
+
+def test_batch_keeps_the_collector(monkeypatch, one_shot):
+    monkeypatch.setattr(os, "_exit", lambda code: None)
+    _common.run_to_exit(pause_collector=False)
+    assert gc.isenabled() and _common._end_with_os_exit
+
+
+def _tables(run: Path) -> dict:
+    return {p.name: pq.read_table(p) for p in sorted(run.glob("*.parquet"))}
+
+
+def _summary(run: Path) -> dict:
+    s = json.loads((run / "summary.json").read_text())
+    for k in ("timings_s", "created_utc"):
+        s.pop(k)
+    return s
+
+
+def test_a_one_shot_process_writes_what_cli_runner_writes(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    res = subprocess.run([sys.executable, "-m", "tpos_cli", "process", str(SAMPLE), "-o", str(tmp_path / "a")],
+                         capture_output=True, text=True, timeout=600, env=env)
+    ref = CliRunner().invoke(app, ["process", str(SAMPLE), "-o", str(tmp_path / "b")])
+    assert res.returncode == 0 == ref.exit_code, res.stderr
+    line_a = res.stdout.replace(str(tmp_path / "a"), "RUN").split(" in ")[0]  # up to the run's time
+    assert line_a == ref.output.replace(str(tmp_path / "b"), "RUN").split(" in ")[0]
+    a, b = _tables(tmp_path / "a"), _tables(tmp_path / "b")
+    assert list(a) == list(b) == ["innovations.parquet", "trajectory.parquet"]
+    for name in a:
+        assert a[name].equals(b[name], check_metadata=True), name
+    assert _summary(tmp_path / "a") == _summary(tmp_path / "b")
+
+
+def test_a_one_shot_process_refusing_its_input_exits_2(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "tpos_cli", "process", str(tmp_path / "none"), "-o", str(tmp_path / "a")],
+                         capture_output=True, text=True, timeout=600)
+    assert res.returncode == 2 and res.stderr.startswith("error: ") and res.stderr.count("\n") == 1, res.stderr
+    assert not (tmp_path / "a").exists()
