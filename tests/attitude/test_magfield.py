@@ -29,3 +29,18 @@ def test_survey_prior_keeps_a_short_clean_stretch_as_the_earth_field():
     assert fs.norm_ut == pytest.approx(50.0, abs=0.5)
     assert np.degrees(fs.dip_rad) == pytest.approx(65.0, abs=0.5)
     assert fs.disturbed[t >= 5.0].all() and not fs.disturbed[t < 3.5].any()
+
+
+def test_field_heading_offsets_show_the_heading_error():
+    from tpos_cli.attitude.magfield import field_heading_offsets_rad, reference_field_ned
+    from tpos_cli.frames.rotation import euler_to_dcm
+    rng = np.random.default_rng(2)
+    C = euler_to_dcm(*rng.uniform(-0.5, 0.5, (2, 50)), rng.uniform(-np.pi, np.pi, 50))
+    decl = np.radians(4.0)
+    m_b = np.einsum("nji,j->ni", C, reference_field_ned(48.0, np.radians(65.0), decl))
+    # an estimate whose heading is 3 deg too large (C_hat = Rz(3 deg) C) puts the field 3 deg further east
+    C_hat = euler_to_dcm(np.zeros(50), np.zeros(50), np.radians(3.0) * np.ones(50)) @ C
+    assert np.allclose(field_heading_offsets_rad(C, m_b, decl), 0.0, atol=1e-12)
+    assert np.allclose(field_heading_offsets_rad(C_hat, m_b, decl), np.radians(3.0), atol=1e-12)
+    m_b[0] = np.nan
+    assert np.isnan(field_heading_offsets_rad(C, m_b, decl)[0])

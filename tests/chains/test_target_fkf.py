@@ -177,3 +177,27 @@ def test_carried_attitude_of_a_still_device_stays_put():
     assert np.degrees(np.linalg.norm(dcm_to_rotvec(C @ C0.T))) < 1e-6
     back = _carry(C, bias, t, gyro, t.size - 1, 0, w_ie)
     assert np.degrees(np.linalg.norm(dcm_to_rotvec(back @ C0.T))) < 1e-6
+
+
+def test_heading_with_the_field_unused_on_most_samples_takes_the_refused_fields_disagreement():
+    # a solution whose runs used the field on 20 % of the samples only, while the refused field puts the
+    # heading 10 deg off: its heading variance gains (10 deg)^2 and the run says so; at 60 % used nothing changes
+    from tpos_cli.attitude.local import AttitudeSolution
+    from tpos_cli.attitude.magfield import reference_field_ned
+    from tpos_cli.chains.context import RunContext
+    from tpos_cli.chains.target_fkf import unsupported_heading
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    n = 100
+    C = euler_to_dcm(np.zeros(n), np.zeros(n), np.linspace(0.0, 3.0, n))
+    m_b = np.einsum("nji,j->ni", C, reference_field_ned(48.0, np.radians(65.0), np.radians(10.0)))
+    P = np.tile(np.eye(3) * 1e-6, (n, 1, 1))
+    for used, grows in ((0.2, True), (0.6, False)):
+        sol = AttitudeSolution("lf1", np.arange(n, dtype=float), C, P, mag_any=np.arange(n) < used * n)
+        ctx, summary = RunContext(), {}
+        out = unsupported_heading({"lf1": sol}, m_b, 0.0, ctx, summary)["lf1"]
+        assert summary["magnetometer_unused_share"] == pytest.approx(1.0 - used)
+        added = out.P_att[:, 2, 2] - P[:, 2, 2]
+        assert np.allclose(added, np.radians(10.0) ** 2 if grows else 0.0, rtol=1e-9, atol=1e-15)
+        assert np.allclose(out.P_att[:, :2, :2], P[:, :2, :2])
+        assert bool(ctx.warnings) == grows

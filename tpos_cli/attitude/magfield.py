@@ -183,3 +183,12 @@ def reference_field_ned(norm_ut: float, dip_rad: float, declination_rad: float) 
     """The Earth field (NED, uT) of magnitude `norm_ut`, dip `dip_rad` (positive down) and declination."""
     h = norm_ut * np.cos(dip_rad)
     return np.array([h * np.cos(declination_rad), h * np.sin(declination_rad), norm_ut * np.sin(dip_rad)])
+
+
+def field_heading_offsets_rad(C_nb, mag_b_ut, declination_rad: float) -> np.ndarray:
+    """(N,) rad: the heading the field samples imply minus the solution's heading, wrapped to (-pi, pi]:
+    the azimuth of the measured field's horizontal NED part (C_nb m_b) less the declination (Eq. 8 with
+    the solution's tilt). NaN where a sample is missing. A heading the field agrees with gives zero mean."""
+    m_n = np.einsum("nij,nj->ni", np.asarray(C_nb, dtype=float), np.asarray(mag_b_ut, dtype=float))
+    a = np.arctan2(m_n[:, 1], m_n[:, 0]) - declination_rad
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
