@@ -68,6 +68,26 @@ class FieldSurvey:
                 "body_fixed_windows": len(body), "disturbed_fraction": round(float(self.disturbed.mean()), 4),
                 "offsets_ut": [[round(float(x), 2) for x in w.offset_ut] for w in body[:20]]}
 
+    def unresolved_offset_ut(self, share: float = 0.25) -> float:
+        """Magnitude (uT) of a body-fixed offset that the windows the survey could not separate (those that
+        do not turn, the alignments' still windows among them) may still hold; 0 when the survey shows none.
+        Where the survey removed an offset b, the field left has the Earth field's magnitude; when that
+        magnitude (median over those windows) differs from the reference by more than the magnitude test's
+        tolerance and by more than `share` of |b| (median), the reference itself, taken mostly from windows
+        that kept their offset, holds one: a magnet present in the still windows too. The figure is then
+        the median |b|. (A room disturbance does not pass the offset fit, `fit_window`.)"""
+        body = [w for w in self.windows if w.body_fixed]
+        if len(body) < 2:
+            return 0.0
+        gap = abs(float(np.median([w.norm_ut for w in body])) - self.norm_ut)
+        b = self.offset_ut()
+        return b if gap > max(self.norm_tol_ut, share * b) else 0.0
+
+    def offset_ut(self) -> float:
+        """Median magnitude (uT) of the body-fixed offsets the survey fitted; 0 without any."""
+        body = [np.linalg.norm(w.offset_ut) for w in self.windows if w.body_fixed]
+        return float(np.median(body)) if body else 0.0
+
 
 def _relative_rotations(t_s, gyro_b_rps, bias_rps, i0, i1):
     R = np.empty((i1 - i0, 3, 3))

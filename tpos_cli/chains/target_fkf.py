@@ -469,6 +469,35 @@ def unsupported_heading(sols: dict, mag_b_ut, decl: float, ctx: RunContext, summ
     return {**sols, "lf1": add_heading_variance(lf1, var)}
 
 
+def unresolved_offset_heading(sols: dict, field, session: Session, start: End, ctx: RunContext, summary: dict) -> dict:
+    """`sols` with LF1's heading variance raised when the start alignment's field may hold a disturbance: the
+    survey shows a body-fixed offset that the windows it could not separate, the alignments' still windows
+    among them, may still hold (`FieldSurvey.unresolved_offset_ut`), or it masked most of the start
+    alignment's window as disturbed (its magnitude is off the Earth field's). The alignments' headings, and
+    every field sample that agreed with them, are then off by up to the disturbance's share of the
+    horizontal field, |b| / H (a magnet present from the start: its field turns the heading by asin(|b_h| / H)
+    at most); |b| is the fitted offsets' median magnitude, at least the window's magnitude gap. Variance
+    (min(|b| / H, 1))^2 rad^2."""
+    lf1 = sols.get("lf1")
+    if lf1 is None or field is None:
+        return sols
+    b = field.unresolved_offset_ut()
+    win = slice(start.window.i0, start.window.i1)
+    if b <= 0.0 and np.mean(field.disturbed[win]) > 0.5:
+        gap = abs(float(np.nanmedian(np.linalg.norm(session.imu.mag_b_ut[win], axis=1))) - field.norm_ut)
+        b = max(field.offset_ut(), gap)
+    if b <= 0.0:
+        return sols
+    h = max(field.norm_ut * np.cos(field.dip_rad), 1e-6)
+    var = min(b / h, 1.0) ** 2
+    summary["unresolved_offset_ut"] = round(b, 3)
+    ctx.warn(f"magnetic survey: the start alignment's field may hold a disturbance of {b:.1f} uT (an offset that moves "
+             f"with the device, or a field off the Earth field's magnitude), so the "
+             f"heading may be off by up to {np.degrees(np.sqrt(var)):.0f} deg (added to the heading sigma of lf1); "
+             "run `tpos calibrate-mag` on a log that turns the device with the magnet attached")
+    return {**sols, "lf1": add_heading_variance(lf1, var)}
+
+
 def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContext, summary: dict) -> dict:
     """`fkf` (Eq. 27 with the fault detector's weights) and `fkf_raw` (the paper's plain fusion)."""
     with ctx.stage("federated fusion"):
@@ -631,6 +660,7 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
     setups = with_wall(setups, beams)
     sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, fb_diff_cov=D_lev)
     sols = unsupported_heading(sols, field.mag_b_ut if field is not None else session.imu.mag_b_ut, decl, ctx, summary)
+    sols = unresolved_offset_heading(sols, field, session, start, ctx, summary)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
     summary["levelling_consider_sigma_deg"] = np.degrees(np.sqrt(np.diag(P_lev))).round(4).tolist()
     fkf = sols["fkf"]
