@@ -75,7 +75,7 @@ def heading_excess_factor(scale: float) -> float:
     excess fused as independent between the runs. What the model leaves out of a heading is a drift each run
     accumulates from its own fix (its alignment, its last accepted field sample), through the gyro's errors
     over the turns since then: the forward run's from the past, the backward run's from the future, so they
-    are not positively correlated (on BROAD 02/11/26/28/33 the two runs' heading errors correlate -0.5 to
+    are not positively correlated (on BROAD 02/11/26/28/33 the two runs' heading errors correlate -0.48 to
     -0.75: notes marg7.md, rho.py), and a random-walk drift fuses to exactly scale P_s (a ramp through the
     same turns to less: the weights cancel most of it). The covariance-intersection bound of `excess_factor`,
     1 + 2 (scale - 1), assumes the worst positive correlation and made the heading 3-10x too cautious."""
