@@ -31,13 +31,14 @@ All three act on the middle of the log (30-70 % of its duration, 3 s cosine tape
 every trial is moving, so the still alignment windows at both ends stay still. Scoring as
 `benchmarks/marg_real.py`, on the truth moved to the IMU's time tags: total attitude RMS, tpos/VQF ratio, the
 share of motion epochs inside the 95 % band and the mean NEES per dof (3-dof, tilt 2-dof, heading 1-dof) of
-the written sigmas.
+the written sigmas; and the share of samples on which neither LF1 run used the field (`target_fkf.unsupported_heading`).
 
     pip install vqf ; python benchmarks/marg_robust.py [plants, default: all five] [trial substrings]
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import sys
 import tempfile
@@ -113,7 +114,7 @@ def main(argv) -> int:
 
     plants = tuple(argv[1].split(",")) if len(argv) > 1 else PLANTS
     pick = argv[2].split(",") if len(argv) > 2 else None
-    print(f"{'trial':10s} {'plant':12s} {'tpos':>6s} {'vqf':>6s} {'ratio':>6s}  in95  NEES/dof (tilt, heading)")
+    print(f"{'trial':10s} {'plant':12s} {'tpos':>6s} {'vqf':>6s} {'ratio':>6s}  in95  NEES/dof (tilt, heading)  field unused by both runs")
     ratios = {p: [] for p in plants}
     for d in sorted(REAL.glob("broad_*")):
         if pick and not any(k in d.name for k in pick):
@@ -133,6 +134,7 @@ def main(argv) -> int:
                 sd = write_planted(d, Path(tmp) / d.name, g, a, m)
                 rs = process_session(sd, "target-fkf", Path(tmp) / "run")
                 traj = pd.read_parquet(rs.run_dir / "trajectory.parquet")
+                res = json.loads((rs.run_dir / "summary.json").read_text())["results"]
             q = traj[traj.solution == "fkf"]
             C = euler_to_dcm(*np.radians(q[["roll", "pitch", "yaw"]].to_numpy()).T)
             sig = q[["sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()
@@ -144,8 +146,8 @@ def main(argv) -> int:
             ratios[plant].append(ours / vqf)
             inside, nees = share_in_band(e, C[use], sig[use])
             nt, nh = axis_nees(e, C[use], sig[use])
-            print(f"{d.name[:8]:10s} {plant:12s} {ours:6.3f} {vqf:6.3f} {ours / vqf:6.3f}  {inside:.3f} {nees:.2f} ({nt:.2f}, {nh:.2f})",
-                  flush=True)
+            print(f"{d.name[:8]:10s} {plant:12s} {ours:6.3f} {vqf:6.3f} {ours / vqf:6.3f}  {inside:.3f} {nees:.2f} ({nt:.2f}, {nh:.2f})"
+                  f"  {res.get('magnetometer_unused_share', np.nan):.3f}", flush=True)
     for p in plants:
         if ratios[p]:
             print(f"{p:12s} mean ratio {np.mean(ratios[p]):.3f}, max {np.max(ratios[p]):.3f}, below VQF on "

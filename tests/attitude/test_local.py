@@ -257,3 +257,46 @@ def test_fusion_with_a_shared_heading_error_is_unbiased_and_consistent():
     q = master.fuse("x", plain)
     info = sum(np.linalg.inv(s.P_att) for s in plain)
     assert np.allclose(q.P_att, np.linalg.inv(info), rtol=1e-9, atol=1e-20)
+
+
+def test_gyro_scale_sensitivity_predicts_the_error_it_causes_and_leaves_the_estimate():
+    # oracle: two runs that differ only by a gyro scale/misalignment dM (omega_meas = (I + dM) omega); the kernel's
+    # consider sensitivity S_gm must predict the change of the error, and carrying it changes no estimate
+    g = make(_rpy, duration_s=30.0, seed=5)
+    rng = np.random.default_rng(5)
+    st = replace(_setup(g, rng), C0=g.C[0], gyro_scale_consider_sd=1e-3)
+    dM = np.array([[2e-3, -1e-3, 0.5e-3], [1e-3, -2e-3, 1e-3], [-0.5e-3, 1.5e-3, 3e-3]])
+    for use in (K.USE_ACC | K.USE_MAG | K.USE_MOTION, 0):
+        a = run_full("a", g.t, g.gyro, g.acc, g.mag, None, st, use)
+        b = run_full("b", g.t, g.gyro + g.gyro @ dM.T, g.acc, g.mag, None, st, use)
+        de = dcm_to_rotvec(a.C_nb @ np.swapaxes(b.C_nb, 1, 2))  # e_b - e_a
+        pred = np.einsum("nij,j->ni", a.S_gm, dM.reshape(-1))
+        assert np.max(np.abs(pred)) > np.radians(0.05)
+        err = np.sqrt(np.mean(np.sum((de - pred) ** 2, axis=1)))
+        assert err < 0.05 * np.sqrt(np.mean(np.sum(pred**2, axis=1))), (use, np.degrees(err))
+        plain = run_full("p", g.t, g.gyro, g.acc, g.mag, None, replace(st, gyro_scale_consider_sd=0.0), use)
+        assert np.array_equal(plain.C_nb, a.C_nb)
+        assert np.allclose(a.P_att - plain.P_att, 1e-6 * a.S_gm @ np.swapaxes(a.S_gm, 1, 2), rtol=1e-9, atol=1e-20)
+
+
+def test_fusion_with_a_shared_gyro_scale_error_keeps_the_weights_and_adds_it_whole():
+    from tpos_cli.attitude.local import AttitudeSolution
+    rng = np.random.default_rng(4)
+    n = 5
+    C = euler_to_dcm(*rng.normal(0, 0.3, (3, n)))
+    own, sols = [], []
+    for _ in range(2):
+        A = rng.normal(0, 1e-3, (n, 3, 3))
+        P = A @ np.swapaxes(A, 1, 2) + 1e-6 * np.eye(3)
+        S = rng.normal(0, 1e-1, (n, 3, 9))
+        own.append(AttitudeSolution("x", np.arange(n, dtype=float), rotvec_to_dcm(rng.normal(0, 1e-3, (n, 3))) @ C, P))
+        sols.append(replace(own[-1], P_att=P + 1e-6 * S @ np.swapaxes(S, 1, 2), S_gm=S, var_gm=1e-6))
+    f, p = master.fuse("fkf", sols), master.fuse("fkf", own)
+    assert np.allclose(f.C_nb, p.C_nb, rtol=0, atol=1e-12)  # the weights of the other errors
+    W = [p.P_att @ np.linalg.inv(s.P_att) for s in own]
+    G = W[0] @ sols[0].S_gm + W[1] @ sols[1].S_gm
+    assert np.allclose(f.P_att, p.P_att + 1e-6 * G @ np.swapaxes(G, 1, 2), rtol=1e-9, atol=1e-20)
+    # the difference of the two: the shared error enters as (S_a - S_b) only, and not at all for the fb test
+    D = sols[0].S_gm - sols[1].S_gm
+    assert np.allclose(master.difference_cov(*sols), own[0].P_att + own[1].P_att + 1e-6 * D @ np.swapaxes(D, 1, 2))
+    assert np.allclose(master.difference_cov(*sols, gyro_scale=False), own[0].P_att + own[1].P_att)

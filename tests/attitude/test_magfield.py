@@ -29,3 +29,36 @@ def test_survey_prior_keeps_a_short_clean_stretch_as_the_earth_field():
     assert fs.norm_ut == pytest.approx(50.0, abs=0.5)
     assert np.degrees(fs.dip_rad) == pytest.approx(65.0, abs=0.5)
     assert fs.disturbed[t >= 5.0].all() and not fs.disturbed[t < 3.5].any()
+
+
+def test_field_heading_offsets_show_the_heading_error():
+    from tpos_cli.attitude.magfield import field_heading_offsets_rad, reference_field_ned
+    from tpos_cli.frames.rotation import euler_to_dcm
+    rng = np.random.default_rng(2)
+    C = euler_to_dcm(*rng.uniform(-0.5, 0.5, (2, 50)), rng.uniform(-np.pi, np.pi, 50))
+    decl = np.radians(4.0)
+    m_b = np.einsum("nji,j->ni", C, reference_field_ned(48.0, np.radians(65.0), decl))
+    # an estimate whose heading is 3 deg too large (C_hat = Rz(3 deg) C) puts the field 3 deg further east
+    C_hat = euler_to_dcm(np.zeros(50), np.zeros(50), np.radians(3.0) * np.ones(50)) @ C
+    assert np.allclose(field_heading_offsets_rad(C, m_b, decl), 0.0, atol=1e-12)
+    assert np.allclose(field_heading_offsets_rad(C_hat, m_b, decl), np.radians(3.0), atol=1e-12)
+    m_b[0] = np.nan
+    assert np.isnan(field_heading_offsets_rad(C, m_b, decl)[0])
+
+
+def test_unresolved_offset_when_the_separated_field_is_not_the_reference():
+    # windows where the survey removed a 15 uT body offset show 45 uT; a reference of 57 uT (taken from the still
+    # windows that kept the offset) disagrees by far more than its tolerance and a quarter of the offset: 15 uT
+    # unresolved; the same windows against a 45.5 uT reference (the magnet attached for the motion only): none
+    from tpos_cli.attitude.magfield import FieldSurvey, FieldWindow
+    off = np.array([9.0, -7.2, 9.6])  # 15 uT
+    body = [FieldWindow(0, 10, 2.0, 0.3, off, 0.1, True, 45.0 + 0.2 * k, 1.15) for k in range(3)]
+    still = [FieldWindow(0, 10, 0.3, 0.3, np.zeros(3), 5.0, False, 57.0, 1.2) for _ in range(5)]
+
+    def mk(ref, ws):
+        return FieldSurvey(np.zeros((10, 3)), ref, 1.15, 1.5, np.zeros(10, dtype=bool), tuple(ws))
+
+    assert mk(57.0, body + still).unresolved_offset_ut() == pytest.approx(15.0)
+    assert mk(45.5, body + still).unresolved_offset_ut() == 0.0
+    assert mk(57.0, body[:1] + still).unresolved_offset_ut() == pytest.approx(15.0)  # one adopted window suffices
+    assert mk(57.0, still).offset_ut() == 0.0

@@ -177,3 +177,59 @@ def test_carried_attitude_of_a_still_device_stays_put():
     assert np.degrees(np.linalg.norm(dcm_to_rotvec(C @ C0.T))) < 1e-6
     back = _carry(C, bias, t, gyro, t.size - 1, 0, w_ie)
     assert np.degrees(np.linalg.norm(dcm_to_rotvec(back @ C0.T))) < 1e-6
+
+
+def test_heading_with_the_field_unused_on_most_samples_takes_the_refused_fields_disagreement():
+    # a solution whose runs used the field on 20 % of the samples only, while the refused field puts the
+    # heading 10 deg off: its heading variance gains (10 deg)^2 and the run says so; at 60 % used nothing changes
+    from tpos_cli.attitude.local import AttitudeSolution
+    from tpos_cli.attitude.magfield import reference_field_ned
+    from tpos_cli.chains.context import RunContext
+    from tpos_cli.chains.target_fkf import unsupported_heading
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    n = 100
+    C = euler_to_dcm(np.zeros(n), np.zeros(n), np.linspace(0.0, 3.0, n))
+    m_b = np.einsum("nji,j->ni", C, reference_field_ned(48.0, np.radians(65.0), np.radians(10.0)))
+    P = np.tile(np.eye(3) * 1e-6, (n, 1, 1))
+    for used, grows in ((0.2, True), (0.6, False)):
+        sol = AttitudeSolution("lf1", np.arange(n, dtype=float), C, P, mag_any=np.arange(n) < used * n)
+        ctx, summary = RunContext(), {}
+        out = unsupported_heading({"lf1": sol}, m_b, 0.0, ctx, summary)["lf1"]
+        assert summary["magnetometer_unused_share"] == pytest.approx(1.0 - used)
+        added = out.P_att[:, 2, 2] - P[:, 2, 2]
+        assert np.allclose(added, np.radians(10.0) ** 2 if grows else 0.0, rtol=1e-9, atol=1e-15)
+        assert np.allclose(out.P_att[:, :2, :2], P[:, :2, :2])
+        assert bool(ctx.warnings) == grows
+
+
+def test_heading_of_an_alignment_whose_field_may_hold_an_offset_takes_that_offset():
+    # the survey separated a 15 uT offset whose field left is not the reference (magnet present from the start):
+    # lf1's heading variance gains (15 / H)^2; a start window the survey masked as disturbed gains its gap at least
+    from types import SimpleNamespace
+
+    from tpos_cli.attitude.local import AttitudeSolution
+    from tpos_cli.attitude.magfield import FieldSurvey, FieldWindow
+    from tpos_cli.chains.context import RunContext
+    from tpos_cli.chains.target_fkf import unresolved_offset_heading
+
+    n = 10
+    sol = AttitudeSolution("lf1", np.arange(n, dtype=float), np.tile(np.eye(3), (n, 1, 1)), np.tile(np.eye(3) * 1e-6, (n, 1, 1)))
+    off = np.array([9.0, -7.2, 9.6])
+    body = [FieldWindow(0, n, 2.0, 0.3, off, 0.1, True, 45.0, 1.15) for _ in range(3)]
+    still = [FieldWindow(0, n, 0.3, 0.3, np.zeros(3), 5.0, False, 57.0, 1.2) for _ in range(5)]
+    start = SimpleNamespace(window=SimpleNamespace(i0=0, i1=4))
+    mag = np.tile([20.0, 0.0, 52.0], (n, 1))
+    session = SimpleNamespace(imu=SimpleNamespace(mag_b_ut=mag))
+    dip = 1.2
+    h = 57.0 * np.cos(dip)
+    fs = FieldSurvey(mag, 57.0, dip, 1.5, np.zeros(n, dtype=bool), tuple(body + still))
+    ctx, summary = RunContext(), {}
+    out = unresolved_offset_heading({"lf1": sol}, fs, session, start, ctx, summary)["lf1"]
+    assert np.allclose(out.P_att[:, 2, 2] - 1e-6, (15.0 / h) ** 2) and ctx.warnings
+    clean = FieldSurvey(mag, 45.0, dip, 1.5, np.zeros(n, dtype=bool), tuple(body))
+    assert unresolved_offset_heading({"lf1": sol}, clean, session, start, RunContext(), {})["lf1"] is sol
+    masked = FieldSurvey(mag, 45.0, dip, 1.5, np.arange(n) < 3, tuple(body))  # 3 of the window's 4 samples
+    out = unresolved_offset_heading({"lf1": sol}, masked, session, start, RunContext(), {})["lf1"]
+    gap = abs(np.linalg.norm([20.0, 0.0, 52.0]) - 45.0)
+    assert np.allclose(out.P_att[:, 2, 2] - 1e-6, (max(15.0, gap) / (45.0 * np.cos(dip))) ** 2)

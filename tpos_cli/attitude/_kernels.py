@@ -34,6 +34,8 @@ USE_MOTION = 8  # hand-motion velocity/displacement states (hand-held device, st
 # state offsets: phi, gyro bias and accelerometer bias always; the gyro matrix M and the hand states
 # follow when present (`state_offsets`)
 I_PHI, I_BG, I_BA, N_BASE = 0, 3, 6, 9
+# first sensitivity column of the gyro's scale/misalignment dM (9 columns, row-major), `Init.S0`
+S_GYRO = 7
 
 
 class Samples(NamedTuple):
@@ -122,7 +124,10 @@ class Init(NamedTuple):
     by the filter's closed loop (e <- (I - K H) Phi e, minus K times a measurement's own bias
     sensitivity), so that e(t) = a(t) + S(t) b_a with a(t) independent of b_a. Further columns (c > 6)
     carry another error of the initial state the same way, without a measurement sensitivity (the start
-    alignment's heading error, `local.run_full`)."""
+    alignment's heading error, `local.run_full`). With c = S_GYRO + 9, columns S_GYRO.. are the
+    sensitivity to the gyro's constant scale/misalignment dM (omega_meas = (I + dM) omega + b, 9 elements
+    row-major), never estimated: each prediction adds its forcing d(phi_dot)/d dM = -C_hat [omega^T]
+    (the same term as the M states' Phi) to the closed loop's propagation."""
 
     C0: np.ndarray
     bias: np.ndarray
@@ -412,6 +417,11 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                     acc_k += 1
             predict(x, P, Phi, Qd)
             _sens_predict(Sv, Phi)
+            if Sv.shape[1] >= S_GYRO + 9:
+                for r in range(3):
+                    for c in range(3):
+                        for j in range(3):
+                            Sv[j, S_GYRO + 3 * r + c] -= C[j, r] * wg[c] * dt  # phi_dot = -C_hat dM omega
             C = C @ rotvec_to_dcm(w * dt)  # Eq. 17 integrated over one sample
         out.nis_acc[k] = np.nan
         out.nis_mag[k] = np.nan

@@ -99,6 +99,10 @@ class FilterSetup:
     # P0[2,2]) other filters share (LF2's wall normal): the run carries its sensitivity to it
     # (`AttitudeSolution.s_al`) and its covariance holds that error once, not divided by beta
     align_heading_var_rad2: float = 0.0
+    # > 0: the gyro's constant scale/misalignment, omega_meas = (I + dM) omega + b with dM ~ N(0, sd^2 I9) (a
+    # data-sheet figure), is carried as a sensitivity the filter never corrects (`_kernels.Init.S0`,
+    # `AttitudeSolution.S_gm`): a heading carried by the gyro through many turns drifts by dM times the turned angle
+    gyro_scale_consider_sd: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -124,6 +128,9 @@ class AttitudeSolution:
     acc_bias_mps2: np.ndarray | None = None
     var_bias: np.ndarray | None = None
     fb_scale: tuple[float, float] | None = None  # smoothed only: (tilt, heading) forward/backward consistency (smoother)
+    # smoothed only: (N,) bool, True where at least one run used the field sample (False in both: the heading
+    # there rests on the gyro and the alignments alone)
+    mag_any: np.ndarray | None = None
     # the attitude error's sensitivity to the accelerometer bias, e = a + S_ba b_a (N,3,3), and the part
     # Q_ba (N,3,3) rad^2 of P_att that the filter's own bias prior explains (`honest_covariance`)
     S_ba: np.ndarray | None = None
@@ -133,6 +140,11 @@ class AttitudeSolution:
     # (`master.fuse` fuses with the cross-covariance var_al s_i s_j^T)
     s_al: np.ndarray | None = None
     var_al: float = 0.0
+    # the error's sensitivity (N,3,9) to the gyro's constant scale/misalignment dM ~ N(0, var_gm I9), which every
+    # solution from the same gyro shares: e = a + S_gm vec(dM) (+ ...), P_att holds var_gm S_gm S_gm^T
+    # (`FilterSetup.gyro_scale_consider_sd`; `master.fuse` adds it to the fused covariance for the fused weights)
+    S_gm: np.ndarray | None = None
+    var_gm: float = 0.0
 
     def euler_deg(self):
         """(N,3) roll, pitch, yaw in degrees, yaw in [0, 360)."""
@@ -332,7 +344,8 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
                     float(setup.range_gate_chi2))
     acc_b0 = np.asarray(setup.acc_bias0_mps2, dtype=float)
     P0 = initial_covariance(setup, use) / beta
-    S0 = np.zeros((P0.shape[0], 7))
+    consider_gm = setup.gyro_scale_consider_sd > 0.0
+    S0 = np.zeros((P0.shape[0], K.S_GYRO + 9 if consider_gm else 7))
     S0[0:3, 0:3] = setup.lev_map
     S0[K.I_BA:K.I_BA + 3, 0:3] = np.eye(3)
     S0[K.I_BA:K.I_BA + 3, 3:6] = np.eye(3)
@@ -342,7 +355,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     with_m = setup.gyro_err_sd > 0
     out = K.Outputs(np.empty((n, 3, 3)), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 6)),
                     np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.bool_), np.zeros((n if with_m else 1, 3, 3)),
-                    np.empty((n, 3, 7)))
+                    np.empty((n, 3, S0.shape[1])))
     K.marg_filter(samples, frame, kn, _hand(setup, dt_mean, share), gates, init, out)
     o = {f: getattr(out, f) for f in out._fields}
     if backward:
@@ -356,10 +369,16 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
         var_al = float(setup.align_heading_var_rad2)
         s_al = np.ascontiguousarray(o["S_att"][:, :, 6])
         P_att = P_att + (var_al - P0[2, 2]) * (s_al[:, :, None] * s_al[:, None, :])
+    S_gm, var_gm = None, 0.0
+    if consider_gm:
+        # the kernel's P_att holds none of dM (no state): its share is added once, exactly
+        var_gm = float(setup.gyro_scale_consider_sd) ** 2
+        S_gm = np.ascontiguousarray(o["S_att"][:, :, K.S_GYRO:K.S_GYRO + 9])
+        P_att = P_att + var_gm * (S_gm @ np.swapaxes(S_gm, 1, 2))
     return AttitudeSolution(
         S_ba=np.ascontiguousarray(o["S_att"][:, :, 0:3]), Q_ba=noise.acc_bias_mps2**2 / beta * (B @ np.swapaxes(B, 1, 2)),
         name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(o["C"]), P_att=P_att, s_al=s_al,
-        var_al=var_al, bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
+        var_al=var_al, S_gm=S_gm, var_gm=var_gm, bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
         nis={"acc": o["nis_acc"], "mag": o["nis_mag"], "range": o["nis_rng"]},
         mag_ok=o["mag_ok"] if (use & K.USE_MAG) else None, gyro_M=o["M"] if with_m else None,
         mag_gated=bool((use & K.USE_MAG) and (setup.mag_norm_tol_ut > 0.0 or setup.mag_nis_tau_s > 0.0)),

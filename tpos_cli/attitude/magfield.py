@@ -68,6 +68,27 @@ class FieldSurvey:
                 "body_fixed_windows": len(body), "disturbed_fraction": round(float(self.disturbed.mean()), 4),
                 "offsets_ut": [[round(float(x), 2) for x in w.offset_ut] for w in body[:20]]}
 
+    def unresolved_offset_ut(self, share: float = 0.25) -> float:
+        """Magnitude (uT) of a body-fixed offset that the windows the survey could not separate (those that
+        do not turn, the alignments' still windows among them) may still hold; 0 when the survey shows none.
+        Where the survey removed an offset b, the field left has the Earth field's magnitude; when that
+        magnitude (median over those windows) differs from the reference by more than the magnitude test's
+        tolerance and by more than `share` of |b| (median), the reference itself, taken mostly from windows
+        that kept their offset, holds one: a magnet present in the still windows too. The figure is then
+        the median |b|. One adopted window suffices: it passed the fit's own tests (`fit_window`: the offset
+        halves the residual variance and is known to better than 1 uT), which a room disturbance does not."""
+        body = [w for w in self.windows if w.body_fixed]
+        if not body:
+            return 0.0
+        gap = abs(float(np.median([w.norm_ut for w in body])) - self.norm_ut)
+        b = self.offset_ut()
+        return b if gap > max(self.norm_tol_ut, share * b) else 0.0
+
+    def offset_ut(self) -> float:
+        """Median magnitude (uT) of the body-fixed offsets the survey fitted; 0 without any."""
+        body = [np.linalg.norm(w.offset_ut) for w in self.windows if w.body_fixed]
+        return float(np.median(body)) if body else 0.0
+
 
 def _relative_rotations(t_s, gyro_b_rps, bias_rps, i0, i1):
     R = np.empty((i1 - i0, 3, 3))
@@ -183,3 +204,12 @@ def reference_field_ned(norm_ut: float, dip_rad: float, declination_rad: float) 
     """The Earth field (NED, uT) of magnitude `norm_ut`, dip `dip_rad` (positive down) and declination."""
     h = norm_ut * np.cos(dip_rad)
     return np.array([h * np.cos(declination_rad), h * np.sin(declination_rad), norm_ut * np.sin(dip_rad)])
+
+
+def field_heading_offsets_rad(C_nb, mag_b_ut, declination_rad: float) -> np.ndarray:
+    """(N,) rad: the heading the field samples imply minus the solution's heading, wrapped to (-pi, pi]:
+    the azimuth of the measured field's horizontal NED part (C_nb m_b) less the declination (Eq. 8 with
+    the solution's tilt). NaN where a sample is missing. A heading the field agrees with gives zero mean."""
+    m_n = np.einsum("nij,nj->ni", np.asarray(C_nb, dtype=float), np.asarray(mag_b_ut, dtype=float))
+    a = np.arctan2(m_n[:, 1], m_n[:, 0]) - declination_rad
+    return (a + np.pi) % (2.0 * np.pi) - np.pi

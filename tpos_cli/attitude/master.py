@@ -17,9 +17,17 @@ Bar-Shalom and Campo): stacked covariance B_ij = delta_ij A_i / w_i + var_al s_i
 A_i = P_i - var_al s_i s_i^T, P_g = (sum_ij (B^-1)_ij)^-1, x_g = sum_i W_i x_i, W_i = P_g sum_j (B^-1)_ji.
 With s_i = 0 this is Eq. 27; what the filters share besides h (the gyro, the accelerometer LF2 levels
 with) stays bounded by Eq. 23's beta.
+
+Solutions that carry their sensitivity to the gyro's constant scale/misalignment (`AttitudeSolution.S_gm`,
+e_i = a_i + S_i vec(dM), dM ~ N(0, var_gm I9) shared by every solution of one gyro) are fused with the
+weights their other errors give (the estimate is the one without that term), and the fused covariance gains
+that shared error exactly for those weights: var_gm S_g S_g^T, S_g = sum_i W_i S_i (the runs' drifts
+through the same turns are one error, so it is not averaged down).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -54,12 +62,13 @@ def fuse(name: str, sols: list[AttitudeSolution], weights=None, independent: boo
     sens = [s.s_al for s in sols if s.s_al is not None]
     shared = bool(sens) and not independent
     var = max(s.var_al for s in sols) if shared else 0.0
+    P_own = [s.P_att - gyro_scale_cov(s) for s in sols]
     if shared:
         sv = [np.zeros((n, 3)) if s.s_al is None else s.s_al for s in sols]
-        A = [s.P_att - var * (si[:, :, None] * si[:, None, :]) for s, si in zip(sols, sv)]
+        A = [P - var * (si[:, :, None] * si[:, None, :]) for P, si in zip(P_own, sv)]
         Pg, Ws = _gains(A, sv, var, w)
     else:
-        Pg, Ws = _gains([s.P_att for s in sols], None, 0.0, w)
+        Pg, Ws = _gains(P_own, None, 0.0, w)
     xg = np.zeros((n, 3))
     for s, W in zip(sols, Ws):
         xg += np.einsum("nij,nj->ni", W, dcm_to_rotvec(s.C_nb @ np.swapaxes(C_ref, 1, 2)))
@@ -72,8 +81,21 @@ def fuse(name: str, sols: list[AttitudeSolution], weights=None, independent: boo
         Q_g = sum(W @ s.Q_ba @ np.swapaxes(W, 1, 2) for s, W in zip(sols, Ws))
     if shared:
         s_g = sum(np.einsum("nij,nj->ni", W, si) for si, W in zip(sv, Ws))
+    G_g, var_gm = None, 0.0
+    if all(s.S_gm is not None for s in sols):
+        var_gm = max(s.var_gm for s in sols)
+        G_g = sum(W @ s.S_gm for s, W in zip(sols, Ws))
+        Pg = Pg + var_gm * (G_g @ np.swapaxes(G_g, 1, 2))
     return AttitudeSolution(name=name, t_s=sols[0].t_s, C_nb=C, P_att=0.5 * (Pg + np.swapaxes(Pg, 1, 2)), S_ba=S_g,
-                            Q_ba=Q_g, s_al=s_g, var_al=var)
+                            Q_ba=Q_g, s_al=s_g, var_al=var, S_gm=G_g, var_gm=var_gm)
+
+
+def gyro_scale_cov(sol: AttitudeSolution) -> np.ndarray | float:
+    """(N,3,3) rad^2 share of `sol.P_att` that the gyro's constant scale/misalignment explains,
+    var_gm S_gm S_gm^T (`AttitudeSolution.S_gm`); 0.0 without that sensitivity."""
+    if sol.S_gm is None:
+        return 0.0
+    return sol.var_gm * (sol.S_gm @ np.swapaxes(sol.S_gm, 1, 2))
 
 
 def _gains(A, s, var, w):
@@ -103,12 +125,21 @@ def _gains(A, s, var, w):
     return Pg, Ws
 
 
-def difference_cov(a: AttitudeSolution, b: AttitudeSolution) -> np.ndarray:
+def difference_cov(a: AttitudeSolution, b: AttitudeSolution, gyro_scale: bool = True) -> np.ndarray:
     """(N,3,3) covariance of the attitude difference of two solutions: P_a + P_b less what they share,
-    the start alignment's heading error (`AttitudeSolution.s_al`): - var_al (s_a s_b^T + s_b s_a^T)."""
+    the start alignment's heading error (`AttitudeSolution.s_al`): - var_al (s_a s_b^T + s_b s_a^T), and
+    the gyro's scale/misalignment (`AttitudeSolution.S_gm`): - var_gm (S_a S_b^T + S_b S_a^T). `gyro_scale`
+    False: without the gyro's scale/misalignment at all (P_a - var_gm S_a S_a^T + ...), the covariance of the
+    errors the forward/backward test scales (`smoother.fb_scale`)."""
+    if not gyro_scale:
+        return difference_cov(replace(a, P_att=a.P_att - gyro_scale_cov(a), S_gm=None),
+                              replace(b, P_att=b.P_att - gyro_scale_cov(b), S_gm=None))
     D = a.P_att + b.P_att
     if a.s_al is not None and b.s_al is not None:
         X = max(a.var_al, b.var_al) * (a.s_al[:, :, None] * b.s_al[:, None, :])
+        D = D - X - np.swapaxes(X, 1, 2)
+    if a.S_gm is not None and b.S_gm is not None:
+        X = max(a.var_gm, b.var_gm) * (a.S_gm @ np.swapaxes(b.S_gm, 1, 2))
         D = D - X - np.swapaxes(X, 1, 2)
     return D
 

@@ -48,6 +48,9 @@ from tpos_cli.trajectory import trajectory_table
 #: by the gyro (`_align_at_end`): uninformative beside any alignment (0.1 rad is 5.7 deg; a still window
 #: levels to ~0.01 deg), small enough that the error-state linearization holds
 BACKWARD_CARRIED_SD_RAD = 0.1
+#: share of the samples on which neither LF1 run used the field above which its heading counts as unsupported
+#: ("most of the log": `unsupported_heading`)
+HEADING_UNSUPPORTED_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -362,7 +365,10 @@ def filter_setups(session: Session, p: TargetFkfParams, obs_lla, decl, ends, noi
         gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps, motion_sd_m=p.motion_sd_m,
         motion_interval_s=p.motion_interval_s, motion_freq_hz=p.motion_freq_hz, motion_damping=p.motion_damping,
         motion_step_s=p.motion_step_s, gyro_err_sd=p.gyro_err_pct * 1e-2, gyro_err_rw_rts=p.gyro_err_rw_ppm_rts * 1e-6,
-        gravity_mps2=start.gravity_mps2 if p.gravity_from_static else None)
+        gravity_mps2=start.gravity_mps2 if p.gravity_from_static else None,
+        # the gyro's scale error is a constant of the sensor, not a new error per sample: its share of the
+        # attitude error is carried as a consider sensitivity (`FilterSetup.gyro_scale_consider_sd`)
+        gyro_scale_consider_sd=noise.gyro_scale_sd)
     back = replace(base, C0=end.align.C_nb, bias0_rps=end.align.gyro_bias_rps,
                    P0=_initial_covariance(end, noise, m_ref_n, window_mag(end)))
     gyro = replace(base, beta=1.0, gyro_err_sd=0.0)
@@ -415,7 +421,9 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
             sols["lf1"] = run("lf1", mag, None, K.USE_ACC | mot | (K.USE_MAG if mag is not None else 0))
             if field is not None and sols["lf1"].mag_ok is not None:
                 # the samples the survey masked were not used either
-                sols["lf1"] = replace(sols["lf1"], mag_ok=sols["lf1"].mag_ok & ~field.disturbed)
+                any_ = sols["lf1"].mag_any
+                sols["lf1"] = replace(sols["lf1"], mag_ok=sols["lf1"].mag_ok & ~field.disturbed,
+                                      mag_any=None if any_ is None else any_ & ~field.disturbed)
             if beams.rdiff is not None:
                 sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot),
                                                    beams.wall_var_rad2, beams.wall_lev_var_rad2,
@@ -432,6 +440,62 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
         for k, s in sols.items():
             ctx.count(f"updates_{k}", int(sum(np.isfinite(v).sum() for v in s.nis.values())))
     return sols
+
+
+def unsupported_heading(sols: dict, mag_b_ut, decl: float, ctx: RunContext, summary: dict) -> dict:
+    """`sols` with LF1's heading variance raised when neither of its runs used the field on most samples
+    (more than `HEADING_UNSUPPORTED_SHARE`): its heading is then the alignments' (their still windows' field)
+    carried by the gyro, and nothing in the motion confirms it. The field samples the runs refused still
+    show a heading (`magfield.field_heading_offsets_rad`); their mean square offset from the solution's
+    heading is added to its variance: a disturbance at the alignment (a magnet present from the start) and
+    a disturbance in the motion look alike here, and either leaves the heading uncertain by that much."""
+    lf1 = sols.get("lf1")
+    if lf1 is None or lf1.mag_any is None or mag_b_ut is None:
+        return sols
+    unused = ~lf1.mag_any
+    share = float(unused.mean())
+    summary["magnetometer_unused_share"] = round(share, 4)
+    if share <= HEADING_UNSUPPORTED_SHARE:
+        return sols
+    off = magfield.field_heading_offsets_rad(lf1.C_nb, mag_b_ut, decl)[unused]
+    off = off[np.isfinite(off)]
+    if off.size == 0:
+        return sols
+    var = float(np.mean(off**2))
+    summary["unsupported_heading_sigma_deg"] = round(float(np.degrees(np.sqrt(var))), 3)
+    ctx.warn(f"magnetometer: neither attitude run used the field on {100 * share:.0f} % of the samples; the heading "
+             f"rests on the alignments carried by the gyro, and the refused field disagrees with it by "
+             f"{np.degrees(np.sqrt(var)):.1f} deg RMS (added to the heading sigma of lf1)")
+    return {**sols, "lf1": add_heading_variance(lf1, var)}
+
+
+def unresolved_offset_heading(sols: dict, field, session: Session, start: End, ctx: RunContext, summary: dict) -> dict:
+    """`sols` with LF1's heading variance raised when the start alignment's field may hold a disturbance: the
+    survey shows a body-fixed offset that the windows it could not separate, the alignments' still windows
+    among them, may still hold (`FieldSurvey.unresolved_offset_ut`), or it masked most of the start
+    alignment's window as disturbed (its magnitude is off the Earth field's). The alignments' headings, and
+    every field sample that agreed with them, are then off by up to the disturbance's share of the
+    horizontal field, |b| / H (a magnet present from the start: its field turns the heading by asin(|b_h| / H)
+    at most); |b| is the fitted offsets' median magnitude, at least the window's magnitude gap. Variance
+    (min(|b| / H, 1))^2 rad^2."""
+    lf1 = sols.get("lf1")
+    if lf1 is None or field is None:
+        return sols
+    b = field.unresolved_offset_ut()
+    win = slice(start.window.i0, start.window.i1)
+    if b <= 0.0 and np.mean(field.disturbed[win]) > 0.5:
+        gap = abs(float(np.nanmedian(np.linalg.norm(session.imu.mag_b_ut[win], axis=1))) - field.norm_ut)
+        b = max(field.offset_ut(), gap)
+    if b <= 0.0:
+        return sols
+    h = max(field.norm_ut * np.cos(field.dip_rad), 1e-6)
+    var = min(b / h, 1.0) ** 2
+    summary["unresolved_offset_ut"] = round(b, 3)
+    ctx.warn(f"magnetic survey: the start alignment's field may hold a disturbance of {b:.1f} uT (an offset that moves "
+             f"with the device, or a field off the Earth field's magnitude), so the "
+             f"heading may be off by up to {np.degrees(np.sqrt(var)):.0f} deg (added to the heading sigma of lf1); "
+             "run `tpos calibrate-mag` on a log that turns the device with the magnet attached")
+    return {**sols, "lf1": add_heading_variance(lf1, var)}
 
 
 def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContext, summary: dict) -> dict:
@@ -451,9 +515,13 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
         else:
             s1 = locals_[0]
             sols["fkf"] = AttitudeSolution("fkf", s1.t_s, s1.C_nb, s1.P_att, S_ba=s1.S_ba, Q_ba=s1.Q_ba, s_al=s1.s_al,
-                                           var_al=s1.var_al)
+                                           var_al=s1.var_al, S_gm=s1.S_gm, var_gm=s1.var_gm)
         if sols["lf1"].mag_ok is not None:
             ctx.count("mag_samples_rejected", int((~sols["lf1"].mag_ok).sum()))
+            if sols["lf1"].mag_any is not None:
+                # neither the forward nor the backward run used the field here: the heading is the alignments'
+                # carried by the gyro, its sigma grows with the turns (gyro scale consider) and the bias
+                ctx.count("mag_samples_unused", int((~sols["lf1"].mag_any).sum()))
     return sols
 
 
@@ -591,6 +659,8 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
         beams = replace(beams, wall_lev_var_rad2=min(lev_var, beams.wall_var_rad2))
     setups = with_wall(setups, beams)
     sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, fb_diff_cov=D_lev)
+    sols = unsupported_heading(sols, field.mag_b_ut if field is not None else session.imu.mag_b_ut, decl, ctx, summary)
+    sols = unresolved_offset_heading(sols, field, session, start, ctx, summary)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
     summary["levelling_consider_sigma_deg"] = np.degrees(np.sqrt(np.diag(P_lev))).round(4).tolist()
     fkf = sols["fkf"]
