@@ -86,8 +86,8 @@ def test_measure_adds_the_extra_states_columns():
     bias = np.array([0, 0, 0, 0, 0, 0, 0.2, -0.1, 0.3])
     fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
     z, H, R = np.empty(3), np.zeros((3, 18)), np.zeros((3, 3))
-    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), np.zeros(3), lay.offsets(),
-            _no_P(H), z, H, R)
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), np.zeros(3), np.zeros(3),
+            lay.offsets(), _no_P(H), z, H, R)
     z0 = np.empty(3)
     gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
     assert_allclose(z - z0, bias[6:9], atol=0)
@@ -99,7 +99,7 @@ def test_measure_adds_the_extra_states_columns():
     bias[6 + lay.offset(Block.CALIBRATION) - 15 + 1] = -0.1
     z, H, R = np.empty(1), np.zeros((1, lay.n_states)), np.zeros((1, 1))
     measure(0, _events(Kind.RANGE, [25.0, 0, 0], np.eye(3) * 0.01, 1, par=1), aid, True, nav, C, bias, np.zeros(3),
-            np.zeros(3), lay.offsets(), _no_P(H), z, H, R)
+            np.zeros(3), np.zeros(3), lay.offsets(), _no_P(H), z, H, R)
     p = lla_to_local_ned(nav[0], nav[1], nav[2], aid.r0_e, aid.C_ne0)
     assert_allclose(z[0], np.linalg.norm(p - aid.anchors_ned[1]) + 0.3 - 0.1 - 25.0, atol=1e-9)
     assert H[0, lay.offset(Block.RANGE_BIAS)] == 1.0 and H[0, lay.offset(Block.CALIBRATION) + 1] == 1.0
@@ -122,23 +122,32 @@ def test_clock_offset_columns():
     acc = np.array([1.5, -0.5, 0.2])
     fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
     z, H, R = np.empty(3), np.zeros((3, lay.n_states)), np.zeros((3, 3))
-    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, lay.offsets(), _no_P(H), z, H, R)
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, np.zeros(3),
+            lay.offsets(), _no_P(H), z, H, R)
     z0 = np.empty(3)
     gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
     assert_allclose(z - z0, nav[3:6] * d + 0.5 * acc * d**2, atol=1e-12)
     assert_allclose(H[:, o], nav[3:6] + acc * d, atol=1e-15)
     assert_allclose(H[:, o + 1], 0.0, atol=0)
     v_gps = nav[3:6] + np.array([0.1, 0.2, -0.1])
-    measure(0, _events(Kind.GPS_VELOCITY, v_gps, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, lay.offsets(), _no_P(H), z, H, R)
+    measure(0, _events(Kind.GPS_VELOCITY, v_gps, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, np.zeros(3),
+            lay.offsets(), _no_P(H), z, H, R)
     assert_allclose(z, nav[3:6] - v_gps + acc * d_vel, atol=1e-12)
     assert_allclose(H[:, o + 1], acc, atol=0)
     assert_allclose(H[:, o], 0.0, atol=0)
+    # the INS velocity's vibration about its trend (`nav_errors.window_vibration_velocity_b`) is taken out;
+    # H does not change
+    vib, H0 = np.array([0.002, -0.001, 0.0005]), H.copy()
+    measure(0, _events(Kind.GPS_VELOCITY, v_gps, np.eye(3), 3), aid, None, nav, C, bias, np.zeros(3), acc, vib,
+            lay.offsets(), _no_P(H), z, H, R)
+    assert_allclose(z, nav[3:6] - vib - v_gps + acc * d_vel, atol=1e-12)
+    assert_allclose(H, H0, atol=0)
     sign = backward_sign(lay.n_states, lay)
     assert sign[o] == sign[o + 1] == -1.0 and sign[3] == -1.0 and sign[0] == 1.0
     # with a lever arm the fix is the antenna's: it moves on by the antenna's velocity v + C (w x l)
     lever, w_b = np.array([0.8, 0.5, -1.0]), np.radians([1.0, -2.0, 17.0])
     aid_l = aid._replace(lever_b=lever)
-    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid_l, None, nav, C, bias, w_b, acc, lay.offsets(), _no_P(H),
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid_l, None, nav, C, bias, w_b, acc, np.zeros(3), lay.offsets(), _no_P(H),
             z, H, R)
     assert_allclose(H[:, o], nav[3:6] + C @ np.cross(w_b, lever) + acc * d, atol=1e-12)
 
@@ -164,7 +173,8 @@ def test_lever_arm_columns_are_the_residuals_exact_change():
     for kind, zin, resid in ((Kind.GPS_POSITION, fix, lambda lv, out: gps_position_residual(nav, C, lv, fix, 0.0, out)),
                              (Kind.GPS_VELOCITY, v_gps, lambda lv, out: gps_velocity_residual(nav, C, lv, w_b, v_gps, out))):
         z, H, R = np.empty(3), np.zeros((3, lay.n_states)), np.zeros((3, 3))
-        measure(0, _events(kind, zin, np.eye(3), 3), aid, None, nav, C, bias, w_b, np.zeros(3), lay.offsets(), _no_P(H), z, H, R)
+        measure(0, _events(kind, zin, np.eye(3), 3), aid, None, nav, C, bias, w_b, np.zeros(3), np.zeros(3),
+                lay.offsets(), _no_P(H), z, H, R)
         z_true, z0 = np.empty(3), np.empty(3)
         resid(lever_true, z_true)
         resid(lever, z0)
@@ -177,7 +187,8 @@ def test_lever_arm_columns_are_the_residuals_exact_change():
     P[8, 8] = 0.2**2
     P[o:o + 2, o:o + 2] = np.diag([0.5**2, 0.3**2])
     z, H, R = np.empty(3), np.zeros((3, lay.n_states)), np.zeros((3, 3))
-    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, w_b, np.zeros(3), lay.offsets(), P, z, H, R)
+    measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3), aid, None, nav, C, bias, w_b, np.zeros(3), np.zeros(3),
+            lay.offsets(), P, z, H, R)
     A = H[:, o:o + 2]
     V = A @ P[o:o + 2, o:o + 2] @ A.T
     assert_allclose(np.diag(R), [1.0 + 0.04 * V[1, 1], 1.0 + 0.04 * V[0, 0], 1.0], rtol=1e-12)

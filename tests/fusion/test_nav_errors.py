@@ -5,7 +5,14 @@ from scipy.linalg import expm
 
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.rotation import euler_to_dcm
-from tpos_cli.fusion.nav_errors import CLOCK_ACC_WINDOW_S, apply_feedback, error_dynamics, window_acceleration_ned
+from tpos_cli.fusion.nav_errors import (
+    VIBRATION_WINDOW_S,
+    apply_feedback,
+    error_dynamics,
+    window_acceleration_ned,
+    window_rate_b,
+    window_vibration_velocity_b,
+)
 from tpos_cli.ins._kernels import mech_step
 from tpos_cli.smoothing import state_difference
 
@@ -57,12 +64,19 @@ def test_error_dynamics_against_nonlinear_propagation():
     assert np.abs(expm(F0 * T) @ dx0 - d)[:6].max() > 10 * np.abs(pred - d)[:6].max()
 
 
+def _line(t, f_hz, amp, phase):
+    """Rows of a sine line as the IMU gives it: the mean of amp sin(2 pi f t + phase) over (t_{j-1}, t_j]."""
+    dt = t[1] - t[0]
+    return amp * (np.cos(2 * np.pi * f_hz * (t - dt) + phase) - np.cos(2 * np.pi * f_hz * t + phase)) / (2 * np.pi * f_hz * dt)
+
+
 def test_clock_column_acceleration_is_the_window_mean_not_one_vibrating_sample():
-    """A car braking at 2 m/s^2 along its x axis (heading 30 deg, level) under a 25 Hz, 0.3 m/s^2
-    engine line, IMU at 100 Hz: over the clock offset's window (d = 0.08 s, widened to 0.1 s:
-    10 samples, 2.5 cycles) the line leaves two samples a quarter cycle apart, at most sqrt(2) A
-    / 10 = 0.042 m/s^2 whatever the sample, while one sample is off by up to 0.3 m/s^2; the mean is exact for the braking alone, and
-    the bias is taken out. Also a negative offset and the log's end (window clamped)."""
+    """A car braking at 2 m/s^2 along its x axis (heading 30 deg, level) under a 0.3 m/s^2 engine
+    line, IMU at 100 Hz: the Hann-weighted window (d = 0.08 s, widened to 0.2 s) passes at most 3 %
+    of a line at 10-45 Hz whatever its phase (one sample: all of it; a plain 0.1 s mean: 14 % of a
+    25 Hz line, in the same phase at every whole-second fix); it is exact for the braking alone, a
+    braking that changes linearly keeps its mean at the window's middle, and the bias is taken
+    out. Also a negative offset and the log's end (window clamped)."""
     t = np.arange(2001) * 0.01
     C = euler_to_dcm(0.0, 0.0, np.radians(30.0))
     bias = np.array([0.05, -0.02, 0.01, 0.0, 0.0, 0.0])
@@ -70,12 +84,66 @@ def test_clock_column_acceleration_is_the_window_mean_not_one_vibrating_sample()
     want = C @ brake + [0.0, 0.0, G0_MPS2]
     out = np.empty(3)
     acc = np.tile(brake + bias[:3], (t.size, 1))
-    for k, d in ((500, 0.08), (733, -0.08), (1000, 0.0), (2000, 0.08)):
+    for k, d in ((500, 0.08), (733, -0.08), (1000, 0.0), (2000, 0.08), (1200, 0.5)):
         window_acceleration_ned(t, acc, k, C, bias, d, out)
         np.testing.assert_allclose(out, want, atol=1e-9)
-    acc[:, 0] += 0.3 * np.sin(2 * np.pi * 25.0 * t + 0.7)
-    worst = 0.0
-    for k in range(100, 1900, 7):
-        window_acceleration_ned(t, acc, k, C, bias, 0.08, out)
-        worst = max(worst, float(np.linalg.norm(out - want)))
-    assert CLOCK_ACC_WINDOW_S == 0.1 and worst <= np.sqrt(2.0) * 0.3 / 10 + 1e-9
+    ramp = acc.copy()
+    ramp[:, 0] += 0.8 * (t - 0.005)  # the braking changes at 0.8 m/s^3 (row j: the mean at t_j - dt / 2)
+    window_acceleration_ned(t, ramp, 900, C, bias, 0.08, out)
+    np.testing.assert_allclose(out, C @ (brake + [0.8 * (t[900] + 0.04), 0.0, 0.0]) + [0.0, 0.0, G0_MPS2], atol=1e-9)
+    assert VIBRATION_WINDOW_S == 0.2
+    for f_hz in (10.0, 12.5, 17.0, 25.0, 33.3, 45.0):
+        worst = 0.0
+        for phase in (0.0, 0.7, 2.1, 4.0):
+            shaken = acc.copy()
+            shaken[:, 0] += _line(t, f_hz, 0.3, phase)
+            for k in range(100, 1900, 100):
+                window_acceleration_ned(t, shaken, k, C, bias, 0.08, out)
+                worst = max(worst, float(np.linalg.norm(out - want)))
+        assert worst <= 0.03 * 0.3, f_hz
+
+
+def test_lever_arm_rate_is_the_window_mean_not_one_vibrating_sample():
+    """The GPS rows' body rate: a car turning at 0.3 rad/s with a gyro bias and a 0.3 deg/s gyro line
+    (what 30 mg of engine vibration makes of the simulated real car's gyros) at 25 Hz: at the
+    whole-second fix samples one sample reads the line in the same phase every time (up to 5 mrad/s,
+    4.9 mm/s on a 0.94 m lever arm, every fix); the window passes at most 3 % of it, and a turn rate
+    that changes linearly keeps its value at t_k."""
+    t = np.arange(3001) * 0.01
+    bias = np.array([0.0, 0.0, 0.0, 1e-3, -2e-3, 5e-4])
+    rate = np.array([0.0, 0.0, 0.3]) + 0.05 * (t[:, None] - 0.005) * np.array([0.0, 0.0, 1.0])  # row j: the mean at t_j - dt / 2
+    gyro = rate + bias[3:]
+    out = np.empty(3)
+    window_rate_b(t, gyro, 1500, bias, out)
+    np.testing.assert_allclose(out, [0.0, 0.0, 0.3 + 0.05 * t[1500]], atol=1e-12)
+    amp = np.radians(0.3)
+    shaken = gyro.copy()
+    shaken[:, 2] += _line(t, 25.0, amp, 2.36)  # its peak at the fix samples
+    fixes = np.arange(100, 2900, 100)
+    one = shaken[fixes, 2] - bias[5] - (0.3 + 0.05 * (t[fixes] - 0.005))
+    assert np.ptp(one) < 1e-12 and abs(one[0]) > 0.8 * amp  # the same phase at every fix
+    for k in fixes:
+        window_rate_b(t, shaken, k, bias, out)
+        assert abs(out[2] - (0.3 + 0.05 * t[k])) <= 0.03 * amp
+
+
+def test_vibration_velocity_is_what_the_line_adds_to_the_ins_velocity():
+    """The IMU's velocity about the trend of its motion: a car braking with a jerk of 1 m/s^3 plus a
+    0.3 m/s^2 line at 25 Hz (its velocity 1.9 mm/s at most): the window finds the line's velocity at
+    the sample within 10 % of its amplitude, and nothing for the braking alone (the quadratic in u
+    holds gravity, bias, acceleration and jerk)."""
+    t = np.arange(3001) * 0.01
+    acc = np.zeros((t.size, 3))
+    acc[:, 0] = -2.0 + 1.0 * (t - 0.005)
+    acc[:, 2] = -G0_MPS2 + 0.02
+    out = np.empty(3)
+    window_vibration_velocity_b(t, acc, 1500, out)
+    np.testing.assert_allclose(out, 0.0, atol=1e-9)
+    amp = 0.3 / (2 * np.pi * 25.0)
+    for phase in (0.0, 1.1, 2.5, 4.4):
+        shaken = acc.copy()
+        shaken[:, 1] += _line(t, 25.0, 0.3, phase)
+        for k in range(200, 2800, 300):
+            window_vibration_velocity_b(t, shaken, k, out)
+            assert abs(out[1] - (-amp * np.cos(2 * np.pi * 25.0 * t[k] + phase))) <= 0.1 * amp
+            assert abs(out[0]) < 1e-9 and abs(out[2]) < 1e-9

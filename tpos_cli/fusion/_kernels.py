@@ -25,6 +25,8 @@ from tpos_cli.fusion.nav_errors import (
     error_dynamics,
     process_noise,
     window_acceleration_ned,
+    window_rate_b,
+    window_vibration_velocity_b,
 )
 from tpos_cli.ins._kernels import mech_step
 
@@ -233,6 +235,9 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     dth_prev = np.zeros(3)
     dv_prev = np.zeros(3)
     w_ib = np.zeros(3)
+    w_gps = np.zeros(3)  # the GPS rows' body rate (`window_rate_b`)
+    vib_b = np.zeros(3)
+    vib_ned = np.zeros(3)  # the IMU's vibration velocity at a GPS velocity row (`window_vibration_velocity_b`)
     dx_sum = np.zeros(n)
     R_fb = np.empty((3, 3))  # apply_feedback's scratch
     work = np.empty((3, 3, 3))  # mech_step's
@@ -290,7 +295,14 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
             while e < n_ev and ev.k[e] == k:
                 m = ev.dim[e]
-                if o_clock >= 0 and (ev.kind[e] == Kind.GPS_POSITION or ev.kind[e] == Kind.GPS_VELOCITY):
+                is_gps = ev.kind[e] == Kind.GPS_POSITION or ev.kind[e] == Kind.GPS_VELOCITY
+                if is_gps:  # the lever-arm terms: the platform's rate over a window, not one vibrating sample
+                    window_rate_b(imu.t, imu.gyro, k, bias, w_gps)
+                if ev.kind[e] == Kind.GPS_VELOCITY:
+                    window_vibration_velocity_b(imu.t, imu.acc, k, vib_b)
+                    for i in range(3):
+                        vib_ned[i] = C[i, 0] * vib_b[0] + C[i, 1] * vib_b[1] + C[i, 2] * vib_b[2]
+                if o_clock >= 0 and is_gps:
                     # the clock columns: the platform's mean acceleration over the window of its offset
                     oc = o_clock + 1 if ev.kind[e] == Kind.GPS_VELOCITY else o_clock
                     window_acceleration_ned(imu.t, imu.acc, k, C, bias, bias[6 + oc - N_NAV], acc_ned)
@@ -300,7 +312,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     z, H, R = z2, H2, R2
                 else:
                     z, H, R = z3, H3, R3
-                measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, st.layout, P, z, H, R)
+                measure(e, ev, aid, ranging, nav, C, bias, w_gps if is_gps else w_ib, acc_ned, vib_ned, st.layout, P, z, H, R)
                 s, logdet = innovation_statistics(x, P, z, H, R, res.pvar[e])
                 for i in range(m):
                     res.nu[e, i] = z[i]

@@ -302,14 +302,17 @@ def _lever_second_order(P, ol, H, R, m):
 
 
 @njit(cache=True)
-def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, P, z, H, R):
+def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, vib_ned, lay, P, z, H, R):
     """Residual z (m,), rows H (m, n) and noise R (m, m) of measurement e about the nominal state.
 
     ev: the kernel's event arrays (`fusion._kernels.EventArrays`), aid: the per-kind parameters
-    (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample,
+    (`fusion._kernels.Aiding`), lay: `StateLayout.offsets()`, w_ib (3,) body rate at the sample (GPS
+    rows: its window mean, `fusion.nav_errors.window_rate_b`),
     acc_ned (3,) the platform's mean NED acceleration over the window of the measurement's clock
     offset (m/s^2; the clock columns, `fusion.nav_errors.window_acceleration_ned`), P (n, n)
-    the predicted covariance (the lever arm's second-order term, `_lever_second_order`).
+    the predicted covariance (the lever arm's second-order term, `_lever_second_order`), vib_ned
+    (3,) the IMU's vibration velocity at a GPS velocity row (m/s, taken out of the INS velocity:
+    `fusion.nav_errors.window_vibration_velocity_b`).
     m = ev.dim[e] is the size of z, H and R, which the caller allocated; H is written whole.
     """
     kind = ev.kind[e]
@@ -350,6 +353,8 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, lay, P, z, H, R):
     elif kind == Kind.GPS_VELOCITY:
         zv = np.empty(3)
         gps_velocity_residual(nav, C, aid.lever_b, w_ib, ev.z[e], zv)
+        for i in range(3):  # the fix holds the antenna's motion, not the IMU mount's vibration
+            zv[i] -= vib_ned[i]
         Hv = np.zeros((3, H.shape[1]))
         gps_velocity_jacobian(C, aid.lever_b, w_ib, Hv, 0)
         for i in range(m):

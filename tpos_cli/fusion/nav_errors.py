@@ -29,43 +29,125 @@ def corrected_increments(gyro_k, acc_k, bias, dt, dtheta, dv):
         dtheta[i] = (gyro_k[i] - bias[3 + i]) * dt
 
 
-# the shortest window of `window_acceleration_ned`: a full cycle of 10 Hz, the low end of engine and
-# road vibration, over which a car's own acceleration changes little
-CLOCK_ACC_WINDOW_S = 0.1
+# the GPS rows' windows over the IMU (`window_acceleration_ned`, `window_rate_b`,
+# `window_vibration_velocity_b`): engine and road vibration lies at 10 Hz and above, and a Hann
+# (raised-cosine) weighting this long has its first null at 10 Hz and passes at most 3 % of any
+# frequency beyond, whatever its phase at the fix; a car's own acceleration and turn rate change
+# little over it, and a symmetric weighting keeps a linear change exactly
+VIBRATION_WINDOW_S = 0.2
+
+
+@njit(cache=True)
+def _hann_mean_b(t_s, x_b, k, centre_s, length_s, b0, out):
+    """out = the Hann-weighted mean of x_b - b0 (body axes) over the samples whose intervals'
+    middles lie within length_s / 2 of centre_s (searched from sample k; sample k's own when
+    none). Weights dt_j (1 + cos(2 pi (c_j - centre) / length)) / 2, c_j the middle of (t_{j-1},
+    t_j]. t_s (N,), x_b (N, 3): the run's IMU (row j the mean over (t_{j-1}, t_j]); b0 (3,) the
+    bias to take out."""
+    n = t_s.shape[0]
+    half = 0.5 * length_s
+    j0 = max(k, 1)
+    while j0 > 1 and 0.5 * (t_s[j0 - 2] + t_s[j0 - 1]) > centre_s - half:
+        j0 -= 1
+    j1 = max(k, 1)
+    while j1 < n - 1 and 0.5 * (t_s[j1] + t_s[j1 + 1]) < centre_s + half:
+        j1 += 1
+    f0 = f1 = f2 = 0.0
+    w = 0.0
+    for j in range(j0, j1 + 1):
+        dt = t_s[j] - t_s[j - 1]
+        wj = dt * 0.5 * (1.0 + np.cos(2.0 * np.pi * (0.5 * (t_s[j] + t_s[j - 1]) - centre_s) / length_s))
+        f0 += (x_b[j, 0] - b0[0]) * wj
+        f1 += (x_b[j, 1] - b0[1]) * wj
+        f2 += (x_b[j, 2] - b0[2]) * wj
+        w += wj
+    if w <= 0.0:  # a window inside one long interval: that sample
+        j = max(k, 1)
+        for i in range(3):
+            out[i] = x_b[j, i] - b0[i]
+        return
+    out[0] = f0 / w
+    out[1] = f1 / w
+    out[2] = f2 / w
 
 
 @njit(cache=True)
 def window_acceleration_ned(t_s, acc_b, k, C, bias, d_s, out):
     """The platform's mean NED acceleration (m/s^2, time-even) over the clock-offset window from
-    t_k to t_k + d_s (the run's own time), widened about its middle to CLOCK_ACC_WINDOW_S:
-    C (mean bias-corrected specific force of the samples whose intervals lie inside) + gravity.
+    t_k to t_k + d_s (the run's own time), widened about its middle to VIBRATION_WINDOW_S and
+    Hann-weighted (`_hann_mean_b`): C (mean bias-corrected specific force) + gravity.
     A velocity taken d later has gained its integral, v(t + d) - v(t) = a d (first order in the
-    attitude change over d); one sample of a vibrating IMU instead puts tens of mg times d into
-    the GPS-velocity clock column (`fusion.measurements.measure`). t_s (N,), acc_b (N, 3): the
+    attitude change over d; a linear change of a is kept by the symmetric weights); one sample of
+    a vibrating IMU instead puts tens of mg times d into the GPS-velocity clock column
+    (`fusion.measurements.measure`), and so does a plain mean over 2.5 cycles of a 25 Hz engine
+    line, in the same phase at every fix taken at whole seconds. t_s (N,), acc_b (N, 3): the
     run's IMU (row j the mean over (t_{j-1}, t_j]); bias = [acc (3), gyro (3)]. Gravity is the
     standard one, as the filter loop had it: the local one differs by < 0.03 m/s^2, < 3 mm/s in a d."""
-    half = 0.5 * max(abs(d_s), CLOCK_ACC_WINDOW_S)
-    lo = t_s[k] + 0.5 * d_s - half
-    hi = lo + 2.0 * half
+    f = np.empty(3)
+    _hann_mean_b(t_s, acc_b, k, t_s[k] + 0.5 * d_s, max(abs(d_s), VIBRATION_WINDOW_S), bias[:3], f)
+    for i in range(3):
+        out[i] = C[i, 0] * f[0] + C[i, 1] * f[1] + C[i, 2] * f[2]
+    out[2] += G0_MPS2
+
+
+@njit(cache=True)
+def window_rate_b(t_s, gyro_b, k, bias, out):
+    """The body rate (rad/s) the GPS lever-arm terms use at sample k: the Hann-weighted mean of the
+    bias-corrected gyro over VIBRATION_WINDOW_S centred on t_k (`_hann_mean_b`), not sample k's
+    own rate. The antenna's velocity v + C (w x l) (paper 003 Eq. 12 with the lever arm) holds
+    for the platform's rotation; a vibrating IMU's one sample adds its vibration, and fixes at
+    whole seconds sample an engine line at a multiple of 1 Hz in the same phase every time: on
+    the simulated real car, 3-5 mrad/s on every fix of a drive, 4-5 mm/s on a 0.9 m lever arm
+    against 0.02 m/s fixes, and a lever-arm column on straight roads (w x l with w the vibration)
+    that told the filter it saw the lever arm where it saw none. t_s (N,), gyro_b (N, 3): the
+    run's IMU; bias = [acc (3), gyro (3)]."""
+    _hann_mean_b(t_s, gyro_b, k, t_s[k], VIBRATION_WINDOW_S, bias[3:6], out)
+
+
+@njit(cache=True)
+def window_vibration_velocity_b(t_s, acc_b, k, out):
+    """The IMU's velocity at sample k about the trend of its motion (m/s, body axes): over the
+    samples whose intervals lie inside VIBRATION_WINDOW_S centred on t_k, u_j = sum_{m <= j} f_m
+    dt_m (the mechanization's interval convention), less u's least-squares quadratic, at sample k
+    (the ZUPT's `fusion.constraints.stop_measurements` form, about a moving vehicle's trend).
+    Gravity, the bias and the vehicle's own acceleration and jerk make the quadratic; what is left
+    is vibration. The GPS velocity row compares the fix with the INS velocity less this
+    (`fusion.measurements.measure`): a receiver reports the antenna's motion, not the IMU mount's
+    shake, and fixes at whole seconds sample an engine line at a multiple of 1 Hz in the same
+    phase every time. t_s (N,), acc_b (N, 3): the run's IMU (row j the mean over (t_{j-1}, t_j])."""
+    half = 0.5 * VIBRATION_WINDOW_S
     n = t_s.shape[0]
     j0 = k
-    while j0 > 1 and t_s[j0 - 1] > lo:
+    while j0 > 1 and t_s[j0 - 1] > t_s[k] - half:
         j0 -= 1
     j1 = k
-    while j1 < n - 1 and t_s[j1 + 1] <= hi:
+    while j1 < n - 1 and t_s[j1 + 1] <= t_s[k] + half:
         j1 += 1
-    f0 = f1 = f2 = 0.0
-    w = 0.0
-    for j in range(max(j0, 1), j1 + 1):
-        dt = t_s[j] - t_s[j - 1]
-        f0 += (acc_b[j, 0] - bias[0]) * dt
-        f1 += (acc_b[j, 1] - bias[1]) * dt
-        f2 += (acc_b[j, 2] - bias[2]) * dt
-        w += dt
-    f0, f1, f2 = f0 / w, f1 / w, f2 / w
-    for i in range(3):
-        out[i] = C[i, 0] * f0 + C[i, 1] * f1 + C[i, 2] * f2
-    out[2] += G0_MPS2
+    j0 = max(j0, 1)
+    m = j1 - j0 + 1
+    if m < 5:
+        for i in range(3):
+            out[i] = 0.0
+        return
+    A = np.zeros((3, 3))
+    B = np.zeros((3, 3))  # column i: the normal equations' right side of axis i
+    u = np.zeros(3)
+    for j in range(j0, j1 + 1):
+        tau = t_s[j] - t_s[k]
+        p = (1.0, tau, tau * tau)
+        for i in range(3):
+            u[i] += acc_b[j, i] * (t_s[j] - t_s[j - 1])
+        for r in range(3):
+            for c in range(3):
+                A[r, c] += p[r] * p[c]
+            for i in range(3):
+                B[r, i] += p[r] * u[i]
+        if j == k:
+            uk0, uk1, uk2 = u[0], u[1], u[2]
+    coef = np.linalg.solve(A, B)  # row 0: the quadratic at tau = 0, sample k
+    out[0] = uk0 - coef[0, 0]
+    out[1] = uk1 - coef[0, 1]
+    out[2] = uk2 - coef[0, 2]
 
 
 @njit(cache=True)
