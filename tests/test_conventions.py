@@ -45,6 +45,21 @@ def test_flipped_gyro_axis():
     assert len(w) == 1 and "gyro_y" in w[0] and "sign is flipped" in w[0]
 
 
+def test_block_fits_only_when_a_whole_log_test_holds(monkeypatch):
+    """The per-block fits (a finding must hold in most blocks) are made only when the whole-log fit
+    already passes a test: a consistent log fits once, a flipped axis once plus its 8 blocks."""
+    import tpos_cli.conventions as conv
+
+    calls = []
+    real = conv.tilt_gains
+    monkeypatch.setattr(conv, "tilt_gains", lambda *a, **k: calls.append(1) or real(*a, **k))
+    t, gyro, acc = _tilting()
+    assert check_tilt_consistency(t, gyro, acc, "FRD") == [] and len(calls) == 1
+    calls.clear()
+    gyro[:, 1] *= -1
+    assert len(check_tilt_consistency(t, gyro, acc, "FRD")) == 1 and len(calls) == 1 + 8
+
+
 def test_deg_per_s():
     t, gyro, acc = _tilting()
     w = check_tilt_consistency(t, np.degrees(gyro), acc, "FRD")

@@ -157,6 +157,20 @@ def test_flags_use_the_effective_sample_size():
     assert q.verdict == "unreliable" and any("disagree beyond their covariances" in r for r in q.reasons)
 
 
+def test_magnetometer_support_findings():
+    """The target chain's heading-sigma terms (`chains.target_fkf`) become suspect findings naming them."""
+    assert quality.magnetometer_support_findings({}) == []
+    ok = quality.magnetometer_support_findings({"magnetometer_unused_share": 0.3})
+    assert [(f.check, f.level) for f in ok] == [("magnetometer.unused", "ok")]
+    fs = quality.magnetometer_support_findings({"magnetometer_unused_share": 0.62, "unsupported_heading_sigma_deg": 7.25,
+                                                "unresolved_offset_ut": 12.5})
+    q = quality.combine(fs)
+    assert q.verdict == "suspect" and len(q.reasons) == 2
+    assert "62 % of the samples" in q.reasons[0] and "7.2 deg RMS" in q.reasons[0]
+    assert "12.5 uT disturbance" in q.reasons[1] and "tpos calibrate-mag" in q.reasons[1]
+    assert q.checks["magnetometer.unused"]["level"] == "suspect"
+
+
 def test_finding_levels_are_checked():
     with pytest.raises(ValueError):
         quality.Finding("x", "bad")

@@ -22,7 +22,9 @@ test, never against values seen on particular logs:
   unreliable when more than half of the epochs are flagged.
 - `aiding`: a chain that needs GPS, anchor ranges or rangefinders but used none (e.g. a GPS clock
   1e6 s off puts every fix outside the IMU log): unreliable.
-- `magnetometer`: the share of magnetometer samples the attitude filter rejected as disturbed.
+- `magnetometer`: the share of magnetometer samples the attitude filter rejected as disturbed;
+  a heading neither attitude run confirmed with the field, and a start alignment whose field may
+  hold a disturbance (`magnetometer_support_findings`: the target chain's heading-sigma terms).
 - convention findings (`conventions.session_findings`: units, axes, clock, magnetometer, baselines)
   and verified advice (`advice`) arrive as `Finding`s and are merged as they are.
 """
@@ -274,6 +276,40 @@ def magnetometer_findings(counts: Mapping | None, imu_samples: int, has_mag: boo
     return [Finding("magnetometer.rejected", "ok", None, fig)]
 
 
+UNUSED_FIELD_SHARE = 0.5  # `chains.target_fkf`: beyond it LF1's heading sigma carries the refused field's disagreement
+
+
+def magnetometer_support_findings(results: Mapping | None) -> list[Finding]:
+    """What the target chain added to LF1's heading sigma (`chains.target_fkf.unsupported_heading`,
+    `unresolved_offset_heading`): `magnetometer_unused_share` (samples on which neither attitude run
+    used the field) with `unsupported_heading_sigma_deg` (the refused field's RMS disagreement with the
+    heading), and `unresolved_offset_ut` (a disturbance the start alignment's field may hold)."""
+    r = results or {}
+    out: list[Finding] = []
+    share = r.get("magnetometer_unused_share")
+    if share is not None:
+        share = float(share)
+        sd = r.get("unsupported_heading_sigma_deg")
+        fig = {"unused_share": share, "unsupported_heading_sigma_deg": sd}
+        if share > UNUSED_FIELD_SHARE and sd is not None:
+            out.append(Finding("magnetometer.unused", "suspect",
+                               f"magnetometer: neither attitude run used the field on {100 * share:.0f} % of the samples: the "
+                               "heading rests on the still windows' alignments carried by the gyro, and the refused field "
+                               f"disagrees with it by {float(sd):.1f} deg RMS (in the heading sigma); keep magnets and "
+                               "electronics away from the sensor, or run `tpos calibrate-mag` if the disturbance moves "
+                               "with the device", fig))
+        else:
+            out.append(Finding("magnetometer.unused", "ok", None, fig))
+    b = r.get("unresolved_offset_ut")
+    if b is not None:
+        out.append(Finding("magnetometer.unresolved_offset", "suspect",
+                           f"magnetic survey: the start alignment's field may hold a {float(b):.1f} uT disturbance (a magnet "
+                           "attached from the start, or a field off the Earth field's magnitude in the still window): the "
+                           "heading may be off by up to the heading sigma; run `tpos calibrate-mag` on a log that turns the "
+                           "device with the magnet attached", {"unresolved_offset_ut": float(b)}))
+    return out
+
+
 def fusion_findings(results: Mapping | None) -> list[Finding]:
     """The federated filter's fault exclusions: a local filter left out of the fusion for more than
     the outlier allowance disagrees with the other (target chain, `attitude.faults`)."""
@@ -350,4 +386,5 @@ def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd
     fs += aiding_findings(session, innovations, chain)
     imu = session.imu
     fs += magnetometer_findings(counts, int(imu.t_s.size), imu.mag_b_ut is not None)
+    fs += magnetometer_support_findings(results)
     return combine(fs)
