@@ -150,6 +150,30 @@ def window_vibration_velocity_b(t_s, acc_b, k, out):
     out[2] = uk2 - coef[0, 2]
 
 
+def vibration_velocities_b(t_s, acc_b) -> np.ndarray:
+    """(N, 3) m/s: the IMU's velocity about the trend of its motion at every sample (body axes), as
+    `window_vibration_velocity_b` with the fit Hann-weighted on the median sample interval:
+    u = U - sum_j w_j U_{k+j}, U_k = sum_{m <= k} f_m dt_m, w the weights of the least-squares
+    quadratic's value at the centre of a VIBRATION_WINDOW_S window. u keeps 0.7 % of the power at
+    5 Hz, 44 % at 10 Hz and 90-110 % from 15 Hz on (an unweighted fit's side lobes pass 75-150 %);
+    0 in the first and last half window (no centred fit). t_s (N,), acc_b (N, 3): the run's IMU
+    (row j the mean over (t_{j-1}, t_j])."""
+    t = np.asarray(t_s, dtype=float)
+    dt = np.diff(t, prepend=t[0])
+    U = np.cumsum(np.asarray(acc_b, dtype=float) * dt[:, None], axis=0)
+    # the GPS rows' Hann weights (`_hann_mean_b`); scipy.signal's Savitzky-Golay costs 0.5 s to import
+    half = int(round(0.5 * VIBRATION_WINDOW_S / np.median(np.diff(t)))) if t.size > 1 else 0
+    u = np.zeros_like(U)
+    if half >= 3 and t.size > 2 * half:
+        tau = np.arange(-half, half + 1, dtype=float)
+        h = 0.5 * (1.0 + np.cos(np.pi * tau / half))
+        V = np.vander(tau, 3, increasing=True)
+        w = np.linalg.solve(V.T @ (h[:, None] * V), (h[:, None] * V).T)[0]  # the fit's value at tau = 0
+        win = np.lib.stride_tricks.sliding_window_view(U, 2 * half + 1, axis=0)  # (N - 2 half, 3, 2 half + 1)
+        u[half:-half] = U[half:-half] - win @ w
+    return u
+
+
 # the span over which the vibration's velocity variance is measured around an output row: tens of
 # cycles of a 10-50 Hz vibration, short beside how an engine's load and a road's surface change
 VIBRATION_VARIANCE_SPAN_S = 1.0
@@ -159,7 +183,7 @@ def vibration_velocity_cov_b(t_s, acc_b, idx, span_s: float = VIBRATION_VARIANCE
     """(K, 3, 3) m^2/s^2: covariance S_b of the vibration an INS velocity carries at samples idx (K,),
     in the IMU's axes (in NED: C_nb S_b C_nb^T): the mean of u u^T over the samples within span_s
     centred on each, u the IMU's velocity about the trend of its motion (as `window_vibration_velocity_b`,
-    the fit Hann-weighted: u's power passed 0.7 % at 5 Hz, 44 % at 10 Hz, 90-110 % from 15 Hz on).
+    `vibration_velocities_b`).
 
     A vibrating IMU's accelerometers integrate engine and road vibration into a 10-50 Hz velocity
     of a few mm/s (30 mg at 25 Hz: 1.9 mm/s) which no filter state holds: the error model's white
@@ -170,20 +194,7 @@ def vibration_velocity_cov_b(t_s, acc_b, idx, span_s: float = VIBRATION_VARIANCE
     variance for the reported velocity (no estimate moves). t_s (N,), acc_b (N, 3): the run's IMU
     (IMU axes, row j the mean over (t_{j-1}, t_j])."""
     t = np.asarray(t_s, dtype=float)
-    dt = np.diff(t, prepend=t[0])
-    U = np.cumsum(np.asarray(acc_b, dtype=float) * dt[:, None], axis=0)
-    # less the window's Hann-weighted least-squares quadratic at its centre (on the median sample
-    # interval; the GPS rows' Hann weights): it keeps the motion below 5 Hz (0.7 % of the power at
-    # 5 Hz) and passes 90-110 % of it from 15 Hz on (an unweighted fit's side lobes pass 75-150 %)
-    half = int(round(0.5 * VIBRATION_WINDOW_S / np.median(np.diff(t)))) if t.size > 1 else 0
-    u = np.zeros_like(U)
-    if half >= 3 and t.size > 2 * half:
-        tau = np.arange(-half, half + 1, dtype=float)
-        h = 0.5 * (1.0 + np.cos(np.pi * tau / half))
-        V = np.vander(tau, 3, increasing=True)
-        w = np.linalg.solve(V.T @ (h[:, None] * V), (h[:, None] * V).T)[0]  # the fit's value at tau = 0
-        win = np.lib.stride_tricks.sliding_window_view(U, 2 * half + 1, axis=0)  # (N - 2 half, 3, 2 half + 1)
-        u[half:-half] = U[half:-half] - win @ w  # the first and last half window: 0 (no centred fit)
+    u = vibration_velocities_b(t, acc_b)
     iu, ju = np.triu_indices(3)
     cs = np.zeros((t.size + 1, iu.size))
     np.cumsum(u[:, iu] * u[:, ju], axis=0, out=cs[1:])
