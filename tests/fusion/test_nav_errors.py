@@ -9,6 +9,8 @@ from tpos_cli.fusion.nav_errors import (
     VIBRATION_WINDOW_S,
     apply_feedback,
     error_dynamics,
+    vibration_velocities_b,
+    vibration_velocity_cov_b,
     window_acceleration_ned,
     window_rate_b,
     window_vibration_velocity_b,
@@ -147,3 +149,27 @@ def test_vibration_velocity_is_what_the_line_adds_to_the_ins_velocity():
             window_vibration_velocity_b(t, shaken, k, out)
             assert abs(out[1] - (-amp * np.cos(2 * np.pi * 25.0 * t[k] + phase))) <= 0.1 * amp
             assert abs(out[0]) < 1e-9 and abs(out[2]) < 1e-9
+
+
+def test_vibration_velocity_covariance_is_the_lines_velocity_variance():
+    """The vibration an INS velocity carries, as a covariance: a braking car (jerk 1 m/s^3) shaken by
+    a 0.3 m/s^2 line at 25 Hz on the right axis only: variance (0.3 / (2 pi 25))^2 / 2 on that axis
+    within 5 %, nothing elsewhere; the braking alone gives nothing (a consider variance that stays 0
+    on an IMU that does not shake); per sample, the line's velocity within 10 % of its amplitude
+    (`window_vibration_velocity_b`'s test) away from the log's first and last half window."""
+    t = np.arange(6001) * 0.01
+    acc = np.zeros((t.size, 3))
+    acc[:, 0] = -2.0 + 1.0 * (t - 0.005)
+    acc[:, 2] = -G0_MPS2 + 0.02
+    idx = np.arange(100, 5900, 10)
+    np.testing.assert_allclose(vibration_velocity_cov_b(t, acc, idx), 0.0, atol=1e-16)
+    shaken = acc.copy()
+    shaken[:, 1] += _line(t, 25.0, 0.3, 0.7)
+    S = vibration_velocity_cov_b(t, shaken, idx)
+    amp = 0.3 / (2 * np.pi * 25.0)
+    u = vibration_velocities_b(t, shaken)
+    np.testing.assert_allclose(u[idx, 1], -amp * np.cos(2 * np.pi * 25.0 * t[idx] + 0.7), atol=0.1 * amp)
+    var = 0.5 * (0.3 / (2 * np.pi * 25.0)) ** 2
+    np.testing.assert_allclose(S[:, 1, 1], var, rtol=0.05)
+    S[:, 1, 1] = 0.0
+    np.testing.assert_allclose(S, 0.0, atol=1e-3 * var)
