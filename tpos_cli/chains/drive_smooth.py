@@ -49,6 +49,7 @@ from tpos_cli.fusion.lever_arm import (
 )
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, refined_mounting, vehicle_attitude
+from tpos_cli.fusion.nav_errors import vibration_velocity_cov_b
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.io.columns import Columns, concat
@@ -421,12 +422,19 @@ def considered_fix_error(p: DriveSmoothParams, fixes: GpsFixes, info: dict) -> n
     return np.array([sd[0], sd[0], sd[1]]) ** 2
 
 
-def with_considered_error(sol: Solution, var_ned_m2) -> Solution:
-    """`sol` with `var_ned_m2` (3,) added to its position variances (`considered_fix_error`)."""
-    if var_ned_m2 is None:
+def with_unmodelled_errors(sol: Solution, pos_var_ned_m2, vel_cov_b) -> Solution:
+    """`sol` with two errors no state models added to its covariance (one copy of P9; no estimate
+    moves): pos_var_ned_m2 (3,) or None, the SD-less fixes' common error (`considered_fix_error`),
+    to the position variances; vel_cov_b (K, 3, 3) at sol.idx or None, the IMU's vibration velocity
+    (`fusion.nav_errors.vibration_velocity_cov_b`: the INS velocity carries the mount's shake, a few
+    mm/s on a car), as C_nb S_b C_nb^T to the velocity covariance."""
+    if pos_var_ned_m2 is None and vel_cov_b is None:
         return sol
     P9 = sol.P9.copy()
-    P9[:, (0, 1, 2), (0, 1, 2)] += var_ned_m2
+    if pos_var_ned_m2 is not None:
+        P9[:, (0, 1, 2), (0, 1, 2)] += pos_var_ned_m2
+    if vel_cov_b is not None:
+        P9[:, 3:6, 3:6] += sol.C_nb @ vel_cov_b @ np.swapaxes(sol.C_nb, -1, -2)
     return Solution(sol.name, sol.idx, sol.nav, sol.C_nb, P9, sol.bias)
 
 
@@ -618,7 +626,9 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols, cfg.C_vb)
     considered = considered_fix_error(p, fixes, info)
-    sols = {k: with_considered_error(at_stated_lever_arm(v, cfg), considered) for k, v in sols.items()}
+    S_vib_b = vibration_velocity_cov_b(imu.t, imu.acc, out_idx)
+    sols = {k: with_unmodelled_errors(at_stated_lever_arm(v, cfg), considered, S_vib_b[np.searchsorted(out_idx, v.idx)])
+            for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
                        mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True)), C_vb)
