@@ -21,6 +21,7 @@ import numpy as np
 from tpos_cli import smoothing
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import DriveSmoothParams
+from tpos_cli.consistency import mean_chi2
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
@@ -635,15 +636,15 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
 
 
 def nis_band(nis, innovation) -> dict | None:
-    """Mean NIS of the applied fixes against its 95% band: a mean of M chi-square(d) values has SD
-    sqrt(2 d / M) (d = the fixes' mean d.o.f.), so the band is d +- 1.96 sqrt(2 d / M)."""
+    """Mean NIS of the applied fixes against its two-sided 95% band (`consistency.mean_chi2`, each fix
+    with its own d.o.f., the finite components of its innovation; the verdict's check is the same
+    test at 99.9 % with the gate's truncation, `quality.nis_findings`)."""
     if len(nis) == 0:
         return None
-    dof = float(np.mean(np.isfinite(innovation).sum(axis=1)))
-    half = 1.96 * np.sqrt(2.0 * dof / len(nis))
-    mean = float(np.mean(nis))
-    return {"mean": round(mean, 3), "dof": round(dof, 2), "band95": [round(float(dof - half), 3), round(float(dof + half), 3)],
-            "inside": bool(abs(mean - dof) <= half), "fixes": int(len(nis))}
+    dof = np.isfinite(innovation).sum(axis=1).astype(float)
+    m = mean_chi2(nis, dof, prob=0.95)
+    return {"mean": round(m.mean, 3), "dof": round(float(np.mean(dof)), 2), "band95": [round(m.lo, 3), round(m.hi, 3)],
+            "inside": m.inside, "fixes": int(len(nis))}
 
 
 def range_epochs(session: Session):
