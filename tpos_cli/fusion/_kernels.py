@@ -137,21 +137,6 @@ class EventResults(NamedTuple):
     accepted: np.ndarray
 
 
-@njit(cache=True, inline="always")
-def mechanize_sample(k, imu, nav, C, bias, earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum, work):
-    """Advance the nominal over IMU interval k (bias-corrected increments, coning/sculling memory)
-    and accumulate the navigation-frame specific force over the current covariance interval; returns dt.
-    work (3, 3, 3): `ins._kernels.mech_step`'s scratch."""
-    dt = imu.t[k] - imu.t[k - 1]
-    corrected_increments(imu.gyro[k], imu.acc[k], bias, dt, dth, dv)
-    mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, earth_sign, f_n, work)
-    for i in range(3):
-        dth_prev[i] = dth[i]
-        dv_prev[i] = dv[i]
-        f_sum[i] += f_n[i] * dt
-    return dt
-
-
 @njit(cache=True)
 def _store(dst, k, src):
     """dst[k] = src for dst (N, n) and src (n,), by elements (an array assignment compiles a
@@ -193,7 +178,8 @@ def _store_transition(out, k, Phi):
 def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
-    Per IMU sample: mechanize (`mechanize_sample`). Every `cov_step` samples, at every sample with
+    Per IMU sample: bias-corrected increments, a strapdown step (`ins._kernels.mech_step`), the
+    specific force summed over the covariance interval. Every `cov_step` samples, at every sample with
     a measurement and at the last one, a covariance epoch: F from the mean specific force over the
     interval, Phi and Qd (`filters.kalman.discretize`), predict; the nominal of the Gauss-Markov
     extra states decays by exp(-dt / tau); then each measurement of the sample in turn: residual
@@ -274,7 +260,13 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     o_clock = st.layout[Block.CLOCK]
     dt_sum = 0.0
     for k in range(1, n_t):
-        dt = mechanize_sample(k, imu, nav, C, bias, st.earth_sign, dth, dv, dth_prev, dv_prev, f_n, f_sum, work)
+        dt = imu.t[k] - imu.t[k - 1]  # (written out here: a helper inlined by numba (inline="always") cost 13 % of a run)
+        corrected_increments(imu.gyro, imu.acc, k, bias, dt, dth, dv)
+        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, st.earth_sign, f_n, work)
+        for i in range(3):
+            dth_prev[i] = dth[i]
+            dv_prev[i] = dv[i]
+            f_sum[i] += f_n[i] * dt
         for i in range(3):
             w_ib[i] = dth[i] / dt
         dt_sum += dt

@@ -22,11 +22,12 @@ from tpos_cli.fusion.layout import ATT, BA, BG, N_NAV, POS, VEL
 
 
 @njit(cache=True)
-def corrected_increments(gyro_k, acc_k, bias, dt, dtheta, dv):
-    """Bias-corrected increments over one IMU interval, in place: bias = [acc (3), gyro (3)]."""
+def corrected_increments(gyro_b, acc_b, k, bias, dt, dtheta, dv):
+    """Bias-corrected increments over IMU interval k, in place: gyro_b, acc_b (N, 3) the run's IMU,
+    bias = [acc (3), gyro (3)]. Row k is indexed where it lies (no row view per sample)."""
     for i in range(3):
-        dv[i] = (acc_k[i] - bias[i]) * dt
-        dtheta[i] = (gyro_k[i] - bias[3 + i]) * dt
+        dv[i] = (acc_b[k, i] - bias[i]) * dt
+        dtheta[i] = (gyro_b[k, i] - bias[3 + i]) * dt
 
 
 # the GPS rows' windows over the IMU (`window_acceleration_ned`, `window_rate_b`,
