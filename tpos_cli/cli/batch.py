@@ -35,6 +35,7 @@ def batch(
 
     try:
         tasks = b.plan_batch(b.expand_sessions(sessions), out, pipeline, force=force, report=report, timeout_s=timeout)
+        _check_writable(out)  # before the sessions run: a read-only OUT failed each of them, then the record
         result = _run_with_progress(tasks, jobs, scheduler, quiet)
         json_path, _ = b.write_batch_record(result, pipeline=pipeline)
     except InvalidInputError as exc:
@@ -49,6 +50,18 @@ def batch(
         f"{result.count(b.STATUS_FAILED)} failed in {result.wall_time_s:.1f} s; record: {json_path}"
     )
     raise typer.Exit(result.exit_code)
+
+
+def _check_writable(out: Path) -> None:
+    """OUT exists (created now if need be) and can be written, else a one-line TposError (exit 1)."""
+    import os
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TposError(f"-o {out}: cannot create the directory ({exc.strerror or exc})") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise TposError(f"-o {out}: the directory cannot be written (read-only file system or no permission)")
 
 
 def _err(msg: str) -> None:
