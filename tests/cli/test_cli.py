@@ -158,3 +158,21 @@ def test_batch_into_a_directory_it_cannot_write_is_one_line_before_any_session_r
     res = runner.invoke(app, ["batch", str(s), "-o", str(out), "-j", "1", "-q"])
     assert res.exit_code == 1, res.output
     assert res.output.strip() == f"error: -o {out}: cannot create the directory (Read-only file system)"
+
+
+def test_ctrl_c_in_process_and_batch_says_what_was_kept(tmp_path, monkeypatch):
+    """Ctrl-C in `tpos process` or `tpos batch` ended with exit 130 and not a word (typer's own handling)."""
+    import tpos_cli.batch as b
+    import tpos_cli.pipeline as pl
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    s = write_minimal_session(tmp_path / "s")
+    monkeypatch.setattr(pl, "process_session", interrupted)
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 130 and "tpos process: interrupted; no run was written" in res.output
+    assert not (tmp_path / "run").exists()
+    monkeypatch.setattr(b, "run_batch", interrupted)
+    res = runner.invoke(app, ["batch", str(s), "-o", str(tmp_path / "out"), "-q"])
+    assert res.exit_code == 130 and "interrupted; the sessions finished so far are in" in res.output

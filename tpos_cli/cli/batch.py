@@ -38,6 +38,10 @@ def batch(
         _check_writable(out)  # before the sessions run: a read-only OUT failed each of them, then the record
         result = _run_with_progress(tasks, jobs, scheduler, quiet)
         json_path, _ = b.write_batch_record(result, pipeline=pipeline)
+    except KeyboardInterrupt:  # typer would end with exit 130 and not a word
+        _err(f"interrupted; the sessions finished so far are in {out}, the others were not written; "
+             "the same command resumes (finished runs are skipped)")
+        raise typer.Exit(130) from None
     except InvalidInputError as exc:
         _err(str(exc))
         raise typer.Exit(2) from None
