@@ -136,3 +136,43 @@ def test_objects_are_kept_from_the_collector_only_in_a_one_shot_process(monkeypa
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
+
+
+def test_batch_into_a_directory_it_cannot_write_is_one_line_before_any_session_runs(tmp_path, monkeypatch):
+    """`tpos batch ... -o <read-only>` ran every session (each failing to claim its run directory), then
+    ended in "tpos: internal error: OSError: [Errno 30] Read-only file system" from the record's mkdir."""
+
+    s = write_minimal_session(tmp_path / "s")
+    import errno
+    import pathlib
+
+    out = tmp_path / "ro" / "out"
+    real_mkdir = pathlib.Path.mkdir
+
+    def mkdir(self, *a, **k):
+        if self == out:
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return real_mkdir(self, *a, **k)
+
+    monkeypatch.setattr(pathlib.Path, "mkdir", mkdir)
+    res = runner.invoke(app, ["batch", str(s), "-o", str(out), "-j", "1", "-q"])
+    assert res.exit_code == 1, res.output
+    assert res.output.strip() == f"error: -o {out}: cannot create the directory (Read-only file system)"
+
+
+def test_ctrl_c_in_process_and_batch_says_what_was_kept(tmp_path, monkeypatch):
+    """Ctrl-C in `tpos process` or `tpos batch` ended with exit 130 and not a word (typer's own handling)."""
+    import tpos_cli.batch as b
+    import tpos_cli.pipeline as pl
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    s = write_minimal_session(tmp_path / "s")
+    monkeypatch.setattr(pl, "process_session", interrupted)
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 130 and "tpos process: interrupted; no run was written" in res.output
+    assert not (tmp_path / "run").exists()
+    monkeypatch.setattr(b, "run_batch", interrupted)
+    res = runner.invoke(app, ["batch", str(s), "-o", str(tmp_path / "out"), "-q"])
+    assert res.exit_code == 130 and "interrupted; the sessions finished so far are in" in res.output

@@ -68,3 +68,78 @@ def test_unknown_anchor_id_is_named_with_its_row(tmp_path, fmt):
     with pytest.raises(InvalidInputError) as exc:
         load_session(s)
     assert f"anchor_ranges.{fmt}: column 'id', row 10: anchor id 'A9' is not in anchors.csv" in str(exc.value)
+
+
+def _parquet_gps_session(tmp_path):
+    s = write_minimal_session(tmp_path / "s", fmt="parquet")
+    import pyarrow.parquet as pq
+
+    return s, pq.read_table(s / "gps.parquet")
+
+
+def test_parquet_column_repeated_is_named_not_an_internal_error(tmp_path):
+    """A Parquet file may hold two columns of one name; pyarrow's column lookup raised KeyError
+    ("tpos: internal error", exit 1) on the Arrow path."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    s, g = _parquet_gps_session(tmp_path)
+    pq.write_table(pa.Table.from_arrays(g.columns + [g.column("lat")], names=g.column_names + ["lat"]), s / "gps.parquet")
+    with pytest.raises(InvalidInputError) as exc:
+        load_session(s)
+    assert str(exc.value) == "s/gps.parquet: column 'lat': the column appears 2 times in the file; keep one"
+
+
+@pytest.mark.parametrize("kind", ["timestamp[ns]", "timestamp[ns, tz=UTC]", "duration[ns]"])
+def test_parquet_time_column_of_a_date_type_is_refused(tmp_path, kind):
+    """A t column stored as timestamp/duration was read as integer nanoseconds (t = 1e12 'seconds'): `tpos
+    validate` said ok and `process` ran on a clock 1e9 times too slow."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    s, g = _parquet_gps_session(tmp_path)
+    unit = pa.timestamp("ns", tz="UTC") if "UTC" in kind else pa.timestamp("ns") if kind.startswith("timestamp") else pa.duration("ns")
+    t_ns = pa.array((g.column("t").to_numpy() * 1e9).astype("int64")).cast(unit)
+    pq.write_table(g.set_column(0, "t", t_ns), s / "gps.parquet")
+    with pytest.raises(InvalidInputError) as exc:
+        load_session(s)
+    assert str(exc.value).startswith(f"s/gps.parquet: column 't', row 1: the column is of type {kind} (a date/time type)")
+
+
+@pytest.mark.parametrize("case", ["int32", "float32", "dictionary", "nulls", "row_groups"])
+def test_parquet_plain_variants_read_as_the_float64_file(tmp_path, case):
+    """Odd but valid column types give the same numbers as the float64 file (Arrow path or pandas')."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    s, g = _parquet_gps_session(tmp_path)
+    want = load_session(s).gps
+    i = g.column_names.index("fix")
+    if case == "int32":
+        g2 = g.set_column(i, "fix", g.column("fix").cast(pa.int32()))
+    elif case == "float32":
+        j = g.column_names.index("h")
+        g2 = g.set_column(j, "h", pa.array(g.column("h").to_numpy().astype(np.float32)))
+    elif case == "dictionary":
+        g2 = g.set_column(i, "fix", pa.array([str(int(v)) for v in g.column("fix").to_pylist()]).dictionary_encode())
+    elif case == "nulls":
+        j = g.column_names.index("h")
+        g2 = g.set_column(j, "h", pa.array([None] + g.column("h").to_pylist()[1:], pa.float64()))
+    else:
+        g2 = g
+    if case == "row_groups":
+        with pq.ParquetWriter(s / "gps.parquet", g.schema) as w:
+            w.write_table(g.slice(0, 3))
+            w.write_table(g.slice(3, 0))
+            w.write_table(g.slice(3))
+    else:
+        pq.write_table(g2, s / "gps.parquet")
+    got = load_session(s).gps
+    a_lla, b_lla, a_fix, b_fix = got.lla, want.lla.copy(), got.fix, want.fix
+    if case == "float32":
+        b_lla[:, 2] = b_lla[:, 2].astype(np.float32)
+    if case == "nulls":  # a fix without its height is dropped to fix = 0 (with a warning)
+        assert a_fix[0] == 0 and np.isnan(a_lla[0, 2])
+        a_lla, b_lla, a_fix, b_fix = a_lla[1:], b_lla[1:], a_fix[1:], b_fix[1:]
+    assert np.array_equal(got.t_s, want.t_s)
+    assert np.array_equal(a_lla, b_lla) and np.array_equal(a_fix, b_fix)

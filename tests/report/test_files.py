@@ -93,3 +93,50 @@ def test_interrupt_right_after_a_temporary_is_created_leaves_nothing(tmp_path, m
     with pytest.raises(KeyboardInterrupt), staged([tmp_path / "a.json", tmp_path / "b.pdf", tmp_path / "c.parquet"]):
         pass
     assert len(calls) == 2 and list(tmp_path.iterdir()) == []
+
+
+def _read_only_os_open(monkeypatch):
+    import errno
+
+    real_open = os.open
+
+    def ro_open(path, flags, *a, **k):
+        if str(path).endswith(".tmp") and flags & os.O_CREAT:
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real_open(path, flags, *a, **k)
+
+    monkeypatch.setattr(os, "open", ro_open)
+
+
+def test_read_only_directory_is_a_one_line_error_naming_the_output(tmp_path, monkeypatch):
+    """On a read-only file system the temporary's creation and its clean-up both raised EROFS:
+    `tpos report`/`export` ended in "tpos: internal error: OSError ..." (exit 1)."""
+    from tpos_cli.errors import TposError
+
+    _read_only_os_open(monkeypatch)
+    with pytest.raises(TposError) as exc:
+        write_atomic(tmp_path / "x.gpx", lambda p: p.write_text("x"))
+    assert str(exc.value) == f"cannot write {tmp_path / 'x.gpx'}: Read-only file system"
+    assert type(exc.value).exit_code == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_full_disk_while_writing_names_the_output(tmp_path):
+    import errno
+
+    from tpos_cli.errors import TposError
+
+    def write(p):
+        raise OSError(errno.ENOSPC, "No space left on device", str(p))
+
+    with pytest.raises(TposError, match=r"cannot write .*a\.csv: No space left on device"):
+        write_atomic(tmp_path / "a.csv", write)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_other_errors_of_the_writer_are_not_renamed(tmp_path):
+    def write(p):
+        raise FileNotFoundError(2, "No such file", "/elsewhere/input.parquet")
+
+    with pytest.raises(FileNotFoundError):
+        write_atomic(tmp_path / "a.csv", write)

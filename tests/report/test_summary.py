@@ -138,3 +138,24 @@ def test_page_1_rows_keep_the_tables_font(tmp_path):
         assert {t.get_fontsize() for t in fig.texts} == {7.8}, (name, [v for _, v in rows if len(v) > 60])
     keys = {k for k, _ in headline_rows(build_context(r))}
     assert {"Forward/backward agreement", "Withheld with --mask-gps", "Clocks"} <= keys
+
+
+def test_page_1_says_when_the_fixes_had_no_sds(tmp_path):
+    # session 8: fixes without SDs carry the stated accuracy (1.5 m h, 2.5 m v) into the estimates; comma2k19's
+    # page 1 showed "Estimated 95 %, horizontal: median 3.82 m" beside a 1.48 m RMS error and a smooth track,
+    # and only page 5's warnings said why
+    from tpos_cli.report import layout as L
+
+    considered = {"sigma_h_m": 1.4951, "sigma_v_m": 2.4893, "white_h_m": 0.122, "white_v_m": 0.231}
+    q = {"verdict": "suspect", "reasons": ["r"], "checks": {"flags": FLAGS}}
+    s = synth.write_session(tmp_path / "s", movement=True, gps=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5))
+    r = _with_quality(synth.write_run(tmp_path / "r", s, traj), q, {"alignment": {"gps_considered_error": considered}})
+    rows = headline_rows(build_context(r))
+    assert dict(rows)["GPS SDs"] == "none in the log: stated 1.50 m h, 2.50 m v used (fix scatter 0.12 m)"
+    fig = Figure(figsize=L.A4_IN)
+    L.draw_table(fig, 0.9, [L.Column("", [k for k, _ in rows], align="left"), L.Column("", [v for _, v in rows], align="left")],
+                 fontsize=7.8, header=False)
+    assert {t.get_fontsize() for t in fig.texts} == {7.8}
+    r2 = _with_quality(synth.write_run(tmp_path / "r2", s, traj), q, {"alignment": {}})
+    assert "GPS SDs" not in dict(headline_rows(build_context(r2)))

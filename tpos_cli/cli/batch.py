@@ -35,8 +35,13 @@ def batch(
 
     try:
         tasks = b.plan_batch(b.expand_sessions(sessions), out, pipeline, force=force, report=report, timeout_s=timeout)
+        _check_writable(out)  # before the sessions run: a read-only OUT failed each of them, then the record
         result = _run_with_progress(tasks, jobs, scheduler, quiet)
         json_path, _ = b.write_batch_record(result, pipeline=pipeline)
+    except KeyboardInterrupt:  # typer would end with exit 130 and not a word
+        _err(f"interrupted; the sessions finished so far are in {out}, the others were not written; "
+             "the same command resumes (finished runs are skipped)")
+        raise typer.Exit(130) from None
     except InvalidInputError as exc:
         _err(str(exc))
         raise typer.Exit(2) from None
@@ -49,6 +54,18 @@ def batch(
         f"{result.count(b.STATUS_FAILED)} failed in {result.wall_time_s:.1f} s; record: {json_path}"
     )
     raise typer.Exit(result.exit_code)
+
+
+def _check_writable(out: Path) -> None:
+    """OUT exists (created now if need be) and can be written, else a one-line TposError (exit 1)."""
+    import os
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise TposError(f"-o {out}: cannot create the directory ({exc.strerror or exc})") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise TposError(f"-o {out}: the directory cannot be written (read-only file system or no permission)")
 
 
 def _err(msg: str) -> None:

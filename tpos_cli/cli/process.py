@@ -53,13 +53,16 @@ def process(
     run_to_exit()  # a one-shot process: no cyclic collections, no interpreter teardown at the end
     windows = [parse_window(w, "--mask-gps") for w in mask_gps]
     overrides = _parse_set(set_)
-    from tpos_cli.pipeline import process_session
+    try:
+        from tpos_cli.pipeline import process_session
 
-    keep_until_exit()  # the ~10^5 objects of the imports above: out of every later collection (one-shot only)
-
-    with exit_on_error():
-        res = process_session(session, pipeline, out, mask_gps_windows=windows, overrides=overrides,
-                              progress=show_progress(quiet))
+        keep_until_exit()  # the ~10^5 objects of the imports above: out of every later collection (one-shot only)
+        with exit_on_error():
+            res = process_session(session, pipeline, out, mask_gps_windows=windows, overrides=overrides,
+                                  progress=show_progress(quiet))
+    except KeyboardInterrupt:  # typer would end with exit 130 and not a word
+        typer.echo("tpos process: interrupted; no run was written (an earlier run in that directory, if any, is unchanged)", err=True)
+        raise typer.Exit(130) from None
     s = res.summary
     if not quiet:
         for w in s["warnings"]:

@@ -147,7 +147,7 @@ def export_run(
         sol = choose_solution(run.trajectory["solution"], solution, f"{run.path.name}/trajectory.parquet")
         rate = rate_hz if rate_hz is not None else (None if fmt == "csv" else MAP_RATE_HZ)
         table, zone = trajectory_table(run.trajectory, sol, rate)
-        utc = utc_strings(table["t"].to_numpy(float), start_utc)
+        utc = utc_strings(table["t"].to_numpy(float), start_utc, 6)  # to 1 us, as t
         if utc is not None:
             table.insert(1, "time_utc", utc)
         table["solution"] = sol

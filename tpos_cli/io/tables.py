@@ -185,6 +185,15 @@ def _read_parquet(path: Path, wanted: set[str]) -> pa.Table:
         if meta.num_columns > MAX_TABLE_COLUMNS:
             _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
         columns = [c for c in names if c in wanted]
+        repeated = sorted({c for c in columns if columns.count(c) > 1}, key=columns.index)
+        if repeated:
+            _fail(path, f"the column appears {columns.count(repeated[0])} times in the file; keep one", repeated[0])
+        schema = pf.schema_arrow
+        for c in columns:
+            kind = schema.field(c).type
+            if pa.types.is_temporal(kind):  # pandas would give nanoseconds (or dates) where the contract means seconds
+                _fail(path, f"the column is of type {kind} (a date/time type); the contract wants numbers "
+                      "(t in seconds on the logger clock, text columns as strings)", c, 1)
         try:
             return pf.read(columns=columns)
         except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:

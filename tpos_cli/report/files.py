@@ -11,12 +11,15 @@ earlier tpos versions (which carried no PID).
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
 import secrets
 import signal
 from collections.abc import Callable, Iterable
 from pathlib import Path
+
+from tpos_cli.errors import TposError
 
 _TMP = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>\d+)-[0-9a-f]+|[A-Za-z0-9_]+)\.tmp$")
 
@@ -73,14 +76,35 @@ def staged(paths: Iterable[Path]):
     try:
         for p in paths:  # named before it exists: an interruption right after its creation still removes it
             tmps[p] = _temporary_name(p)
-            _create(tmps[p])
-        yield tmps
+            try:
+                _create(tmps[p])
+            except OSError as exc:
+                raise _cannot_write(p, exc) from None
+        try:
+            yield tmps
+        except OSError as exc:
+            if exc.errno not in _FULL_OR_READ_ONLY:
+                raise
+            named = [p for p, t in tmps.items() if exc.filename is not None and str(t) == str(exc.filename)]
+            raise _cannot_write(named[0] if named else paths[0] if len(paths) == 1 else paths[0].parent, exc) from None
         for p, tmp in tmps.items():
-            os.replace(tmp, p)
+            try:
+                os.replace(tmp, p)
+            except OSError as exc:
+                raise _cannot_write(p, exc) from None
     finally:
         for tmp in tmps.values():
-            with contextlib.suppress(FileNotFoundError):
+            with contextlib.suppress(OSError):  # absent, or never created (a read-only directory)
                 tmp.unlink()
+
+
+# Errors of the output file system, not of the data: a one-line message, not an internal error.
+_FULL_OR_READ_ONLY = {errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EFBIG}
+
+
+def _cannot_write(path: Path, exc: OSError) -> TposError:
+    """`OSError` of writing `path` (read-only or full file system; at creation also no permission) as a plain error (exit 1)."""
+    return TposError(f"cannot write {path}: {exc.strerror or exc}")
 
 
 def write_atomic(path: Path, write: Callable[[Path], object]) -> None:

@@ -107,6 +107,23 @@ def _mag_rejected(ctx: ReportContext) -> float | None:
     return None if fig is None else fig["fraction"]
 
 
+def _stated_gps_accuracy(ctx: ReportContext) -> str | None:
+    """For fixes without SDs, the stated accuracy the estimates carry (`results.alignment.gps_considered_error`:
+    the considered part `sigma_*_m` beside the fix-to-fix scatter `white_*_m`, stated = their root sum
+    of squares), so that page 1 says why its 95 % figures are metres where the track is smooth."""
+    c = ((ctx.run.summary.get("results") or {}).get("alignment") or {}).get("gps_considered_error")
+    if not isinstance(c, dict):
+        return None
+    try:
+        h, v, wh = (float(np.hypot(c["sigma_h_m"], c["white_h_m"])), float(np.hypot(c["sigma_v_m"], c["white_v_m"])),
+                    float(c["white_h_m"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (np.isfinite(h) and np.isfinite(v)):
+        return None
+    return f"none in the log: stated {fmt_len(h)} h, {fmt_len(v)} v used (fix scatter {fmt_len(wh)})"
+
+
 def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     best = ctx.series[ctx.best]
     rows = []
@@ -123,6 +140,9 @@ def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         rows.append(
             ("Estimated 95 %, vertical", f"median {fmt_len(est['v95_median_m'])}, 95th percentile {fmt_len(est['v95_p95_m'])}")
         )
+        stated = _stated_gps_accuracy(ctx)
+        if stated is not None:
+            rows.append(("GPS SDs", stated))
     if np.isfinite(est["yaw95_median_deg"]):
         rows.append(("Estimated yaw, 95 %", f"median {est['yaw95_median_deg']:.2f} deg, 95th percentile {est['yaw95_p95_deg']:.2f} deg"))
     return rows
