@@ -271,7 +271,8 @@ def magnetometer_findings(counts: Mapping | None, imu_samples: int, has_mag: boo
         return [Finding("magnetometer.rejected", "suspect",
                         f"magnetometer: the attitude filter rejected {100 * frac:.0f} % of its samples as disturbed (field "
                         "norm or dip off): a magnet, steel or electronics near the sensor; heading there rests on the gyro "
-                        "(and LF2); keep magnets away, or run `tpos calibrate-mag` if the disturbance moves with the device",
+                        "(and on LF2 where rangefinders aim at a wall); keep magnets away, or run `tpos calibrate-mag` if the "
+                        "disturbance moves with the device",
                         fig)]
     return [Finding("magnetometer.rejected", "ok", None, fig)]
 

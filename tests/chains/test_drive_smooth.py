@@ -367,3 +367,19 @@ def test_fixes_without_sds_carry_their_stated_accuracy_in_the_sigmas(tmp_path, m
     sd0 = np.sqrt(np.diagonal(base.P9, axis1=1, axis2=2)[:, :3])
     assert np.mean(np.abs(e[out]) < 3.0 * sd[out]) > 0.99
     assert np.mean(np.abs(e[out]) < 3.0 * sd0[out]) < 0.5
+
+
+def test_a_gps_table_without_any_fix_is_invalid_input(session_dir, tmp_path):
+    """Every gps row empty: a one-line invalid-input error naming the file (exit 2), not a processing failure."""
+    import shutil
+
+    _, path = session_dir
+    s = tmp_path / "s"
+    shutil.copytree(path, s)
+    f = next(s.glob("gps.*"))
+    d = pd.read_parquet(f) if f.suffix == ".parquet" else pd.read_csv(f)
+    d["lat"] = np.nan
+    d.to_parquet(f, index=False) if f.suffix == ".parquet" else d.to_csv(f, index=False)
+    with pytest.raises(InvalidInputError, match=rf"{f.name}: no row holds a position fix"):
+        process_session(s, "drive-smooth", tmp_path / "run")
+    assert not (tmp_path / "run").exists()

@@ -22,7 +22,7 @@ from tpos_cli import smoothing
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import DriveSmoothParams
 from tpos_cli.consistency import mean_chi2
-from tpos_cli.errors import ProcessingError
+from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm
@@ -103,6 +103,10 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     if gps is None:
         raise ProcessingError("gps: the drive pipeline needs a gps table")
     ok = gps.valid.copy()
+    if not ok.any():
+        f = next(iter(sorted(session.path.glob("gps.*"))), None)
+        raise InvalidInputError(f"{f.name if f is not None else 'gps'}: no row holds a position fix (lat, lon, h empty or "
+                                f"fix = 0 in all {gps.t_s.size} rows left); the drive pipeline needs GPS fixes")
     wild = wild_fixes(gps.t_s[ok], gps.lla[ok], np.asarray(gps.sigma_neu_m[ok], dtype=float)[:, :2].max(axis=1))
     ok[np.flatnonzero(ok)[wild]] = False  # counted by the chain (`drive_summary`: gps_fixes_wild)
     sig = np.array(gps.sigma_neu_m[ok], dtype=float)
