@@ -650,6 +650,12 @@ def _run_dask(
                 emit(i, _failed(tasks[i], f"Dask task lost: {_one_line(exc)}"))
 
 
+def check_jobs(jobs: int | None) -> None:
+    """`--jobs` is at least 1 (None: the default), else invalid usage."""
+    if jobs is not None and jobs < 1:
+        raise InvalidInputError(f"--jobs must be at least 1, got {jobs}")
+
+
 def run_batch(
     tasks: Sequence[SessionTask],
     *,
@@ -666,8 +672,7 @@ def run_batch(
     `process_session` and `is_current` replaces `run_is_current` (for tests); both must be
     picklable (module-level functions) for pools and clusters.
     """
-    if jobs is not None and jobs < 1:
-        raise InvalidInputError(f"--jobs must be at least 1, got {jobs}")
+    check_jobs(jobs)
     n_jobs = min(jobs or default_jobs(), max(len(tasks), 1))
     fn = functools.partial(run_session_task, process=process, is_current=is_current)
     results: list[SessionResult | None] = [None] * len(tasks)

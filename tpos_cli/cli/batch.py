@@ -35,6 +35,7 @@ def batch(
 
     try:
         tasks = b.plan_batch(b.expand_sessions(sessions), out, pipeline, force=force, report=report, timeout_s=timeout)
+        b.check_jobs(jobs)  # a usage error leaves nothing behind: checked before OUT is created
         _check_writable(out)  # before the sessions run: a read-only OUT failed each of them, then the record
         result = _run_with_progress(tasks, jobs, scheduler, quiet)
         json_path, _ = b.write_batch_record(result, pipeline=pipeline)
