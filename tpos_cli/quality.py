@@ -277,9 +277,6 @@ def magnetometer_findings(counts: Mapping | None, imu_samples: int, has_mag: boo
     return [Finding("magnetometer.rejected", "ok", None, fig)]
 
 
-UNUSED_FIELD_SHARE = 0.5  # `chains.target_fkf`: beyond it LF1's heading sigma carries the refused field's disagreement
-
-
 def magnetometer_support_findings(results: Mapping | None) -> list[Finding]:
     """What the target chain added to LF1's heading sigma (`chains.target_fkf.unsupported_heading`,
     `unresolved_offset_heading`): `magnetometer_unused_share` (samples on which neither attitude run
@@ -292,7 +289,7 @@ def magnetometer_support_findings(results: Mapping | None) -> list[Finding]:
         share = float(share)
         sd = r.get("unsupported_heading_sigma_deg")
         fig = {"unused_share": share, "unsupported_heading_sigma_deg": sd}
-        if share > UNUSED_FIELD_SHARE and sd is not None:
+        if sd is not None:  # written only past the chain's own share (`target_fkf.HEADING_UNSUPPORTED_SHARE`)
             out.append(Finding("magnetometer.unused", "suspect",
                                f"magnetometer: neither attitude run used the field on {100 * share:.0f} % of the samples: the "
                                "heading rests on the still windows' alignments carried by the gyro, and the refused field "
