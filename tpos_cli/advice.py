@@ -25,10 +25,10 @@ from tpos_cli import consistency, conventions, quality, timebase
 from tpos_cli.errors import TposError
 from tpos_cli.frames.rotation import axes_to_dcm
 from tpos_cli.io.columns import Columns, column
+from tpos_cli.quality import Finding, Quality
 
 if TYPE_CHECKING:
     import pandas as pd
-from tpos_cli.quality import Finding, Quality
 
 WINDOW_S = 300.0  # the part of a long log that is re-run for a candidate fix
 MARGIN_S = 20.0  # extra log before the window: the re-run's start-up (alignment, heading search)
@@ -237,11 +237,6 @@ def clock_signature(output) -> dict | None:
 _BOTH_TAKEN = "one [time] gps_offset_s cannot put both right; the filter's clock states took each"
 
 
-def _offset_text(d_s, sd_s) -> str:
-    """'0.125 ± 0.004 s early' for a clock offset d (a value stamped t holds at IMU time t + d)."""
-    return f"{abs(float(d_s)):.3f} ± {float(sd_s):.3f} s {'late' if float(d_s) < 0 else 'early'}"
-
-
 def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
     """The clock offset the drive filter estimated (`summary.json` gps_clock_offset: a position
     stamped t was taken at IMU time t + d). The run already used it (and moved its output to the
@@ -263,14 +258,14 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
             return [Finding("clock", "ok", None, fig)]
         fig["velocity_estimate_s"] = float(dv)
         return [Finding("clock", "suspect",
-                        f"gps/imu: the GPS velocities are time-stamped {_offset_text(dv, sdv)} against the IMU, their "
-                        f"positions {_offset_text(d, sd)} (estimated by the filter): {_BOTH_TAKEN} (velocities that are "
+                        f"gps/imu: the GPS velocities are time-stamped {conventions.offset_text(dv, sdv)} against the IMU, their "
+                        f"positions {conventions.offset_text(d, sd)} (estimated by the filter): {_BOTH_TAKEN} (velocities that are "
                         "differences of the fixes are half a fix interval late)", fig)]
-    said = (f"gps/imu: the GPS positions are time-stamped {_offset_text(d, sd)} against the IMU "
+    said = (f"gps/imu: the GPS positions are time-stamped {conventions.offset_text(d, sd)} against the IMU "
             "(estimated by the filter, whose output is on the GPS clock)")
     if dv is not None and sdv is not None and abs(float(dv) - d) > abs(float(dv)) + CLOCK_Z * float(np.hypot(sd, sdv)):
         fig["velocity_estimate_s"] = float(dv)
-        return [Finding("clock", "suspect", f"{said}, their velocities {_offset_text(dv, sdv)}: {_BOTH_TAKEN}", fig)]
+        return [Finding("clock", "suspect", f"{said}, their velocities {conventions.offset_text(dv, sdv)}: {_BOTH_TAKEN}", fig)]
     fig["suggested_gps_offset_s"] = cur + d
     return [Finding("clock", "suspect", f"{said}: set [time] gps_offset_s = {cur + d:.3f} in session.toml", fig)]
 

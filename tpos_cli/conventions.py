@@ -370,12 +370,16 @@ def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
     f = clock_finding(off, _current_gps_offset(session))
     if f is None or not f.figures["candidate"]:
         return []
-    late = "late" if off.offset_s < 0 else "early"
-    return [f"gps/imu: GPS velocity changes are time-stamped {abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s {late} against the IMU "
+    return [f"gps/imu: GPS velocity changes are time-stamped {offset_text(off.offset_s, off.sigma_s)} against the IMU "
             f"({' and '.join(off.channels)} from {off.n_used} GPS windows): a GPS clock offset? `tpos process` checks: "
             "the drive pipeline estimates the positions' and velocities' offsets as filter states and names them when "
             f"they matter; others try [time] gps_offset_s = {f.figures['suggest_gps_offset_s']:.3f} and suggest it if "
             "the GPS then fits better"]
+
+
+def offset_text(d_s, sd_s) -> str:
+    """'0.125 ± 0.004 s early' for a clock offset d (a value stamped t holds at IMU time t + d)."""
+    return f"{abs(float(d_s)):.3f} ± {float(sd_s):.3f} s {'late' if float(d_s) < 0 else 'early'}"
 
 
 def _current_gps_offset(session) -> float:
