@@ -25,7 +25,7 @@ def draw_allan(fig: Figure, nf, top: float, bottom: float) -> None:
         for i, a in enumerate(axes3):
             ax.loglog(a.tau_s, conv(a.adev), color=COLORS[i], label="xyz"[i])
         log_labels(ax, "xy")
-        ax.set_xlabel("averaging time τ, s", fontsize=8)
+        ax.set_xlabel("averaging time, s", fontsize=8)
         ax.set_ylabel(label, fontsize=8)
         ax.tick_params(labelsize=7.5)
         L.log_minor_grid(ax, "xy")

@@ -303,18 +303,16 @@ def legend_outside(ax, ncol: int = 6, raise_for_labels: bool = False) -> None:
         )
 
 
-SUPERSCRIPT = str.maketrans("-0123456789", "\u207b\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079")
-
-
 def decade_label(v: float, _pos=None) -> str:
-    """A log-axis tick label: 10 with a Unicode superscript exponent at a power of ten (e.g. 10⁻¹),
-    else the number. Plain text: matplotlib's default 10^k labels are mathtext, whose parser costs a
-    report ~0.1 s to build for a handful of labels."""
+    """A log-axis tick label in plain ASCII: a power of ten from 0.001 to 1000 as a number, beyond as
+    1e-5 / 1e5; else the number. Plain text: matplotlib's default 10^k labels are mathtext, whose
+    parser costs a report ~0.1 s to build for a handful of labels; ASCII draws in the PDF's standard
+    font (`pdf.CORE_FONT_RC`)."""
     if not (np.isfinite(v) and v > 0):
         return ""
     k = np.log10(v)
-    if abs(k - round(k)) < 1e-9:
-        return "10" + str(int(round(k))).translate(SUPERSCRIPT)
+    if abs(k - round(k)) < 1e-9 and abs(k) > 3:
+        return f"1e{int(round(k))}"
     return f"{v:g}"
 
 
