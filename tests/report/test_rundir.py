@@ -15,3 +15,48 @@ def test_load_run_refuses_a_fifo_summary_at_once(tmp_path):
     os.mkfifo(tmp_path / "summary.json")
     with pytest.raises(InvalidInputError, match="FIFO"):
         load_run(tmp_path)
+
+
+def _synthetic_run(tmp_path, alter):
+    import numpy as np
+
+    from tests.report import synth
+
+    s = synth.write_session(tmp_path / "s", movement=True)
+    t10 = np.arange(0.0, 20.0 + 1e-9, 0.1)
+    fwd = synth.trajectory_rows("forward", t10, [3.0, 4.0, 0.0], sigma=(1.0, 1.0, 1.0))
+    alter(fwd)
+    return synth.write_run(tmp_path / "r", s, fwd)
+
+
+def _refused(run, match):
+    import pytest
+
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.report.rundir import load_run
+
+    with pytest.raises(InvalidInputError, match=match):
+        load_run(run)
+
+
+def test_an_inf_where_tpos_writes_numbers_is_refused_with_its_row(tmp_path):
+    def alter(df):
+        df.loc[4, "h"] = float("inf")
+
+    _refused(_synthetic_run(tmp_path, alter), r"trajectory.parquet: column 'h', row 5: inf")
+
+
+def test_text_where_tpos_writes_numbers_is_refused(tmp_path):
+    def alter(df):
+        df["lat"] = df["lat"].astype(str)
+
+    _refused(_synthetic_run(tmp_path, alter), r"trajectory.parquet: column 'lat': object where tpos writes numbers")
+
+
+def test_a_solution_without_any_position_is_refused(tmp_path):
+    """It was an internal error (IndexError in qc.separation); export says the same in its words."""
+
+    def alter(df):
+        df["lat"] = float("nan")
+
+    _refused(_synthetic_run(tmp_path, alter), r"column 'lat': solution 'forward' has no epoch with a position")

@@ -62,6 +62,17 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
     missing = [c for c in required if c not in df.columns]
     if missing:
         raise InvalidInputError(f"{run_dir.name}/{name}: column '{missing[0]}': required column is missing")
+    for col in required:  # what tpos writes: numbers, NaN where absent, never inf (an altered file otherwise)
+        if col in ("solution", "kind", "id"):
+            continue
+        v = df[col].to_numpy()
+        if v.dtype.kind not in "fiub":
+            raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}': {v.dtype} where tpos writes numbers; "
+                                    "not a file tpos wrote (reprocess the session)")
+        bad = np.flatnonzero(np.isinf(v)) if v.dtype.kind == "f" else np.array([], dtype=int)
+        if bad.size:
+            raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}', row {int(bad[0]) + 1}: {v[bad[0]]} is not a "
+                                    "value tpos writes; not a file tpos wrote (reprocess the session)")
     if "solution" in df.columns and not isinstance(df["solution"].dtype, pd.CategoricalDtype):
         df["solution"] = df["solution"].astype(str).astype("category")
     return df
@@ -79,6 +90,20 @@ def _sorted_by_solution_time(df: pd.DataFrame) -> pd.DataFrame:
     rank = np.empty(codes.max() + 1, dtype=np.int64)
     rank[first] = np.arange(first.size)
     return df.iloc[np.lexsort((t, rank[codes]))].reset_index(drop=True)
+
+
+def _require_positions(run_dir: Path, traj: pd.DataFrame) -> None:
+    """Every solution tpos writes has epochs with a position: one without is an altered file, which
+    the report cannot place (InvalidInputError, one line)."""
+    finite = np.isfinite(traj[["lat", "lon", "h"]].to_numpy(float)).all(axis=1)
+    codes = traj["solution"].cat.codes.to_numpy()
+    has = np.bincount(codes[finite], minlength=len(traj["solution"].cat.categories)) > 0
+    present = np.bincount(codes, minlength=has.size) > 0
+    for k in np.flatnonzero(present & ~has):
+        name = traj["solution"].cat.categories[k]
+        raise InvalidInputError(f"{run_dir.name}/trajectory.parquet: column 'lat': solution '{name}' has no epoch with a "
+                                "position (lat, lon, h not all numbers in any of its rows); not a file tpos wrote "
+                                "(reprocess the session)")
 
 
 def _complete_innovations(df: pd.DataFrame | None) -> pd.DataFrame | None:
@@ -146,6 +171,7 @@ def load_run(run_dir: Path) -> RunData:
     innov = _complete_innovations(_read(run_dir, "innovations.parquet", INNOVATIONS_REQUIRED))
     if traj is not None and len(traj):
         traj = _sorted_by_solution_time(traj)
+        _require_positions(run_dir, traj)
     outages = windows(summary.get("gps_outages"), "gps_outages")
     mask = windows(summary.get("mask_gps"), "mask_gps")
     return RunData(run_dir, summary, traj, tgts, withheld, innov, merge_windows(outages, mask), mask)
