@@ -383,3 +383,36 @@ def test_a_gps_table_without_any_fix_is_invalid_input(session_dir, tmp_path):
     with pytest.raises(InvalidInputError, match=rf"{f.name}: no row holds a position fix"):
         process_session(s, "drive-smooth", tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def test_unmodelled_errors_are_added_in_place_only_to_a_covariance_no_other_holds():
+    """`owned_covariances`: a solution's P9 is added to in place only when it is its own array (not a
+    view of a run's) and no other solution shares it (`smoothed` is `rts` renamed); the result is the
+    same either way, and a P9 not owned is left as it was."""
+    from tpos_cli.chains.drive_smooth import owned_covariances, with_unmodelled_errors
+    from tpos_cli.trajectory import Solution
+
+    rng = np.random.default_rng(1)
+    k = 5
+    C = np.tile(np.eye(3), (k, 1, 1))
+    nav = np.zeros((k, 6))
+
+    def sol(name, P9):
+        return Solution(name, np.arange(k), nav, C, P9)
+
+    held = rng.random((2 * k, 9, 9))
+    rts = sol("rts", rng.random((k, 9, 9)))
+    sols = {"forward": sol("forward", rng.random((k, 9, 9))), "rts": rts, "smoothed": rts.renamed("smoothed"),
+            "backward": sol("backward", held[:k])}
+    assert owned_covariances(sols) == {"forward": True, "rts": False, "smoothed": False, "backward": False}
+    pos = np.array([1.0, 2.0, 3.0])
+    vel = np.tile(np.diag([0.1, 0.2, 0.3]), (k, 1, 1))
+    for name, s in sols.items():
+        before = s.P9.copy()
+        copied = with_unmodelled_errors(s, pos, vel)
+        np.testing.assert_array_equal(s.P9, before)  # a copy: the input untouched
+        if owned_covariances(sols)[name]:
+            in_place = with_unmodelled_errors(s, pos, vel, owned=True)
+            assert in_place.P9 is s.P9
+            np.testing.assert_array_equal(in_place.P9, copied.P9)
+    np.testing.assert_allclose(copied.P9[:, 3:6, 3:6] - held[:k, 3:6, 3:6], vel, rtol=0, atol=1e-15)  # rounding

@@ -18,7 +18,7 @@ from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm, wrap_angle_rad
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState
 from tpos_cli.fusion.insgps import GpsFixes, run_insgps
-from tpos_cli.ins.mechanization import integrate
+from tpos_cli.ins.mechanization import decimate_imu, integrate
 
 
 @dataclass(frozen=True)
@@ -213,7 +213,7 @@ class YawSearch:
 
 def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                n_hypotheses: int = 12, motion_s: float = 30.0, moved_m: float = 5.0,
-               min_likelihood_ratio: float = 100.0) -> YawSearch:
+               min_likelihood_ratio: float = 100.0, rate_hz: float = 25.0) -> YawSearch:
     """Coarse-to-fine initial yaw: the filter run from `n_hypotheses` yaws over the start of the log.
 
     A linearized error-state filter converges only from a yaw error of some 15-20 deg; a course
@@ -223,6 +223,8 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     the prior yaw of `init` (its own SD); the hypothesis whose GPS innovations have the smallest
     summed NIS wins (a wrong yaw makes the INS velocity point the wrong way as soon as the
     platform accelerates, so its innovations grow). Returns the winner's yaw and SD.
+    The runs take the IMU decimated to about `rate_hz` (`ins.mechanization.decimate_imu`) and 1 s
+    covariance steps, as the other tuning passes: a score only ranks yaws tens of degrees apart.
     """
     t = np.asarray(t_s, dtype=float)
     lat = np.radians(fixes.lla[:, 0])
@@ -240,13 +242,16 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     sigmas = np.full(hyps.size, spacing / 2.0)
     sigmas[0] = min(sig0, spacing / 2.0)
     # ungated: every innovation counts; the NIS is all a hypothesis is scored on (no nominal history)
-    scfg = dataclasses.replace(cfg, max_consecutive_rejections=0, nominal_idx=ENDS_ONLY)
+    rate = (i_end - 1) / (t[i_end - 1] - t[0]) if i_end > 1 else rate_hz
+    td, gd, ad = decimate_imu(t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end], max(1, int(round(rate / rate_hz))))
+    rate_d = (td.size - 1) / (td[-1] - td[0]) if td.size > 1 else rate
+    scfg = dataclasses.replace(cfg, max_consecutive_rejections=0, nominal_idx=ENDS_ONLY,
+                               cov_step=max(1, int(round(rate_d))))
     sub = fixes_before(fixes, t[i_end - 1])
     scores = np.full(hyps.size, np.inf)
     for h, (yaw, sy) in enumerate(zip(hyps, sigmas)):
         try:
-            run = run_insgps(t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end], sub, with_yaw(init, yaw, sy), scfg,
-                             store_rts=False)
+            run = run_insgps(td, gd, ad, sub, with_yaw(init, yaw, sy), scfg, store_rts=False)
         except ProcessingError:
             continue  # diverged: not this one
         scores[h] = float(np.nansum(run.ev_nis))
