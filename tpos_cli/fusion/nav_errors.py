@@ -198,7 +198,8 @@ def vibration_velocity_cov_b(t_s, acc_b, idx, span_s: float = VIBRATION_VARIANCE
     u = vibration_velocities_b(t, acc_b)
     iu, ju = np.triu_indices(3)
     cs = np.zeros((t.size + 1, iu.size))
-    np.cumsum(u[:, iu] * u[:, ju], axis=0, out=cs[1:])
+    for c, (i, j) in enumerate(zip(iu, ju)):  # one product column at a time: the hour's (N, 6) temporaries were its peak
+        np.cumsum(u[:, i] * u[:, j], out=cs[1:, c])
     idx = np.asarray(idx, dtype=np.int64)
     lo = np.searchsorted(t, t[idx] - 0.5 * span_s, side="left")
     hi = np.searchsorted(t, t[idx] + 0.5 * span_s, side="right")
