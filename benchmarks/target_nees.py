@@ -7,7 +7,10 @@ compared with its own covariance from `targets.parquet` (sigma_n/e/u and cov_ne/
 Printed per grade and solution: the share of targets inside their 95 % ellipsoid (chi-square(3) 7.81;
 goal >= 80 %) and the mean NEES per dof (goal within [0.3, 2]).
 
-    python benchmarks/target_nees.py [seeds per grade, default 4] [grades, default paper,mems,tactical]
+The simulated gyros carry their grade's constant scale/misalignment (`sim.target.GYRO_SCALE_PPM`); a third
+argument sets its SD (ppm) for every grade instead (0: gyros without it, the sessions of main before session 9).
+
+    python benchmarks/target_nees.py [seeds per grade, default 4] [grades, default paper,mems,tactical] [gyro scale ppm]
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from tpos_cli.sim.writer import write_session
 
 GRADES = tuple(sys.argv[2].split(",")) if len(sys.argv) > 2 else ("paper", "mems", "tactical")  # issue 12's grades
 SOLUTIONS = ("fkf", "fkf_cal", "lf1", "lf2")
+GYRO_SCALE_PPM = float(sys.argv[3]) if len(sys.argv) > 3 else None  # None: each grade's own figure
 
 
 def target_covariance_ned(row) -> np.ndarray:
@@ -40,7 +44,7 @@ def target_covariance_ned(row) -> np.ndarray:
 
 def session_nees(grade: str, seed: int, tmp: Path) -> pd.DataFrame:
     """(solution, id, nees, err_m) of every target of one simulated session."""
-    sim = simulate_target(90.0, seed=seed, grade=grade)
+    sim = simulate_target(90.0, seed=seed, grade=grade, gyro_scale_ppm=GYRO_SCALE_PPM)
     d = write_session(sim, tmp / f"{grade}_{seed}", overwrite=True)
     rs = process_session(d, "target-fkf", tmp / f"{grade}_{seed}_run")
     tg = pd.read_parquet(rs.run_dir / "targets.parquet")

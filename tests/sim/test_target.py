@@ -97,3 +97,22 @@ def test_sine_motion_of_paper_000():
     t = s.truth.t_s
     assert_allclose(s.truth.rpy_rad[:, 1], np.radians(54.0) * np.sin(2 * np.pi * t / 100.0), atol=1e-12)
     assert s.shots is None and np.isfinite(s.ranges.range_m).all()
+
+
+def test_gyro_scale_misalignment_per_grade_leaves_the_other_draws():
+    # omega_meas = (I + dM) omega + bias + noise, dM constant per session, its SD the grade's (GYRO_SCALE_PPM);
+    # the draw comes from its own stream: without it (gyro_scale_ppm=0) every other sample of the seed is the same
+    from tpos_cli.sim.target import GYRO_SCALE_PPM
+
+    a = simulate_target(30.0, seed=7, grade="mems")
+    b = simulate_target(30.0, seed=7, grade="mems", gyro_scale_ppm=0.0)
+    dM = np.array(a.params["gyro_scale_misalignment"])
+    assert a.params["gyro_scale_ppm"] == GYRO_SCALE_PPM["mems"] == 1000.0
+    assert 1e-4 < np.sqrt(np.mean(dM**2)) < 3e-3
+    assert np.array_equal(a.imu.acc_b_mps2, b.imu.acc_b_mps2) and np.array_equal(a.imu.mag_b_ut, b.imu.mag_b_ut)
+    assert_allclose(a.imu.gyro_b_rps - b.imu.gyro_b_rps, a.imu.gyro_true_b_rps @ dM.T, rtol=0, atol=1e-15)
+    assert not np.any(b.params["gyro_scale_misalignment"])
+    t = simulate_target(30.0, seed=7, grade="tactical")
+    assert_allclose(np.array(t.params["gyro_scale_misalignment"]), 0.1 * dM, rtol=1e-12)
+    assert not np.any(simulate_target(30.0, seed=7, noise_free=True).params["gyro_scale_misalignment"])
+    assert not np.any(simulate_target(30.0, seed=7).params["gyro_scale_misalignment"])  # paper 000's gyro

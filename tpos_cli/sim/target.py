@@ -13,6 +13,15 @@ wall plane n.p = D in the observer's NED frame; no return (NaN) when a beam miss
 `max_range_m`. Magnetometer: a constant Earth field (total intensity, inclination, declination)
 resolved in body axes, plus noise, plus an optional disturbance window (paper 000 section 6.2.2:
 0.5 G = 50 uT with 1e-2 G = 1 uT noise, from a start time to the end).
+
+Gyro scale and misalignment: every gyro measures omega_meas = (I + dM) omega + bias + noise with a
+constant 3x3 dM per session (scale-factor errors on the diagonal, axis misalignment off it), each
+element drawn N(0, sd^2) from its own random stream (the other draws of a seed are unchanged), sd per
+grade (`GYRO_SCALE_PPM`): `mems` 1000 ppm (0.1 %: a consumer MEMS gyro after a one-time calibration;
+data sheets give 0.4-1.5 % sensitivity tolerance and 0.5-2 % cross-axis sensitivity untrimmed),
+`tactical` 100 ppm, `paper` and `perfect` 0 (paper 000 simulates a gyro with the stated bias and noise
+only, and its goals are stated for that gyro). The attitude filters carry the `mems` figure as a
+consider error for every log (`chains.target_fkf.GYRO_SCALE_CONSTANT_SD`), since a log cannot state it.
 """
 
 from __future__ import annotations
@@ -49,6 +58,8 @@ DEFAULT_TARGETS = (
     ("T4", 7.5, 0.5, "truth"),
 )
 MAX_SLEW_RATE_RPS = np.radians(30.0)
+#: SD (ppm) of each element of the gyro's constant scale/misalignment matrix dM per grade (module docstring).
+GYRO_SCALE_PPM = {"paper": 0.0, "mems": 1000.0, "tactical": 100.0, "perfect": 0.0}
 
 
 @dataclass(frozen=True)
@@ -142,6 +153,7 @@ def simulate_target(
     roll_deg: float = 0.0,
     roll_sway_deg: float = 0.0,
     roll_sway_period_s: float = 7.0,
+    gyro_scale_ppm: float | None = None,
     start_utc: str = "2015-06-11T14:02:00Z",
     t0_s: float = 0.0,
     name: str = "target",
@@ -153,7 +165,8 @@ def simulate_target(
     the end of the session). `noise_free` gives error-free IMU, magnetometer and ranges.
     `roll_deg` holds the device at that roll (a hand-held device is never level) and
     `roll_sway_deg` adds a sinusoidal roll sway of that amplitude and period `roll_sway_period_s`
-    (roll turns about the beam, so LR1 still hits the same points).
+    (roll turns about the beam, so LR1 still hits the same points). `gyro_scale_ppm` the SD of each
+    element of the gyro's constant scale/misalignment dM (None: the grade's `GYRO_SCALE_PPM`; 0: none).
     """
     if duration_s <= 0 or rate_hz <= 0 or wall_distance_m <= 0:
         raise InvalidInputError("duration, rate and wall distance must be > 0")
@@ -162,7 +175,8 @@ def simulate_target(
     stride = rate_hz / range_rate_hz
     if abs(stride - round(stride)) > 1e-9 or round(stride) < 1:
         raise InvalidInputError(f"range rate: {range_rate_hz} Hz must divide the IMU rate {rate_hz} Hz")
-    imu_rng, mag_rng, lr_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
+    # spawn(4)'s first three children are spawn(3)'s: the scale draw leaves every other draw of a seed as it was
+    imu_rng, mag_rng, lr_rng, scale_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
     az = np.radians(wall_azimuth_deg)
     ids = tuple(str(t[0]) for t in targets)
     pts = wall_points_ned(wall_distance_m, az, [t[1] for t in targets], [t[2] for t in targets])
@@ -182,7 +196,11 @@ def simulate_target(
     lla0 = np.asarray(observer_lla, dtype=float)
     ti = simulate_truth_imu(mot, t, lla0)
     g = imu_grade("perfect" if noise_free else grade, "target")
-    gyro, acc, err = corrupt_imu(ti.gyro_b_rps, ti.acc_b_mps2, g, rate_hz, imu_rng)
+    sd_scale = (GYRO_SCALE_PPM[g.name] if gyro_scale_ppm is None else float(gyro_scale_ppm)) * 1e-6
+    if sd_scale < 0.0:
+        raise InvalidInputError(f"gyro_scale_ppm: {gyro_scale_ppm} must be >= 0")
+    dM = scale_rng.standard_normal((3, 3)) * sd_scale if (sd_scale > 0.0 and not noise_free) else np.zeros((3, 3))
+    gyro, acc, err = corrupt_imu(ti.gyro_b_rps @ (np.eye(3) + dM).T, ti.acc_b_mps2, g, rate_hz, imu_rng)
     truth = SimTruth(ti.t_s, ti.lla, ti.vel_ned_mps, ti.rpy_rad)
     C_nb = truth.C_nb
 
@@ -218,6 +236,8 @@ def simulate_target(
         "mag_disturbance_ut": mag_disturbance_ut,
         "roll_deg": roll_deg,
         "roll_sway_deg": roll_sway_deg,
+        "gyro_scale_ppm": sd_scale * 1e6,
+        "gyro_scale_misalignment": dM.tolist(),  # omega_meas = (I + dM) omega + bias + noise
         "mag_disturbance_window_s": [mag_disturbance_start_s, mag_disturbance_end_s] if mag_disturbance_ut > 0 else None,
     }
     return SimResult(
