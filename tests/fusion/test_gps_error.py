@@ -138,3 +138,57 @@ def test_unmodelled_error_is_what_the_stated_accuracy_leaves():
     sd = unmodelled_error_sd_m([1.5, 2.5], [0.3, 0.4], [0.4, 0.0])
     np.testing.assert_allclose(sd, [np.sqrt(1.5**2 - 0.3**2 - 0.4**2), np.sqrt(2.5**2 - 0.4**2)], rtol=1e-12)
     np.testing.assert_array_equal(unmodelled_error_sd_m([1.0, 1.0], [1.2, 1.0]), [0.0, 0.0])
+
+
+def _line_fit_p9(n: int, dt: float, r: float, at_end: bool) -> np.ndarray:
+    """P9 of a least-squares line (position, velocity) through n fixes of variance r every dt s,
+    at the last fix or at the centre, the same on each NED axis."""
+    t = np.arange(n) * dt
+    t = t - (t[-1] if at_end else t.mean())
+    H = np.column_stack([np.ones(n), t])
+    C = np.linalg.inv(H.T @ H) * r
+    P9 = np.zeros((1, 9, 9))
+    for i in range(3):
+        P9[0, i, i], P9[0, 3 + i, 3 + i] = C[0, 0], C[1, 1]
+        P9[0, i, 3 + i] = P9[0, 3 + i, i] = C[0, 1]
+    return P9
+
+
+def test_velocity_span_is_the_line_fits_span():
+    """`velocity_span_s` on the exact covariance of a least-squares line through n fixes: at the
+    centre sqrt(12) sigma_p / sigma_v = dt sqrt(n^2 - 1) exactly; at the end it tends to n dt."""
+    from tpos_cli.fusion.gps_error import velocity_span_s
+
+    n, dt = 201, 0.5
+    centre = velocity_span_s(_line_fit_p9(n, dt, 0.04, at_end=False), two_sided=True)
+    np.testing.assert_allclose(centre, dt * np.sqrt(n * n - 1.0), rtol=1e-9)
+    end = velocity_span_s(_line_fit_p9(n, dt, 0.04, at_end=True), two_sided=False)
+    np.testing.assert_allclose(end, dt * np.sqrt((n * n - 1.0) * (1.0 + 3.0 * (n - 1.0) / (n + 1.0)) / 4.0), rtol=1e-9)
+    np.testing.assert_allclose(end, n * dt, rtol=0.01)
+
+
+def test_unmodelled_velocity_var_is_the_gauss_markov_slope():
+    """Analytic: 2 sigma^2 (1 - exp(-T / tau)) / T^2, the variance of (b(t + T) - b(t)) / T for a
+    first-order Gauss-Markov b (checked on exact AR(1) draws); tau from `matched_tau_bound_s` makes
+    the change over the matched span equal the white variance, and is the worst case."""
+    from tpos_cli.fusion.gps_error import matched_tau_bound_s, unmodelled_velocity_var
+
+    sigma, tau, T = 1.0, 300.0, 30.0
+    np.testing.assert_allclose(unmodelled_velocity_var(sigma, tau, T), 2.0 * (1.0 - np.exp(-T / tau)) / T**2, rtol=1e-12)
+    rng = np.random.default_rng(0)
+    b0 = rng.standard_normal(40000) * sigma  # stationary start, then the exact AR(1) step over T
+    a = np.exp(-T / tau)
+    bT = a * b0 + np.sqrt(1.0 - a * a) * sigma * rng.standard_normal(b0.size)
+    mc = np.var((bT - b0) / T)
+    assert abs(mc / unmodelled_velocity_var(sigma, tau, T) - 1.0) < 0.05  # 40000 draws: SE of a variance 0.7 %
+
+    white, span_m = 0.25, 10.0
+    tau_min = matched_tau_bound_s([sigma, 0.0, 0.1], [white, white, white], [span_m] * 3)
+    np.testing.assert_allclose(2.0 * sigma**2 * (1.0 - np.exp(-span_m / tau_min[0])), white**2, rtol=1e-12)
+    np.testing.assert_array_equal(tau_min[1:], [0.0, 0.0])  # no unmodelled error; white^2 >= 2 sigma^2: no bound
+    var = unmodelled_velocity_var([sigma, 0.0, 0.1], tau_min, T)
+    assert var[1] == 0.0
+    np.testing.assert_allclose(var[2], 2.0 * 0.1**2 / T**2, rtol=1e-12)  # tau 0: the whole error from fix to fix
+    assert var[0] > unmodelled_velocity_var(sigma, 2.0 * tau_min[0], T)  # slower wander: a smaller slope
+    # at the matched span itself the slope variance is the white variance over the span squared
+    np.testing.assert_allclose(unmodelled_velocity_var(sigma, tau_min[0], span_m), white**2 / span_m**2, rtol=1e-12)

@@ -85,6 +85,47 @@ def unmodelled_error_sd_m(stated_ned_m, white_ned_m, gm_ned_m=None) -> np.ndarra
     return np.sqrt(np.clip(rest, 0.0, None))
 
 
+def velocity_span_s(P9, two_sided: bool) -> np.ndarray:
+    """(K, 3) span T (s) over which a solution takes its velocity from the fixes, per NED axis, from
+    its own position and velocity SDs (P9 without considered errors): a least-squares line through
+    N fixes of variance R spread over T has slope variance 12 R / (N T^2) and, at the span's end
+    (a filter), position variance 4 R / N, at its centre (a smoother) R / N; so
+    T = sqrt(3) sigma_p / sigma_v one-sided, sqrt(12) sigma_p / sigma_v two-sided."""
+    d = np.diagonal(np.asarray(P9, dtype=float), axis1=-2, axis2=-1)
+    ratio = np.sqrt(np.clip(d[..., 0:3], 0.0, None) / np.clip(d[..., 3:6], 1e-300, None))
+    return (np.sqrt(12.0) if two_sided else np.sqrt(3.0)) * ratio
+
+
+def matched_tau_bound_s(sigma_c_m, white_m, matched_span_s) -> np.ndarray:
+    """Least time constant (s, per axis) of a first-order Gauss-Markov error of SD sigma_c
+    (`unmodelled_error_sd_m`) that covariance matching would have left out of its white SD
+    `white_m`: the matching's filter anchors on the fixes over `matched_span_s` (`velocity_span_s`
+    of the forward run), and an error changing over T by
+        Var(b(t + T) - b(t)) = 2 sigma_c^2 (1 - exp(-T / tau))
+    more than the white variance would have been matched as white; so
+        2 sigma_c^2 (1 - exp(-T_m / tau)) <= white^2.
+    0 where white^2 >= 2 sigma_c^2 (no bound: any tau fits) or sigma_c is 0."""
+    sc2 = np.asarray(sigma_c_m, dtype=float) ** 2
+    x = np.asarray(white_m, dtype=float) ** 2 / np.where(sc2 > 0, 2.0 * sc2, 1.0)
+    ok = (sc2 > 0) & (x < 1.0)
+    return np.where(ok, np.asarray(matched_span_s, dtype=float) / -np.log1p(-np.where(ok, x, 0.5)), 0.0)
+
+
+def unmodelled_velocity_var(sigma_c_m, tau_s, span_s) -> np.ndarray:
+    """Velocity variance ((m/s)^2, per axis) that the fixes' unmodelled error, a first-order
+    Gauss-Markov error of SD sigma_c (`unmodelled_error_sd_m`) and time constant tau, gives a
+    solution taking its velocity from the fixes over `span_s` (`velocity_span_s`): the slope the
+    error puts on the fixes over T,
+        Var = 2 sigma_c^2 (1 - exp(-T / tau)) / T^2,
+    which falls with tau: with tau the least the matching allows (`matched_tau_bound_s`) it is the
+    worst case (tau 0: 2 sigma_c^2 / T^2). A considered error (Schmidt): it widens the velocity SDs
+    and moves no estimate; 0 where sigma_c is 0 (a receiver that states its SDs)."""
+    T = np.clip(np.asarray(span_s, dtype=float), 1e-9, None)
+    tau = np.asarray(tau_s, dtype=float)
+    frac = 1.0 - np.exp(-T / np.where(tau > 0, tau, 1.0)) * (tau > 0)
+    return 2.0 * np.asarray(sigma_c_m, dtype=float) ** 2 * frac / T ** 2
+
+
 def innovation_loglik(run, count, gate_1: float = 15.137) -> float:
     """-1/2 sum (log det S + NIS) over the position and velocity parts of the fixes in `count`,
     each NIS capped at gate_1 per degree of freedom (one multipath jump must not decide the fit)."""
