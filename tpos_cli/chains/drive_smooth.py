@@ -35,7 +35,14 @@ from tpos_cli.fusion.constraints import (
     travel_direction,
 )
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
-from tpos_cli.fusion.gps_error import TAU_GRID_S, fit_gps_error, unmodelled_error_sd_m
+from tpos_cli.fusion.gps_error import (
+    TAU_GRID_S,
+    fit_gps_error,
+    matched_tau_bound_s,
+    unmodelled_error_sd_m,
+    unmodelled_velocity_var,
+    velocity_span_s,
+)
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, pass_window, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
@@ -427,17 +434,43 @@ def considered_fix_error(p: DriveSmoothParams, fixes: GpsFixes, info: dict) -> n
     return np.array([sd[0], sd[0], sd[1]]) ** 2
 
 
-def with_unmodelled_errors(sol: Solution, pos_var_ned_m2, vel_cov_b, *, owned: bool = False) -> Solution:
-    """`sol` with two errors no state models added to its covariance (no estimate moves):
-    pos_var_ned_m2 (3,) or None, the SD-less fixes' common error (`considered_fix_error`), to the
-    position variances; vel_cov_b (K, 3, 3) at sol.idx or None, the IMU's vibration velocity
-    (`fusion.nav_errors.vibration_velocity_cov_b`: the INS velocity carries the mount's shake, a few
-    mm/s on a car), as C_nb S_b C_nb^T to the velocity covariance. On a copy of sol.P9, unless
-    `owned`: the caller's sol.P9 is its own array, held by nothing else, and is added to in place
-    (`owned_covariances`; the drive hour's P9 is 23 MB per solution)."""
+def considered_velocity(pos_var_ned_m2, fixes: GpsFixes, fwd: FilterRun, info: dict):
+    """(sigma_c, tau_s) (3,) NED and the fix interval (s) for `fusion.gps_error.unmodelled_velocity_var`:
+    the SD-less fixes' common error (`considered_fix_error`), the least time constant the matching
+    allows it (`matched_tau_bound_s`, over the forward run's median span, `velocity_span_s`), and the
+    least span a slope from the fixes can have; None without a considered error. Records the span and
+    the bound in `info["gps_considered_error"]["velocity"]`."""
+    if pos_var_ned_m2 is None:
+        return None
+    sc = np.sqrt(pos_var_ned_m2)
+    span = np.median(velocity_span_s(fwd.ep_P[:, :9, :9], two_sided=False), axis=0)
+    tau = matched_tau_bound_s(sc, median_sigmas(fixes)[[0, 0, 1]], span)
+    info["gps_considered_error"]["velocity"] = {
+        "method": "the common error's slope over the span a solution takes its velocity from, its time constant at the "
+                  "least the matching allows; added to every reported velocity SD, moves no estimate "
+                  "(fusion.gps_error.unmodelled_velocity_var)",
+        "forward_span_h_s": round(float(span[0]), 2), "forward_span_v_s": round(float(span[2]), 2),
+        "tau_min_h_s": round(float(tau[0]), 1), "tau_min_v_s": round(float(tau[2]), 1)}
+    return sc, tau, float(np.median(np.diff(fixes.t_s))) if fixes.t_s.size > 1 else 0.0
+
+
+def with_unmodelled_errors(sol: Solution, pos_var_ned_m2, vel_cov_b, fix_vel=None, *, owned: bool = False) -> Solution:
+    """`sol` with errors no state models added to its covariance (no estimate moves):
+    pos_var_ned_m2 (3,) or None, the SD-less fixes' common error (`considered_fix_error`),
+    to the position variances, and with fix_vel (`considered_velocity`) its slope over the span
+    the solution takes its velocity from to the velocity variances (`fusion.gps_error.
+    unmodelled_velocity_var`, the span from sol.P9 before any of this); vel_cov_b (K, 3, 3) at
+    sol.idx or None, the IMU's vibration velocity (`fusion.nav_errors.vibration_velocity_cov_b`:
+    the INS velocity carries the mount's shake, a few mm/s on a car), as C_nb S_b C_nb^T to the
+    velocity covariance. On a copy of sol.P9, unless `owned`: the caller's sol.P9 is its own array,
+    held by nothing else, and is added to in place (`owned_covariances`; the drive hour's P9 is
+    23 MB per solution)."""
     if pos_var_ned_m2 is None and vel_cov_b is None:
         return sol
     P9 = sol.P9 if owned else sol.P9.copy()
+    if fix_vel is not None:  # the span from sol.P9 as the solution made it: before anything is added
+        span = np.maximum(velocity_span_s(sol.P9, two_sided=sol.name not in ("forward", "backward")), fix_vel[2])
+        P9[:, (3, 4, 5), (3, 4, 5)] += unmodelled_velocity_var(fix_vel[0], fix_vel[1], span)
     if pos_var_ned_m2 is not None:
         P9[:, (0, 1, 2), (0, 1, 2)] += pos_var_ned_m2
     if vel_cov_b is not None:
@@ -640,10 +673,11 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols, cfg.C_vb)
     considered = considered_fix_error(p, fixes, info)
+    fix_vel = considered_velocity(considered, fixes, fwd, info)
     S_vib_b = vibration_velocity_cov_b(imu.t, imu.acc, out_idx)
     owned = owned_covariances(sols)  # added to in place: the copies were the process's peak (+70 MB on the hour)
     sols = {k: with_unmodelled_errors(at_stated_lever_arm(v, cfg), considered, S_vib_b[np.searchsorted(out_idx, v.idx)],
-                                      owned=owned[k])
+                                      fix_vel, owned=owned[k])
             for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
@@ -753,7 +787,7 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     ctx.count("flagged_rows", int(res.flag.sum()))
     ce = res.info.get("gps_considered_error")
     if ce is not None:
-        ctx.warn(f"gps: the log gives no position SDs, so the reported position SDs carry the pipeline's stated accuracy "
+        ctx.warn(f"gps: the log gives no position SDs, so the reported position and velocity SDs carry the pipeline's stated accuracy "
                  f"(gps_sigma_h_m = {p.gps_sigma_h_m:g} m, gps_sigma_v_m = {p.gps_sigma_v_m:g} m) beyond the fixes' "
                  f"{ce['white_h_m']:g} m fix-to-fix scatter; set them to your receiver's accuracy "
                  f"(--set drive_smooth.gps_sigma_h_m=...)")
