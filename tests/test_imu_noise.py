@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from tpos_cli.config import DriveSmoothParams, RangingParams
-from tpos_cli.imu_noise import measured_white_noise, resolve_imu_noise
+from tpos_cli.imu_noise import _row_medians, measured_white_noise, resolve_imu_noise
 from tpos_cli.session import ImuNoise
 
 
@@ -31,3 +31,15 @@ def test_measured_white_noise_of_white_noise():
     x = 0.5 + rng.normal(0.0, 0.02, (200_000, 3))
     # 1.4826 MAD of 2e5 differences: relative SD about 0.2 %, so 1 % is > 4 SD
     assert measured_white_noise(x) == pytest.approx(0.02, rel=0.01)
+
+
+def test_row_medians_are_numpys_medians():
+    # the same values as np.median, for even and odd lengths, ties, and a row holding a NaN
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 4, 11, 1000, 1001):
+        for d in (rng.normal(size=(3, n)), np.round(rng.normal(size=(3, n)), 1)):
+            want = np.median(d, axis=1)
+            assert np.array_equal(_row_medians(d.copy()), want)
+    d = rng.normal(size=(3, 10))
+    d[1, 4] = np.nan
+    assert np.array_equal(_row_medians(d.copy()), np.median(d, axis=1), equal_nan=True)

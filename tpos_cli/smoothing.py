@@ -35,8 +35,6 @@ from tpos_cli.filters.kalman import (
     cholesky_into,
     forward_substitute,
     matmul_into,
-    sandwich_into,
-    symmetrize,
 )
 from tpos_cli.frames import earth, rotation
 from tpos_cli.fusion.engine import FilterRun, epoch_of
@@ -82,10 +80,10 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
     xs_pre = np.zeros((E, n))
     Ps9 = np.empty((E, m, m))
     Ps = np.empty((n, n))  # smoothed covariance of epoch e + 1, then of e
-    A = np.empty((n, n))
     D = np.empty((n, n))
+    T = np.empty((n, n))
     L = np.empty((n, n))
-    PPhit = np.empty((n, n))
+    X = np.empty((n, n))  # A^T
     Phi = np.zeros((n, n))  # the transition of epoch e + 1 (its off-diagonal blocks stay 0)
     Pp = np.empty((n, n))  # the predicted covariance of epoch e + 1
     Pf = np.empty((n, n))  # the filtered covariance of epoch e
@@ -107,25 +105,36 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
         if not cholesky_into(Pp, L):
             raise ValueError("rts: a predicted covariance is not positive definite")
         # (P_e Phi^T)^T = Phi P_e (P_e symmetric; matmul_into skips Phi's zeros), then
-        # A^T = (P^-)^-1 Phi P_e for all columns at once
-        matmul_into(Phi, Pf, PPhit)
-        cho_solve_matrix_into(L, PPhit, PPhit)
-        for i in range(n):
-            for j in range(n):
-                A[i, j] = PPhit[j, i]
+        # X = A^T = (P^-)^-1 Phi P_e for all columns at once
+        matmul_into(Phi, Pf, X)
+        cho_solve_matrix_into(L, X, X)
         for i in range(n):
             s = 0.0
             for k in range(n):
-                s += A[i, k] * xs_pre[e + 1, k]
+                s += X[k, i] * xs_pre[e + 1, k]
             xs_post[e, i] = s
             xs_pre[e, i] = s + dx[e, i]
             for j in range(n):
                 D[i, j] = Ps[i, j] - Pp[i, j]
-        sandwich_into(A, D, Ps)
+        # P^s_e = P_e + A D A^T: T = A D, then the lower triangle of T A^T = T X (rows of D and X
+        # contiguous in the inner loops), mirrored: exactly symmetric
         for i in range(n):
             for j in range(n):
+                T[i, j] = 0.0
+            for k in range(n):
+                a = X[k, i]
+                for j in range(n):
+                    T[i, j] += a * D[k, j]
+        for i in range(n):
+            for j in range(i + 1):
+                Ps[i, j] = 0.0
+            for k in range(n):
+                a = T[i, k]
+                for j in range(i + 1):
+                    Ps[i, j] += a * X[k, j]
+            for j in range(i + 1):
                 Ps[i, j] += Pf[i, j]
-        symmetrize(Ps)
+                Ps[j, i] = Ps[i, j]
         for i in range(m):
             for j in range(m):
                 Ps9[e, i, j] = Ps[i, j]

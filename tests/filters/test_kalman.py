@@ -13,8 +13,10 @@ from tpos_cli.filters.kalman import (
     innovation_statistics,
     nis_of,
     predict,
+    predict_trapezoid,
     quadratic_form,
     sandwich_into,
+    transition_into,
     update,
 )
 
@@ -213,3 +215,28 @@ def test_sandwich_and_discretize_skip_zeros_exactly():
     np.testing.assert_allclose(P, 0.5 * (P_ref + P_ref.T), rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(P, P.T)
 
+
+
+def test_predict_trapezoid_is_discretize_then_predict():
+    """P <- Phi (P + Qc dt/2) Phi^T + Qc dt/2: the same equations as discretize's trapezoidal Qd and
+    predict, to rounding; P exactly symmetric; x <- Phi x; the transition is discretize's, bit for bit."""
+    rng = np.random.default_rng(11)
+    n, dt = 20, 0.2
+    F = np.where(rng.random((n, n)) < 0.15, rng.standard_normal((n, n)), 0.0)
+    Qc = np.diag(rng.uniform(0.0, 1.0, n))
+    Qc[2, 5] = Qc[5, 2] = 0.2  # symmetric, not diagonal
+    A = rng.standard_normal((n, n))
+    P0 = A @ A.T
+    x0 = rng.standard_normal(n)
+    Phi, Qd = np.empty((n, n)), np.empty((n, n))
+    discretize(F, Qc, dt, Phi, Qd)
+    x_ref, P_ref = x0.copy(), P0.copy()
+    predict(x_ref, P_ref, Phi, Qd)
+    Phi2 = np.empty((n, n))
+    transition_into(F, dt, Phi2)
+    np.testing.assert_array_equal(Phi2, Phi)
+    x, P = x0.copy(), P0.copy()
+    predict_trapezoid(x, P, Phi2, Qc, dt, np.empty((n, n)), np.empty((n, n)))
+    np.testing.assert_allclose(x, x_ref, rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(P, P_ref, rtol=1e-12, atol=1e-12 * np.abs(P_ref).max())
+    np.testing.assert_array_equal(P, P.T)

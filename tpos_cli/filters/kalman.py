@@ -170,6 +170,17 @@ def cho_solve_matrix_into(L, B, X):
 
 
 @njit(cache=True)
+def transition_into(F, dt, Phi):
+    """Phi = I + F dt + (F dt)^2 / 2 (Eq. 14 to second order), written in place (`discretize`'s)."""
+    n = F.shape[0]
+    matmul_into(F, F, Phi)
+    for i in range(n):
+        for j in range(n):
+            Phi[i, j] = F[i, j] * dt + 0.5 * (dt * dt) * Phi[i, j]
+        Phi[i, i] += 1.0
+
+
+@njit(cache=True)
 def discretize(F, Qc, dt, Phi, Qd):
     """Phi = I + F dt + (F dt)^2 / 2 (Eq. 14 to second order), Qd = (Phi Qc Phi^T + Qc) dt / 2.
 
@@ -178,11 +189,7 @@ def discretize(F, Qc, dt, Phi, Qd):
     states, as the filters' are) makes Phi Qc a column scaling (the same numbers as the product).
     """
     n = F.shape[0]
-    matmul_into(F, F, Phi)
-    for i in range(n):
-        for j in range(n):
-            Phi[i, j] = F[i, j] * dt + 0.5 * (dt * dt) * Phi[i, j]
-        Phi[i, i] += 1.0
+    transition_into(F, dt, Phi)
     diagonal = True
     for i in range(n):
         for j in range(n):
@@ -222,6 +229,37 @@ def predict(x, P, Phi, Qd):
         for j in range(n):
             P[i, j] += Qd[i, j]
     symmetrize(P)
+
+
+@njit(cache=True)
+def predict_trapezoid(x, P, Phi, Qc, dt, T, Tt):
+    """`predict` with `discretize`'s trapezoidal Qd = (Phi Qc Phi^T + Qc) dt / 2, regrouped as
+    P <- Phi (P + Qc dt / 2) Phi^T + Qc dt / 2 (the same equations; one product with Phi instead of
+    two), and x <- Phi x; in place, without allocating: T, Tt (n, n) are scratch. P and Qc exactly
+    symmetric; P comes out exactly symmetric (the upper triangle of the product, mirrored)."""
+    n = x.shape[0]
+    for i in range(n):
+        T[0, i] = x[i]
+    for i in range(n):
+        s = 0.0
+        for k in range(n):
+            s += Phi[i, k] * T[0, k]
+        x[i] = s
+    h = 0.5 * dt
+    for i in range(n):
+        for j in range(n):
+            P[i, j] += h * Qc[i, j]
+    matmul_into(Phi, P, T)
+    for i in range(n):
+        for k in range(n):
+            Tt[k, i] = T[i, k]
+    matmul_into(Phi, Tt, P)
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = P[i, j] + h * Qc[i, j]
+            P[i, j] = v
+            P[j, i] = v
+        P[i, i] += h * Qc[i, i]
 
 
 @njit(cache=True)

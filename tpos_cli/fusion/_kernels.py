@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import discretize, innovation_statistics, predict, update
+from tpos_cli.filters.kalman import innovation_statistics, predict_trapezoid, transition_into, update
 from tpos_cli.fusion.layout import N_NAV, Block
 from tpos_cli.fusion.measurements import Kind, measure
 from tpos_cli.fusion.nav_errors import (
@@ -112,7 +112,7 @@ class History(NamedTuple):
     store_rts the transition from the previous epoch, which is block diagonal (the extra states
     have their own scalar dynamics): ep_Phi (E, 15, 15) its navigation block and ep_phi_extra
     (E, n_extra) its diagonal beyond, and ep_Ppred (E, n (n + 1) / 2) the predicted covariance
-    (exactly symmetric, `filters.kalman.predict`) as its lower triangle by rows (`store_tril`)."""
+    (exactly symmetric, `filters.kalman.predict_trapezoid`) as its lower triangle by rows (`store_tril`)."""
 
     nav: np.ndarray
     C: np.ndarray
@@ -181,7 +181,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     Per IMU sample: bias-corrected increments, a strapdown step (`ins._kernels.mech_step`), the
     specific force summed over the covariance interval. Every `cov_step` samples, at every sample with
     a measurement and at the last one, a covariance epoch: F from the mean specific force over the
-    interval, Phi and Qd (`filters.kalman.discretize`), predict; the nominal of the Gauss-Markov
+    interval, Phi (`filters.kalman.transition_into`), predict with the trapezoidal Qd
+    (`filters.kalman.predict_trapezoid`); the nominal of the Gauss-Markov
     extra states decays by exp(-dt / tau); then each measurement of the sample in turn: residual
     and rows (`measurements.measure`), NIS, gate (NIS above gate[m] rejects it, unless not
     `gated` or its slot has `max_reject` consecutive rejections: the nominal has then left the
@@ -208,7 +209,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             F[N_NAV + i, N_NAV + i] = -1.0 / st.extra_tau_s[i]
         Qc[N_NAV + i, N_NAV + i] = st.extra_q[i]
     Phi = np.empty((n, n))
-    Qd = np.empty((n, n))
+    T = np.empty((n, n))  # predict_trapezoid's scratch
+    Tt = np.empty((n, n))
     H1, H2, H3 = np.zeros((1, n)), np.zeros((2, n)), np.zeros((3, n))
     z1, z2, z3 = np.zeros(1), np.zeros(2), np.zeros(3)
     R1, R2, R3 = np.zeros((1, 1)), np.zeros((2, 2)), np.zeros((3, 3))
@@ -275,8 +277,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             for i in range(3):
                 f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
             error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
-            discretize(F, Qc, dt_sum, Phi, Qd)
-            predict(x, P, Phi, Qd)
+            transition_into(F, dt_sum, Phi)
+            predict_trapezoid(x, P, Phi, Qc, dt_sum, T, Tt)  # P <- Phi P Phi^T + Qd, Qd trapezoidal
             ep += 1
             out.ep_idx[ep] = k
             if st.store_rts:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.frames.rotation import dcm_to_euler, rotvec_to_dcm, skew
+from tpos_cli.frames.rotation import dcm_to_euler, rotvec_to_dcm
 
 
 @dataclass(frozen=True)
@@ -80,22 +80,26 @@ def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_r
     P_att_rad2 None: the attitude only, (C_nv, None) (checks that read no covariance)."""
     C_nb = np.asarray(C_nb, dtype=float)
     K = C_nb.shape[0]
-    C_vb_k = np.broadcast_to(np.asarray(C_vb, dtype=float), (K, 3, 3)).copy()
+    # C_nv = C_nb (M C_vb)^T = (C_nb C_vb^T) M^T, M = I - [m x]: one (3K, 3) product with the constant
+    # C_vb^T, then M^T = I + [m x] for m = (0, m_p, m_y) as three column updates (no (K, 3, 3) products)
+    C_nv = (C_nb.reshape(-1, 3) @ np.asarray(C_vb, dtype=float).T).reshape(K, 3, 3)
     if misalign_py_rad is not None:
-        m = np.zeros((K, 3))
-        m[:, 1:] = misalign_py_rad
-        C_vb_k = (np.eye(3) - skew(m)) @ C_vb_k
-    C_nv = C_nb @ np.swapaxes(C_vb_k, 1, 2)
+        m = np.asarray(misalign_py_rad, dtype=float)
+        mp, my = m[:, 0, None], m[:, 1, None]
+        X = C_nv.copy()
+        C_nv[:, :, 0] += X[:, :, 1] * my - X[:, :, 2] * mp
+        C_nv[:, :, 1] -= X[:, :, 0] * my
+        C_nv[:, :, 2] += X[:, :, 0] * mp
     if P_att_rad2 is None:
         return C_nv, None
-    P = np.array(P_att_rad2, dtype=float, copy=True)
-    if misalign_sd_rad is not None or roll_sd_rad > 0.0:
-        Dm = np.zeros((K, 3, 3))
-        Dm[:, 0, 0] = float(roll_sd_rad) ** 2
-        if misalign_sd_rad is not None:
-            sd = np.broadcast_to(np.asarray(misalign_sd_rad, dtype=float), (K, 2))
-            Dm[:, 1, 1], Dm[:, 2, 2] = sd[:, 0] ** 2, sd[:, 1] ** 2
-        P = P + C_nv @ Dm @ np.swapaxes(C_nv, 1, 2)
+    if misalign_sd_rad is None and not roll_sd_rad > 0.0:
+        return C_nv, np.array(P_att_rad2, dtype=float, copy=True)
+    d = np.zeros((K, 3))  # the diagonal of the vehicle-axes covariance [roll, pitch, yaw]
+    d[:, 0] = float(roll_sd_rad) ** 2
+    if misalign_sd_rad is not None:
+        d[:, 1:] = np.broadcast_to(np.asarray(misalign_sd_rad, dtype=float), (K, 2)) ** 2
+    P = (C_nv * d[:, None, :]) @ np.swapaxes(C_nv, 1, 2)  # C_nv diag(d) C_nv^T
+    P += P_att_rad2
     return C_nv, P
 
 
