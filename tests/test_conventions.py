@@ -124,3 +124,13 @@ def test_valid_long_simulated_logs_raise_no_warning(tmp_path, scenario, seed):
     sim = SCENARIOS[scenario](duration_s=3600.0, seed=seed)  # these seeds were flagged before the fix
     write_session(sim, tmp_path / "s", fmt="parquet")
     assert check_conventions(load_session(tmp_path / "s"), clock=False) == []
+
+
+def test_output_on_gps_clock_reads_the_runs_clock_record():
+    # review (session 8): `output_clock == "gps"` was tested in four places (the chain's trajectory rows, the
+    # verdict's clock finding, the report's truth note and page 1's Clocks row); one helper now
+    from tpos_cli.conventions import output_on_gps_clock
+
+    assert output_on_gps_clock({"estimate_s": 0.3, "sigma_s": 0.01, "output_clock": "gps"})
+    assert not output_on_gps_clock({"estimate_s": 0.01, "sigma_s": 0.01, "output_clock": "imu"})
+    assert not output_on_gps_clock(None) and not output_on_gps_clock({}) and not output_on_gps_clock("gps")

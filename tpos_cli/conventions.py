@@ -19,6 +19,8 @@ flag them where the source says so (NMEA, u-blox, RTKLIB).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from tpos_cli.alignment import static_mask
@@ -380,6 +382,13 @@ def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
 def offset_text(d_s, sd_s) -> str:
     """'0.125 ± 0.004 s early' for a clock offset d (a value stamped t holds at IMU time t + d)."""
     return f"{abs(float(d_s)):.3f} ± {float(sd_s):.3f} s {'late' if float(d_s) < 0 else 'early'}"
+
+
+def output_on_gps_clock(clock) -> bool:
+    """Whether a run's output was moved to the GPS receiver's clock: its clock record (summary.json
+    `results.gps_clock_offset`, `chains.drive_smooth.clock_offset`) says `output_clock` "gps" (times
+    t - d, d the estimated IMU-GPS offset). False for no record or one of another shape."""
+    return isinstance(clock, Mapping) and clock.get("output_clock") == "gps"
 
 
 def _current_gps_offset(session) -> float:

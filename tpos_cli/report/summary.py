@@ -14,6 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import FancyBboxPatch
 
+from tpos_cli.conventions import output_on_gps_clock
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
@@ -257,7 +258,7 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         if cons:
             rows.append(("Inside the stated 95 % bound", cons + " (about 95 % if honest)"))
         clk = (ctx.run.summary.get("results") or {}).get("gps_clock_offset")
-        if src == "truth" and isinstance(clk, dict) and clk.get("output_clock") == "gps":
+        if src == "truth" and output_on_gps_clock(clk):
             d = float(clk.get("estimate_s", np.nan))
             rows.append(("Clocks", f"output on the GPS clock ({d:+.3f} s), truth on the logger's (notes)"))
     if se is not None and se.att_err_deg is not None:
