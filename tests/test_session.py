@@ -193,3 +193,18 @@ def test_unknown_session_toml_keys_are_warned_with_a_suggestion(tmp_path):
     assert "session.toml: [imu2]: unknown section, ignored (did you mean [imu]?)" in w
     assert not [x for x in load_session(Path(__file__).parent.parent / "sample_logs" / "drive_outage", with_imu=False).warnings
                 if "unknown" in x]
+
+
+def test_session_toml_keys_have_one_source():
+    # review (session 8): session._known_keys kept a second list of session.toml's keys beside the parser's;
+    # now schema.SESSION_TOML_KEYS is the one list (sections, unknown-key warnings, the [imu] noise figures)
+    import dataclasses
+
+    from tpos_cli import schema, session
+
+    assert session.SECTIONS == tuple(schema.SESSION_TOML_KEYS)
+    assert tuple(f.name for f in dataclasses.fields(session.ImuNoise)) == schema.IMU_NOISE_KEYS
+    assert all(k in schema.SESSION_TOML_KEYS[sec] for sec, k in session.PLAUSIBLE_SESSION_VALUES)
+    doc = (Path(__file__).parent.parent / "docs" / "log-format.md").read_text()
+    assert [(sec, k) for sec, keys in schema.SESSION_TOML_KEYS.items() if sec != "time" for k in keys
+            if k not in doc or f"[{sec}]" not in doc] == []

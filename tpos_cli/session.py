@@ -288,23 +288,12 @@ def _lla_section(c: _Collector, raw: dict, name: str) -> np.ndarray | None:
     return np.array(vals)
 
 
-def _known_keys() -> dict[str, tuple[str, ...]]:
-    """The keys session.toml's sections hold (the contract's and tpos's extensions), for `_unknown_keys`."""
-    lla = ("lat", "lon", "h")
-    return {"session": ("name", "kind", "start_utc"),
-            "imu": ("axes", "rate_hz", "mounting_rpy_deg", *ImuNoise.__dataclass_fields__),
-            "rangefinders": ("baseline_12_m", "baseline_13_m", "sigma_m"),
-            "magnetic": ("declination_deg", "hard_iron_ut", "soft_iron"),
-            "gps": ("lever_arm_m",), "observer": lla, "local": lla,
-            "time": tuple(f"{t}_offset_s" for t in (*schema.TABLES_ANY_FORMAT, *schema.TABLES_CSV_ONLY))}
-
-
 def _unknown_keys(raw: dict) -> list[str]:
     """One warning per section or key of session.toml that tpos does not read: the contract ignores
     them, but a misspelt key (`gyro_noise_dsp`) would silently lose its setting."""
     import difflib
 
-    known = _known_keys()
+    known = schema.SESSION_TOML_KEYS
     out = []
     for sec, val in raw.items():
         if sec not in known:
@@ -366,7 +355,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
         c.problem("session.toml", f"[imu] {exc}")
     rate = _number(c, imu, "rate_hz", "imu", required=True, positive=True)
     mounting = _mounting(c, imu)
-    noise = ImuNoise(**{k: _number(c, imu, k, "imu", positive=False) for k in ImuNoise.__dataclass_fields__})
+    noise = ImuNoise(**{k: _number(c, imu, k, "imu", positive=False) for k in schema.IMU_NOISE_KEYS})
     rf = None
     if "rangefinders" in raw:
         sec = raw["rangefinders"]
@@ -425,7 +414,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
 
 
 # The sections of the contract (and the tpos extensions): each must be a table when present.
-SECTIONS = ("session", "imu", "rangefinders", "magnetic", "gps", "observer", "local", "time")
+SECTIONS = tuple(schema.SESSION_TOML_KEYS)
 
 
 # Bounds of the Euler angles of `[imu] mounting_rpy_deg` (same convention as attitude: pitch within
