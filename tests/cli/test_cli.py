@@ -197,3 +197,25 @@ def test_a_warning_the_verdict_gives_as_its_reason_is_printed_once(tmp_path, mon
     summary["quality"] = {"verdict": "ok", "reasons": []}  # no verdict printed: the warning is
     res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
     assert res.exit_code == 0 and f"warning: {said}" in res.output
+
+
+@pytest.mark.parametrize("cmd", ["validate", "inspect", "export", "import"])
+def test_ctrl_c_in_every_command_is_one_line_and_exit_130(tmp_path, monkeypatch, cmd):
+    """Ctrl-C in validate / inspect / export / import ended with exit 130 and not a word: typer turns
+    KeyboardInterrupt into a silent exit before main()'s handler sees it."""
+    import tpos_cli.export.build as eb
+    import tpos_cli.importers as imp
+    import tpos_cli.session as sess
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    s = write_minimal_session(tmp_path / "s")
+    for mod, name in ((sess, "load_session"), (eb, "export_run"), (imp, "import_into_session")):
+        monkeypatch.setattr(mod, name, interrupted)
+    args = {"validate": [str(s)], "inspect": [str(s)], "export": [str(tmp_path), "-o", str(tmp_path / "x.csv")],
+            "import": ["csv", str(s / "imu.csv"), "-o", str(tmp_path / "new")]}[cmd]
+    res = runner.invoke(app, [cmd, *args])
+    lines = res.output.strip().splitlines()
+    assert res.exit_code == 130 and len(lines) == 1 and lines[0].startswith(f"tpos {cmd}: interrupted"), res.output
+    assert not (tmp_path / "x.csv").exists() and not (tmp_path / "new").exists()
