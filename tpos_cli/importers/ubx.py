@@ -22,8 +22,7 @@ from pyubx2 import ERR_LOG, UBX_PROTOCOL, VALCKSUM, UBXReader
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, leap_table_note, utc_calendar_to_clock
-from tpos_cli.importers.result import ImportResult, read_source
-from tpos_cli.importers.velocity_timing import velocity_timing_note
+from tpos_cli.importers.result import ImportResult, gps_result, read_source
 from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 # (field, lowest, highest, what it must be) of the NAV-PVT values used (u-blox interface description)
@@ -100,10 +99,4 @@ def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
              f"height - hMSL: {float(np.median(h_m - h_msl_m)):.3f} m)"]
     notes += [f"{path.name}: {n_all} NAV-PVT messages ({int((~resolved).sum())} without resolved time dropped), "
               f"{bad} bad frame(s) skipped; fix {dict(sorted((int(k), int(v)) for k, v in g['fix'].value_counts().items()))}"]
-    leap = leap_table_note(gps_s_to_clock(week * WEEK_S + tow_s, "unix"))
-    if leap:
-        notes.append(f"{path.name}: {leap}")
-    lag = velocity_timing_note(g, path.name)
-    if lag:
-        notes.append(lag)
-    return ImportResult({"gps": g}, {}, tuple(notes))
+    return gps_result(g, path.name, notes, leap_table_note(gps_s_to_clock(week * WEEK_S + tow_s, "unix")))
