@@ -41,10 +41,20 @@ def read_nav_pvt(data: bytes, name: str = "UBX") -> tuple[pd.DataFrame, int]:
     def count(_err) -> None:
         bad[0] += 1
 
-    reader = UBXReader(io.BytesIO(data), protfilter=UBX_PROTOCOL, validate=VALCKSUM, quitonerror=ERR_LOG,
-                       errorhandler=count)
+    stream = io.BytesIO(data)
+    reader = UBXReader(stream, protfilter=UBX_PROTOCOL, validate=VALCKSUM, quitonerror=ERR_LOG, errorhandler=count)
     recs = []
-    for _raw, msg in reader:
+    while True:
+        at = stream.tell()
+        try:
+            raw, msg = reader.read()
+        except UnicodeDecodeError:  # pyubx2 decodes a '$' it meets as NMEA text even when filtered out
+            bad[0] += 1
+            if stream.tell() == at:  # nothing consumed: never loop on the same bytes
+                break
+            continue
+        if raw is None:
+            break
         if msg is None or msg.identity != "NAV-PVT":
             continue
         rec = {k: getattr(msg, k) for k in ("iTOW", "year", "month", "day", "hour", "min", "second", "nano",
