@@ -503,17 +503,24 @@ def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray, h
                   f"{plausibility.H_MAX_M:g} m): feet, millimetres or a wrong column?", "h", i + 1)
 
 
+def _timed_table(c: _Collector, name: str, numeric, required):
+    """A table with a `t` column and its checked times: (df, file name, t, rows kept), or None when it
+    is absent or invalid (the problems recorded)."""
+    df, fname = c.table(name, numeric, required=required)
+    if df is None:
+        return None
+    t = df["t"]
+    keep = _check_time(c, fname, t, name)
+    return None if keep is None else (df, fname, t, keep)
+
+
 def _imu_table(c: _Collector, cols, required):
     """The IMU table's columns `cols` and its checked times: (df, file name, t, rows kept), or None
     (the problems recorded)."""
-    df, fname = c.table("imu", cols, required=required)
-    if df is None:
-        if not any(p.file.startswith("imu") for p in c.problems):
-            c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
-        return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "imu")
-    return None if keep is None else (df, fname, t, keep)
+    got = _timed_table(c, "imu", cols, required)
+    if got is None and not any(p.file.startswith("imu") for p in c.problems):
+        c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
+    return got
 
 
 def _load_imu(c: _Collector, meta: SessionMeta):
@@ -604,13 +611,10 @@ def _offset(meta: SessionMeta, name: str) -> float:
 
 
 def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[float, float] | None = None):
-    df, fname = c.table("gps", schema.GPS_REQUIRED + schema.GPS_OPTIONAL, required=schema.GPS_REQUIRED)
-    if df is None:
+    got = _timed_table(c, "gps", schema.GPS_REQUIRED + schema.GPS_OPTIONAL, schema.GPS_REQUIRED)
+    if got is None:
         return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "gps")
-    if keep is None:
-        return None
+    df, fname, t, keep = got
     fix = df["fix"]
     bad = np.flatnonzero(~np.isin(fix, schema.GPS_FIX_VALUES))
     if bad.size:
@@ -686,13 +690,10 @@ def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
 
 def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[float, float] | None):
     """The optional `odometry` table: time checks, NaN speeds dropped and counted, speed >= 0."""
-    df, fname = c.table("odometry", schema.ODOMETRY_REQUIRED, required=schema.ODOMETRY_REQUIRED)
-    if df is None:
+    got = _timed_table(c, "odometry", schema.ODOMETRY_REQUIRED, schema.ODOMETRY_REQUIRED)
+    if got is None:
         return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "odometry")
-    if keep is None:
-        return None
+    df, fname, t, keep = got
     v = df["speed_mps"]
     neg = np.flatnonzero(v < 0)
     if neg.size:
@@ -934,13 +935,10 @@ def _load_truth(c: _Collector, t0: float):
     except Exception:
         names = []
     extra_cols = tuple(n for n in names if n not in schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL)
-    df, fname = c.table("truth", schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL + extra_cols, required=("t",))
-    if df is None:
+    got = _timed_table(c, "truth", schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL + extra_cols, ("t",))
+    if got is None:
         return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "truth")
-    if keep is None:
-        return None
+    df, fname, t, keep = got
 
     def opt(cols):
         return np.column_stack([df[k] if k in df.columns else np.full(len(df), np.nan) for k in cols])
