@@ -174,11 +174,17 @@ def test_page_1_states_the_accuracy_the_chain_used_with_gauss_markov_states(tmp_
     states = {"method": "set by the pipeline", "tau_s": 300.0, "sigma_h_m": gm[0], "sigma_v_m": gm[1]}
     r = _with_quality(synth.write_run(tmp_path / "r", s, traj), q,
                       {"alignment": {"gps_considered_error": considered, "gps_error_states": states}})
-    assert dict(headline_rows(build_context(r)))["GPS SDs"] == (
-        "none in the log: stated 1.50 m h, 2.50 m v used (fix scatter 0.12 m, error states 0.75 m)")
+    rows = headline_rows(build_context(r))
+    assert dict(rows)["GPS SDs"] == "none in the log: stated 1.50 m h, 2.50 m v used (scatter 0.12 m, GM 0.75 m)"
+    from tpos_cli.report import layout as L
+
+    fig = Figure(figsize=L.A4_IN)  # the longer row still fits page 1's table at its font
+    L.draw_table(fig, 0.9, [L.Column("", [k for k, _ in rows], align="left"), L.Column("", [v for _, v in rows], align="left")],
+                 fontsize=7.8, header=False)
+    assert {t.get_fontsize() for t in fig.texts} == {7.8}
     # the chain's own stated figures win (an axis whose considered part was clipped to 0 cannot be rebuilt)
     clipped = dict(considered, sigma_h_m=0.0, stated_h_m=0.5, stated_v_m=2.5)
     r2 = _with_quality(synth.write_run(tmp_path / "r2", s, traj), q,
                        {"alignment": {"gps_considered_error": clipped, "gps_error_states": states}})
     assert dict(headline_rows(build_context(r2)))["GPS SDs"] == (
-        "none in the log: stated 0.50 m h, 2.50 m v used (fix scatter 0.12 m, error states 0.75 m)")
+        "none in the log: stated 0.50 m h, 2.50 m v used (scatter 0.12 m, GM 0.75 m)")

@@ -115,7 +115,8 @@ def _stated_gps_accuracy(ctx: ReportContext) -> str | None:
     the drive chain took sigma_c^2 = max(stated^2 - white^2 - gm^2, 0), where gm is the Gauss-Markov
     error states' SD (`results.alignment.gps_error_states`, when the run had them). The stated figures
     are read from `stated_*_m` when the record has them, else rebuilt as the root sum of squares of the
-    three parts; the error states' share is named when there was one."""
+    three parts; the error states' share is named when there was one ("GM", short so that page 1 keeps
+    its font: the user set gps_error_model = "gauss_markov")."""
     al = (ctx.run.summary.get("results") or {}).get("alignment") or {}
     c, gm = al.get("gps_considered_error"), al.get("gps_error_states")
     if not isinstance(c, dict):
@@ -131,8 +132,8 @@ def _stated_gps_accuracy(ctx: ReportContext) -> str | None:
     if not all(np.isfinite(v) for v in stated.values()):
         return None
     shares = f"fix scatter {fmt_len(parts['h'][1])}"
-    if parts["h"][2] > 0:
-        shares += f", error states {fmt_len(parts['h'][2])}"
+    if parts["h"][2] > 0:  # short: page 1's table keeps its 7.8 pt font
+        shares = f"scatter {fmt_len(parts['h'][1])}, GM {fmt_len(parts['h'][2])}"
     return f"none in the log: stated {fmt_len(stated['h'])} h, {fmt_len(stated['v'])} v used ({shares})"
 
 
