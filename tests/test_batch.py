@@ -7,6 +7,7 @@ them); the real pipeline runs in `test_batch_e2e_sample_logs`.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -64,6 +65,7 @@ def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
     n = len(list(run_dir.parent.glob("*.runs"))) if run_dir.parent.exists() else 0
     summary = {
         "pipeline": pipeline or "default", "config_sha256": config_sha, "inputs": inputs,
+        "session": {"name": session_dir.name, "kind": "target" if behaviour == "target" else "drive"},
         "timings_s": {"load": 0.01, "filter": 0.02},
         "results": {"position": {"rms_h_m": 1.5, "max_h_m": 4.0}, "n_fixes": 10, "ok": True, "label": "x"},
         "warnings": ["imu.csv: 2 duplicate time stamps; the first sample of each kept"],
@@ -484,11 +486,28 @@ def test_a_fixed_observer_without_targets_has_no_position_error():
     attitude at a point it was given, so the table shows its attitude error and no position error."""
     acc = {"truth.fkf.trajectory.rms_pos_h_m": 0.314, "truth.fkf.trajectory.rms_att_deg": 1.2}
     obs = b.SessionResult(name="broad_25", session_dir="", run_dir="", status="ok", exit_code=0, error="", time_s=1.0,
-                          started_utc="", worker="", pipeline="target-fkf", accuracy=acc)
+                          started_utc="", worker="", pipeline="target-fkf", kind="target", accuracy=acc)
     car = b.SessionResult(name="car", session_dir="", run_dir="", status="ok", exit_code=0, error="", time_s=1.0,
-                          started_utc="", worker="", pipeline="drive-smooth", accuracy=acc)
+                          started_utc="", worker="", pipeline="drive-smooth", kind="drive", accuracy=acc)
     assert b.headline_errors(obs) == ("fkf", None, 1.2)
     assert b.headline_errors(car) == ("fkf", 0.314, 1.2)
+    # review (session 8): the observer was recognised by its pipeline's name; a user's own target pipeline
+    # (`--pipeline wall.toml`, recorded as "wall") showed the observer's position as an error
+    mine = dataclasses.replace(obs, pipeline="wall")
+    assert b.headline_errors(mine) == ("fkf", None, 1.2)
+    assert b.headline_errors(dataclasses.replace(car, pipeline="target-like-name")) == ("fkf", 0.314, 1.2)
+
+
+def test_rows_record_the_session_kind_and_earlier_records_get_it_from_their_run(tmp_path):
+    sessions = make_sessions(tmp_path / "logs", {"a": "ok", "t": "target"})
+    out = tmp_path / "out"
+    rows = _batch(sessions, out)
+    assert (rows["a"]["kind"], rows["t"]["kind"]) == ("drive", "target")
+    doc = json.loads((out / "batch.json").read_text())
+    for r in doc["sessions"]:  # a record of session 8, before rows had it
+        del r["kind"]
+    (out / "batch.json").write_text(json.dumps(doc))
+    assert {r.name: r.kind for r in b.earlier_rows(out, [])} == {"a": "drive", "t": "target"}
 
 
 def test_batch_help_has_an_example():

@@ -124,3 +124,39 @@ def test_valid_long_simulated_logs_raise_no_warning(tmp_path, scenario, seed):
     sim = SCENARIOS[scenario](duration_s=3600.0, seed=seed)  # these seeds were flagged before the fix
     write_session(sim, tmp_path / "s", fmt="parquet")
     assert check_conventions(load_session(tmp_path / "s"), clock=False) == []
+
+
+def test_output_on_gps_clock_reads_the_runs_clock_record():
+    # review (session 8): `output_clock == "gps"` was tested in four places (the chain's trajectory rows, the
+    # verdict's clock finding, the report's truth note and page 1's Clocks row); one helper now
+    from tpos_cli.conventions import output_on_gps_clock
+
+    assert output_on_gps_clock({"estimate_s": 0.3, "sigma_s": 0.01, "output_clock": "gps"})
+    assert not output_on_gps_clock({"estimate_s": 0.01, "sigma_s": 0.01, "output_clock": "imu"})
+    assert not output_on_gps_clock(None) and not output_on_gps_clock({}) and not output_on_gps_clock("gps")
+
+
+def test_odometry_in_km_h_is_named_from_the_gps_speed():
+    # audit (session 9): a km/h odometry column ran with verdict ok (the filter gated 13 of 29 rows away); the
+    # ratio to the GPS speed while moving names the unit; comma2k19's CAN speed reads 0.991
+    from types import SimpleNamespace
+
+    from tpos_cli.conventions import odometry_findings
+
+    t = np.arange(0.0, 60.0, 0.2)
+    speed = 8.0 + 4.0 * np.sin(t / 7.0)
+    tg = np.arange(0.0, 60.0, 1.0)
+    vg = np.interp(tg, t, speed)
+    gps = SimpleNamespace(t_s=tg, lla=np.tile([45.0, -73.0, 50.0], (tg.size, 1)), fix=np.full(tg.size, 2),
+                          vel_ned_mps=np.column_stack([vg * 0.6, vg * 0.8, np.zeros(tg.size)]))
+    gps.valid = np.ones(tg.size, dtype=bool)
+    for scale, level, said in ((1.0, "ok", None), (1.04, "ok", None), (3.6, "unreliable", "in km/h, not m/s; divide by 3.6"),
+                               (2.23694, "unreliable", "in mph"), (1000.0, "unreliable", "in mm/s"),
+                               (1.6, "suspect", "wrong unit, scale or column")):
+        s = SimpleNamespace(gps=gps, odometry=SimpleNamespace(t_s=t, speed_mps=speed * scale))
+        (f,) = odometry_findings(s)
+        assert f.level == level and (said is None or said in f.reason), (scale, f)
+    assert odometry_findings(SimpleNamespace(gps=gps, odometry=None)) == []
+    still = SimpleNamespace(t_s=t, speed_mps=np.zeros(t.size))
+    gps0 = SimpleNamespace(**{**vars(gps), "vel_ned_mps": np.zeros((tg.size, 3))})
+    assert odometry_findings(SimpleNamespace(gps=gps0, odometry=still)) == []  # never moving: nothing to compare

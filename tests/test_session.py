@@ -193,3 +193,70 @@ def test_unknown_session_toml_keys_are_warned_with_a_suggestion(tmp_path):
     assert "session.toml: [imu2]: unknown section, ignored (did you mean [imu]?)" in w
     assert not [x for x in load_session(Path(__file__).parent.parent / "sample_logs" / "drive_outage", with_imu=False).warnings
                 if "unknown" in x]
+
+
+def test_session_toml_keys_have_one_source():
+    # review (session 8): session._known_keys kept a second list of session.toml's keys beside the parser's;
+    # now schema.SESSION_TOML_KEYS is the one list (sections, unknown-key warnings, the [imu] noise figures)
+    import dataclasses
+
+    from tpos_cli import schema, session
+
+    assert session.SECTIONS == tuple(schema.SESSION_TOML_KEYS)
+    assert tuple(f.name for f in dataclasses.fields(session.ImuNoise)) == schema.IMU_NOISE_KEYS
+    assert all(k in schema.SESSION_TOML_KEYS[sec] for sec, k in session.PLAUSIBLE_SESSION_VALUES)
+    doc = (Path(__file__).parent.parent / "docs" / "log-format.md").read_text()
+    assert [(sec, k) for sec, keys in schema.SESSION_TOML_KEYS.items() if sec != "time" for k in keys
+            if k not in doc or f"[{sec}]" not in doc] == []
+
+
+def _refusal(d) -> str:
+    with pytest.raises(InvalidInputError) as exc:
+        load_session(d)
+    assert len(exc.value.problems) == 1, exc.value.problems
+    return str(exc.value.problems[0])
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_hostile_values_are_refused_with_file_column_and_row(tmp_path, fmt):
+    # audit (session 9): an inf in the IMU, a GPS velocity or an odometry speed was dropped as "empty/NaN" or used;
+    # one 1e300 gyro sample ended in "internal error: LinAlgError"; integer nanoseconds in t passed validate; a
+    # 1e6 m/s odometry speed was used
+    def session(name, table, change, **kw):
+        d = write_minimal_session(tmp_path / f"{name}_{fmt}", fmt=fmt, **kw)
+        f = d / f"{table}.{fmt}"
+        df = pd.read_csv(f) if fmt == "csv" else pd.read_parquet(f)
+        df = change(df)
+        df.to_csv(f, index=False) if fmt == "csv" else df.to_parquet(f, index=False)
+        return d
+
+    def at(col, row, val):
+        def change(df):
+            df[col] = df[col].astype(float)
+            df.loc[row, col] = val
+            return df
+        return change
+
+    assert _refusal(session("inf", "imu", at("acc_z", 7, np.inf))).endswith(
+        "imu." + fmt + ": column 'acc_z', row 8: inf is not a measurement (a missing value is an empty cell or NaN)")
+    assert "column 'vn', row 3: -inf is not a measurement" in _refusal(
+        session("vn", "gps", lambda df: at("vn", 2, -np.inf)(df.assign(vn=0.0, ve=0.0, vd=0.0))))
+    assert "column 'speed_mps', row 5: inf is not a measurement" in _refusal(
+        session("odo_inf", "odometry", at("speed_mps", 4, np.inf), with_odometry=True))
+    assert "column 'gyro_x', row 10: 1e+300 rad/s is beyond any gyro's range" in _refusal(
+        session("huge", "imu", at("gyro_x", 9, 1e300)))
+    assert "column 'mag_y', row 3: 1000000000.0 µT is beyond any magnetometer's range" in _refusal(
+        session("mag", "imu", lambda df: at("mag_y", 2, 1e9)(df.assign(mag_x=20.0, mag_y=0.0, mag_z=40.0))))
+    assert "column 'speed_mps', row 5: speed 1000000.0 m/s is beyond any wheeled vehicle's" in _refusal(
+        session("odo_fast", "odometry", at("speed_mps", 4, 1e6), with_odometry=True))
+    assert "column 't', row 2: samples are 1e+07 apart with [imu] rate_hz = 100: t is in nanoseconds" in _refusal(
+        session("ns", "imu", lambda df: df.assign(t=(df["t"] * 1e9).round().astype("int64"))))
+
+
+def test_session_toml_arrays_take_numbers_only(tmp_path):
+    # audit (session 9): mounting_rpy_deg = [true, 0, 0] was read as [1, 0, 0]; ["1", "2", "3"] as numbers
+    for i, val in enumerate(("[true, 0.0, 0.0]", '["1", "2", "3"]')):
+        d = write_minimal_session(tmp_path / f"s{i}")
+        toml = (d / "session.toml").read_text()
+        (d / "session.toml").write_text(toml.replace("[imu]\n", f"[imu]\nmounting_rpy_deg = {val}\n"))
+        assert "[imu] mounting_rpy_deg must be three finite numbers" in _refusal(d)

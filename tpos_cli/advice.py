@@ -252,7 +252,7 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
     d, sd = float(state["estimate_s"]), float(state["sigma_s"])
     fig = {**fig, "filter_estimate_s": d, "filter_sigma_s": sd}
     dv, sdv = state.get("velocity_estimate_s"), state.get("velocity_sigma_s")
-    if state.get("output_clock") != "gps" or abs(d) < conventions.CLOCK_MIN_S:
+    if not conventions.output_on_gps_clock(state) or abs(d) < conventions.CLOCK_MIN_S:
         if (abs(d) >= conventions.CLOCK_MIN_S or dv is None or sdv is None or abs(float(dv)) < conventions.CLOCK_MIN_S
                 or abs(float(dv) - d) <= abs(d) + CLOCK_Z * float(np.hypot(sd, sdv))):
             return [Finding("clock", "ok", None, fig)]

@@ -108,6 +108,7 @@ class SessionResult:
     started_utc: str
     worker: str  # host:pid that ran the task
     pipeline: str = ""
+    kind: str = ""  # the session's kind (summary.json session.kind: target | drive | ranging), "" when unknown
     timings_s: dict[str, float] = field(default_factory=dict)  # per stage, from summary.json
     accuracy: dict[str, float] = field(default_factory=dict)  # with report: chain results and truth.* errors
     report_note: str = ""  # with report: why no accuracy against truth was computed, if it was not
@@ -407,6 +408,12 @@ def _summary_sha256(run_dir: Path) -> str:
         return ""
 
 
+def _session_kind(summary: Mapping[str, Any] | None) -> str:
+    head = (summary or {}).get("session")
+    kind = head.get("kind") if isinstance(head, Mapping) else None
+    return kind if isinstance(kind, str) else ""
+
+
 def _quality(summary: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
     q = summary.get("quality")
     if not isinstance(q, Mapping):
@@ -483,6 +490,7 @@ def run_session_task(
         time_s=time.perf_counter() - t_start,
         worker=_worker_id(),
         pipeline=str(summary.get("pipeline") or task.pipeline or ""),
+        kind=_session_kind(summary),
         timings_s=_flatten_numbers(timings) if isinstance(timings, Mapping) else {},
         verdict=verdict,
         warnings=tuple(str(w) for w in warnings) if isinstance(warnings, (list, tuple)) else (),
@@ -741,6 +749,8 @@ def earlier_rows(root: Path, names: Iterable[str]) -> tuple[SessionResult, ...]:
             continue
         if _summary_sha256(Path(root) / name) != row["run_sha256"] or row.get("run_dir") != str(Path(root) / name):
             continue
+        if "kind" not in row:  # a record written before rows had it: the run (unchanged) says
+            row = {**row, "kind": _session_kind(_read_summary(Path(root) / name))}
         r = _result_from_row(row)
         if r is not None:
             out.append(r)
@@ -825,9 +835,10 @@ def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str
     From the row's `truth.<solution>.<trajectory|targets>.<statistic>` figures: the first solution
     in `rank`'s order (the CLI passes `tpos_cli.report.solutions.rank_solutions`, best first); the
     position error is the 3-D RMS of the targets when the run has targets, else the horizontal RMS of
-    the trajectory, except for a target pipeline's fixed observer (its trajectory is an attitude at a
-    point it was given: None, as `tpos report` leaves it out); the attitude error is the RMS of the
-    trajectory's attitude. ("", None, None) without figures."""
+    the trajectory, except for a target session's fixed observer (`r.kind` "target": its trajectory is
+    an attitude at a point it was given: None, as `tpos report` leaves it out, whatever the pipeline
+    is called); the attitude error is the RMS of the trajectory's attitude. ("", None, None) without
+    figures."""
     rank_solutions = rank
     figures: dict[tuple[str, str, str], float] = {}
     for key, v in r.accuracy.items():
@@ -842,7 +853,7 @@ def headline_errors(r: SessionResult, rank: Callable = _as_written) -> tuple[str
     if not sols:
         return "", None, None
     sol = sols[0]
-    fixed_observer = not has_targets and r.pipeline.startswith("target")
+    fixed_observer = not has_targets and r.kind == "target"
     return sol, None if fixed_observer else figures[(sol, *pos_key)], figures.get((sol, "trajectory", "rms_att_deg"))
 
 

@@ -19,6 +19,8 @@ flag them where the source says so (NMEA, u-blox, RTKLIB).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from tpos_cli.alignment import static_mask
@@ -278,6 +280,55 @@ def course_findings(session) -> list[Finding]:
     return [Finding("conventions.course_gain", "ok", None, fig)]
 
 
+# Odometry against GPS speed: samples while the GPS speed is above ODO_MIN_SPEED_MPS (wheel speed and
+# ground speed agree there to the odometer's scale error, a few %); at least ODO_MIN_SAMPLES of them.
+ODO_MIN_SPEED_MPS = 2.0
+ODO_MIN_SAMPLES = 20
+ODO_SCALE_TOL = 0.25  # a median ratio this far from 1 is no scale error (the contract: "a few percent")
+ODO_UNITS = ((3.6, "km/h", "divide by 3.6"), (2.23694, "mph", "multiply by 0.44704"), (1000.0, "mm/s", "divide by 1000"),
+             (100.0, "cm/s", "divide by 100"))
+
+
+def odometry_findings(session) -> list[Finding]:
+    """The odometry's speed against the GPS's horizontal speed while moving: the median of their
+    ratio names a km/h, mph, mm/s or cm/s column (within ODO_SCALE_TOL / 2 of the factor), or a scale
+    off by more than ODO_SCALE_TOL. The GPS speed is its logged vn, ve, else the fixes' differences."""
+    odo, gps = getattr(session, "odometry", None), session.gps
+    if odo is None or gps is None or not gps.valid.any():
+        return []
+    t = gps.t_s[gps.valid]
+    v = gps.vel_ned_mps[gps.valid]
+    if np.isfinite(v[:, :2]).all(axis=1).mean() > 0.5:
+        ok = np.isfinite(v[:, :2]).all(axis=1)
+        t, speed = t[ok], np.hypot(v[ok, 0], v[ok, 1])
+    else:
+        from tpos_cli.frames.geodetic import lla_to_ned
+
+        ne = lla_to_ned(gps.lla[gps.valid], gps.lla[gps.valid][0])[:, :2]
+        dt = np.diff(t)
+        good = dt > 0
+        t, speed = (0.5 * (t[1:] + t[:-1]))[good], (np.hypot(*np.diff(ne, axis=0).T) / np.where(good, dt, 1.0))[good]
+    if t.size < 2:
+        return []
+    inside = (odo.t_s >= t[0]) & (odo.t_s <= t[-1])
+    g = np.interp(odo.t_s[inside], t, speed)
+    moving = g > ODO_MIN_SPEED_MPS
+    if moving.sum() < ODO_MIN_SAMPLES:
+        return []
+    ratio = float(np.median(odo.speed_mps[inside][moving] / g[moving]))
+    fig = {"odometry_over_gps_speed": ratio, "samples": int(moving.sum())}
+    for factor, unit, fix in ODO_UNITS:
+        if abs(ratio / factor - 1.0) < ODO_SCALE_TOL / 2:
+            return [Finding("conventions.odometry_unit", "unreliable",
+                            f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} "
+                            f"samples): it is in {unit}, not m/s; {fix}", fig)]
+    if abs(ratio - 1.0) > ODO_SCALE_TOL:
+        return [Finding("conventions.odometry_unit", "suspect",
+                        f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} samples), "
+                        "where a wheel or CAN speed is within a few % of it: wrong unit, scale or column", fig)]
+    return [Finding("conventions.odometry_unit", "ok", None, fig)]
+
+
 def session_findings(session) -> list[Finding]:
     """The convention checks on a loaded Session that cost little on hours of data: gravity
     direction and magnitude, gyro at rest, tilt against gyro, course against gyro, magnetometer."""
@@ -315,6 +366,7 @@ def session_findings(session) -> list[Finding]:
 
         when = session.meta.start_utc or datetime(2020, 1, 1)  # the field drifts ~0.1 %/year: close enough
         out += magnetometer_findings(imu.mag_b_ut, pos, when)
+    out += odometry_findings(session)
     return out
 
 
@@ -380,6 +432,13 @@ def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
 def offset_text(d_s, sd_s) -> str:
     """'0.125 ± 0.004 s early' for a clock offset d (a value stamped t holds at IMU time t + d)."""
     return f"{abs(float(d_s)):.3f} ± {float(sd_s):.3f} s {'late' if float(d_s) < 0 else 'early'}"
+
+
+def output_on_gps_clock(clock) -> bool:
+    """Whether a run's output was moved to the GPS receiver's clock: its clock record (summary.json
+    `results.gps_clock_offset`, `chains.drive_smooth.clock_offset`) says `output_clock` "gps" (times
+    t - d, d the estimated IMU-GPS offset). False for no record or one of another shape."""
+    return isinstance(clock, Mapping) and clock.get("output_clock") == "gps"
 
 
 def _current_gps_offset(session) -> float:

@@ -277,11 +277,33 @@ def magnetometer_findings(counts: Mapping | None, imu_samples: int, has_mag: boo
     return [Finding("magnetometer.rejected", "ok", None, fig)]
 
 
+def unsupported_heading_text(share: float, sigma_deg: float) -> str:
+    """The one sentence for LF1's unsupported heading (`chains.target_fkf.unsupported_heading`): the
+    chain's warning and the verdict's reason. share: samples on which neither attitude run used the
+    field (0-1); sigma_deg: the refused field's RMS disagreement with the heading (deg)."""
+    return (f"magnetometer: neither attitude run used the field on {100 * float(share):.0f} % of the samples: the "
+            "heading rests on the still windows' alignments carried by the gyro, and the refused field disagrees "
+            f"with it by {float(sigma_deg):.1f} deg RMS (added to the heading sigma of lf1); keep magnets and "
+            "electronics away from the sensor, or run `tpos calibrate-mag` if the disturbance moves with the device")
+
+
+def unresolved_offset_text(offset_ut: float, heading_deg: float | None = None) -> str:
+    """The one sentence for a disturbance the start alignment's field may hold (`chains.target_fkf.
+    unresolved_offset_heading`): the chain's warning and the verdict's reason. offset_ut: its size (uT);
+    heading_deg: the heading error it may cause (deg), when known."""
+    up_to = "the heading sigma" if heading_deg is None else f"{float(heading_deg):.0f} deg"
+    return (f"magnetic survey: the start alignment's field may hold a {float(offset_ut):.1f} uT disturbance (a magnet "
+            "attached from the start, or a field off the Earth field's magnitude in the still window): the heading "
+            f"may be off by up to {up_to} (added to the heading sigma of lf1); run `tpos calibrate-mag` on a log that "
+            "turns the device with the magnet attached")
+
+
 def magnetometer_support_findings(results: Mapping | None) -> list[Finding]:
     """What the target chain added to LF1's heading sigma (`chains.target_fkf.unsupported_heading`,
     `unresolved_offset_heading`): `magnetometer_unused_share` (samples on which neither attitude run
     used the field) with `unsupported_heading_sigma_deg` (the refused field's RMS disagreement with the
-    heading), and `unresolved_offset_ut` (a disturbance the start alignment's field may hold)."""
+    heading), and `unresolved_offset_ut` (a disturbance the start alignment's field may hold) with
+    `unresolved_offset_heading_sigma_deg` (the heading error it may cause), when the run has it."""
     r = results or {}
     out: list[Finding] = []
     share = r.get("magnetometer_unused_share")
@@ -290,21 +312,14 @@ def magnetometer_support_findings(results: Mapping | None) -> list[Finding]:
         sd = r.get("unsupported_heading_sigma_deg")
         fig = {"unused_share": share, "unsupported_heading_sigma_deg": sd}
         if sd is not None:  # written only past the chain's own share (`target_fkf.HEADING_UNSUPPORTED_SHARE`)
-            out.append(Finding("magnetometer.unused", "suspect",
-                               f"magnetometer: neither attitude run used the field on {100 * share:.0f} % of the samples: the "
-                               "heading rests on the still windows' alignments carried by the gyro, and the refused field "
-                               f"disagrees with it by {float(sd):.1f} deg RMS (in the heading sigma); keep magnets and "
-                               "electronics away from the sensor, or run `tpos calibrate-mag` if the disturbance moves "
-                               "with the device", fig))
+            out.append(Finding("magnetometer.unused", "suspect", unsupported_heading_text(share, sd), fig))
         else:
             out.append(Finding("magnetometer.unused", "ok", None, fig))
     b = r.get("unresolved_offset_ut")
     if b is not None:
         out.append(Finding("magnetometer.unresolved_offset", "suspect",
-                           f"magnetic survey: the start alignment's field may hold a {float(b):.1f} uT disturbance (a magnet "
-                           "attached from the start, or a field off the Earth field's magnitude in the still window): the "
-                           "heading may be off by up to the heading sigma; run `tpos calibrate-mag` on a log that turns the "
-                           "device with the magnet attached", {"unresolved_offset_ut": float(b)}))
+                           unresolved_offset_text(b, r.get("unresolved_offset_heading_sigma_deg")),
+                           {"unresolved_offset_ut": float(b)}))
     return out
 
 

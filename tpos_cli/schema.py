@@ -19,6 +19,22 @@ TRUTH_OPTIONAL = ("vn", "ve", "vd", "roll", "pitch", "yaw")
 TABLES_ANY_FORMAT = ("imu", "ranges", "gps", "anchor_ranges", "odometry", "truth")
 TABLES_CSV_ONLY = ("anchors", "range_calibration", "targets", "shots")
 
+# session.toml: its sections and the keys tpos reads in each (the contract's and tpos's extensions),
+# for the parser (`session.load_session`) and its unknown-key warnings. Each section is optional
+# except [session] and [imu]; [time] holds one `<table>_offset_s` per table.
+IMU_NOISE_KEYS = ("gyro_noise_dps", "gyro_bias_dph", "acc_noise_mg", "acc_bias_mg", "mag_noise_ut")
+_LLA_KEYS = ("lat", "lon", "h")
+SESSION_TOML_KEYS = {
+    "session": ("name", "kind", "start_utc"),
+    "imu": ("axes", "rate_hz", "mounting_rpy_deg", *IMU_NOISE_KEYS),
+    "rangefinders": ("baseline_12_m", "baseline_13_m", "sigma_m"),
+    "magnetic": ("declination_deg", "hard_iron_ut", "soft_iron"),
+    "gps": ("lever_arm_m",),
+    "observer": _LLA_KEYS,
+    "local": _LLA_KEYS,
+    "time": tuple(f"{t}_offset_s" for t in (*TABLES_ANY_FORMAT, *TABLES_CSV_ONLY)),
+}
+
 SESSION_KINDS = ("target", "drive", "ranging")
 TARGET_ROLES = ("reference", "truth", "")
 GPS_FIX_VALUES = (0, 1, 2)

@@ -23,11 +23,19 @@ from tpos_cli.frames.rotation import axes_to_dcm
 from tpos_cli.io import plausibility
 from tpos_cli.io.bounded import MAX_TABLE_BYTES, read_toml, regular_file_size
 from tpos_cli.io.columns import Columns
-from tpos_cli.io.tables import Problem, find_table, read_table
+from tpos_cli.io.tables import Problem, find_table, read_table, shown
 
 # Rates above this cannot be rad/s from a MEMS gyro: 2000 deg/s is the largest full scale of
 # consumer MEMS gyros. Checked on the 99.9th percentile so that a few glitch samples do not trip it.
 GYRO_MAX_PLAUSIBLE_RPS = 34.9
+# One sample beyond these is no sensor's reading (corrupted, or another unit), and would overflow the
+# filters' arithmetic: ten times the largest full scales of MEMS gyros (4000 deg/s = 70 rad/s) and
+# accelerometers (400 g), and 0.1 T against magnetometers' few mT (from datasheets, not from any log).
+GYRO_MAX_SAMPLE_RPS = 700.0
+ACC_MAX_SAMPLE_MPS2 = 40_000.0
+MAG_MAX_SAMPLE_UT = 100_000.0
+# An odometry speed beyond this is no wheeled vehicle's (the fastest road cars reach about 140 m/s).
+ODOMETER_MAX_MPS = 200.0
 # A median specific-force magnitude in this band is g units, not m/s^2 (the median of any log,
 # static or moving, sits near 1 g).
 ACC_G_BAND = (0.5, 2.0)
@@ -242,10 +250,18 @@ class _Collector:
             path = find_table(self.dir, name, csv_only=csv_only)
             if path is None:
                 return None, name
-            return read_table(path, tuple(numeric), tuple(text), tuple(required)), path.name
+            df = read_table(path, tuple(numeric), tuple(text), tuple(required))
         except InvalidInputError as exc:
             self.problems.extend(exc.problems or [Problem(f"{name}.*", str(exc))])
             return None, name
+        for col in numeric:  # t has its own check (`_check_time`)
+            v = df[col] if col != "t" and col in df else None
+            bad = None if v is None or v.dtype.kind != "f" else np.flatnonzero(np.isinf(v))
+            if bad is not None and bad.size:
+                self.problem(path.name, f"{_v(v[bad[0]])} is not a measurement (a missing value is an empty cell or NaN)",
+                             col, int(bad[0]) + 1)
+                return None, path.name
+        return df, path.name
 
 
 def _number(c: _Collector, section: dict, key: str, where: str, required=False, positive=False):
@@ -255,14 +271,14 @@ def _number(c: _Collector, section: dict, key: str, where: str, required=False, 
         return None
     v = section[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        c.problem("session.toml", f"[{where}] {key} must be a finite number, got {v!r}")
+        c.problem("session.toml", f"[{where}] {key} must be a finite number, got {_v(v)}")
         return None
     if positive and v <= 0:
-        c.problem("session.toml", f"[{where}] {key} must be positive, got {v!r}")
+        c.problem("session.toml", f"[{where}] {key} must be positive, got {_v(v)}")
         return None
     lo, hi = PLAUSIBLE_SESSION_VALUES.get((where, key), (-math.inf, math.inf))
     if not lo <= v <= hi:
-        c.problem("session.toml", f"[{where}] {key} = {v!r} is outside {lo:g} to {hi:g}: not this quantity in the "
+        c.problem("session.toml", f"[{where}] {key} = {_v(v)} is outside {lo:g} to {hi:g}: not this quantity in the "
                   "contract's units (docs/log-format.md)")
         return None
     return float(v)
@@ -288,23 +304,12 @@ def _lla_section(c: _Collector, raw: dict, name: str) -> np.ndarray | None:
     return np.array(vals)
 
 
-def _known_keys() -> dict[str, tuple[str, ...]]:
-    """The keys session.toml's sections hold (the contract's and tpos's extensions), for `_unknown_keys`."""
-    lla = ("lat", "lon", "h")
-    return {"session": ("name", "kind", "start_utc"),
-            "imu": ("axes", "rate_hz", "mounting_rpy_deg", *ImuNoise.__dataclass_fields__),
-            "rangefinders": ("baseline_12_m", "baseline_13_m", "sigma_m"),
-            "magnetic": ("declination_deg", "hard_iron_ut", "soft_iron"),
-            "gps": ("lever_arm_m",), "observer": lla, "local": lla,
-            "time": tuple(f"{t}_offset_s" for t in (*schema.TABLES_ANY_FORMAT, *schema.TABLES_CSV_ONLY))}
-
-
 def _unknown_keys(raw: dict) -> list[str]:
     """One warning per section or key of session.toml that tpos does not read: the contract ignores
     them, but a misspelt key (`gyro_noise_dsp`) would silently lose its setting."""
     import difflib
 
-    known = _known_keys()
+    known = schema.SESSION_TOML_KEYS
     out = []
     for sec, val in raw.items():
         if sec not in known:
@@ -342,14 +347,14 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
     name = str(s.get("name", c.dir.name))
     kind = s.get("kind")
     if kind not in schema.SESSION_KINDS:
-        c.problem("session.toml", f"[session] kind must be one of {', '.join(schema.SESSION_KINDS)}, got {kind!r}")
+        c.problem("session.toml", f"[session] kind must be one of {', '.join(schema.SESSION_KINDS)}, got {_v(kind)}")
     start_utc = None
     if "start_utc" in s:
         v = s["start_utc"]
         try:
             start_utc = v if isinstance(v, datetime) else datetime.fromisoformat(str(v).replace("Z", "+00:00"))
         except ValueError:
-            c.problem("session.toml", f"[session] start_utc is not an ISO-8601 time: {v!r}")
+            c.problem("session.toml", f"[session] start_utc is not an ISO-8601 time: {_v(v)}")
         aware = None if start_utc is None else start_utc.replace(tzinfo=UTC) if start_utc.tzinfo is None else start_utc
         if aware is not None:
             if not START_UTC_RANGE[0] <= aware <= START_UTC_RANGE[1]:
@@ -358,7 +363,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
                 start_utc = None
     axes = imu.get("axes")
     if not isinstance(axes, str):
-        c.problem("session.toml", f"[imu] axes must be three letters such as \"FRD\", got {axes!r}")
+        c.problem("session.toml", f"[imu] axes must be three letters such as \"FRD\", got {_v(axes)}")
         axes = "FRD"
     try:
         axes_to_dcm(axes)
@@ -366,7 +371,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
         c.problem("session.toml", f"[imu] {exc}")
     rate = _number(c, imu, "rate_hz", "imu", required=True, positive=True)
     mounting = _mounting(c, imu)
-    noise = ImuNoise(**{k: _number(c, imu, k, "imu", positive=False) for k in ImuNoise.__dataclass_fields__})
+    noise = ImuNoise(**{k: _number(c, imu, k, "imu", positive=False) for k in schema.IMU_NOISE_KEYS})
     rf = None
     if "rangefinders" in raw:
         sec = raw["rangefinders"]
@@ -425,7 +430,7 @@ def _parse_meta(c: _Collector) -> SessionMeta | None:
 
 
 # The sections of the contract (and the tpos extensions): each must be a table when present.
-SECTIONS = ("session", "imu", "rangefinders", "magnetic", "gps", "observer", "local", "time")
+SECTIONS = tuple(schema.SESSION_TOML_KEYS)
 
 
 # Bounds of the Euler angles of `[imu] mounting_rpy_deg` (same convention as attitude: pitch within
@@ -439,7 +444,7 @@ def _mounting(c: _Collector, imu: dict) -> np.ndarray | None:
         return None
     v = imu["mounting_rpy_deg"]
     if not _is_matrix(v, (3,)):
-        c.problem("session.toml", f"[imu] mounting_rpy_deg must be three finite numbers (roll, pitch, yaw in degrees), got {v!r}")
+        c.problem("session.toml", f"[imu] mounting_rpy_deg must be three finite numbers (roll, pitch, yaw in degrees), got {_v(v)}")
         return None
     rpy = np.asarray(v, dtype=float)
     for name, val, lim in zip(("roll", "pitch", "yaw"), rpy, MOUNTING_LIMITS_DEG):
@@ -450,11 +455,19 @@ def _mounting(c: _Collector, imu: dict) -> np.ndarray | None:
 
 
 def _v(x) -> str:
-    """A cell value for a message: plain Python repr, never numpy's."""
-    return repr(x.item() if isinstance(x, np.generic) else x)
+    """A cell value for a message: plain Python repr, never numpy's, cut to a line (`io.tables.shown`)."""
+    return shown(x)
 
 
 def _is_matrix(v, shape) -> bool:
+    """`v` is an array of `shape` of finite TOML numbers (not booleans, not text that reads as a number)."""
+    def numbers(x) -> bool:
+        if isinstance(x, list):
+            return all(numbers(e) for e in x)
+        return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+    if not numbers(v):
+        return False
     try:
         a = np.asarray(v, dtype=float)
     except (TypeError, ValueError):
@@ -490,17 +503,24 @@ def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray, h
                   f"{plausibility.H_MAX_M:g} m): feet, millimetres or a wrong column?", "h", i + 1)
 
 
+def _timed_table(c: _Collector, name: str, numeric, required):
+    """A table with a `t` column and its checked times: (df, file name, t, rows kept), or None when it
+    is absent or invalid (the problems recorded)."""
+    df, fname = c.table(name, numeric, required=required)
+    if df is None:
+        return None
+    t = df["t"]
+    keep = _check_time(c, fname, t, name)
+    return None if keep is None else (df, fname, t, keep)
+
+
 def _imu_table(c: _Collector, cols, required):
     """The IMU table's columns `cols` and its checked times: (df, file name, t, rows kept), or None
     (the problems recorded)."""
-    df, fname = c.table("imu", cols, required=required)
-    if df is None:
-        if not any(p.file.startswith("imu") for p in c.problems):
-            c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
-        return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "imu")
-    return None if keep is None else (df, fname, t, keep)
+    got = _timed_table(c, "imu", cols, required)
+    if got is None and not any(p.file.startswith("imu") for p in c.problems):
+        c.problem("imu.*", "missing: every session needs imu.csv or imu.parquet")
+    return got
 
 
 def _load_imu(c: _Collector, meta: SessionMeta):
@@ -528,6 +548,16 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     every_row = bool(keep.all())  # the usual log: no row dropped, so no copies of the kept rows
     gyro_k = gyro if every_row else gyro[keep]
     acc_k = acc if every_row else acc[keep]
+    for name, sensor, block, limit, unit in (("gyro", "gyro", gyro, GYRO_MAX_SAMPLE_RPS, "rad/s"),
+                                             ("acc", "accelerometer", acc, ACC_MAX_SAMPLE_MPS2, "m/s²"),
+                                             ("mag", "magnetometer", mag, MAG_MAX_SAMPLE_UT, "µT")):
+        over = None if block is None else np.flatnonzero((np.abs(block) > limit).any(axis=1) & keep)
+        if over is not None and over.size:
+            i = int(over[0])
+            j = int(np.argmax(np.abs(block[i]) > limit))
+            c.problem(fname, f"{_v(block[i, j])} {unit} is beyond any {sensor}'s range (at most {limit:g} {unit}): "
+                      "a corrupted sample or another unit", f"{name}_{'xyz'[j]}", i + 1)
+            return None
     gyro_norm = np.linalg.norm(gyro_k, axis=1)
     p999 = float(np.quantile(gyro_norm, 0.999))
     if p999 > GYRO_MAX_PLAUSIBLE_RPS:
@@ -566,7 +596,7 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         c.count("imu_gaps", len(gaps))
         c.warnings.append(f"{fname}: {len(gaps)} gaps longer than 2.5 sample periods (longest {np.max(gaps[:, 1] - gaps[:, 0]):.3f} s)")
     measured = (t[-1] - t[0]) / max(len(t) - 1, 1)
-    for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds")):
+    for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")):
         if abs(measured / factor * meta.rate_hz - 1.0) < 0.5:
             c.problem(fname, f"samples are {measured:.6g} apart with [imu] rate_hz = {meta.rate_hz:g}: t is in {unit}; "
                       "the contract requires seconds", "t", 2)
@@ -581,13 +611,10 @@ def _offset(meta: SessionMeta, name: str) -> float:
 
 
 def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[float, float] | None = None):
-    df, fname = c.table("gps", schema.GPS_REQUIRED + schema.GPS_OPTIONAL, required=schema.GPS_REQUIRED)
-    if df is None:
+    got = _timed_table(c, "gps", schema.GPS_REQUIRED + schema.GPS_OPTIONAL, schema.GPS_REQUIRED)
+    if got is None:
         return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "gps")
-    if keep is None:
-        return None
+    df, fname, t, keep = got
     fix = df["fix"]
     bad = np.flatnonzero(~np.isin(fix, schema.GPS_FIX_VALUES))
     if bad.size:
@@ -663,18 +690,20 @@ def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
 
 def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[float, float] | None):
     """The optional `odometry` table: time checks, NaN speeds dropped and counted, speed >= 0."""
-    df, fname = c.table("odometry", schema.ODOMETRY_REQUIRED, required=schema.ODOMETRY_REQUIRED)
-    if df is None:
+    got = _timed_table(c, "odometry", schema.ODOMETRY_REQUIRED, schema.ODOMETRY_REQUIRED)
+    if got is None:
         return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "odometry")
-    if keep is None:
-        return None
+    df, fname, t, keep = got
     v = df["speed_mps"]
     neg = np.flatnonzero(v < 0)
     if neg.size:
         c.problem(fname, f"speed {_v(v[neg[0]])} m/s is negative; the contract's speed_mps is the forward speed, >= 0",
                   "speed_mps", int(neg[0]) + 1)
+        return None
+    fast = np.flatnonzero(v > ODOMETER_MAX_MPS)
+    if fast.size:
+        c.problem(fname, f"speed {_v(v[fast[0]])} m/s is beyond any wheeled vehicle's ({ODOMETER_MAX_MPS:g} m/s): "
+                  "a corrupted row or another unit (km/h, mm/s?); the contract's speed_mps is m/s", "speed_mps", int(fast[0]) + 1)
         return None
     nan = keep & ~np.isfinite(v)
     if nan.any():
@@ -853,7 +882,7 @@ def _check_targets_near_observer(c: _Collector, targets: Targets, observer_lla: 
     if min(plausibility.distances_from_m(targets.lla[i, [1, 0, 2]], observer_lla)[0],
            plausibility.distances_from_m(targets.lla[i], observer_lla[[1, 0, 2]])[0]) <= plausibility.TARGET_MAX_DISTANCE_M:
         hint = "lat and lon are exchanged, in targets.csv or in [observer] of session.toml (the one not at the site)"
-    c.problem("targets.csv", f"target {targets.ids[i]!r} is {d[i] / 1000:.0f} km from [observer] ({observer_lla[0]:g}, "
+    c.problem("targets.csv", f"target {_v(targets.ids[i])} is {d[i] / 1000:.0f} km from [observer] ({observer_lla[0]:g}, "
               f"{observer_lla[1]:g}), beyond any rangefinder's {plausibility.TARGET_MAX_DISTANCE_M / 1000:g} km: {hint}",
               "lat", i + 1)
 
@@ -906,13 +935,10 @@ def _load_truth(c: _Collector, t0: float):
     except Exception:
         names = []
     extra_cols = tuple(n for n in names if n not in schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL)
-    df, fname = c.table("truth", schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL + extra_cols, required=("t",))
-    if df is None:
+    got = _timed_table(c, "truth", schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL + extra_cols, ("t",))
+    if got is None:
         return None
-    t = df["t"]
-    keep = _check_time(c, fname, t, "truth")
-    if keep is None:
-        return None
+    df, fname, t, keep = got
 
     def opt(cols):
         return np.column_stack([df[k] if k in df.columns else np.full(len(df), np.nan) for k in cols])

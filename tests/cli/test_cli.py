@@ -176,3 +176,46 @@ def test_ctrl_c_in_process_and_batch_says_what_was_kept(tmp_path, monkeypatch):
     monkeypatch.setattr(b, "run_batch", interrupted)
     res = runner.invoke(app, ["batch", str(s), "-o", str(tmp_path / "out"), "-q"])
     assert res.exit_code == 130 and "interrupted; the sessions finished so far are in" in res.output
+
+
+def test_a_warning_the_verdict_gives_as_its_reason_is_printed_once(tmp_path, monkeypatch):
+    # review (session 8): the target chain's heading terms warn and the verdict names them with the same sentence
+    # (quality.unsupported_heading_text): the console showed it twice; other warnings are printed as before
+    from types import SimpleNamespace
+
+    import tpos_cli.pipeline as pl
+    from tpos_cli.quality import unsupported_heading_text
+
+    said = unsupported_heading_text(0.62, 7.25)
+    summary = {"session": {"name": "s"}, "pipeline": "target-fkf", "outputs": ["summary.json"], "timings_s": {"total": 1.0},
+               "warnings": ["ranges: none in this session", said],
+               "quality": {"verdict": "suspect", "reasons": [said]}}
+    monkeypatch.setattr(pl, "process_session", lambda *a, **k: SimpleNamespace(summary=summary, run_dir=tmp_path / "run"))
+    s = write_minimal_session(tmp_path / "s")
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0 and res.output.count(said) == 1 and "warning: ranges: none in this session" in res.output
+    summary["quality"] = {"verdict": "ok", "reasons": []}  # no verdict printed: the warning is
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0 and f"warning: {said}" in res.output
+
+
+@pytest.mark.parametrize("cmd", ["validate", "inspect", "export", "import"])
+def test_ctrl_c_in_every_command_is_one_line_and_exit_130(tmp_path, monkeypatch, cmd):
+    """Ctrl-C in validate / inspect / export / import ended with exit 130 and not a word: typer turns
+    KeyboardInterrupt into a silent exit before main()'s handler sees it."""
+    import tpos_cli.export.build as eb
+    import tpos_cli.importers as imp
+    import tpos_cli.session as sess
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    s = write_minimal_session(tmp_path / "s")
+    for mod, name in ((sess, "load_session"), (eb, "export_run"), (imp, "import_into_session")):
+        monkeypatch.setattr(mod, name, interrupted)
+    args = {"validate": [str(s)], "inspect": [str(s)], "export": [str(tmp_path), "-o", str(tmp_path / "x.csv")],
+            "import": ["csv", str(s / "imu.csv"), "-o", str(tmp_path / "new")]}[cmd]
+    res = runner.invoke(app, [cmd, *args])
+    lines = res.output.strip().splitlines()
+    assert res.exit_code == 130 and len(lines) == 1 and lines[0].startswith(f"tpos {cmd}: interrupted"), res.output
+    assert not (tmp_path / "x.csv").exists() and not (tmp_path / "new").exists()

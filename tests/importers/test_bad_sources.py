@@ -109,3 +109,13 @@ def test_csv_import_of_good_rows_still_works(tmp_path):
     res = runner.invoke(app, ["import", "csv", str(tmp_path / "g.txt"), "--map", str(tmp_path / "map.toml"), "-o", str(tmp_path / "s")])
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["gps.csv", "session.toml"]
+
+
+def test_ubx_of_bytes_that_are_no_utf8_after_a_dollar_is_refused_in_one_line(tmp_path):
+    # audit (session 9): pyubx2 decodes the bytes after a '$' as NMEA text even with the UBX filter, so a
+    # random .ubx was "tpos: internal error: UnicodeDecodeError" (exit 1)
+    src = tmp_path / "junk.ubx"
+    src.write_bytes(b"\x00\x01$G\xd3\xff\xfe,\x80\x81\r\n" * 300)
+    res = CliRunner().invoke(app, ["import", "ubx", str(src), "-o", str(tmp_path / "s")])
+    assert res.exit_code == 2 and res.output.strip().endswith("no UBX NAV-PVT messages (enable UBX-NAV-PVT output on the receiver)")
+    assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "s").exists()

@@ -143,3 +143,22 @@ def test_parquet_plain_variants_read_as_the_float64_file(tmp_path, case):
         a_lla, b_lla, a_fix, b_fix = a_lla[1:], b_lla[1:], a_fix[1:], b_fix[1:]
     assert np.array_equal(got.t_s, want.t_s)
     assert np.array_equal(a_lla, b_lla) and np.array_equal(a_fix, b_fix)
+
+
+def test_a_huge_cell_or_last_line_is_one_short_line(tmp_path):
+    # audit (session 9): a 5 MB cell in the last row was "the last line has 6 fields where the header has 7
+    # (truncated file?)" (the last-line check saw 4 KiB of it); once that was mended, the error quoted the 5 MB cell
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.io.tables import read_table
+
+    head = "t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z\n"
+    p = tmp_path / "imu.csv"
+    p.write_text(head + "0,0,0,0,0,0,-9.8\n1," + "x" * (5 << 20) + ",0,0,0,0,-9.8\n")
+    with pytest.raises(InvalidInputError) as exc:
+        read_table(p, ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"))
+    msg = str(exc.value)
+    assert msg.startswith("imu.csv: column 'gyro_x', row 2: 'xxx") and msg.endswith("(5242882 characters) is not a number")
+    assert len(msg) < 150
+    p.write_text(head + "0,0,0,0,0,0,-9.8\n1,0,0,0," + "1" * 5000 + ",0\n")  # a long last line that IS cut short
+    with pytest.raises(InvalidInputError, match="fields where the header has 7"):
+        read_table(p, ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"))

@@ -159,3 +159,32 @@ def test_page_1_says_when_the_fixes_had_no_sds(tmp_path):
     assert {t.get_fontsize() for t in fig.texts} == {7.8}
     r2 = _with_quality(synth.write_run(tmp_path / "r2", s, traj), q, {"alignment": {}})
     assert "GPS SDs" not in dict(headline_rows(build_context(r2)))
+
+
+def test_page_1_states_the_accuracy_the_chain_used_with_gauss_markov_states(tmp_path):
+    # review (session 8): page 1 rebuilt the stated accuracy as hypot(considered, white), while the drive chain took
+    # considered^2 = max(stated^2 - white^2 - gm^2, 0): with gps_error_model = "gauss_markov" on a log without SDs
+    # it said 1.30 m where 1.50 m was used
+    q = {"verdict": "ok", "reasons": [], "checks": {"flags": FLAGS}}
+    s = synth.write_session(tmp_path / "s", movement=True, gps=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5))
+    white, gm = (0.12, 0.23), (0.75, 1.2)
+    considered = {"sigma_h_m": float(np.sqrt(1.5 ** 2 - white[0] ** 2 - gm[0] ** 2)), "white_h_m": white[0],
+                  "sigma_v_m": float(np.sqrt(2.5 ** 2 - white[1] ** 2 - gm[1] ** 2)), "white_v_m": white[1]}
+    states = {"method": "set by the pipeline", "tau_s": 300.0, "sigma_h_m": gm[0], "sigma_v_m": gm[1]}
+    r = _with_quality(synth.write_run(tmp_path / "r", s, traj), q,
+                      {"alignment": {"gps_considered_error": considered, "gps_error_states": states}})
+    rows = headline_rows(build_context(r))
+    assert dict(rows)["GPS SDs"] == "none in the log: stated 1.50 m h, 2.50 m v used (scatter 0.12 m, GM 0.75 m)"
+    from tpos_cli.report import layout as L
+
+    fig = Figure(figsize=L.A4_IN)  # the longer row still fits page 1's table at its font
+    L.draw_table(fig, 0.9, [L.Column("", [k for k, _ in rows], align="left"), L.Column("", [v for _, v in rows], align="left")],
+                 fontsize=7.8, header=False)
+    assert {t.get_fontsize() for t in fig.texts} == {7.8}
+    # the chain's own stated figures win (an axis whose considered part was clipped to 0 cannot be rebuilt)
+    clipped = dict(considered, sigma_h_m=0.0, stated_h_m=0.5, stated_v_m=2.5)
+    r2 = _with_quality(synth.write_run(tmp_path / "r2", s, traj), q,
+                       {"alignment": {"gps_considered_error": clipped, "gps_error_states": states}})
+    assert dict(headline_rows(build_context(r2)))["GPS SDs"] == (
+        "none in the log: stated 0.50 m h, 2.50 m v used (scatter 0.12 m, GM 0.75 m)")

@@ -5,6 +5,7 @@ Each command lives in its own module and is registered below with one line.
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 from typing import Annotated
@@ -53,17 +54,35 @@ def _root(
     return None
 
 
-app.command("validate")(_validate.validate)
-app.command("inspect")(_inspect.inspect)
-app.command("process")(_process.process)
-app.command("report")(_report.report)
-app.command("export")(_export.export)
-app.command("pipelines")(_pipelines.pipelines)
-app.command("simulate")(_simulate.simulate)
-app.command("batch")(_batch.batch)
-app.command("import")(_import.import_)
-app.command("noise")(_noise.noise)
-app.command("calibrate-mag")(_calibrate_mag.calibrate_mag)
+# What Ctrl-C leaves, per command: typer turns KeyboardInterrupt into a silent exit 130 before main()
+# sees it, so each command says it (process, report and batch say more in their own handlers).
+_INTERRUPTED = {
+    "export": "the output file, if it existed, is unchanged",
+    "import": "the tables written so far are whole; session.toml, written last, may not name them yet (the same "
+              "command with --force writes them again)",
+}
+
+
+def _interruptible(name: str, fn):
+    """`fn` saying one line and exiting 130 on Ctrl-C (signature kept for typer)."""
+
+    @functools.wraps(fn)
+    def command(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except KeyboardInterrupt:
+            kept = _INTERRUPTED.get(name)
+            typer.echo(f"tpos {name}: interrupted" + (f"; {kept}" if kept else ""), err=True)
+            raise typer.Exit(130) from None
+
+    return command
+
+
+for _name, _fn in (("validate", _validate.validate), ("inspect", _inspect.inspect), ("process", _process.process),
+                   ("report", _report.report), ("export", _export.export), ("pipelines", _pipelines.pipelines),
+                   ("simulate", _simulate.simulate), ("batch", _batch.batch), ("import", _import.import_),
+                   ("noise", _noise.noise), ("calibrate-mag", _calibrate_mag.calibrate_mag)):
+    app.command(_name)(_interruptible(_name, _fn))
 
 
 def main() -> None:
@@ -74,7 +93,7 @@ def main() -> None:
     except SystemExit as exc:
         _common.end_process(exc.code)  # `tpos process`/`report`/`batch`: ends here, no teardown
         raise
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # outside a command (typer's parsing, or the exit itself); a command says its own
         print("tpos: interrupted", file=sys.stderr)
         sys.exit(130)
     except Exception as exc:  # a bug, not bad input: keep the traceback behind an opt-in

@@ -64,13 +64,15 @@ def process(
         typer.echo("tpos process: interrupted; no run was written (an earlier run in that directory, if any, is unchanged)", err=True)
         raise typer.Exit(130) from None
     s = res.summary
-    if not quiet:
-        for w in s["warnings"]:
-            typer.echo(f"warning: {w}")
-    typer.echo(f"{s['session']['name']}: {s['pipeline']} -> {res.run_dir} ({', '.join(s['outputs'])}) "
-               f"in {s['timings_s'].get('total', 0):.2f} s")
     q = s.get("quality") or {}
     verdict = q.get("verdict", "ok")
+    said_below = set(q.get("reasons", [])) if verdict != "ok" else set()  # a finding the chain also warned of: once
+    if not quiet:
+        for w in s["warnings"]:
+            if w not in said_below:
+                typer.echo(f"warning: {w}")
+    typer.echo(f"{s['session']['name']}: {s['pipeline']} -> {res.run_dir} ({', '.join(s['outputs'])}) "
+               f"in {s['timings_s'].get('total', 0):.2f} s")
     if verdict != "ok":
         typer.echo(f"verdict: {verdict}", err=True)
         for r in q.get("reasons", []):

@@ -8,7 +8,6 @@ from pathlib import Path
 import typer
 
 from tpos_cli.cli._common import exit_on_error, keep_until_exit, run_to_exit, working
-from tpos_cli.io.bounded import read_json_bounded
 
 
 def report(
@@ -36,8 +35,9 @@ def report(
             from tpos_cli.report.files import terminate_as_interrupt
 
             with terminate_as_interrupt():
-                if (Path(run) / "summary.json").exists():  # at the door: regular, bounded, not nested without end
-                    read_json_bounded(Path(run) / "summary.json", f"{Path(run).name}/summary.json")
+                from tpos_cli.io.run_dir import check_run_summary
+
+                check_run_summary(Path(run))  # at the door: regular, bounded, of the shape tpos writes
                 res = make_report(run, truth, full=full)
             keep_until_exit()  # before the collector resumes (a one-shot `tpos report`)
     except KeyboardInterrupt:

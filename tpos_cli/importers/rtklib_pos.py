@@ -28,8 +28,7 @@ from tpos_cli.importers.gpstime import (
     leap_table_note,
     utc_calendar_to_clock,
 )
-from tpos_cli.importers.result import ImportResult, read_source
-from tpos_cli.importers.velocity_timing import velocity_timing_note
+from tpos_cli.importers.result import ImportResult, gps_result, read_source
 from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 Q_TO_FIX = {0: 0, 1: 2, 2: 2, 3: 2, 4: 2, 5: 1, 6: 2}
@@ -207,11 +206,7 @@ def import_rtklib_pos(path: Path, *, clock: str = "gps_tow", geoid_sep_m: float 
         notes.append(f"{path.name}: heights ellipsoidal, {said}")
     else:
         notes.append(f"{path.name}: heights geodetic (above the geoid), {said}; + --geoid-sep-m {geoid_sep_m:g} m = ellipsoidal")
+    leap = None
     if time_sys != "GPST" or clock == "unix":
         leap = leap_table_note(np.asarray(t, float) if clock == "unix" else np.array([]))
-        if leap:
-            notes.append(f"{path.name}: {leap}")
-    lag = velocity_timing_note(g, path.name)
-    if lag:
-        notes.append(lag)
-    return ImportResult({"gps": g}, {}, tuple(notes))
+    return gps_result(g, path.name, notes, leap)

@@ -58,10 +58,19 @@ def dumps_toml(doc: dict) -> str:
     return "\n".join(lines).rstrip() + "\n"
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
+def _atomic_write(path: Path, write) -> None:
+    """`write(tmp)` to a temporary beside `path`, then renamed over it: `path` is whole or unchanged,
+    and the temporary never stays behind (a failed write or Ctrl-C removes it)."""
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    _atomic_write(path, lambda tmp: tmp.write_bytes(data))
 
 
 def merge_toml(base: dict, update: dict) -> dict:
@@ -148,9 +157,7 @@ def write_session(out_dir: Path, tables: dict[str, pd.DataFrame], toml_update: d
     for name, df in tables.items():
         if name in PARQUET_TABLES:
             path = out_dir / f"{name}.parquet"
-            tmp = path.with_name(f".{path.name}.tmp")
-            df.to_parquet(tmp, index=False)
-            os.replace(tmp, path)
+            _atomic_write(path, lambda tmp, df=df: df.to_parquet(tmp, index=False))
             other = out_dir / f"{name}.csv"
         else:
             path = out_dir / f"{name}.csv"

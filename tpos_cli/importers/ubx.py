@@ -22,8 +22,7 @@ from pyubx2 import ERR_LOG, UBX_PROTOCOL, VALCKSUM, UBXReader
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, leap_table_note, utc_calendar_to_clock
-from tpos_cli.importers.result import ImportResult, read_source
-from tpos_cli.importers.velocity_timing import velocity_timing_note
+from tpos_cli.importers.result import ImportResult, gps_result, read_source
 from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 # (field, lowest, highest, what it must be) of the NAV-PVT values used (u-blox interface description)
@@ -42,10 +41,20 @@ def read_nav_pvt(data: bytes, name: str = "UBX") -> tuple[pd.DataFrame, int]:
     def count(_err) -> None:
         bad[0] += 1
 
-    reader = UBXReader(io.BytesIO(data), protfilter=UBX_PROTOCOL, validate=VALCKSUM, quitonerror=ERR_LOG,
-                       errorhandler=count)
+    stream = io.BytesIO(data)
+    reader = UBXReader(stream, protfilter=UBX_PROTOCOL, validate=VALCKSUM, quitonerror=ERR_LOG, errorhandler=count)
     recs = []
-    for _raw, msg in reader:
+    while True:
+        at = stream.tell()
+        try:
+            raw, msg = reader.read()
+        except UnicodeDecodeError:  # pyubx2 decodes a '$' it meets as NMEA text even when filtered out
+            bad[0] += 1
+            if stream.tell() == at:  # nothing consumed: never loop on the same bytes
+                break
+            continue
+        if raw is None:
+            break
         if msg is None or msg.identity != "NAV-PVT":
             continue
         rec = {k: getattr(msg, k) for k in ("iTOW", "year", "month", "day", "hour", "min", "second", "nano",
@@ -100,10 +109,4 @@ def import_ubx(path: Path, *, clock: str = "gps_tow") -> ImportResult:
              f"height - hMSL: {float(np.median(h_m - h_msl_m)):.3f} m)"]
     notes += [f"{path.name}: {n_all} NAV-PVT messages ({int((~resolved).sum())} without resolved time dropped), "
               f"{bad} bad frame(s) skipped; fix {dict(sorted((int(k), int(v)) for k, v in g['fix'].value_counts().items()))}"]
-    leap = leap_table_note(gps_s_to_clock(week * WEEK_S + tow_s, "unix"))
-    if leap:
-        notes.append(f"{path.name}: {leap}")
-    lag = velocity_timing_note(g, path.name)
-    if lag:
-        notes.append(lag)
-    return ImportResult({"gps": g}, {}, tuple(notes))
+    return gps_result(g, path.name, notes, leap_table_note(gps_s_to_clock(week * WEEK_S + tow_s, "unix")))

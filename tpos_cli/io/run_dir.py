@@ -63,6 +63,51 @@ def check_run_dir(run_dir: Path, session_dir: Path) -> Path:
     return run_dir
 
 
+# summary.json's sections and the JSON types tpos writes them as (`pipeline.process_session`), for
+# the door of `tpos report` / `tpos export`: a file of another shape is refused in one line (exit 2)
+# before any code reads into it. None stands for an absent section.
+SUMMARY_TYPES: dict[str, type | tuple[type, ...]] = {
+    "tpos_version": str, "created_utc": str, "session": dict, "pipeline": str, "pipeline_file": str, "chain": str,
+    "config": dict, "config_sha256": str, "inputs": dict, "mask_gps": list, "gps_outages": list, "imu_gaps": list,
+    "timings_s": dict, "counts": dict, "warnings": list, "results": dict, "quality": dict, "outputs": list,
+    "accuracy_note": str}
+SUMMARY_PART_TYPES: dict[str, dict[str, type | tuple[type, ...]]] = {
+    "session": {"path": str, "name": str, "kind": str, "t0": (int, float), "duration_s": (int, float), "imu_samples": int},
+    "quality": {"verdict": str, "reasons": list, "checks": dict},
+}
+_JSON_NAMES = {dict: "an object", list: "a list", str: "text", int: "a number", float: "a number"}
+
+
+def check_run_summary(run_dir: Path) -> None:
+    """The run's summary.json at the door of `tpos report` / `tpos export`, read as untrusted
+    (`io.bounded.read_json_bounded`): an object whose sections (SUMMARY_TYPES, and the fields of
+    SUMMARY_PART_TYPES) have the JSON types tpos writes; InvalidInputError naming the first that has
+    not. Nothing when the file is absent (the report says what is missing)."""
+    from tpos_cli.io.bounded import read_json_bounded
+
+    path = Path(run_dir) / "summary.json"
+    if not path.exists():
+        return
+    what = f"{Path(run_dir).name}/summary.json"
+    doc = read_json_bounded(path, what)
+
+    def check(obj, types, where):
+        if not isinstance(obj, dict):
+            raise InvalidInputError(f"{what}: {where or 'the file'} must be a JSON object, got {type(obj).__name__}")
+        for key, want in types.items():
+            v = obj.get(key)
+            ok = v is None or (isinstance(v, want) and not isinstance(v, bool))
+            if not ok:
+                name = _JSON_NAMES.get(want if isinstance(want, type) else want[0], "another type")
+                raise InvalidInputError(f"{what}: '{where}{key}' must be {name}, got {type(v).__name__}: "
+                                        "not a summary.json tpos wrote (reprocess the session)")
+
+    check(doc, SUMMARY_TYPES, "")
+    for part, types in SUMMARY_PART_TYPES.items():
+        if doc.get(part) is not None:
+            check(doc[part], types, f"{part}.")
+
+
 def json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()

@@ -58,6 +58,15 @@ def find_table(session_dir: Path, name: str, csv_only: bool = False) -> Path | N
     return None
 
 
+SHOWN_CHARS = 60  # a value quoted in a message is cut to this many characters (a 5 MB cell is one line)
+
+
+def shown(value) -> str:
+    """`value` for a one-line message: its repr (plain Python, never numpy's), cut to SHOWN_CHARS."""
+    text = repr(value.item() if isinstance(value, np.generic) else value)
+    return text if len(text) <= SHOWN_CHARS else f"{text[:SHOWN_CHARS - 12]}... ({len(text)} characters)"
+
+
 def _fail(path: Path, message: str, column: str | None = None, row: int | None = None):
     p = Problem(path.name, message, column, row)
     raise InvalidInputError(str(p), [p])
@@ -163,7 +172,7 @@ def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
     bad = conv.isna() & stripped.notna() & (stripped != "")
     if bad.any():
         i = int(np.flatnonzero(bad.to_numpy())[0])
-        _fail(path, f"{stripped.iloc[i]!r} is not a number", col, i + 1)
+        _fail(path, f"{shown(stripped.iloc[i])} is not a number", col, i + 1)
     return conv.to_numpy(dtype=np.float64, na_value=np.nan)
 
 
@@ -275,15 +284,25 @@ def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
 
 
 def _check_last_line(path: Path, n_header: int, n_rows: int) -> None:
-    """A log cut off mid-write leaves a last line with fewer fields than the header."""
-    with open(path, "rb") as fh:
-        fh.seek(0, 2)
-        size = fh.tell()
-        fh.seek(max(0, size - 4096))
-        tail = fh.read()
-    lines = [ln for ln in tail.split(b"\n") if ln.strip()]
-    if not lines or n_rows == 0:
+    """A log cut off mid-write leaves a last line with fewer fields than the header. The line is
+    read backwards from the end in 1 MiB blocks (a 5 MB cell is one field, not a cut line)."""
+    if n_rows == 0:
         return
-    n_fields = len(lines[-1].decode("utf-8", "replace").split(","))
+    commas = 0
+    with open(path, "rb") as fh:
+        end = fh.seek(0, 2)
+        pos = max(0, end - 4096)
+        fh.seek(pos)
+        tail = fh.read().rstrip(b"\r\n \t")
+        while b"\n" not in tail and pos > 0:  # the window lies inside the last line: read further back
+            commas += tail.count(b",")
+            step = min(pos, 1 << 20)
+            pos -= step
+            fh.seek(pos)
+            tail = fh.read(step)
+    line = tail.rsplit(b"\n", 1)[-1]
+    if not line.strip() and not commas:
+        return
+    n_fields = line.count(b",") + commas + 1
     if n_fields < n_header:
         _fail(path, f"the last line has {n_fields} fields where the header has {n_header} (truncated file?)", row=n_rows)

@@ -14,6 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import FancyBboxPatch
 
+from tpos_cli.conventions import output_on_gps_clock
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
@@ -108,20 +109,32 @@ def _mag_rejected(ctx: ReportContext) -> float | None:
 
 
 def _stated_gps_accuracy(ctx: ReportContext) -> str | None:
-    """For fixes without SDs, the stated accuracy the estimates carry (`results.alignment.gps_considered_error`:
-    the considered part `sigma_*_m` beside the fix-to-fix scatter `white_*_m`, stated = their root sum
-    of squares), so that page 1 says why its 95 % figures are metres where the track is smooth."""
-    c = ((ctx.run.summary.get("results") or {}).get("alignment") or {}).get("gps_considered_error")
+    """For fixes without SDs, the stated accuracy the estimates carry, so that page 1 says why its 95 %
+    figures are metres where the track is smooth. The chain's record (`results.alignment.
+    gps_considered_error`) holds the considered part `sigma_*_m` and the fix-to-fix scatter `white_*_m`;
+    the drive chain took sigma_c^2 = max(stated^2 - white^2 - gm^2, 0), where gm is the Gauss-Markov
+    error states' SD (`results.alignment.gps_error_states`, when the run had them). The stated figures
+    are read from `stated_*_m` when the record has them, else rebuilt as the root sum of squares of the
+    three parts; the error states' share is named when there was one ("GM", short so that page 1 keeps
+    its font: the user set gps_error_model = "gauss_markov")."""
+    al = (ctx.run.summary.get("results") or {}).get("alignment") or {}
+    c, gm = al.get("gps_considered_error"), al.get("gps_error_states")
     if not isinstance(c, dict):
         return None
+    gm = gm if isinstance(gm, dict) else {}
     try:
-        h, v, wh = (float(np.hypot(c["sigma_h_m"], c["white_h_m"])), float(np.hypot(c["sigma_v_m"], c["white_v_m"])),
-                    float(c["white_h_m"]))
+        parts = {ax: (float(c[f"sigma_{ax}_m"]), float(c[f"white_{ax}_m"]), float(gm.get(f"sigma_{ax}_m", 0.0)))
+                 for ax in ("h", "v")}
+        stated = {ax: float(c[f"stated_{ax}_m"]) if f"stated_{ax}_m" in c else float(np.sqrt(np.sum(np.square(p))))
+                  for ax, p in parts.items()}
     except (KeyError, TypeError, ValueError):
         return None
-    if not (np.isfinite(h) and np.isfinite(v)):
+    if not all(np.isfinite(v) for v in stated.values()):
         return None
-    return f"none in the log: stated {fmt_len(h)} h, {fmt_len(v)} v used (fix scatter {fmt_len(wh)})"
+    shares = f"fix scatter {fmt_len(parts['h'][1])}"
+    if parts["h"][2] > 0:  # short: page 1's table keeps its 7.8 pt font
+        shares = f"scatter {fmt_len(parts['h'][1])}, GM {fmt_len(parts['h'][2])}"
+    return f"none in the log: stated {fmt_len(stated['h'])} h, {fmt_len(stated['v'])} v used ({shares})"
 
 
 def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
@@ -246,7 +259,7 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         if cons:
             rows.append(("Inside the stated 95 % bound", cons + " (about 95 % if honest)"))
         clk = (ctx.run.summary.get("results") or {}).get("gps_clock_offset")
-        if src == "truth" and isinstance(clk, dict) and clk.get("output_clock") == "gps":
+        if src == "truth" and output_on_gps_clock(clk):
             d = float(clk.get("estimate_s", np.nan))
             rows.append(("Clocks", f"output on the GPS clock ({d:+.3f} s), truth on the logger's (notes)"))
     if se is not None and se.att_err_deg is not None:

@@ -1,0 +1,54 @@
+"""io.run_dir: the run directory's door (summary.json read as untrusted)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from tpos_cli.cli import app
+from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.run_dir import check_run_summary
+
+GOOD = {"tpos_version": "0.1.0", "session": {"name": "s", "kind": "drive", "t0": 1000.0, "duration_s": 10.0, "imu_samples": 1000},
+        "pipeline": "drive-smooth", "config": {}, "timings_s": {"total": 1.0}, "warnings": [], "results": {},
+        "quality": {"verdict": "ok", "reasons": [], "checks": {}}, "outputs": ["trajectory.parquet"], "accuracy_note": None}
+
+
+@pytest.mark.parametrize("path, value, said", [
+    (("session",), "x", "'session' must be an object, got str"),
+    (("results",), [1, 2], "'results' must be an object, got list"),
+    (("quality",), 5, "'quality' must be an object, got int"),
+    (("warnings",), {"a": 1}, "'warnings' must be a list, got dict"),
+    (("session", "t0"), "abc", "'session.t0' must be a number, got str"),
+    (("session", "imu_samples"), True, "'session.imu_samples' must be a number, got bool"),
+    (("quality", "reasons"), "r", "'quality.reasons' must be a list, got str"),
+])
+def test_a_summary_of_another_shape_is_one_line_at_the_door_of_report_and_export(tmp_path, path, value, said):
+    # audit (session 9): a summary.json with 'session' as text or 'results' as a list ended `tpos report` and
+    # `tpos export` in "internal error: AttributeError: 'str' object has no attribute 'get'" (exit 1)
+    run = tmp_path / "run"
+    run.mkdir()
+    doc = json.loads(json.dumps(GOOD))
+    cur = doc
+    for k in path[:-1]:
+        cur = cur[k]
+    cur[path[-1]] = value
+    (run / "summary.json").write_text(json.dumps(doc))
+    with pytest.raises(InvalidInputError, match=said):
+        check_run_summary(run)
+    for cmd in (["report", str(run)], ["export", str(run), "-o", str(tmp_path / "x.csv")]):
+        res = CliRunner().invoke(app, cmd)
+        assert res.exit_code == 2 and res.output.strip() == f"error: run/summary.json: {said}: not a summary.json tpos " \
+            "wrote (reprocess the session)", res.output
+    assert not (tmp_path / "x.csv").exists() and sorted(p.name for p in run.iterdir()) == ["summary.json"]
+
+
+def test_a_summary_as_tpos_writes_it_passes_and_an_absent_one_is_left_to_the_report(tmp_path):
+    (tmp_path / "summary.json").write_text(json.dumps(GOOD))
+    check_run_summary(tmp_path)
+    check_run_summary(tmp_path / "nothing")
+    (tmp_path / "summary.json").write_text("[1]")
+    with pytest.raises(InvalidInputError, match="the file must be a JSON object, got list"):
+        check_run_summary(tmp_path)
