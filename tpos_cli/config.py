@@ -364,8 +364,13 @@ class ResolvedConfig:
 
 def pipelines_dir() -> Path:
     """The folder of bundled pipelines: the package data `tpos_cli.pipelines` (the repository's
-    `pipelines/`, mapped into the package by setup.py), in a checkout, an editable install or a wheel."""
-    return Path(str(importlib.resources.files("tpos_cli.pipelines")))
+    `pipelines/`, mapped into the package by setup.py), in an editable install or a wheel; the checkout's
+    `pipelines/` when the package is imported from a checkout beside a plain install (pytest run in the
+    repository after `pip install .`: the checkout's tpos_cli comes first and has no tpos_cli.pipelines)."""
+    try:
+        return Path(str(importlib.resources.files("tpos_cli.pipelines")))
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parent.parent / "pipelines"
 
 
 def list_pipelines() -> list[PipelineFile]:
