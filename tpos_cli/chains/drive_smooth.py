@@ -22,6 +22,7 @@ from tpos_cli import smoothing
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import DriveSmoothParams
 from tpos_cli.consistency import mean_chi2
+from tpos_cli.conventions import output_on_gps_clock
 from tpos_cli.errors import InvalidInputError, ProcessingError
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
@@ -430,7 +431,8 @@ def considered_fix_error(p: DriveSmoothParams, fixes: GpsFixes, info: dict) -> n
                   "the fix-to-fix scatter does not show is common to neighbouring fixes; it is added to every reported "
                   "position SD and moves no estimate (fusion.gps_error.unmodelled_error_sd_m)",
         "sigma_h_m": round(float(sd[0]), 4), "sigma_v_m": round(float(sd[1]), 4),
-        "white_h_m": round(float(white[0]), 3), "white_v_m": round(float(white[1]), 3)}
+        "white_h_m": round(float(white[0]), 3), "white_v_m": round(float(white[1]), 3),
+        "stated_h_m": float(p.gps_sigma_h_m), "stated_v_m": float(p.gps_sigma_v_m)}
     return np.array([sd[0], sd[0], sd[1]]) ** 2
 
 
@@ -899,7 +901,7 @@ def trajectory_rows(res: DriveResult, session: Session, p: DriveSmoothParams, na
             C_nv, P_att = vehicle_axes_attitude(sol, res.C_vb, res.forward)
             sol = Solution(sol.name, sol.idx, sol.nav, C_nv, sol.P9, sol.bias)
         rows = solution_rows(sol, t, session.t0_s, outage, flag, P_att)
-        if clock is not None and clock["output_clock"] == "gps":
+        if output_on_gps_clock(clock):
             # each solution's own clock estimate: the one its positions were fitted with
             rows = on_gps_clock(rows, sol.bias[:, o], clock["sigma_s"])
         frames.append(rows)

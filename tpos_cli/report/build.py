@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from tpos_cli.conventions import output_on_gps_clock
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.report import qc
 from tpos_cli.report.accuracy import Accuracy, compute_accuracy
@@ -256,7 +257,7 @@ def gps_clock_note(summary: dict, trajectory: pd.DataFrame | None, solution: str
     (v the speed), which the errors against truth include. Says how large that is at the run's 95th
     percentile speed (of `solution`'s rows when given), and how to keep the output on the logger's clock."""
     clk = (summary.get("results") or {}).get("gps_clock_offset")
-    if not isinstance(clk, dict) or clk.get("output_clock") != "gps":
+    if not output_on_gps_clock(clk):
         return None
     try:
         d = float(clk["estimate_s"])
