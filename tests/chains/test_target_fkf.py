@@ -201,6 +201,10 @@ def test_heading_with_the_field_unused_on_most_samples_takes_the_refused_fields_
         assert np.allclose(added, np.radians(10.0) ** 2 if grows else 0.0, rtol=1e-9, atol=1e-15)
         assert np.allclose(out.P_att[:, :2, :2], P[:, :2, :2])
         assert bool(ctx.warnings) == grows
+        if grows:  # one sentence for the console warning and the verdict's reason (quality.unsupported_heading_text)
+            from tpos_cli.quality import magnetometer_support_findings
+
+            assert list(ctx.warnings) == [f.reason for f in magnetometer_support_findings(summary)]
 
 
 def test_heading_of_an_alignment_whose_field_may_hold_an_offset_takes_that_offset():
@@ -227,6 +231,10 @@ def test_heading_of_an_alignment_whose_field_may_hold_an_offset_takes_that_offse
     ctx, summary = RunContext(), {}
     out = unresolved_offset_heading({"lf1": sol}, fs, session, start, ctx, summary)["lf1"]
     assert np.allclose(out.P_att[:, 2, 2] - 1e-6, (15.0 / h) ** 2) and ctx.warnings
+    from tpos_cli.quality import magnetometer_support_findings  # one sentence for the warning and the verdict
+
+    assert list(ctx.warnings) == [f.reason for f in magnetometer_support_findings(summary)]
+    assert f"up to {np.degrees(15.0 / h):.0f} deg" in ctx.warnings[0]
     clean = FieldSurvey(mag, 45.0, dip, 1.5, np.zeros(n, dtype=bool), tuple(body))
     assert unresolved_offset_heading({"lf1": sol}, clean, session, start, RunContext(), {})["lf1"] is sol
     masked = FieldSurvey(mag, 45.0, dip, 1.5, np.arange(n) < 3, tuple(body))  # 3 of the window's 4 samples

@@ -41,6 +41,7 @@ from tpos_cli.frames import earth, geodetic
 from tpos_cli.frames.earth import G0_MPS2
 from tpos_cli.frames.rotation import dcm_to_euler, dcm_to_rotvec, euler_error_map, euler_to_dcm, rotvec_to_dcm
 from tpos_cli.imu_noise import resolve_imu_noise
+from tpos_cli.quality import unresolved_offset_text, unsupported_heading_text
 from tpos_cli.session import Session
 from tpos_cli.trajectory import trajectory_table
 
@@ -468,9 +469,7 @@ def unsupported_heading(sols: dict, mag_b_ut, decl: float, ctx: RunContext, summ
         return sols
     var = float(np.mean(off**2))
     summary["unsupported_heading_sigma_deg"] = round(float(np.degrees(np.sqrt(var))), 3)
-    ctx.warn(f"magnetometer: neither attitude run used the field on {100 * share:.0f} % of the samples; the heading "
-             f"rests on the alignments carried by the gyro, and the refused field disagrees with it by "
-             f"{np.degrees(np.sqrt(var)):.1f} deg RMS (added to the heading sigma of lf1)")
+    ctx.warn(unsupported_heading_text(share, summary["unsupported_heading_sigma_deg"]))  # the verdict's reason too
     return {**sols, "lf1": add_heading_variance(lf1, var)}
 
 
@@ -496,10 +495,8 @@ def unresolved_offset_heading(sols: dict, field, session: Session, start: End, c
     h = max(field.norm_ut * np.cos(field.dip_rad), 1e-6)
     var = min(b / h, 1.0) ** 2
     summary["unresolved_offset_ut"] = round(b, 3)
-    ctx.warn(f"magnetic survey: the start alignment's field may hold a disturbance of {b:.1f} uT (an offset that moves "
-             f"with the device, or a field off the Earth field's magnitude), so the "
-             f"heading may be off by up to {np.degrees(np.sqrt(var)):.0f} deg (added to the heading sigma of lf1); "
-             "run `tpos calibrate-mag` on a log that turns the device with the magnet attached")
+    summary["unresolved_offset_heading_sigma_deg"] = round(float(np.degrees(np.sqrt(var))), 3)
+    ctx.warn(unresolved_offset_text(b, summary["unresolved_offset_heading_sigma_deg"]))  # the verdict's reason too
     return {**sols, "lf1": add_heading_variance(lf1, var)}
 
 
