@@ -172,6 +172,18 @@ def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: f
     return out
 
 
+def mounting_text(off_deg: float, spread_deg: float, moving_s: float | None = None, min_speed_mps: float | None = None) -> str:
+    """The one sentence for the drive chain's mounting check (`fusion.mounting.course_minus_yaw`): the
+    chain's warning and the verdict's reason. off_deg: median course over ground minus yaw while
+    moving (deg); spread_deg its spread; moving_s, min_speed_mps: how much motion it rests on."""
+    moving = ("while moving" if moving_s is None or min_speed_mps is None
+              else f"while moving faster than {float(min_speed_mps):g} m/s ({float(moving_s):.0f} s)")
+    return (f"mounting: {moving}, course over ground minus yaw is {float(off_deg):+.0f} deg (spread "
+            f"{float(spread_deg):.0f} deg): the IMU's forward axis is turned about {-float(off_deg):+.0f} deg from the "
+            "direction of travel, so the attitude is the IMU's, not the vehicle's; check [imu] axes or set [imu] "
+            "mounting_rpy_deg (a car has little sideslip; a walker or hand-held unit may point elsewhere)")
+
+
 def mounting_findings(results: Mapping | None) -> list[Finding]:
     """The chain's mounting check (course over ground against yaw while moving)."""
     m = (results or {}).get("mounting_check")
@@ -180,12 +192,10 @@ def mounting_findings(results: Mapping | None) -> list[Finding]:
     fig = {k: v for k, v in m.items() if k != "message"}
     if not m["warning"]:
         return [Finding("mounting", "ok", None, fig)]
-    off = float(m.get("course_minus_yaw_median_deg", float("nan")))
+    nan = float("nan")
     return [Finding("mounting", "suspect",
-                    f"mounting: while moving, course over ground minus yaw is {off:+.0f} deg (spread "
-                    f"{float(m.get('spread_deg', float('nan'))):.0f} deg): the IMU's forward axis is turned about {-off:+.0f} deg "
-                    "from the direction of travel, so the attitude is the IMU's, not the vehicle's; check [imu] axes or "
-                    "set [imu] mounting_rpy_deg (a car has little sideslip; a walker or hand-held unit may point elsewhere)", fig)]
+                    mounting_text(m.get("course_minus_yaw_median_deg", nan), m.get("spread_deg", nan), m.get("moving_s"),
+                                  m.get("min_speed_mps")), fig)]
 
 
 def flag_findings(trajectory: pd.DataFrame | Columns | None, flag_probability: float | None) -> list[Finding]:

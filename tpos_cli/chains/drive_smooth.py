@@ -57,11 +57,12 @@ from tpos_cli.fusion.lever_arm import (
     lever_correction_b,
 )
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.fusion.mounting import course_minus_yaw, mounting_warning, refined_mounting, vehicle_attitude
+from tpos_cli.fusion.mounting import course_minus_yaw, mounting_off, refined_mounting, vehicle_attitude
 from tpos_cli.fusion.nav_errors import vibration_velocity_cov_b
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.io.columns import Columns, concat
+from tpos_cli.quality import mounting_text
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
 from tpos_cli.timeoffset import gps_velocity
@@ -624,11 +625,11 @@ def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s) -> d
         return None
     s = axes(sols[best])
     chk = course_minus_yaw(t_s[s.idx], s.nav[:, 3:6], dcm_to_euler(s.C_nb)[2], p.mounting_min_speed_mps)
-    warn = mounting_warning(chk, p.mounting_check_deg)
-    out = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn is not None,
+    warn = mounting_off(chk, p.mounting_check_deg)
+    out = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn,
            **(chk.summary() if chk is not None else {"moving_s": 0.0})}
-    if warn is not None:
-        out["message"] = warn
+    if warn:  # the verdict's own sentence (printed once)
+        out["message"] = mounting_text(chk.median_deg, chk.spread_deg, chk.moving_s, chk.min_speed_mps)
     return out
 
 

@@ -55,16 +55,11 @@ def course_minus_yaw(t_s, vel_ned_mps, yaw_rad, min_speed_mps: float) -> CourseY
                           float(min_speed_mps), int(m.sum()))
 
 
-def mounting_warning(check: CourseYawCheck | None, threshold_deg: float, min_moving_s: float = 10.0) -> str | None:
-    """The summary warning when the course-minus-yaw median exceeds `threshold_deg`, else None."""
-    if check is None or check.moving_s < min_moving_s or abs(check.median_deg) <= threshold_deg:
-        return None
-    return (f"mounting: while moving faster than {check.min_speed_mps:g} m/s ({check.moving_s:.0f} s), course over "
-            f"ground minus the smoothed yaw has median {check.median_deg:+.1f} deg (spread {check.spread_deg:.1f} deg): "
-            f"the IMU's forward axis is not along the direction of travel, so the attitude describes the IMU, not the "
-            f"vehicle. Likely fix: check [imu] axes in session.toml and the mounting (the IMU appears turned by about "
-            f"{-check.median_deg:+.0f} deg about the vertical). A car has little sideslip (a few deg); a walking "
-            f"person or a hand-held unit need not point where it moves, so there this offset may be real.")
+def mounting_off(check: CourseYawCheck | None, threshold_deg: float, min_moving_s: float = 10.0) -> bool:
+    """Whether course over ground minus yaw says the IMU's forward axis is off the direction of
+    travel: its median beyond `threshold_deg` over at least `min_moving_s` of motion (the sentence
+    for the user: `quality.mounting_text`)."""
+    return check is not None and check.moving_s >= min_moving_s and abs(check.median_deg) > threshold_deg
 
 
 def vehicle_attitude(C_nb, P_att_rad2, C_vb, misalign_py_rad=None, misalign_sd_rad=None, roll_sd_rad: float = 0.0):
