@@ -277,6 +277,10 @@ class TargetFkfParams(Section):
     gyro_bias_dph: NonNegative = 20.0
     gyro_bias_rw_dph_per_rth: NonNegative = 10.0
     gyro_scale_sd_ppm: NonNegative = 300.0
+    # SD of each element of the gyro's constant scale/misalignment dM, omega_meas = (I + dM) omega + b: 0.1 %, a
+    # consumer MEMS gyro after a one-time calibration (`sim.target`'s mems figure; a log cannot state it). Carried
+    # as a consider error (no estimate moves); the white part is gyro_scale_sd_ppm
+    gyro_scale_const_ppm: NonNegative = 1000.0
     acc_noise_mg: Positive = 2.0
     acc_bias_mg: NonNegative = 10.0  # SD of the accelerometer bias (prior of the local filters' bias states)
     acc_bias_rw_mg_per_rts: NonNegative = 0.05

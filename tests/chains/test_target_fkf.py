@@ -241,3 +241,24 @@ def test_heading_of_an_alignment_whose_field_may_hold_an_offset_takes_that_offse
     out = unresolved_offset_heading({"lf1": sol}, masked, session, start, RunContext(), {})["lf1"]
     gap = abs(np.linalg.norm([20.0, 0.0, 52.0]) - 45.0)
     assert np.allclose(out.P_att[:, 2, 2] - 1e-6, (max(15.0, gap) / (45.0 * np.cos(dip))) ** 2)
+
+
+def test_fkf_cal_drift_takes_the_pipelines_constant_gyro_scale_figure():
+    """attitude_change_variance: a still-biased gyro turned 90 deg about down since the reference
+    shot adds (white^2 + constant^2) * turn^2, the constant from `[target_fkf] gyro_scale_const_ppm`
+    (through FilterNoise.gyro_scale_const_sd); 0 ppm leaves the white part only."""
+    from tpos_cli.attitude.local import AttitudeSolution, FilterNoise
+    from tpos_cli.chains.target_fkf import attitude_change_variance
+    from tpos_cli.config import TargetFkfParams
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    assert TargetFkfParams().gyro_scale_const_ppm == 1000.0
+    t = np.linspace(0.0, 10.0, 11)
+    C = np.stack([euler_to_dcm(0.0, 0.0, np.radians(9.0 * k)) for k in range(t.size)])  # 90 deg at t = 10 s
+    sol = AttitudeSolution("fkf", t, C, np.tile(np.eye(3), (t.size, 1, 1)))  # P large: no cap
+    base = dict(gyro_noise_rps=0.0, gyro_bias_rps=0.0, gyro_bias_rw_rps_rts=0.0, acc_noise_mps2=0.0, mag_noise_ut=0.0,
+                range_sigma_m=0.0, gyro_scale_sd=3e-4)
+    turn = np.radians(9.0 * np.arange(t.size))
+    for ppm in (0.0, 1000.0):
+        var = attitude_change_variance(sol, [0.0], FilterNoise(**base, gyro_scale_const_sd=ppm * 1e-6), rate_hz=1.0)
+        assert np.allclose(var, (3e-4**2 + (ppm * 1e-6) ** 2) * turn**2, rtol=1e-9, atol=1e-18)

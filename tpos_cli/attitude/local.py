@@ -36,6 +36,7 @@ class FilterNoise:
     mag_noise_ut: float
     range_sigma_m: float
     gyro_scale_sd: float = 3e-4  # relative SD of a sample's rotation angle (scale factor, coning)
+    gyro_scale_const_sd: float = 0.0  # SD of each element of the gyro's constant scale/misalignment dM (consider)
     acc_bias_mps2: float = 0.0  # SD of the accelerometer bias (prior of its states; 0: no such error)
     acc_bias_rw_mps2_rts: float = 0.0  # its random walk
 

@@ -52,11 +52,6 @@ BACKWARD_CARRIED_SD_RAD = 0.1
 #: share of the samples on which neither LF1 run used the field above which its heading counts as unsupported
 #: ("most of the log": `unsupported_heading`)
 HEADING_UNSUPPORTED_SHARE = 0.5
-#: SD of each element of the gyro's constant scale/misalignment matrix dM, omega_meas = (I + dM) omega + b
-#: (0.1 %: a consumer MEMS gyro after a one-time calibration, the `mems` figure of `sim.target`; a log cannot
-#: state it). The filters carry it as a consider error (`FilterSetup.gyro_scale_consider_sd`), never as
-#: per-sample noise (`FilterNoise.gyro_scale_sd`, `gyro_scale_sd_ppm`, is the white part)
-GYRO_SCALE_CONSTANT_SD = 1e-3
 
 
 @dataclass(frozen=True)
@@ -259,7 +254,8 @@ def imu_figures(session: Session, p: TargetFkfParams, start: End, summary: dict)
         gyro_bias_rw_rps_rts=np.radians(p.gyro_bias_rw_dph_per_rth / 3600.0 / 60.0),
         acc_noise_mps2=fig["acc_noise_mg"] * 1e-3 * G0_MPS2, mag_noise_ut=fig["mag_noise_ut"],
         range_sigma_m=rf.sigma_m if (rf is not None and rf.sigma_m is not None) else p.range_sigma_m,
-        gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6, acc_bias_mps2=fig["acc_bias_mg"] * 1e-3 * G0_MPS2,
+        gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6, gyro_scale_const_sd=p.gyro_scale_const_ppm * 1e-6,
+        acc_bias_mps2=fig["acc_bias_mg"] * 1e-3 * G0_MPS2,
         acc_bias_rw_mps2_rts=p.acc_bias_rw_mg_per_rts * 1e-3 * G0_MPS2)
 
 
@@ -374,7 +370,7 @@ def filter_setups(session: Session, p: TargetFkfParams, obs_lla, decl, ends, noi
         gravity_mps2=start.gravity_mps2 if p.gravity_from_static else None,
         # the gyro's scale error is a constant of the sensor, not a new error per sample: its share of the
         # attitude error is carried as a consider sensitivity (`FilterSetup.gyro_scale_consider_sd`)
-        gyro_scale_consider_sd=GYRO_SCALE_CONSTANT_SD)
+        gyro_scale_consider_sd=noise.gyro_scale_const_sd)
     back = replace(base, C0=end.align.C_nb, bias0_rps=end.align.gyro_bias_rps,
                    P0=_initial_covariance(end, noise, m_ref_n, window_mag(end)))
     gyro = replace(base, beta=1.0, gyro_err_sd=0.0)
@@ -811,7 +807,7 @@ def attitude_change_variance(sol: AttitudeSolution, t_ref_s, noise: FilterNoise,
     nearest reference shot and each sample: what the reference-point offsets leave. The gyro's
     angle random walk q |dt| (q = per-sample SD^2 / rate), its residual bias (the solution's own
     bias variance at the reference) over dt, and its scale error over the rotation between the
-    two attitudes (the constant dM, `GYRO_SCALE_CONSTANT_SD`, and the white part); never more than the two
+    two attitudes (the constant dM, `FilterNoise.gyro_scale_const_sd`, and the white part); never more than the two
     errors independent, (tr P(t) + tr P(t_ref)) / 3."""
     t = sol.t_s
     tr = np.sort(np.asarray(t_ref_s, dtype=float))
@@ -824,7 +820,7 @@ def attitude_change_variance(sol: AttitudeSolution, t_ref_s, noise: FilterNoise,
           else np.full(t.size, noise.gyro_bias_rps**2))
     turn = np.linalg.norm(dcm_to_rotvec(sol.C_nb @ np.swapaxes(sol.C_nb[k_ref], 1, 2)), axis=1)
     var = (noise.gyro_noise_rps**2 / rate_hz * dt + vb * dt**2
-           + (noise.gyro_scale_sd**2 + GYRO_SCALE_CONSTANT_SD**2) * turn**2)
+           + (noise.gyro_scale_sd**2 + noise.gyro_scale_const_sd**2) * turn**2)
     cap = (np.trace(sol.P_att, axis1=1, axis2=2) + np.trace(sol.P_att[k_ref], axis1=1, axis2=2)) / 3.0
     return np.minimum(var, cap)
 

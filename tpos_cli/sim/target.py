@@ -21,7 +21,7 @@ grade (`GYRO_SCALE_PPM`): `mems` 1000 ppm (0.1 %: a consumer MEMS gyro after a o
 data sheets give 0.4-1.5 % sensitivity tolerance and 0.5-2 % cross-axis sensitivity untrimmed),
 `tactical` 100 ppm, `paper` and `perfect` 0 (paper 000 simulates a gyro with the stated bias and noise
 only, and its goals are stated for that gyro). The attitude filters carry the `mems` figure as a
-consider error for every log (`chains.target_fkf.GYRO_SCALE_CONSTANT_SD`), since a log cannot state it.
+consider error for every log (`[target_fkf] gyro_scale_const_ppm`), since a log cannot state it.
 """
 
 from __future__ import annotations
