@@ -75,7 +75,9 @@ def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
     (tmp / "summary.json").write_text(json.dumps(summary))
     # count how often each session really ran (to prove skips)
     counter = run_dir.parent / f"{run_dir.name}.runs"
-    counter.write_text(str(int(counter.read_text()) + 1 if counter.exists() else 1))
+    part = counter.with_name(counter.name + ".part")  # replaced whole: when another worker crashes, the pool kills
+    part.write_text(str(int(counter.read_text()) + 1 if counter.exists() else 1))  # this one, maybe mid-write
+    os.replace(part, counter)
     del n
     if run_dir.exists():
         shutil.rmtree(run_dir)
