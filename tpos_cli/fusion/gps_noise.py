@@ -30,7 +30,7 @@ import numpy as np
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState, Measurements
 from tpos_cli.fusion.initial import fixes_before
 from tpos_cli.fusion.insgps import GpsFixes, gps_innovations, run_insgps
-from tpos_cli.ins.mechanization import decimate_imu
+from tpos_cli.ins.mechanization import decimate_to_rate
 
 GROUPS = ("pos_h", "pos_v", "vel_h", "vel_v")
 _COLS = ((0, 1), (2,), (3, 4), (5,))  # innovation columns of each group
@@ -126,10 +126,7 @@ def pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, after_s: float | N
         i_end = int(np.searchsorted(t, start + span_s)) + 1
         t, gyro_b_rps, acc_b_mps2 = t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end]
         fixes = fixes_before(fixes, t[-1])
-    rate = (t.size - 1) / (t[-1] - t[0])
-    factor = max(1, int(round(rate / rate_hz)))
-    td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, factor)
-    rate_d = (td.size - 1) / (td[-1] - td[0])
+    td, gd, ad, rate_d = decimate_to_rate(t, gyro_b_rps, acc_b_mps2, rate_hz)
     count = np.ones(fixes.t_s.size, dtype=bool)
     if after_s is not None and np.sum(fixes.t_s > after_s) >= 30:
         count = fixes.t_s > after_s

@@ -18,7 +18,7 @@ from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm, wrap_angle_rad
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState
 from tpos_cli.fusion.insgps import GpsFixes, run_insgps
-from tpos_cli.ins.mechanization import decimate_imu, integrate
+from tpos_cli.ins.mechanization import decimate_to_rate, integrate
 
 
 @dataclass(frozen=True)
@@ -223,7 +223,7 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     the prior yaw of `init` (its own SD); the hypothesis whose GPS innovations have the smallest
     summed NIS wins (a wrong yaw makes the INS velocity point the wrong way as soon as the
     platform accelerates, so its innovations grow). Returns the winner's yaw and SD.
-    The runs take the IMU decimated to about `rate_hz` (`ins.mechanization.decimate_imu`) and 1 s
+    The runs take the IMU decimated to about `rate_hz` (`ins.mechanization.decimate_to_rate`) and 1 s
     covariance steps, as the other tuning passes: a score only ranks yaws tens of degrees apart.
     """
     t = np.asarray(t_s, dtype=float)
@@ -242,9 +242,7 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     sigmas = np.full(hyps.size, spacing / 2.0)
     sigmas[0] = min(sig0, spacing / 2.0)
     # ungated: every innovation counts; the NIS is all a hypothesis is scored on (no nominal history)
-    rate = (i_end - 1) / (t[i_end - 1] - t[0]) if i_end > 1 else rate_hz
-    td, gd, ad = decimate_imu(t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end], max(1, int(round(rate / rate_hz))))
-    rate_d = (td.size - 1) / (td[-1] - td[0]) if td.size > 1 else rate
+    td, gd, ad, rate_d = decimate_to_rate(t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end], rate_hz)
     scfg = dataclasses.replace(cfg, max_consecutive_rejections=0, nominal_idx=ENDS_ONLY,
                                cov_step=max(1, int(round(rate_d))))
     sub = fixes_before(fixes, t[i_end - 1])

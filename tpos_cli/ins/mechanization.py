@@ -72,6 +72,16 @@ def decimate_imu(t_s, gyro_b_rps, acc_b_mps2, factor: int):
     return np.ascontiguousarray(t[keep]), out[0], out[1]
 
 
+def decimate_to_rate(t_s, gyro_b_rps, acc_b_mps2, rate_hz: float):
+    """(t, gyro, acc, rate) of `decimate_imu` with the factor that brings the log's mean rate to
+    about `rate_hz` (the tuning passes' and the yaw search's cheap runs); rate the decimated log's
+    mean rate (Hz; the log's own, or `rate_hz`, when it has fewer than two samples)."""
+    t = np.asarray(t_s, dtype=float)
+    rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 else rate_hz
+    td, gd, ad = decimate_imu(t, gyro_b_rps, acc_b_mps2, max(1, int(round(rate / rate_hz))))
+    return td, gd, ad, (td.size - 1) / (td[-1] - td[0]) if td.size > 1 else rate
+
+
 def integrate(t_s, gyro_b_rps, acc_b_mps2, lla0, vel0_ned_mps, rpy0_deg, *, backward: bool = False) -> InsTrajectory:
     """Integrate an IMU log from an initial state (free inertial, no aiding).
 
