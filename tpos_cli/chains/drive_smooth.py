@@ -62,6 +62,7 @@ from tpos_cli.fusion.nav_errors import vibration_velocity_cov_b
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.io.columns import Columns, concat
+from tpos_cli.io.tables import find_table
 from tpos_cli.quality import mounting_text
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
@@ -113,7 +114,7 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
         raise ProcessingError("gps: the drive pipeline needs a gps table")
     ok = gps.valid.copy()
     if not ok.any():
-        f = next(iter(sorted(session.path.glob("gps.*"))), None)
+        f = find_table(session.path, "gps")
         raise InvalidInputError(f"{f.name if f is not None else 'gps'}: no row holds a position fix (lat, lon, h empty or "
                                 f"fix = 0 in all {gps.t_s.size} rows left); the drive pipeline needs GPS fixes")
     wild = wild_fixes(gps.t_s[ok], gps.lla[ok], np.asarray(gps.sigma_neu_m[ok], dtype=float)[:, :2].max(axis=1))
