@@ -264,7 +264,8 @@ def test_gyro_scale_sensitivity_predicts_the_error_it_causes_and_leaves_the_esti
     # consider sensitivity S_gm must predict the change of the error, and carrying it changes no estimate
     g = make(_rpy, duration_s=30.0, seed=5)
     rng = np.random.default_rng(5)
-    st = replace(_setup(g, rng), C0=g.C[0], gyro_scale_consider_sd=1e-3)
+    st0 = _setup(g, rng)
+    st = replace(st0, C0=g.C[0], noise=replace(st0.noise, gyro_scale_const_sd=1e-3))
     dM = np.array([[2e-3, -1e-3, 0.5e-3], [1e-3, -2e-3, 1e-3], [-0.5e-3, 1.5e-3, 3e-3]])
     for use in (K.USE_ACC | K.USE_MAG | K.USE_MOTION, 0):
         a = run_full("a", g.t, g.gyro, g.acc, g.mag, None, st, use)
@@ -274,7 +275,7 @@ def test_gyro_scale_sensitivity_predicts_the_error_it_causes_and_leaves_the_esti
         assert np.max(np.abs(pred)) > np.radians(0.05)
         err = np.sqrt(np.mean(np.sum((de - pred) ** 2, axis=1)))
         assert err < 0.05 * np.sqrt(np.mean(np.sum(pred**2, axis=1))), (use, np.degrees(err))
-        plain = run_full("p", g.t, g.gyro, g.acc, g.mag, None, replace(st, gyro_scale_consider_sd=0.0), use)
+        plain = run_full("p", g.t, g.gyro, g.acc, g.mag, None, replace(st, noise=replace(st.noise, gyro_scale_const_sd=0.0)), use)
         assert np.array_equal(plain.C_nb, a.C_nb)
         assert np.allclose(a.P_att - plain.P_att, 1e-6 * a.S_gm @ np.swapaxes(a.S_gm, 1, 2), rtol=1e-9, atol=1e-20)
 

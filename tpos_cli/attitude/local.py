@@ -36,7 +36,10 @@ class FilterNoise:
     mag_noise_ut: float
     range_sigma_m: float
     gyro_scale_sd: float = 3e-4  # relative SD of a sample's rotation angle (scale factor, coning)
-    gyro_scale_const_sd: float = 0.0  # SD of each element of the gyro's constant scale/misalignment dM (consider)
+    # > 0: the gyro's constant scale/misalignment, omega_meas = (I + dM) omega + b with dM ~ N(0, sd^2 I9) (a
+    # data-sheet figure), is carried as a sensitivity the filter never corrects (`_kernels.Init.S0`,
+    # `AttitudeSolution.S_gm`): a heading carried by the gyro through many turns drifts by dM times the turned angle
+    gyro_scale_const_sd: float = 0.0
     acc_bias_mps2: float = 0.0  # SD of the accelerometer bias (prior of its states; 0: no such error)
     acc_bias_rw_mps2_rts: float = 0.0  # its random walk
 
@@ -100,10 +103,6 @@ class FilterSetup:
     # P0[2,2]) other filters share (LF2's wall normal): the run carries its sensitivity to it
     # (`AttitudeSolution.s_al`) and its covariance holds that error once, not divided by beta
     align_heading_var_rad2: float = 0.0
-    # > 0: the gyro's constant scale/misalignment, omega_meas = (I + dM) omega + b with dM ~ N(0, sd^2 I9) (a
-    # data-sheet figure), is carried as a sensitivity the filter never corrects (`_kernels.Init.S0`,
-    # `AttitudeSolution.S_gm`): a heading carried by the gyro through many turns drifts by dM times the turned angle
-    gyro_scale_consider_sd: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -143,7 +142,7 @@ class AttitudeSolution:
     var_al: float = 0.0
     # the error's sensitivity (N,3,9) to the gyro's constant scale/misalignment dM ~ N(0, var_gm I9), which every
     # solution from the same gyro shares: e = a + S_gm vec(dM) (+ ...), P_att holds var_gm S_gm S_gm^T
-    # (`FilterSetup.gyro_scale_consider_sd`; `master.fuse` adds it to the fused covariance for the fused weights)
+    # (`FilterNoise.gyro_scale_const_sd`; `master.fuse` adds it to the fused covariance for the fused weights)
     S_gm: np.ndarray | None = None
     var_gm: float = 0.0
 
@@ -345,7 +344,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
                     float(setup.range_gate_chi2))
     acc_b0 = np.asarray(setup.acc_bias0_mps2, dtype=float)
     P0 = initial_covariance(setup, use) / beta
-    consider_gm = setup.gyro_scale_consider_sd > 0.0
+    consider_gm = setup.noise.gyro_scale_const_sd > 0.0
     S0 = np.zeros((P0.shape[0], K.S_GYRO + 9 if consider_gm else 7))
     S0[0:3, 0:3] = setup.lev_map
     S0[K.I_BA:K.I_BA + 3, 0:3] = np.eye(3)
@@ -373,7 +372,7 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     S_gm, var_gm = None, 0.0
     if consider_gm:
         # the kernel's P_att holds none of dM (no state): its share is added once, exactly
-        var_gm = float(setup.gyro_scale_consider_sd) ** 2
+        var_gm = float(setup.noise.gyro_scale_const_sd) ** 2
         S_gm = np.ascontiguousarray(o["S_att"][:, :, K.S_GYRO:K.S_GYRO + 9])
         P_att = P_att + var_gm * (S_gm @ np.swapaxes(S_gm, 1, 2))
     return AttitudeSolution(

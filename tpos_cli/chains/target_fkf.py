@@ -367,10 +367,7 @@ def filter_setups(session: Session, p: TargetFkfParams, obs_lla, decl, ends, noi
         gyro_static_tol_rps=np.radians(p.gyro_static_tol_dps), motion_sd_mps=p.motion_sd_mps, motion_sd_m=p.motion_sd_m,
         motion_interval_s=p.motion_interval_s, motion_freq_hz=p.motion_freq_hz, motion_damping=p.motion_damping,
         motion_step_s=p.motion_step_s, gyro_err_sd=p.gyro_err_pct * 1e-2, gyro_err_rw_rts=p.gyro_err_rw_ppm_rts * 1e-6,
-        gravity_mps2=start.gravity_mps2 if p.gravity_from_static else None,
-        # the gyro's scale error is a constant of the sensor, not a new error per sample: its share of the
-        # attitude error is carried as a consider sensitivity (`FilterSetup.gyro_scale_consider_sd`)
-        gyro_scale_consider_sd=noise.gyro_scale_const_sd)
+        gravity_mps2=start.gravity_mps2 if p.gravity_from_static else None)
     back = replace(base, C0=end.align.C_nb, bias0_rps=end.align.gyro_bias_rps,
                    P0=_initial_covariance(end, noise, m_ref_n, window_mag(end)))
     gyro = replace(base, beta=1.0, gyro_err_sd=0.0)
