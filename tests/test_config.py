@@ -16,6 +16,7 @@ from tpos_cli.config import (
     load_pipeline_file,
     pipelines_dir,
     resolve_config,
+    resolve_pipeline,
 )
 from tpos_cli.errors import InvalidInputError
 
@@ -71,6 +72,19 @@ def test_bad_value_in_the_file_names_the_file(tmp_path):
     f.write_text('[pipeline]\nname = "mine"\nchain = "drive_smooth"\n\n[drive_smooth]\ngate_probability = 1.0\n')
     with pytest.raises(InvalidInputError, match=r"^mine\.toml \[drive_smooth\] gate_probability: Input should be less than 1$"):
         resolve_config(load_pipeline_file(f))
+
+
+def test_a_users_pipeline_is_named_by_the_path_given(tmp_path):
+    """A bundled pipeline is named by its file name; one the user passes by the path as given
+    (`-p /dev/zero` said "zero: is a device")."""
+    f = tmp_path / "mine.toml"
+    f.write_text('[pipeline]\nname = "mine"\nchain = "drive_smooth"\n\n[drive_smooth]\ngate_probability = 1.0\n')
+    with pytest.raises(InvalidInputError, match=rf"^{re.escape(str(f))} \[drive_smooth\] gate_probability: Input should be less"):
+        resolve_config(resolve_pipeline(str(f), "drive"))
+    with pytest.raises(InvalidInputError, match=r"^/dev/zero: is a device"):
+        resolve_pipeline("/dev/zero", "drive")
+    with pytest.raises(InvalidInputError, match=r"^drive-smooth\.toml \[drive_smooth\] gate_probability"):
+        resolve_config(resolve_pipeline("drive-smooth", "drive"), {"drive_smooth.gate_probability": 2})
 
 
 def test_unknown_table_and_header_key_are_refused(tmp_path):

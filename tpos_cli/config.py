@@ -354,6 +354,7 @@ class PipelineFile:
     kinds: tuple[str, ...]
     params: dict
     path: Path
+    label: str = ""  # how errors name the file: a user's path as given, a bundled pipeline's file name
 
 
 @dataclass(frozen=True)
@@ -392,7 +393,7 @@ def resolve_pipeline(name_or_path: str | Path | None, kind: str) -> PipelineFile
     if cand.suffix == ".toml" or cand.exists():
         if not cand.exists():
             raise InvalidInputError(f"{cand}: pipeline file not found")
-        return load_pipeline_file(cand)
+        return load_pipeline_file(cand, str(cand))  # the user's file, named as the user gave it
     path = pipelines_dir() / f"{name_or_path}.toml"
     if not path.exists():
         names = ", ".join(p.stem for p in sorted(pipelines_dir().glob("*.toml")))
@@ -400,18 +401,20 @@ def resolve_pipeline(name_or_path: str | Path | None, kind: str) -> PipelineFile
     return load_pipeline_file(path)
 
 
-def load_pipeline_file(path: Path) -> PipelineFile:
-    """Read a pipeline TOML and validate its `[pipeline]` table (the chain's table: `resolve_config`)."""
-    raw = read_toml(path, path.name)  # regular file, size and depth bounded: a FIFO or a deep nest is refused
+def load_pipeline_file(path: Path, label: str | None = None) -> PipelineFile:
+    """Read a pipeline TOML and validate its `[pipeline]` table (the chain's table: `resolve_config`).
+    label: how errors name the file (default its name, as for a bundled pipeline)."""
+    label = path.name if label is None else label
+    raw = read_toml(path, label)  # regular file, size and depth bounded: a FIFO or a deep nest is refused
     head_raw = raw.get("pipeline")
     if not isinstance(head_raw, dict):
-        raise InvalidInputError(f"{path.name}: [pipeline] section with name, description, chain is required")
-    head = _validate(PipelineHead, head_raw, path.name, "pipeline", {})
+        raise InvalidInputError(f"{label}: [pipeline] section with name, description, chain is required")
+    head = _validate(PipelineHead, head_raw, label, "pipeline", {})
     if head.chain not in SECTIONS:
-        raise InvalidInputError(f"{path.name} [pipeline] chain: {head.chain!r} is not one of {', '.join(sorted(SECTIONS))}")
+        raise InvalidInputError(f"{label} [pipeline] chain: {head.chain!r} is not one of {', '.join(sorted(SECTIONS))}")
     params = {k: v for k, v in raw.items() if k != "pipeline"}
     return PipelineFile(name=head.name, description=head.description, chain=head.chain, kinds=head.kinds,
-                        params=params, path=path)
+                        params=params, path=path, label=label)
 
 
 def apply_overrides(params: dict, overrides: Mapping[str, object]) -> dict:
@@ -439,11 +442,11 @@ def resolve_config(pipe: PipelineFile, overrides: Mapping[str, object] | None = 
     params = apply_overrides(pipe.params, overrides)
     unknown = sorted(set(params) - {section})
     if unknown:
-        raise InvalidInputError(f"{pipe.path.name}: unknown table [{unknown[0]}] (chain {pipe.chain} reads [{section}])")
+        raise InvalidInputError(f"{pipe.label or pipe.path.name}: unknown table [{unknown[0]}] (chain {pipe.chain} reads [{section}])")
     table = params.get(section, {})
     if not isinstance(table, dict):
-        raise InvalidInputError(f"{pipe.path.name}: [{section}] must be a table")
-    parsed = _validate(model, table, pipe.path.name, section, overrides)
+        raise InvalidInputError(f"{pipe.label or pipe.path.name}: [{section}] must be a table")
+    parsed = _validate(model, table, pipe.label or pipe.path.name, section, overrides)
     resolved = {section: parsed.model_dump(mode="json")}
     # the keys set explicitly count too: a set key outranks the session's figure (`tpos_cli.imu_noise`)
     sha = config_hash({"pipeline": pipe.name, "chain": pipe.chain, "params": resolved, "set": sorted(parsed.model_fields_set)})
