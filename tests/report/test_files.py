@@ -140,3 +140,26 @@ def test_other_errors_of_the_writer_are_not_renamed(tmp_path):
 
     with pytest.raises(FileNotFoundError):
         write_atomic(tmp_path / "a.csv", write)
+
+
+def test_a_target_that_is_not_a_regular_file_is_refused(tmp_path):
+    """A FIFO (as a device, which only root could name) is not replaced by a regular file; a
+    directory neither; nothing is written and the other targets are untouched."""
+    from tpos_cli.errors import InvalidInputError
+
+    fifo, other = tmp_path / "out.pdf", tmp_path / "summary.txt"
+    os.mkfifo(fifo)
+    other.write_text("old")
+    for target in (fifo, tmp_path):
+        with pytest.raises(InvalidInputError, match="exists and is not a regular file"):
+            with staged([other, target]) as tmps:
+                for t in tmps.values():
+                    t.write_text("new")
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+    assert other.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.pdf", "summary.txt"]
+    link = tmp_path / "link.pdf"
+    link.symlink_to(other)
+    with staged([link]) as tmps:  # a link is replaced, its target left alone
+        tmps[link].write_text("new")
+    assert not link.is_symlink() and link.read_text() == "new" and other.read_text() == "old"

@@ -16,10 +16,11 @@ import os
 import re
 import secrets
 import signal
+import stat
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from tpos_cli.errors import TposError
+from tpos_cli.errors import InvalidInputError, TposError
 
 _TMP = re.compile(r"^\.(?P<name>.+)\.(?:(?P<pid>\d+)-[0-9a-f]+|[A-Za-z0-9_]+)\.tmp$")
 
@@ -67,9 +68,13 @@ def staged(paths: Iterable[Path]):
     """Temporaries for several outputs, all renamed into place only when the block succeeds.
 
     Yields {final path: temporary path}; the caller writes each temporary. On any exception (or
-    KeyboardInterrupt) every temporary is removed and no final file is touched.
+    KeyboardInterrupt) every temporary is removed and no final file is touched. A target that
+    exists as anything but a regular file or a link is refused (exit 2) before anything is written.
     """
     paths = [Path(p) for p in paths]
+    for p in paths:  # a rename would put a regular file in place of a device, FIFO, socket or directory
+        if os.path.lexists(p) and not (p.is_symlink() or stat.S_ISREG(p.lstat().st_mode)):
+            raise InvalidInputError(f"{p}: exists and is not a regular file; choose another output name")
     for d in {p.parent for p in paths}:
         remove_stale_temporaries(d, [p.name for p in paths if p.parent == d])
     tmps: dict[Path, Path] = {}
