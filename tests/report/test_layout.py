@@ -104,3 +104,24 @@ def test_north_arrow_leaves_the_upper_right_only_for_data_and_never_takes_the_ba
     assert arrow_with(end, taken="upper left") == "lower right"  # the scale bar holds the upper left
     one_each = [(94.0, 90.0), (6.0, 85.0), (94.0, 15.0)]  # one point under each free corner
     assert arrow_with(one_each, taken="lower left") == "upper right"  # covered alike: the first of equals
+
+
+def test_binned_range_is_each_bins_min_median_max_over_round_bins():
+    """An hour at 1 Hz: 240 bins at most -> 15 s bins; each bin's figures are those of its own samples."""
+    t = np.arange(3600.0) + 100.0
+    y = np.where(np.arange(3600) % 2 == 0, 8.0, 9.0)
+    y[30] = 12.0  # bin 2 (30-44 s)
+    y[31] = np.nan
+    b = L.binned_range(t, y)
+    assert b is not None and b.bin_s == 15.0 and b.t0_s.size == 240
+    assert np.array_equal(b.t0_s, 100.0 + 15.0 * np.arange(240))
+    assert (b.lo == 8.0).all() and b.hi[2] == 12.0 and (np.delete(b.hi, 2) == 9.0).all()
+    ref = [np.nanmedian(y[i:i + 15]) for i in range(0, 3600, 15)]
+    assert np.array_equal(b.med, ref)
+    assert L.bin_label(b.bin_s) == "per 15 s" and L.bin_label(60.0) == "per minute" and L.bin_label(300.0) == "per 5 min"
+
+
+def test_binned_range_leaves_short_series_to_be_drawn_as_they_are():
+    assert L.binned_range(np.arange(480.0), np.ones(480)) is None  # at most 2 x 240 samples: drawn one by one
+    b = L.binned_range(np.arange(481.0), np.ones(481))
+    assert b is not None and b.bin_s == 5.0 and b.t0_s.size == 97  # 480 s: 2 s bins would be 241 with the last sample

@@ -175,6 +175,50 @@ def decimate(y, max_points: int = MAX_POINTS) -> np.ndarray:
     return np.unique(idx[idx < n])
 
 
+BIN_STEPS_S = (1.0, 2.0, 5.0, 10.0, 15.0, 30.0, 60.0, 120.0, 300.0, 600.0, 900.0, 1800.0, 3600.0)
+
+
+@dataclass(frozen=True)
+class Binned:
+    """A series summarised per time bin: bin starts (s, as the input), min / median / max per bin
+    (NaN where a bin holds no finite value), the bin length (s)."""
+
+    t0_s: np.ndarray
+    lo: np.ndarray
+    med: np.ndarray
+    hi: np.ndarray
+    bin_s: float
+
+
+def binned_range(t_s, y, max_bins: int = 240) -> Binned | None:
+    """Min, median and max of `y` over time bins of a round length (BIN_STEPS_S) with at most
+    `max_bins` bins, or None for a series of at most 2 max_bins samples (a page-wide axis shows
+    each of them: draw the samples themselves). A value that flips every sample (satellites used, 8-9-8 ...) drawn as a
+    step line over an hour is a solid bar; its range and median per minute read."""
+    t_s, y = np.asarray(t_s, dtype=float), np.asarray(y, dtype=float)
+    if t_s.size <= 2 * max_bins:
+        return None
+    span = float(t_s[-1] - t_s[0])
+    bin_s = next((b for b in BIN_STEPS_S if span / b < max_bins), span / max_bins)
+    k = np.floor((t_s - t_s[0]) / bin_s).astype(np.int64)
+    nb = int(k[-1]) + 1
+    lo, med, hi = (np.full(nb, np.nan) for _ in range(3))
+    starts = np.searchsorted(k, np.arange(nb))  # t sorted: the bins are contiguous runs
+    for b, (i, j) in enumerate(zip(starts, np.append(starts[1:], k.size))):
+        v = y[i:j][np.isfinite(y[i:j])]
+        if v.size:
+            lo[b], med[b], hi[b] = v.min(), np.median(v), v.max()
+    return Binned(t_s[0] + bin_s * np.arange(nb), lo, med, hi, float(bin_s))
+
+
+def bin_label(bin_s: float) -> str:
+    """'per minute', 'per 5 s' ... for a legend."""
+    if bin_s >= 60.0 and bin_s % 60.0 == 0.0:
+        m = int(bin_s // 60)
+        return "per minute" if m == 1 else f"per {m} min"
+    return f"per {bin_s:g} s"
+
+
 def time_axis(t_s, t_ref: float) -> tuple[np.ndarray, str, float]:
     """x values, label and scale: seconds for logs under 20 minutes, minutes above."""
     t = np.asarray(t_s, dtype=float) - t_ref

@@ -230,11 +230,18 @@ def gps_section(ctx: ReportContext) -> Section | None:
             axes = panel_axes(fig, len(panels), top, bottom + note_h)
             x = ctx.x(g.t)
             for ax, (label, y, style) in zip(axes, panels):
-                i = L.decimate(y)
-                if style == "step":
-                    ax.step(x[i], y[i], where="post", color=L.COLORS[0], lw=1.0)
+                b = L.binned_range(g.t, y)
+                if b is not None:  # more samples than the width shows: range and median per bin
+                    xe = ctx.x(np.append(b.t0_s, b.t0_s[-1] + b.bin_s))
+                    ax.fill_between(xe, np.append(b.lo, b.lo[-1]), np.append(b.hi, b.hi[-1]), step="post",
+                                    color=L.COLORS[0], alpha=0.25, lw=0, label=f"range {L.bin_label(b.bin_s)}")
+                    ax.step(xe, np.append(b.med, b.med[-1]), where="post", color=L.COLORS[0], lw=1.0, label="median")
                 else:
-                    ax.plot(x[i], y[i], color=L.COLORS[0], lw=0.9)
+                    i = L.decimate(y)
+                    if style == "step":
+                        ax.step(x[i], y[i], where="post", color=L.COLORS[0], lw=1.0)
+                    else:
+                        ax.plot(x[i], y[i], color=L.COLORS[0], lw=0.9)
                 mark_time(ax, ctx, legend=ax is axes[0])
                 if label == "fix type":
                     ax.set_yticks([0, 1, 2], [FIX_NAMES[k] for k in (0, 1, 2)])
