@@ -317,7 +317,7 @@ def build_context(
     with timed(clock, "accuracy tables"):
         acc = compute_accuracy(run, truth, kind=kind, series=series)
     with timed(clock, "filter health"):
-        health = filter_health(run.innovations, series)
+        health = filter_health(run.innovations, series, (run.summary.get("quality") or {}).get("checks"))
     t0 = (run.summary.get("session") or {}).get("t0")  # logger clock of the first IMU sample
     if t0 is not None:
         t_ref = float(t0)

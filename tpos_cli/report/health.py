@@ -4,6 +4,7 @@ no truth)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,14 +20,19 @@ FLAG_PROBABILITY = 0.99  # the forward/backward separation bound of the disagree
 
 @dataclass(frozen=True)
 class Health:
-    nis: pd.DataFrame  # solution, kind, n, n_accepted, n_rejected, dof, mean_nis, mean_lo, mean_hi, frac_above_95, consistent
+    nis: pd.DataFrame  # solution, kind, n, n_accepted, n_rejected, dof, mean_nis, mean_lo, mean_hi, frac_above_95, consistent, band_source
     flags: pd.DataFrame  # solution, n_epochs, n_flagged
     disagreement: pd.DataFrame  # a, b, n, rms_m, max_m, n_flagged, frac_flagged
     separations: tuple[Separation, ...] = ()
 
 
-def nis_table(innovations: pd.DataFrame | None) -> pd.DataFrame:
-    cols = ["solution", "kind"] + list(metrics.NisStats.__dataclass_fields__)
+def nis_table(innovations: pd.DataFrame | None, checks: Mapping | None = None) -> pd.DataFrame:
+    """Mean NIS per solution and kind (`metrics.nis_stats`). Where the run's verdict checked that
+    mean (`checks`: summary.json quality.checks, "nis.SOLUTION.KIND" with its band), the row carries
+    the verdict's mean and band (99.9 %, allowing for the gate and for noise figures the chain
+    estimated: `consistency.mean_chi2`), so the report and the verdict never disagree on the same
+    mean; `band_source` says which band a row holds ("verdict" or "95 %")."""
+    cols = ["solution", "kind"] + list(metrics.NisStats.__dataclass_fields__) + ["band_source"]
     if innovations is None or innovations.empty:
         return pd.DataFrame(columns=cols)
     nis = innovations["nis"].to_numpy(float)
@@ -37,8 +43,28 @@ def nis_table(innovations: pd.DataFrame | None) -> pd.DataFrame:
     for sol in ordered_solutions(s for s, _ in groups):
         for (s, kind), i in groups.items():
             if s == sol:
-                rows.append({"solution": sol, "kind": kind, **metrics.nis_stats(nis[i], dof[i], acc[i]).as_dict()})
+                row = {"solution": sol, "kind": kind, **metrics.nis_stats(nis[i], dof[i], acc[i]).as_dict(), "band_source": "95 %"}
+                check = _verdict_band(checks, f"nis.{sol}.{kind}")
+                if check is not None and row["n_accepted"]:
+                    mean, lo, hi = check
+                    row.update(mean_nis=mean, mean_lo=lo, mean_hi=hi, consistent=bool(lo <= mean <= hi), band_source="verdict")
+                rows.append(row)
     return pd.DataFrame(rows, columns=cols)
+
+
+def _verdict_band(checks: Mapping | None, key: str) -> tuple[float, float, float] | None:
+    """(mean, lo, hi) of a verdict NIS check, or None when the run has no such check with finite figures."""
+    fig = (checks or {}).get(key)
+    if not isinstance(fig, Mapping):
+        return None
+    band, mean = fig.get("band"), fig.get("mean_nis")
+    if not isinstance(band, (list, tuple)) or len(band) != 2:
+        return None
+    try:
+        vals = (float(mean), float(band[0]), float(band[1]))
+    except (TypeError, ValueError):
+        return None
+    return vals if all(np.isfinite(vals)) else None
 
 
 def disagreement_table(series: dict[str, Series], pairs=(("forward", "backward"),)) -> tuple[pd.DataFrame, tuple[Separation, ...]]:
@@ -63,9 +89,10 @@ def flag_table(series: dict[str, Series]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=cols)
 
 
-def filter_health(innovations: pd.DataFrame | None, series: dict[str, Series]) -> Health:
+def filter_health(innovations: pd.DataFrame | None, series: dict[str, Series], checks: Mapping | None = None) -> Health:
+    """checks: the run's verdict checks (summary.json quality.checks), whose NIS bands the table takes."""
     dis, seps = disagreement_table(series)
-    return Health(nis_table(innovations), flag_table(series), dis, seps)
+    return Health(nis_table(innovations, checks), flag_table(series), dis, seps)
 
 
 def nis_band(dof, prob: float = 0.95) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ from tpos_cli.report.context import ReportContext
 from tpos_cli.report.health import nis_band
 from tpos_cli.report.sections import Section
 from tpos_cli.report.summary import consistency_text
-from tpos_cli.report.tables import nis_columns
+from tpos_cli.report.tables import NIS_TABLE_NOTE, nis_columns
 
 PANEL_H = 0.18  # one time panel with its share of legend and tick-label space, figure fraction
 FIX_NAMES = {0: "none", 1: "autonomous", 2: "SBAS/WAAS"}
@@ -193,8 +193,7 @@ def innovations_section(ctx: ReportContext) -> Section | None:
         len(kinds) * PANEL_H + th + 0.03,
         draw,
         "Normalised innovation squared of every update against the chi-square band of its size; rejected updates marked x. "
-        "The table checks the mean NIS of every solution and kind against its 95 % band (ungated; the verdict tests it at 99.9 %, "
-        "allowing for the gate).",
+        + NIS_TABLE_NOTE,
     )
 
 
