@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.io.bounded import read_json_bounded
+from tpos_cli.io.run_dir import check_summary_shape
 
 TRAJECTORY_REQUIRED = ("t", "lat", "lon", "h", "roll", "pitch", "yaw", "solution")
 TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
@@ -157,12 +157,10 @@ def load_run(run_dir: Path) -> RunData:
     sp = run_dir / "summary.json"
     if not run_dir.is_dir() or not sp.exists():
         raise InvalidInputError(f"{run_dir}: not a run directory (no summary.json); run `tpos process` first")
-    try:  # bounded: a FIFO or a deeply nested file must not block or crash a report
-        summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(f"{run_dir.name}/summary.json: not readable JSON ({exc})") from exc
-    if not isinstance(summary, dict):
-        raise InvalidInputError(f"{run_dir.name}/summary.json: expected a JSON object")
+    # read once, as untrusted (bounded: a FIFO or a deeply nested file must not block or crash a report),
+    # and of the shape tpos writes before any code reads into it
+    summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
+    check_summary_shape(summary, f"{run_dir.name}/summary.json")
     traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED)
     tgts = _read(run_dir, "targets.parquet", TARGETS_REQUIRED)
     if tgts is not None:
