@@ -60,6 +60,35 @@ def test_block_fits_only_when_a_whole_log_test_holds(monkeypatch):
     assert len(check_tilt_consistency(t, gyro, acc, "FRD")) == 1 and len(calls) == 1 + 8
 
 
+def _panning(seed=0):
+    """A level observer that pitches about its y axis and pans about the vertical (roll 0): the pan
+    turns body x and z together with the gravity direction, so only the pitch axis's gain is seen."""
+    f = 50.0
+    t = np.arange(int(600 * f)) / f
+    pitch = 0.3 * np.sin(0.05 * t)
+    yaw = 0.8 * np.sin(0.03 * t)
+    C = euler_to_dcm(np.zeros_like(t), pitch, yaw)
+    acc = np.einsum("nji,j->ni", C, [0.0, 0.0, -G])
+    dp, dy = np.gradient(pitch, t), np.gradient(yaw, t)
+    gyro = np.column_stack([-np.sin(pitch) * dy, dp, np.cos(pitch) * dy])
+    rng = np.random.default_rng(seed)
+    return t, gyro + 1e-3 * rng.standard_normal(gyro.shape), acc + 1e-3 * rng.standard_normal(acc.shape)
+
+
+def test_axes_seen_only_together_are_not_judged():
+    # audit (session 10): a simulated target hour read "gyro_y disagrees with the tilt seen by the accelerometer
+    # (gain -0.04 +- 0.03, expected 1)" for y and z: the pan about the vertical leaves their common gain to the noise
+    from tpos_cli.conventions import TILT_VIF_MAX, tilt_gains
+
+    t, gyro, acc = _panning()
+    k, sd, r2, vif = tilt_gains(t, gyro, acc)
+    assert r2 > 0.9 and vif[0] > TILT_VIF_MAX and vif[2] > TILT_VIF_MAX and vif[1] < 1.01
+    assert abs(k[0]) < 0.1 and sd[0] < 0.1  # the precise-looking, meaningless gain the old check reported
+    assert check_tilt_consistency(t, gyro, acc, "FRD") == []
+    w = check_tilt_consistency(t, np.degrees(gyro), acc, "FRD")  # the axis that is seen is still judged
+    assert len(w) == 1 and "gyro_y" in w[0] and "deg/s" in w[0]
+
+
 def test_deg_per_s():
     t, gyro, acc = _tilting()
     w = check_tilt_consistency(t, np.degrees(gyro), acc, "FRD")
