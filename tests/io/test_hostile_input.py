@@ -503,3 +503,35 @@ def test_short_imu_gap_is_still_processed(tmp_path):
     _imu_gap(s, 0.5, ("imu", "gps"))
     res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
+
+
+def test_toml_files_with_a_byte_order_mark_are_read(tmp_path):
+    # audit (session 10): a session.toml saved by a Windows editor (UTF-8 with BOM) was refused as
+    # "not valid TOML (Invalid statement (at line 1, column 1))"; the BOM is dropped, nothing else changes
+    from tpos_cli.io.bounded import read_toml
+
+    s = write_minimal_session(tmp_path / "s", with_gps=False)
+    plain = (s / "session.toml").read_text()
+    (s / "session.toml").write_bytes(b"\xef\xbb\xbf" + plain.encode())
+    assert read_toml(s / "session.toml") == read_toml_text(plain)
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 0, res.output
+    (tmp_path / "a.pos").write_text(POS)  # an import into it merges with the file as read
+    res = runner.invoke(app, ["import", "rtklib-pos", str(tmp_path / "a.pos"), "-o", str(s)])
+    assert res.exit_code == 0, res.output
+    assert read_toml(s / "session.toml")["session"] == read_toml_text(plain)["session"]
+    pipe = tmp_path / "p.toml"
+    from tpos_cli.config import pipelines_dir
+
+    pipe.write_bytes(b"\xef\xbb\xbf" + (pipelines_dir() / "ingest.toml").read_bytes())
+    res = runner.invoke(app, ["process", str(s), "-p", str(pipe), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    (s / "session.toml").write_bytes(b"\xef\xbb\xbf\xef\xbb\xbf" + plain.encode())  # one mark only: a second is text
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and "session.toml: not valid TOML" in res.output
+
+
+def read_toml_text(text):
+    import tomllib
+
+    return tomllib.loads(text)

@@ -17,7 +17,7 @@ import pandas as pd
 import tomlkit
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.io.bounded import MAX_TOML_BYTES, parse_toml, read_bytes_bounded
+from tpos_cli.io.bounded import MAX_TOML_BYTES, parse_toml, read_bytes_bounded, toml_text
 
 PARQUET_TABLES = ("imu", "truth")  # large tables go to Parquet, the rest to CSV (readable)
 
@@ -105,11 +105,7 @@ def session_toml_text(toml_path: Path, toml_update: dict, default_name: str) -> 
     update merged in, and `[session] name`/`kind` when missing; checked by a re-parse."""
     where = str(toml_path)
     if toml_path.exists():
-        data = read_bytes_bounded(toml_path, where, MAX_TOML_BYTES)
-        try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError:
-            raise InvalidInputError(f"{where}: not UTF-8 text") from None
+        text = toml_text(read_bytes_bounded(toml_path, where, MAX_TOML_BYTES), where)
         parse_toml(text, where)
         doc = tomlkit.parse(text)
     else:
