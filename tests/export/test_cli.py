@@ -204,3 +204,35 @@ def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):
     (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2020-01-01T00:00:00Z"\n', 1))
     res = _export(r, "-f", "csv", "--trajectory")
     assert "note:" not in res.stderr and _rows_csv(r / "trajectory_smoothed.csv")[0]["time_utc"].startswith("2020-01-01T00:00:")
+
+
+def test_an_export_never_replaces_a_run_or_session_file_or_a_device(drive_run, tmp_path):
+    # audit (session 10): `tpos export RUN -o RUN/summary.json` wrote GeoJSON over the run's summary.json and
+    # `-o RUN/trajectory.parquet` CSV over its trajectory (exit 0; the run was gone); `-o /dev/null` as root put a
+    # regular file in the device's place (the export is written beside the target and renamed over it)
+    run, _ = drive_run
+    session = tmp_path / "s"
+    session.mkdir()
+    (session / "session.toml").write_text("[session]\n")
+    (session / "gps.csv").write_text("t\n")
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    dev = tmp_path / "dev"
+    os.mkfifo(dev)  # a FIFO stands for a device here (no mknod in a test)
+    (tmp_path / "link.csv").symlink_to(run / "summary.json")  # a link is replaced, never written through
+    for out, msg in (
+        (run / "summary.json", "is the run's own file, not an export"),
+        (run / "trajectory.parquet", "is the run's own file, not an export"),
+        (run / "accuracy.json", "is the run's own file, not an export"),
+        (run / "report.pdf", "is the run's own file, not an export"),
+        (session / "gps.csv", "is inside a session directory"),
+        (session / "new.kml", "is inside a session directory"),
+        (dev, "is not a regular file"),
+    ):
+        res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(out)])
+        assert res.exit_code == 2 and msg in res.output and len(res.output.strip().splitlines()) == 1, (out, res.output)
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before and stat.S_ISFIFO(dev.lstat().st_mode)
+    assert (session / "gps.csv").read_text() == "t\n" and sorted(p.name for p in session.iterdir()) == ["gps.csv", "session.toml"]
+    _export(run, "--trajectory", "-o", str(run / "track.json"))  # an export's own name in the run: fine
+    res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(tmp_path / "link.csv")])
+    assert res.exit_code == 2 and "is the run's own file" in res.output  # the link's target is the run's summary
+    assert (run / "summary.json").read_bytes() == before["summary.json"]

@@ -7,6 +7,7 @@ combined, see `export.targets`) unless the trajectory is asked for; any other ru
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 from dataclasses import dataclass
@@ -84,6 +85,33 @@ def _default_path(run_dir: Path, kind: str, solution: str, fmt: str) -> Path:
     the file out of `run_dir`."""
     safe = re.sub(r"[^A-Za-z0-9_.-]", "_", solution).strip(".") or "_"
     return run_dir / f"{kind}_{safe.replace('..', '__')}.{fmt}"
+
+
+# What an export may write into a tpos run directory (a directory holding summary.json): a file of an
+# export format's suffix (GeoJSON also as .json) that is not one of the run's or its report's JSON files.
+EXPORT_SUFFIXES = (".csv", ".kml", ".geojson", ".gpx", ".json")
+RUN_JSON_FILES = ("summary.json", "accuracy.json")
+
+
+def check_export_path(path: Path, out) -> None:
+    """InvalidInputError when `path` is not a regular file or a link (a device: replacing it whole
+    would put a file in its place), or when it (followed through links) would replace a session's input
+    or a run's own file: a file in a directory holding session.toml (a session), or in a run directory
+    a file that is not an export (trajectory.parquet, summary.json, report.pdf ...). A run's and a
+    session's files are only ever written by the commands that own them."""
+    if os.path.lexists(path) and not (Path(path).is_symlink() or Path(path).is_file()):
+        # the file is replaced whole (written beside it, then renamed over it): over a device, that
+        # would put a regular file in its place (as root: /dev/null itself)
+        raise InvalidInputError(f"-o {out}: is not a regular file (a device, FIFO or socket); exports are written as "
+                                "files (-o - writes to standard output)")
+    real = Path(path).resolve()
+    where = real.parent
+    if any((d / "session.toml").is_file() for d in (where, *where.parents)):
+        raise InvalidInputError(f"-o {out}: {real} is inside a session directory; exports never go among a session's "
+                                "input files: choose a file elsewhere")
+    if (where / "summary.json").is_file() and (real.suffix.lower() not in EXPORT_SUFFIXES or real.name in RUN_JSON_FILES):
+        raise InvalidInputError(f"-o {out}: {real.name} in the run directory {where} is the run's own file, not an export: "
+                                f"choose a name ending in {', '.join(EXPORT_SUFFIXES[:4])}")
 
 
 def export_run(
@@ -173,5 +201,6 @@ def export_run(
     if not path.parent.is_dir():
         raise InvalidInputError(f"-o {out}: directory {path.parent} does not exist" if out is not None
                                 else f"{run.path.name}: the run directory is gone ({path.parent})")
+    check_export_path(path, out if out is not None else path)
     write_atomic(path, lambda p: p.write_bytes(data))
     return ExportResult(path, kind, sol, len(table), zone.label, rate, notes)
