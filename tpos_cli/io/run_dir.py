@@ -63,6 +63,30 @@ def check_run_dir(run_dir: Path, session_dir: Path) -> Path:
     return run_dir
 
 
+def check_session_out(out: Path, *, force: bool, src: Path | None = None) -> None:
+    """A directory a command writes a new session into (`tpos simulate OUT`, `tpos calibrate-mag -o
+    OUT`): absent or empty, or with `force` an existing session (a directory holding session.toml)
+    that holds neither the current directory nor the input session `src`. InvalidInputError
+    otherwise: --force replaces a session, never a directory of other files (`tpos simulate drive .
+    --force` deleted everything in the current directory)."""
+    out = Path(out)
+    if not os.path.lexists(out):
+        return
+    if not out.is_dir():
+        raise InvalidInputError(f"{out}: exists and is not a directory")
+    if not any(out.iterdir()):
+        return
+    if not force:
+        raise InvalidInputError(f"{out}: already exists and is not empty (use --force to replace a session)")
+    real = out.resolve()
+    if not (real / "session.toml").is_file():
+        raise InvalidInputError(f"{out}: is not a tpos session (no session.toml); --force replaces only a session "
+                                "directory, never a directory of other files: choose a new directory")
+    for what, inner in (("the current directory", Path.cwd()), ("the input session", src)):
+        if inner is not None and Path(inner).resolve().is_relative_to(real):
+            raise InvalidInputError(f"{out}: holds {what}; --force would delete it: choose another directory")
+
+
 # summary.json's sections and the JSON types tpos writes them as (`pipeline.process_session`): a file
 # of another shape is refused in one line (exit 2) before any code reads into it
 # (`report.rundir.load_run`, which `tpos report` and `tpos export` read it through). None stands for
