@@ -189,3 +189,40 @@ def test_odometry_in_km_h_is_named_from_the_gps_speed():
     still = SimpleNamespace(t_s=t, speed_mps=np.zeros(t.size))
     gps0 = SimpleNamespace(**{**vars(gps), "vel_ned_mps": np.zeros((tg.size, 3))})
     assert odometry_findings(SimpleNamespace(gps=gps0, odometry=still)) == []  # never moving: nothing to compare
+
+
+def test_units_the_contract_forbids_are_errors_naming_file_and_column(tmp_path):
+    # audit (session 10): a gyro in deg/s or an odometry column in mph was a warning of `tpos validate` (exit 0) and a
+    # verdict of `tpos process`: both refuse it now (exit 2), one line naming the file and the column, no run
+    from typer.testing import CliRunner
+
+    from tpos_cli.cli import app
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    s = write_session(SCENARIOS["drive"](seed=1, duration_s=120.0), tmp_path / "s", fmt="parquet")
+    imu = pd.read_parquet(s / "imu.parquet")
+    clean = imu.copy()
+    imu[["gyro_x", "gyro_y", "gyro_z"]] = np.degrees(imu[["gyro_x", "gyro_y", "gyro_z"]])
+    imu.to_parquet(s / "imu.parquet", index=False)
+    runner = CliRunner()
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and res.output.strip().splitlines() == [
+        f"{s}/imu.parquet: column 'gyro_z': " + res.output.split("column 'gyro_z': ")[1].strip()], res.output
+    assert "the gyro is in deg/s, not rad/s; multiply by pi/180" in res.output
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "error: s/imu.parquet: column 'gyro_z':" in res.output and "deg/s" in res.output
+    assert not (tmp_path / "run").exists()
+    clean.to_parquet(s / "imu.parquet", index=False)
+    tr = pd.read_parquet(s / "truth.parquet")
+    odo = pd.DataFrame({"t": tr["t"].to_numpy()[::10]})
+    odo["speed_mps"] = np.hypot(tr["vn"], tr["ve"]).to_numpy()[::10] * 2.23694
+    odo.to_parquet(s / "odometry.parquet", index=False)
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and "odometry.parquet: column 'speed_mps': speed_mps is 2.24 times the GPS speed" in res.output
+    assert "it is in mph, not m/s; multiply by 0.44704" in res.output
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "error: s/odometry.parquet: column 'speed_mps'" in res.output and not (tmp_path / "run").exists()
+    odo["speed_mps"] /= 2.23694
+    odo.to_parquet(s / "odometry.parquet", index=False)
+    assert runner.invoke(app, ["validate", str(s)]).exit_code == 0

@@ -247,9 +247,11 @@ def test_clean_ranging_session_is_ok(sims):
 
 
 def test_gyro_in_deg_per_s(sims):
+    # audit (session 10): a gyro the GPS course shows to be in deg/s breaks the contract: refused (exit 2) naming
+    # the file and the column, no run (it was verdict unreliable with the same sentence)
     get, root = sims
-    q = _run(get("drive"), root, M.gyro_degps)
-    assert q["verdict"] == "unreliable" and _named(q, "deg/s")
+    with pytest.raises(InvalidInputError, match=r"imu\.\w+: column 'gyro_z': .* the gyro is in deg/s, not rad/s"):
+        _run(get("drive"), root, M.gyro_degps)
 
 
 def test_gyro_in_deg_per_s_found_from_the_flags(tmp_path):

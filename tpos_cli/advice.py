@@ -672,6 +672,7 @@ def review(session, output, *, chain: str, config: Mapping | None, params, run: 
     """The verdict of a run: convention checks on the session, the chain's own statistics
     (`quality.assess`), and candidate fixes tried by re-running the chain's `run` with `params`."""
     findings = list(conventions.session_findings(session))
+    conventions.refuse_contract_errors(session, findings)  # a unit the contract forbids: invalid input (exit 2), no run
     if chain == "drive_smooth" and session.gps is not None and output is not None:
         runner = _Runner(session, output, run, params)
         # a run with clock states names its own estimate (`clock_state_finding`): no raw-data scan

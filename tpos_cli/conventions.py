@@ -229,11 +229,11 @@ def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 
         elif holds(j, lambda kk, ss: abs(kk / deg - 1) < 0.3 and kk > 5 * ss):
             out.append(Finding("conventions.tilt", "unreliable",
                                f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, "
-                               "not rad/s; multiply by pi/180", fig))
+                               "not rad/s; multiply by pi/180", fig, contract_column=col))
         elif holds(j, lambda kk, ss: abs(kk * dt - 1) < 0.3 and kk > 5 * ss):
             out.append(Finding("conventions.tilt", "unreliable",
                                f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these "
-                               "are angle increments; divide by the interval", fig))
+                               "are angle increments; divide by the interval", fig, contract_column=col))
         # A generic misfit needs a log whose accelerometer sees tilt, not acceleration (r2 > 0.9):
         # a vehicle's turns tilt the specific force too (simulated drives fit r2 ~0.75 with gains ~10).
         elif r2 > 0.9 and holds(j, lambda kk, ss: abs(kk - 1) > 0.3 and ss < 0.1):
@@ -279,9 +279,11 @@ def course_findings(session) -> list[Finding]:
     fig = {"gain": cg.gain, "sd": cg.sigma, "r2": cg.r2, "windows": cg.n_windows}
     clear = np.isfinite(cg.sigma) and cg.sigma < COURSE_GAIN_TOL / 3 and cg.r2 > 0.5
     if clear and abs(cg.gain * 180.0 / np.pi - 1.0) < COURSE_GAIN_TOL:
+        vertical = f"gyro_{'xyz'[int(np.argmax(np.abs(axes_to_dcm(session.meta.axes)[2])))]}"  # logged axis nearest body z
         return [Finding("conventions.course_gain", "unreliable",
                         f"imu: the GPS course turns {cg.gain:.4f} ± {cg.sigma:.4f} times as fast as the gyro says "
-                        f"({cg.n_windows} windows while moving): the gyro is in deg/s, not rad/s; multiply by pi/180", fig)]
+                        f"({cg.n_windows} windows while moving): the gyro is in deg/s, not rad/s; multiply by pi/180", fig,
+                        contract_column=vertical)]
     if clear and abs(cg.gain + 1.0) < COURSE_GAIN_TOL:
         return [Finding("conventions.course_gain", "unreliable",
                         f"imu: the gyro's rotation about the vertical is opposite to the GPS course (gain {cg.gain:.2f} ± "
@@ -334,7 +336,7 @@ def odometry_findings(session) -> list[Finding]:
         if abs(ratio / factor - 1.0) < ODO_SCALE_TOL / 2:
             return [Finding("conventions.odometry_unit", "unreliable",
                             f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} "
-                            f"samples): it is in {unit}, not m/s; {fix}", fig)]
+                            f"samples): it is in {unit}, not m/s; {fix}", fig, contract_column="speed_mps")]
     if abs(ratio - 1.0) > ODO_SCALE_TOL:
         return [Finding("conventions.odometry_unit", "suspect",
                         f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} samples), "
@@ -381,6 +383,29 @@ def session_findings(session) -> list[Finding]:
         out += magnetometer_findings(imu.mag_b_ut, pos, when)
     out += odometry_findings(session)
     return out
+
+
+def contract_errors(session, findings) -> list[str]:
+    """The findings that show a unit the session contract forbids (`Finding.contract_column`), as
+    one-line errors naming the file and the column (the whole column: no row is worse than another)."""
+    from tpos_cli.io.tables import find_table
+
+    out = []
+    for f in findings:
+        if f.contract_column and f.reason:
+            table, _, what = f.reason.partition(": ")
+            path = find_table(session.path, table) if session.path is not None else None
+            out.append(f"{path.name if path is not None else table}: column '{f.contract_column}': {what}")
+    return out
+
+
+def refuse_contract_errors(session, findings) -> None:
+    """InvalidInputError (exit 2, one line) when `findings` show a unit the contract forbids."""
+    from tpos_cli.errors import InvalidInputError
+
+    errors = contract_errors(session, findings)
+    if errors:
+        raise InvalidInputError(f"{session.path.name}/{errors[0]}" if session.path is not None else errors[0])
 
 
 def check_conventions(session, *, clock: bool = True) -> list[str]:
