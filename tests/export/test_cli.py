@@ -236,3 +236,14 @@ def test_an_export_never_replaces_a_run_or_session_file_or_a_device(drive_run, t
     res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(tmp_path / "link.csv")])
     assert res.exit_code == 2 and "is the run's own file" in res.output  # the link's target is the run's summary
     assert (run / "summary.json").read_bytes() == before["summary.json"]
+
+
+def test_a_rate_above_the_solutions_own_is_said_not_claimed(drive_run, tmp_path):
+    # audit (session 10): `--rate 1e9` printed "1201 epochs at 1e+09 Hz" for a 10 Hz solution
+    run, _ = drive_run
+    res = _export(run, "--trajectory", "--rate", "1e9", "-o", str(tmp_path / "a.csv"))
+    every = len(_rows_csv(tmp_path / "a.csv"))
+    assert "at 1e+09 Hz" not in res.stdout and f"{every} epochs," in res.stdout
+    assert "note: --rate 1e+09 Hz is above the solution's own rate (about 10 Hz): every epoch is exported" in res.output
+    res = _export(run, "--trajectory", "--rate", "2", "-o", str(tmp_path / "b.csv"))
+    assert "at 2 Hz" in res.stdout and "note:" not in res.output and len(_rows_csv(tmp_path / "b.csv")) < every

@@ -175,6 +175,12 @@ def export_run(
         sol = choose_solution(run.trajectory["solution"], solution, f"{run.path.name}/trajectory.parquet")
         rate = rate_hz if rate_hz is not None else (None if fmt == "csv" else MAP_RATE_HZ)
         table, zone = trajectory_table(run.trajectory, sol, rate)
+        if rate is not None and len(table) > 1:
+            own_hz = 1.0 / float(np.median(np.diff(table["t"].to_numpy(float))))
+            if rate > 1.5 * own_hz:  # no epochs to pick between: every one is exported, at the run's own rate
+                notes += (f"--rate {rate:g} Hz is above the solution's own rate (about {own_hz:.3g} Hz): every epoch is "
+                          "exported",)
+                rate = None
         utc = utc_strings(table["t"].to_numpy(float), start_utc, 6)  # to 1 us, as t
         if utc is not None:
             table.insert(1, "time_utc", utc)
