@@ -17,6 +17,10 @@ TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
 INNOVATIONS_REQUIRED = ("t", "nis", "accepted")  # plus solution, kind, dof (filled in when absent, see _complete_innovations)
 GPS_REQUIRED = ("t", "lat", "lon", "h")
 
+LABELS = ("solution", "kind", "id")
+# No quantity tpos writes comes near this; the squares the report and export take of larger values overflow float64.
+MAX_RUN_VALUE = 1e150
+
 # size of a measurement of each innovation kind, for tables without `dof` or `nu_*` columns (the
 # ranging chain: one scalar range, a north-east fix)
 KIND_DOF = {"range": 1.0, "fix": 2.0}
@@ -62,14 +66,25 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
     missing = [c for c in required if c not in df.columns]
     if missing:
         raise InvalidInputError(f"{run_dir.name}/{name}: column '{missing[0]}': required column is missing")
-    for col in required:  # what tpos writes: numbers, NaN where absent, never inf (an altered file otherwise)
-        if col in ("solution", "kind", "id"):
+    for col in required:  # what tpos writes: numbers, labels in every row (an altered file otherwise)
+        if col in LABELS:
+            missing_label = np.flatnonzero(df[col].isna().to_numpy())
+            if missing_label.size:
+                raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}', row {int(missing_label[0]) + 1}: empty; "
+                                        "not a file tpos wrote (reprocess the session)")
             continue
         v = df[col].to_numpy()
         if v.dtype.kind not in "fiub":
             raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}': {v.dtype} where tpos writes numbers; "
                                     "not a file tpos wrote (reprocess the session)")
-        bad = np.flatnonzero(np.isinf(v)) if v.dtype.kind == "f" else np.array([], dtype=int)
+    # numbers: NaN where absent, never inf or a value whose square overflows; in the required columns, and in every
+    # float column of the tables the report and export take squares of (positions, sigmas), not the innovations
+    for col in df.columns if name != "innovations.parquet" else required:
+        v = df[col].to_numpy()
+        if v.dtype.kind != "f":
+            continue
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(np.abs(v) >= MAX_RUN_VALUE)
         if bad.size:
             raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}', row {int(bad[0]) + 1}: {v[bad[0]]} is not a "
                                     "value tpos writes; not a file tpos wrote (reprocess the session)")
