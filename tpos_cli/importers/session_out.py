@@ -137,6 +137,11 @@ def write_session(out_dir: Path, tables: dict[str, pd.DataFrame], toml_update: d
     if out_dir.exists() and not out_dir.is_dir():
         raise InvalidInputError(f"{out_dir}: exists and is not a session directory")
     toml_path = out_dir / "session.toml"
+    if out_dir.is_dir() and not toml_path.exists() and any(out_dir.iterdir()):
+        # `-o s/../../../etc` wrote gps.csv and session.toml into /etc (audit, session 10); a raw-data folder
+        # would get a session mixed into it
+        raise InvalidInputError(f"{out_dir}: holds other files and is not a session (no session.toml): -o must name a "
+                                "session, or a new or empty directory")
     for name in tables:
         existing = [p for p in (out_dir / f"{name}.csv", out_dir / f"{name}.parquet") if p.exists()]
         if existing and not force:
