@@ -535,3 +535,29 @@ def read_toml_text(text):
     import tomllib
 
     return tomllib.loads(text)
+
+
+def test_times_that_cannot_resolve_the_samples_are_refused(tmp_path):
+    # audit (session 10): a 100 Hz IMU with t rounded to 0.1 s kept 601 of 6000 samples ("5399 duplicate time
+    # stamps; the first sample of each kept") with verdict ok; t as float32 near 1e5 s stamped every sample to 7.8 ms,
+    # silently. Here t rounded to 0.1 s over 10 s: 101 distinct stamps of 1000
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "round", t0=100000.0)
+    imu = pd.read_csv(s / "imu.csv")
+    imu.assign(t=imu["t"].round(1)).to_csv(s / "imu.csv", index=False)
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and "imu.csv: column 't': 899 of 1000 samples repeat the time stamp before them" in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    rows = pd.concat([imu, imu.iloc[::20]]).sort_values("t", kind="stable")  # a logger's repeated rows: kept first, counted
+    rows.to_csv(s / "imu.csv", index=False)
+    assert load_session(s).counts["duplicate_stamps_imu"] == 50
+    f32 = write_minimal_session(tmp_path / "f32", fmt="parquet", t0=100000.0)
+    imu = pd.read_parquet(f32 / "imu.parquet")
+    imu.assign(t=imu["t"].astype("float32")).to_parquet(f32 / "imu.parquet", index=False)
+    res = runner.invoke(app, ["validate", str(f32)])
+    assert res.exit_code == 2 and "imu.parquet: column 't', row 1000: float32 holds t = 100010 s only to 0.0078 s" in res.output
+    near0 = write_minimal_session(tmp_path / "near0", fmt="parquet", t0=0.0)  # float32 of t <= 10 s: to 1 us, fine
+    imu = pd.read_parquet(near0 / "imu.parquet")
+    imu.assign(t=imu["t"].astype("float32")).to_parquet(near0 / "imu.parquet", index=False)
+    assert runner.invoke(app, ["validate", str(near0)]).exit_code == 0
