@@ -216,6 +216,8 @@ def test_an_export_never_replaces_a_run_or_session_file_or_a_device(drive_run, t
     (session / "session.toml").write_text("[session]\n")
     (session / "gps.csv").write_text("t\n")
     before = {p.name: p.read_bytes() for p in run.iterdir()}
+    own_sub = run.parent / "s" / "sub"  # the fixture's session is run/../s
+    own_sub.mkdir()
     dev = tmp_path / "dev"
     os.mkfifo(dev)  # a FIFO stands for a device here (no mknod in a test)
     (tmp_path / "link.csv").symlink_to(run / "summary.json")  # a link is replaced, never written through
@@ -226,6 +228,7 @@ def test_an_export_never_replaces_a_run_or_session_file_or_a_device(drive_run, t
         (run / "report.pdf", "is the run's own file, not an export"),
         (session / "gps.csv", "is inside a session directory"),
         (session / "new.kml", "is inside a session directory"),
+        (own_sub / "x.csv", "is inside a session directory"),  # anywhere in the run's own session
         (dev, "is not a regular file"),
     ):
         res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(out)])
@@ -235,7 +238,8 @@ def test_an_export_never_replaces_a_run_or_session_file_or_a_device(drive_run, t
     _export(run, "--trajectory", "-o", str(run / "track.json"))  # an export's own name in the run: fine
     res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(tmp_path / "link.csv")])
     assert res.exit_code == 2 and "is the run's own file" in res.output  # the link's target is the run's summary
-    assert (run / "summary.json").read_bytes() == before["summary.json"]
+    assert (run / "summary.json").read_bytes() == before["summary.json"] and not any(own_sub.iterdir())
+    own_sub.rmdir()
 
 
 def test_a_rate_above_the_solutions_own_is_said_not_claimed(drive_run, tmp_path):

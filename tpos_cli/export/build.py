@@ -93,12 +93,13 @@ EXPORT_SUFFIXES = (".csv", ".kml", ".geojson", ".gpx", ".json")
 RUN_JSON_FILES = ("summary.json", "accuracy.json")
 
 
-def check_export_path(path: Path, out) -> None:
+def check_export_path(path: Path, out, session_dir: Path | None = None) -> None:
     """InvalidInputError when `path` is not a regular file or a link (a device: replacing it whole
     would put a file in its place), or when it (followed through links) would replace a session's input
-    or a run's own file: a file in a directory holding session.toml (a session), or in a run directory
-    a file that is not an export (trajectory.parquet, summary.json, report.pdf ...). A run's and a
-    session's files are only ever written by the commands that own them."""
+    or a run's own file: a file in a directory holding session.toml (a session) or in the run's own
+    `session_dir`, or in a run directory a file that is not an export (trajectory.parquet,
+    summary.json, report.pdf ...). A run's and a session's files are only ever written by the
+    commands that own them."""
     if os.path.lexists(path) and not (Path(path).is_symlink() or Path(path).is_file()):
         # the file is replaced whole (written beside it, then renamed over it): over a device, that
         # would put a regular file in its place (as root: /dev/null itself)
@@ -106,7 +107,7 @@ def check_export_path(path: Path, out) -> None:
                                 "files (-o - writes to standard output)")
     real = Path(path).resolve()
     where = real.parent
-    if any((d / "session.toml").is_file() for d in (where, *where.parents)):
+    if (where / "session.toml").is_file() or (session_dir is not None and real.is_relative_to(Path(session_dir).resolve())):
         raise InvalidInputError(f"-o {out}: {real} is inside a session directory; exports never go among a session's "
                                 "input files: choose a file elsewhere")
     if (where / "summary.json").is_file() and (real.suffix.lower() not in EXPORT_SUFFIXES or real.name in RUN_JSON_FILES):
@@ -207,6 +208,6 @@ def export_run(
     if not path.parent.is_dir():
         raise InvalidInputError(f"-o {out}: directory {path.parent} does not exist" if out is not None
                                 else f"{run.path.name}: the run directory is gone ({path.parent})")
-    check_export_path(path, out if out is not None else path)
+    check_export_path(path, out if out is not None else path, session_dir_of(run.summary, run.path))
     write_atomic(path, lambda p: p.write_bytes(data))
     return ExportResult(path, kind, sol, len(table), zone.label, rate, notes)
