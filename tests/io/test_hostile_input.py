@@ -561,3 +561,20 @@ def test_times_that_cannot_resolve_the_samples_are_refused(tmp_path):
     imu = pd.read_parquet(near0 / "imu.parquet")
     imu.assign(t=imu["t"].astype("float32")).to_parquet(near0 / "imu.parquet", index=False)
     assert runner.invoke(app, ["validate", str(near0)]).exit_code == 0
+
+
+def test_a_table_that_is_a_dangling_or_looping_link_is_named_as_such(tmp_path):
+    # audit (session 10): imu.parquet linking to itself (or to a missing file) read "imu.*: missing: every session
+    # needs imu.csv or imu.parquet", while the user sees the file there
+    s = write_minimal_session(tmp_path / "s", fmt="parquet")
+    (s / "imu.parquet").unlink()
+    (s / "imu.parquet").symlink_to("imu.parquet")
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and res.output.strip() == f"{s}/imu.parquet: a link that leads nowhere (a missing file or a loop)"
+    (s / "imu.parquet").unlink()
+    write_minimal_session(tmp_path / "t", fmt="parquet")
+    (s / "imu.parquet").symlink_to(tmp_path / "t" / "imu.parquet")  # a link to a table is fine
+    (s / "gps.parquet").unlink()
+    (s / "gps.parquet").symlink_to(tmp_path / "nothing.parquet")
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "a link that leads nowhere" in res.output and not (tmp_path / "run").exists()

@@ -46,6 +46,10 @@ def find_table(session_dir: Path, name: str, csv_only: bool = False) -> Path | N
     """Path of table `name` in a session (`name.csv` or `name.parquet`), None if absent."""
     csv = session_dir / f"{name}.csv"
     parquet = session_dir / f"{name}.parquet"
+    for p in (csv,) if csv_only else (csv, parquet):
+        if p.is_symlink() and not p.exists():  # not "missing": the user sees the file there
+            raise InvalidInputError(f"{session_dir.name}/{p.name}: a link that leads nowhere (a missing file or a loop)",
+                                    [Problem(p.name, "a link that leads nowhere (a missing file or a loop)")])
     if not csv_only and csv.exists() and parquet.exists():
         raise InvalidInputError(
             f"{session_dir.name}/{name}.*: both {csv.name} and {parquet.name} exist; keep one",
