@@ -251,3 +251,27 @@ def test_a_rate_above_the_solutions_own_is_said_not_claimed(drive_run, tmp_path)
     assert "note: --rate 1e+09 Hz is above the solution's own rate (about 10 Hz): every epoch is exported" in res.output
     res = _export(run, "--trajectory", "--rate", "2", "-o", str(tmp_path / "b.csv"))
     assert "at 2 Hz" in res.stdout and "note:" not in res.output and len(_rows_csv(tmp_path / "b.csv")) < every
+
+
+def test_a_target_export_reads_only_the_trajectorys_times_and_positions(target_run, tmp_path, monkeypatch):
+    # audit (session 10): exporting the 5 targets of a simulated target hour read its whole 2.2M-row trajectory
+    # (peak 0.83-0.94 GB); it reads t, lat, lon, h and solution (0.52 GB), with the same file
+    import pyarrow.parquet as pq
+
+    from tpos_cli.export import build
+
+    run, _ = target_run
+    seen = []
+    real = pq.read_table
+
+    def spy(path, *a, **k):
+        if str(path).endswith("trajectory.parquet"):
+            seen.append(k.get("columns"))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(pq, "read_table", spy)
+    _export(run, "-o", str(tmp_path / "a.csv"))
+    assert len(seen) == 1 and sorted(seen[0]) == sorted(build.TARGET_EXPORT_TRAJECTORY)
+    monkeypatch.setattr(build, "TARGET_EXPORT_TRAJECTORY", None)  # the whole table, as before
+    _export(run, "-o", str(tmp_path / "b.csv"))
+    assert seen[1] is None and (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()

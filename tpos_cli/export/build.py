@@ -26,6 +26,7 @@ from tpos_cli.report.solutions import choose_solution
 from tpos_cli.report.targets import combined_targets
 
 FORMATS = ("csv", "kml", "geojson", "gpx")
+TARGET_EXPORT_TRAJECTORY = ("t", "lat", "lon", "h", "solution")  # what a target export reads of a run's trajectory
 MAP_RATE_HZ = 1.0  # default rate of the map formats: a track a viewer draws smoothly, a file a person opens
 
 
@@ -137,7 +138,11 @@ def export_run(
         raise InvalidInputError(f"--format {fmt}: expected one of {', '.join(FORMATS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InvalidInputError(f"--rate {rate_hz:g}: must be a positive number of Hz")
-    run = load_run(Path(run_dir))
+    targets_only = not trajectory and (Path(run_dir) / "targets.parquet").exists()
+    # a target export reads of the trajectory what it dates and places (times, the observer's position)
+    run = load_run(Path(run_dir), trajectory_columns=TARGET_EXPORT_TRAJECTORY if targets_only else None)
+    if targets_only and (run.targets is None or not len(run.targets)):  # no targets after all: the trajectory is exported
+        run = load_run(Path(run_dir))
     start_utc, why = checked_start_utc(read_start_utc(session_dir_of(run.summary, run.path)), _logger_times(run))
     notes = (why,) if why else ()
     s = run.summary

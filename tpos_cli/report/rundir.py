@@ -40,12 +40,14 @@ class RunData:
     mask_windows: np.ndarray  # (M, 2) logger clock: the --mask-gps windows alone
 
 
-def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame | None:
-    """A run table; its label columns (`solution`, `kind`) as pandas categoricals, so splitting an
-    hour-long 100 Hz table by solution costs one pass."""
+def _read(run_dir: Path, name: str, required: tuple[str, ...], columns: tuple[str, ...] | None = None) -> pd.DataFrame | None:
+    """A run table (only `columns` of it when given); its label columns (`solution`, `kind`) as
+    pandas categoricals, so splitting an hour-long 100 Hz table by solution costs one pass."""
     path = run_dir / name
     if not path.exists():
         return None
+    if columns is not None:
+        required = tuple(c for c in required if c in columns)
     try:
         import pyarrow as pa
         import pyarrow.compute as pc
@@ -55,7 +57,9 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
         labels = [
             f.name for f in schema if f.name in ("solution", "kind") and (pa.types.is_string(f.type) or pa.types.is_large_string(f.type))
         ]
-        table = pq.read_table(path, read_dictionary=labels)  # labels decoded once per row group, not once per row
+        names = None if columns is None else [f.name for f in schema if f.name in columns]
+        # labels decoded once per row group, not once per row
+        table = pq.read_table(path, columns=names, read_dictionary=[c for c in labels if names is None or c in names])
         for col in ("solution", "kind"):
             i = table.schema.get_field_index(col)
             if i >= 0 and (pa.types.is_string(table.schema.field(i).type) or pa.types.is_large_string(table.schema.field(i).type)):
@@ -166,8 +170,10 @@ def merge_windows(*arrays: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
-def load_run(run_dir: Path) -> RunData:
-    """Read a run directory; raises InvalidInputError when it is not one."""
+def load_run(run_dir: Path, *, trajectory_columns: tuple[str, ...] | None = None) -> RunData:
+    """Read a run directory; raises InvalidInputError when it is not one. `trajectory_columns`: read
+    only these of trajectory.parquet (a target export needs its times and positions, not an hour of
+    attitudes and sigmas)."""
     run_dir = Path(run_dir)
     sp = run_dir / "summary.json"
     if not run_dir.is_dir() or not sp.exists():
@@ -176,7 +182,7 @@ def load_run(run_dir: Path) -> RunData:
     # and of the shape tpos writes before any code reads into it
     summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
     check_summary_shape(summary, f"{run_dir.name}/summary.json")
-    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED)
+    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED, trajectory_columns)
     tgts = _read(run_dir, "targets.parquet", TARGETS_REQUIRED)
     if tgts is not None:
         tgts["id"] = tgts["id"].astype(str)
