@@ -247,9 +247,11 @@ def test_clean_ranging_session_is_ok(sims):
 
 
 def test_gyro_in_deg_per_s(sims):
+    # audit (session 10): a gyro the GPS course shows to be in deg/s breaks the contract: refused (exit 2) naming
+    # the file and the column, no run (it was verdict unreliable with the same sentence)
     get, root = sims
-    q = _run(get("drive"), root, M.gyro_degps)
-    assert q["verdict"] == "unreliable" and _named(q, "deg/s")
+    with pytest.raises(InvalidInputError, match=r"imu\.\w+: column 'gyro_z': .* the gyro is in deg/s, not rad/s"):
+        _run(get("drive"), root, M.gyro_degps)
 
 
 def test_gyro_in_deg_per_s_found_from_the_flags(tmp_path):
@@ -388,6 +390,15 @@ def test_clock_state_suggests_one_offset_only_when_positions_and_velocities_agre
     assert f.figures["suggested_gps_offset_s"] == pytest.approx(-0.3)
     (f,) = clock_state_finding({**both, "estimate_s": -0.26}, 0.0, {})
     assert "set [time] gps_offset_s = -0.260" in f.reason
+    # audit (session 10): a GPS 2 s late came out "1.116 ± 0.080 s late ...: set gps_offset_s = -1.116" (the state's
+    # prior, 0.2 s, holds it back): beyond 3 prior SDs the figure is a lower bound and the setting a first step
+    late2 = {"estimate_s": -1.116, "sigma_s": 0.0798, "velocity_estimate_s": -1.1781, "velocity_sigma_s": 0.0707,
+             "prior_sigma_s": 0.2, "output_clock": "gps"}
+    (f,) = clock_state_finding(late2, 0.0, {})
+    assert f.level == "suspect" and "at least 1.116 s late" in f.reason and "± 0.080" not in f.reason
+    assert "set [time] gps_offset_s = -1.116 in session.toml and process again" in f.reason and f.figures["beyond_prior"]
+    (f,) = clock_state_finding({**both, "prior_sigma_s": 0.2}, 0.0, {})  # 0.3 s: within 3 prior SDs, unchanged
+    assert "0.300 ± 0.010 s late" in f.reason and "at least" not in f.reason
     split = {"estimate_s": 0.125, "sigma_s": 0.0045, "velocity_estimate_s": -0.0055, "velocity_sigma_s": 0.0045,
              "output_clock": "gps"}
     (f,) = clock_state_finding(split, 0.0, {})

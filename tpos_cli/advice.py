@@ -203,6 +203,8 @@ class _Runner:
 
 
 CLOCK_Z = float(-ndtri(0.0005))  # 3.29: two-sided 99.9 %
+# an estimated clock offset beyond this many prior SDs of its state is a lower bound (the state's prior holds it back)
+CLOCK_BEYOND_PRIOR = 3.0
 
 
 def clock_signature(output) -> dict | None:
@@ -267,6 +269,16 @@ def clock_state_finding(state: Mapping, cur: float, fig: dict) -> list[Finding]:
         fig["velocity_estimate_s"] = float(dv)
         return [Finding("clock", "suspect", f"{said}, their velocities {conventions.offset_text(dv, sdv)}: {_BOTH_TAKEN}", fig)]
     fig["suggested_gps_offset_s"] = cur + d
+    prior = state.get("prior_sigma_s")
+    if prior is not None and abs(d) > CLOCK_BEYOND_PRIOR * float(prior):
+        # the state follows an offset far beyond its prior only in part (a simulated drive 2 s late: 1.116 +- 0.080 s,
+        # audit session 10): the figure is a lower bound, and the suggestion a first step
+        fig["beyond_prior"] = True
+        return [Finding("clock", "suspect",
+                        f"gps/imu: the GPS positions are time-stamped at least {abs(d):.3f} s {'late' if d < 0 else 'early'} "
+                        f"against the IMU (the filter's clock state, prior SD {float(prior):g} s, follows an offset beyond "
+                        f"{CLOCK_BEYOND_PRIOR:g} times its prior only in part): set [time] gps_offset_s = {cur + d:.3f} in "
+                        "session.toml and process again; that run measures the rest", fig)]
     return [Finding("clock", "suspect", f"{said}: set [time] gps_offset_s = {cur + d:.3f} in session.toml", fig)]
 
 
@@ -668,10 +680,12 @@ def units_advice(session, output, runner: _Runner, gate_probability: float | Non
 
 
 def review(session, output, *, chain: str, config: Mapping | None, params, run: ChainRun,
-           counts: Mapping | None = None) -> Quality:
-    """The verdict of a run: convention checks on the session, the chain's own statistics
+           counts: Mapping | None = None, session_findings: list[Finding] | None = None) -> Quality:
+    """The verdict of a run: convention checks on the session (`session_findings` when the caller
+    made them already, e.g. to refuse a unit before the work), the chain's own statistics
     (`quality.assess`), and candidate fixes tried by re-running the chain's `run` with `params`."""
-    findings = list(conventions.session_findings(session))
+    findings = list(conventions.session_findings(session) if session_findings is None else session_findings)
+    conventions.refuse_contract_errors(session, findings)  # a unit the contract forbids: invalid input (exit 2), no run
     if chain == "drive_smooth" and session.gps is not None and output is not None:
         runner = _Runner(session, output, run, params)
         # a run with clock states names its own estimate (`clock_state_finding`): no raw-data scan

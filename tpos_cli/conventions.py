@@ -122,8 +122,19 @@ def check_gravity(t, gyro_b, acc_b, axes: str, name: str = "imu") -> list[str]:
     return [f.reason for f in gravity_findings(t, gyro_b, acc_b, axes, name) if f.reason]
 
 
+# A gain whose regressor the other axes' explain (variance inflation factor 1 / (1 - R_j^2) above 10,
+# the textbook limit for serious collinearity: Kutner et al., Applied Linear Statistical Models,
+# Sec. 10.5) is not a measurement of that axis: a level observer that pans about the vertical turns
+# its body y and z together with the gravity direction, so only their difference is seen; the sum
+# is left to the sensors' noise, which fits a precise-looking 0 over an hour (audit, session 10:
+# a simulated target hour read "gyro_y disagrees ... gain -0.04 +- 0.03"). VIFs seen: real logs
+# 1.00-1.14, simulated drives 1.3 (hour) and 152 (120 s), simulated target sessions 1.9e4-2.1e4.
+TILT_VIF_MAX = 10.0
+
+
 def tilt_gains(t, gyro_b, acc_b, smooth_s: float = 0.3):
-    """Per-axis gains k (3,) and their SDs of du/dt = u × (k ω) over the moving parts of the log."""
+    """Per-axis gains k (3,), their SDs, the fit's r^2 and each gain's variance inflation factor
+    (TILT_VIF_MAX) of du/dt = u × (k ω) over the moving parts of the log."""
     from tpos_cli.timeoffset import _lowpass
 
     t = np.asarray(t, float)
@@ -152,8 +163,10 @@ def tilt_gains(t, gyro_b, acc_b, smooth_s: float = 0.3):
     rss = max(yty - 2.0 * float(k @ Aty) + float(k @ AtA @ k), 0.0)
     r2 = 1.0 - rss / max(yty, 1e-30)
     # samples are correlated over the smoothing window: inflate the SD by sqrt(n)
-    cov = np.linalg.inv(AtA) * rss / max(3 * u.shape[0] - 3, 1) * n
-    return k, np.sqrt(np.diag(cov)), r2
+    inv = np.linalg.inv(AtA)
+    cov = inv * rss / max(3 * u.shape[0] - 3, 1) * n
+    vif = np.diag(inv) * np.diag(AtA)  # 1 / (1 - R_j^2) of column j on the others (uncentred)
+    return k, np.sqrt(np.diag(cov)), r2, vif
 
 
 def check_tilt_consistency(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 8) -> list[str]:
@@ -171,11 +184,11 @@ def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 
     res = tilt_gains(t, gyro_b, acc_b)
     if res is None:
         return []
-    k, sd, r2 = res
+    k, sd, r2, vif = res
     if r2 < 0.3:
         return []  # too little tilting, or too much linear acceleration, to judge
-    fig = {"gains": k.tolist(), "sd": sd.tolist(), "r2": float(r2)}
-    if (k < -0.5).all():
+    fig = {"gains": k.tolist(), "sd": sd.tolist(), "r2": float(r2), "vif": vif.tolist()}
+    if (k < -0.5).all() and (vif <= TILT_VIF_MAX).all():
         return [Finding("conventions.tilt", "unreliable",
                         f"{name}: the gyro turns the opposite way to the tilt seen by the accelerometer on all three "
                         f"axes (gains {np.array2string(k, precision=2)}): the logged frame is mirrored; two axes are "
@@ -193,17 +206,17 @@ def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 
 
     def holds(j, test) -> bool:
         """The test holds for the whole-log fit and in at least 3/4 of the usable blocks (no usable
-        block: it does not hold)."""
+        block: it does not hold; a block where axis j's gain is collinear with another's fails)."""
         if not test(k[j], sd[j]):
             return False
         fits = blocks_fits()
-        n_ok = sum(bool(test(kb[j], sb[j])) for kb, sb, _ in fits)
+        n_ok = sum(bool(test(kb[j], sb[j])) and vb[j] <= TILT_VIF_MAX for kb, sb, _, vb in fits)
         return bool(fits) and n_ok >= max(1, int(np.ceil(0.75 * len(fits))))
 
     deg = np.pi / 180.0
     out: list[Finding] = []
     for j in range(3):
-        if sd[j] > 0.2:
+        if sd[j] > 0.2 or vif[j] > TILT_VIF_MAX:  # not measured: too noisy, or collinear with another axis
             continue
         s = int(np.argmax(np.abs(C_bs[j])))  # logged axis that maps to body axis j
         col = f"gyro_{'xyz'[s]}"
@@ -216,11 +229,11 @@ def tilt_findings(t, gyro_b, acc_b, axes: str, name: str = "imu", blocks: int = 
         elif holds(j, lambda kk, ss: abs(kk / deg - 1) < 0.3 and kk > 5 * ss):
             out.append(Finding("conventions.tilt", "unreliable",
                                f"{name}: {col} is {1 / k[j]:.1f} times the rotation the accelerometer sees: it is deg/s, "
-                               "not rad/s; multiply by pi/180", fig))
+                               "not rad/s; multiply by pi/180", fig, contract_column=col))
         elif holds(j, lambda kk, ss: abs(kk * dt - 1) < 0.3 and kk > 5 * ss):
             out.append(Finding("conventions.tilt", "unreliable",
                                f"{name}: {col} is about the sample interval ({dt:.4f} s) times the rotation rate: these "
-                               "are angle increments; divide by the interval", fig))
+                               "are angle increments; divide by the interval", fig, contract_column=col))
         # A generic misfit needs a log whose accelerometer sees tilt, not acceleration (r2 > 0.9):
         # a vehicle's turns tilt the specific force too (simulated drives fit r2 ~0.75 with gains ~10).
         elif r2 > 0.9 and holds(j, lambda kk, ss: abs(kk - 1) > 0.3 and ss < 0.1):
@@ -266,9 +279,11 @@ def course_findings(session) -> list[Finding]:
     fig = {"gain": cg.gain, "sd": cg.sigma, "r2": cg.r2, "windows": cg.n_windows}
     clear = np.isfinite(cg.sigma) and cg.sigma < COURSE_GAIN_TOL / 3 and cg.r2 > 0.5
     if clear and abs(cg.gain * 180.0 / np.pi - 1.0) < COURSE_GAIN_TOL:
+        vertical = f"gyro_{'xyz'[int(np.argmax(np.abs(axes_to_dcm(session.meta.axes)[2])))]}"  # logged axis nearest body z
         return [Finding("conventions.course_gain", "unreliable",
                         f"imu: the GPS course turns {cg.gain:.4f} ± {cg.sigma:.4f} times as fast as the gyro says "
-                        f"({cg.n_windows} windows while moving): the gyro is in deg/s, not rad/s; multiply by pi/180", fig)]
+                        f"({cg.n_windows} windows while moving): the gyro is in deg/s, not rad/s; multiply by pi/180", fig,
+                        contract_column=vertical)]
     if clear and abs(cg.gain + 1.0) < COURSE_GAIN_TOL:
         return [Finding("conventions.course_gain", "unreliable",
                         f"imu: the gyro's rotation about the vertical is opposite to the GPS course (gain {cg.gain:.2f} ± "
@@ -321,7 +336,7 @@ def odometry_findings(session) -> list[Finding]:
         if abs(ratio / factor - 1.0) < ODO_SCALE_TOL / 2:
             return [Finding("conventions.odometry_unit", "unreliable",
                             f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} "
-                            f"samples): it is in {unit}, not m/s; {fix}", fig)]
+                            f"samples): it is in {unit}, not m/s; {fix}", fig, contract_column="speed_mps")]
     if abs(ratio - 1.0) > ODO_SCALE_TOL:
         return [Finding("conventions.odometry_unit", "suspect",
                         f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} samples), "
@@ -368,6 +383,29 @@ def session_findings(session) -> list[Finding]:
         out += magnetometer_findings(imu.mag_b_ut, pos, when)
     out += odometry_findings(session)
     return out
+
+
+def contract_errors(session, findings) -> list[str]:
+    """The findings that show a unit the session contract forbids (`Finding.contract_column`), as
+    one-line errors naming the file and the column (the whole column: no row is worse than another)."""
+    from tpos_cli.io.tables import find_table
+
+    out = []
+    for f in findings:
+        if f.contract_column and f.reason:
+            table, _, what = f.reason.partition(": ")
+            path = find_table(session.path, table) if session.path is not None else None
+            out.append(f"{path.name if path is not None else table}: column '{f.contract_column}': {what}")
+    return out
+
+
+def refuse_contract_errors(session, findings) -> None:
+    """InvalidInputError (exit 2, one line) when `findings` show a unit the contract forbids."""
+    from tpos_cli.errors import InvalidInputError
+
+    errors = contract_errors(session, findings)
+    if errors:
+        raise InvalidInputError(f"{session.path.name}/{errors[0]}" if session.path is not None else errors[0])
 
 
 def check_conventions(session, *, clock: bool = True) -> list[str]:

@@ -69,6 +69,10 @@ class Finding:
     level: str = "ok"
     reason: str | None = None
     figures: Mapping = field(default_factory=dict)
+    # the column that breaks the session contract (a unit: gyro in deg/s, odometry in km/h), when the
+    # evidence names it: invalid input, which `tpos validate` and `tpos process` refuse (exit 2)
+    # instead of processing (`conventions.contract_errors`)
+    contract_column: str | None = None
 
     def __post_init__(self):
         if self.level not in LEVELS:

@@ -219,3 +219,31 @@ def test_ctrl_c_in_every_command_is_one_line_and_exit_130(tmp_path, monkeypatch,
     lines = res.output.strip().splitlines()
     assert res.exit_code == 130 and len(lines) == 1 and lines[0].startswith(f"tpos {cmd}: interrupted"), res.output
     assert not (tmp_path / "x.csv").exists() and not (tmp_path / "new").exists()
+
+
+def test_force_replaces_a_session_never_a_directory_of_other_files(tmp_path, monkeypatch):
+    # audit (session 10): `tpos simulate drive DIR --force` deleted every file of any DIR (`.` included), and
+    # `tpos calibrate-mag S -o DIR --force` any DIR, the one holding S too
+    other = tmp_path / "important"
+    (other / "sub").mkdir(parents=True)
+    (other / "a.txt").write_text("precious")
+    monkeypatch.chdir(tmp_path)
+    for cmd in (["simulate", "drive", str(other), "--duration", "5", "--force", "-q"],
+                ["calibrate-mag", str(write_minimal_session(tmp_path / "s")), "-o", str(other), "--force"]):
+        res = CliRunner().invoke(app, cmd)
+        assert res.exit_code == 2 and "is not a tpos session (no session.toml)" in res.output, res.output
+    assert (other / "a.txt").read_text() == "precious" and (other / "sub").is_dir()
+    sim = tmp_path / "sim"
+    assert CliRunner().invoke(app, ["simulate", "drive", str(sim), "--duration", "5", "-q"]).exit_code == 0
+    res = CliRunner().invoke(app, ["simulate", "drive", str(sim), "--duration", "5", "-q"])
+    assert res.exit_code == 2 and "use --force" in res.output
+    assert CliRunner().invoke(app, ["simulate", "drive", str(sim), "--duration", "5", "--force", "-q"]).exit_code == 0
+    monkeypatch.chdir(sim)  # a session that holds the current directory, or the input session, is not replaced
+    res = CliRunner().invoke(app, ["simulate", "drive", ".", "--duration", "5", "--force", "-q"])
+    assert res.exit_code == 2 and "holds the current directory" in res.output
+    monkeypatch.chdir(tmp_path)
+    (sim / "inner").mkdir()
+    write_minimal_session(sim / "inner" / "s")
+    res = CliRunner().invoke(app, ["calibrate-mag", str(sim / "inner" / "s"), "-o", str(sim), "--force"])
+    assert res.exit_code == 2 and "holds the input session" in res.output
+    assert (sim / "session.toml").is_file() and (sim / "inner" / "s" / "session.toml").is_file()

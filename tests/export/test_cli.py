@@ -204,3 +204,74 @@ def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):
     (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2020-01-01T00:00:00Z"\n', 1))
     res = _export(r, "-f", "csv", "--trajectory")
     assert "note:" not in res.stderr and _rows_csv(r / "trajectory_smoothed.csv")[0]["time_utc"].startswith("2020-01-01T00:00:")
+
+
+def test_an_export_never_replaces_a_run_or_session_file_or_a_device(drive_run, tmp_path):
+    # audit (session 10): `tpos export RUN -o RUN/summary.json` wrote GeoJSON over the run's summary.json and
+    # `-o RUN/trajectory.parquet` CSV over its trajectory (exit 0; the run was gone); `-o /dev/null` as root put a
+    # regular file in the device's place (the export is written beside the target and renamed over it)
+    run, _ = drive_run
+    session = tmp_path / "s"
+    session.mkdir()
+    (session / "session.toml").write_text("[session]\n")
+    (session / "gps.csv").write_text("t\n")
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    own_sub = run.parent / "s" / "sub"  # the fixture's session is run/../s
+    own_sub.mkdir()
+    dev = tmp_path / "dev"
+    os.mkfifo(dev)  # a FIFO stands for a device here (no mknod in a test)
+    (tmp_path / "link.csv").symlink_to(run / "summary.json")  # a link is replaced, never written through
+    for out, msg in (
+        (run / "summary.json", "is the run's own file, not an export"),
+        (run / "trajectory.parquet", "is the run's own file, not an export"),
+        (run / "accuracy.json", "is the run's own file, not an export"),
+        (run / "report.pdf", "is the run's own file, not an export"),
+        (session / "gps.csv", "is inside a session directory"),
+        (session / "new.kml", "is inside a session directory"),
+        (own_sub / "x.csv", "is inside a session directory"),  # anywhere in the run's own session
+        (dev, "is not a regular file"),
+    ):
+        res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(out)])
+        assert res.exit_code == 2 and msg in res.output and len(res.output.strip().splitlines()) == 1, (out, res.output)
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before and stat.S_ISFIFO(dev.lstat().st_mode)
+    assert (session / "gps.csv").read_text() == "t\n" and sorted(p.name for p in session.iterdir()) == ["gps.csv", "session.toml"]
+    _export(run, "--trajectory", "-o", str(run / "track.json"))  # an export's own name in the run: fine
+    res = runner.invoke(app, ["export", str(run), "--trajectory", "-o", str(tmp_path / "link.csv")])
+    assert res.exit_code == 2 and "is the run's own file" in res.output  # the link's target is the run's summary
+    assert (run / "summary.json").read_bytes() == before["summary.json"] and not any(own_sub.iterdir())
+    own_sub.rmdir()
+
+
+def test_a_rate_above_the_solutions_own_is_said_not_claimed(drive_run, tmp_path):
+    # audit (session 10): `--rate 1e9` printed "1201 epochs at 1e+09 Hz" for a 10 Hz solution
+    run, _ = drive_run
+    res = _export(run, "--trajectory", "--rate", "1e9", "-o", str(tmp_path / "a.csv"))
+    every = len(_rows_csv(tmp_path / "a.csv"))
+    assert "at 1e+09 Hz" not in res.stdout and f"{every} epochs," in res.stdout
+    assert "note: --rate 1e+09 Hz is above the solution's own rate (about 10 Hz): every epoch is exported" in res.output
+    res = _export(run, "--trajectory", "--rate", "2", "-o", str(tmp_path / "b.csv"))
+    assert "at 2 Hz" in res.stdout and "note:" not in res.output and len(_rows_csv(tmp_path / "b.csv")) < every
+
+
+def test_a_target_export_reads_only_the_trajectorys_times_and_positions(target_run, tmp_path, monkeypatch):
+    # audit (session 10): exporting the 5 targets of a simulated target hour read its whole 2.2M-row trajectory
+    # (peak 0.83-0.94 GB); it reads t, lat, lon, h and solution (0.52 GB), with the same file
+    import pyarrow.parquet as pq
+
+    from tpos_cli.export import build
+
+    run, _ = target_run
+    seen = []
+    real = pq.read_table
+
+    def spy(path, *a, **k):
+        if str(path).endswith("trajectory.parquet"):
+            seen.append(k.get("columns"))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(pq, "read_table", spy)
+    _export(run, "-o", str(tmp_path / "a.csv"))
+    assert len(seen) == 1 and sorted(seen[0]) == sorted(build.TARGET_EXPORT_TRAJECTORY)
+    monkeypatch.setattr(build, "TARGET_EXPORT_TRAJECTORY", None)  # the whole table, as before
+    _export(run, "-o", str(tmp_path / "b.csv"))
+    assert seen[1] is None and (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()

@@ -25,3 +25,25 @@ def test_an_interrupted_table_write_leaves_no_temporary_and_the_old_table(tmp_pa
     with pytest.raises(KeyboardInterrupt):
         session_out.write_session(tmp_path / "s", {"imu": imu.assign(t=imu["t"] + 1)}, toml, force=True)
     assert {p.name: p.read_bytes() for p in (tmp_path / "s").iterdir()} == before
+
+
+def test_an_import_goes_into_a_session_or_a_new_or_empty_directory_only(tmp_path):
+    # audit (session 10): `tpos import ubx X -o s/../../../../etc` (run as root) wrote gps.csv and session.toml into /etc:
+    # any existing directory took a session's files
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.importers.session_out import write_session
+
+    gps = pd.DataFrame({"t": [0.0, 1.0], "lat": [45.0, 45.0], "lon": [7.0, 7.0], "h": [1.0, 1.0], "fix": [2, 2]})
+    other = tmp_path / "raw"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(InvalidInputError, match="holds other files and is not a session"):
+        write_session(other, {"gps": gps}, {})
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert [p.name for p in write_session(empty, {"gps": gps}, {})] == ["gps.csv", "session.toml"]
+    assert [p.name for p in write_session(tmp_path / "new", {"gps": gps}, {})] == ["gps.csv", "session.toml"]
+    imu = pd.DataFrame({"t": [0.0, 0.01], **{c: [0.0, 0.0] for c in ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y")},
+                        "acc_z": [-9.8, -9.8]})
+    assert [p.name for p in write_session(empty, {"imu": imu}, {})] == ["imu.parquet", "session.toml"]  # a session now

@@ -503,3 +503,78 @@ def test_short_imu_gap_is_still_processed(tmp_path):
     _imu_gap(s, 0.5, ("imu", "gps"))
     res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
+
+
+def test_toml_files_with_a_byte_order_mark_are_read(tmp_path):
+    # audit (session 10): a session.toml saved by a Windows editor (UTF-8 with BOM) was refused as
+    # "not valid TOML (Invalid statement (at line 1, column 1))"; the BOM is dropped, nothing else changes
+    from tpos_cli.io.bounded import read_toml
+
+    s = write_minimal_session(tmp_path / "s", with_gps=False)
+    plain = (s / "session.toml").read_text()
+    (s / "session.toml").write_bytes(b"\xef\xbb\xbf" + plain.encode())
+    assert read_toml(s / "session.toml") == read_toml_text(plain)
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 0, res.output
+    (tmp_path / "a.pos").write_text(POS)  # an import into it merges with the file as read
+    res = runner.invoke(app, ["import", "rtklib-pos", str(tmp_path / "a.pos"), "-o", str(s)])
+    assert res.exit_code == 0, res.output
+    assert read_toml(s / "session.toml")["session"] == read_toml_text(plain)["session"]
+    pipe = tmp_path / "p.toml"
+    from tpos_cli.config import pipelines_dir
+
+    pipe.write_bytes(b"\xef\xbb\xbf" + (pipelines_dir() / "ingest.toml").read_bytes())
+    res = runner.invoke(app, ["process", str(s), "-p", str(pipe), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 0, res.output
+    (s / "session.toml").write_bytes(b"\xef\xbb\xbf\xef\xbb\xbf" + plain.encode())  # one mark only: a second is text
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and "session.toml: not valid TOML" in res.output
+
+
+def read_toml_text(text):
+    import tomllib
+
+    return tomllib.loads(text)
+
+
+def test_times_that_cannot_resolve_the_samples_are_refused(tmp_path):
+    # audit (session 10): a 100 Hz IMU with t rounded to 0.1 s kept 601 of 6000 samples ("5399 duplicate time
+    # stamps; the first sample of each kept") with verdict ok; t as float32 near 1e5 s stamped every sample to 7.8 ms,
+    # silently. Here t rounded to 0.1 s over 10 s: 101 distinct stamps of 1000
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "round", t0=100000.0)
+    imu = pd.read_csv(s / "imu.csv")
+    imu.assign(t=imu["t"].round(1)).to_csv(s / "imu.csv", index=False)
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and "imu.csv: column 't': 899 of 1000 samples repeat the time stamp before them" in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    rows = pd.concat([imu, imu.iloc[::20]]).sort_values("t", kind="stable")  # a logger's repeated rows: kept first, counted
+    rows.to_csv(s / "imu.csv", index=False)
+    assert load_session(s).counts["duplicate_stamps_imu"] == 50
+    f32 = write_minimal_session(tmp_path / "f32", fmt="parquet", t0=100000.0)
+    imu = pd.read_parquet(f32 / "imu.parquet")
+    imu.assign(t=imu["t"].astype("float32")).to_parquet(f32 / "imu.parquet", index=False)
+    res = runner.invoke(app, ["validate", str(f32)])
+    assert res.exit_code == 2 and "imu.parquet: column 't', row 1000: float32 holds t = 100010 s only to 0.0078 s" in res.output
+    near0 = write_minimal_session(tmp_path / "near0", fmt="parquet", t0=0.0)  # float32 of t <= 10 s: to 1 us, fine
+    imu = pd.read_parquet(near0 / "imu.parquet")
+    imu.assign(t=imu["t"].astype("float32")).to_parquet(near0 / "imu.parquet", index=False)
+    assert runner.invoke(app, ["validate", str(near0)]).exit_code == 0
+
+
+def test_a_table_that_is_a_dangling_or_looping_link_is_named_as_such(tmp_path):
+    # audit (session 10): imu.parquet linking to itself (or to a missing file) read "imu.*: missing: every session
+    # needs imu.csv or imu.parquet", while the user sees the file there
+    s = write_minimal_session(tmp_path / "s", fmt="parquet")
+    (s / "imu.parquet").unlink()
+    (s / "imu.parquet").symlink_to("imu.parquet")
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and res.output.strip() == f"{s}/imu.parquet: a link that leads nowhere (a missing file or a loop)"
+    (s / "imu.parquet").unlink()
+    write_minimal_session(tmp_path / "t", fmt="parquet")
+    (s / "imu.parquet").symlink_to(tmp_path / "t" / "imu.parquet")  # a link to a table is fine
+    (s / "gps.parquet").unlink()
+    (s / "gps.parquet").symlink_to(tmp_path / "nothing.parquet")
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and "a link that leads nowhere" in res.output and not (tmp_path / "run").exists()

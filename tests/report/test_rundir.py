@@ -60,3 +60,25 @@ def test_a_solution_without_any_position_is_refused(tmp_path):
         df["lat"] = float("nan")
 
     _refused(_synthetic_run(tmp_path, alter), r"column 'lat': solution 'forward' has no epoch with a position")
+
+
+def test_an_empty_solution_label_is_refused_with_its_row(tmp_path):
+    # audit (session 10): a trajectory whose solution column is null was an internal IndexError in report and export
+    def alter(df):
+        df["solution"] = None
+
+    _refused(_synthetic_run(tmp_path, alter), r"trajectory.parquet: column 'solution', row 1: empty")
+
+
+def test_a_sigma_whose_square_overflows_is_refused_with_its_row(tmp_path):
+    # audit (session 10): sigma_n = 1e300 (or inf) in a trajectory ran the report with a dozen RuntimeWarning lines
+    # ("overflow encountered in square") and exit 0; columns beyond the required ones are checked too
+    def alter(df):
+        df.loc[7, "sigma_n"] = 1e300
+
+    _refused(_synthetic_run(tmp_path, alter), r"column 'sigma_n', row 8: 1e\+300 is not a value tpos writes")
+
+    def alter_inf(df):
+        df.loc[2, "sigma_e"] = float("-inf")
+
+    _refused(_synthetic_run(tmp_path / "b", alter_inf), r"column 'sigma_e', row 3: -inf is not a value tpos writes")

@@ -25,6 +25,10 @@ def calibrate_mag(
     from tpos_cli.magcal import calibrate_session, write_calibrated_copy
 
     with exit_on_error(), working("tpos calibrate-mag"):
+        if out is not None:
+            from tpos_cli.io.run_dir import check_session_out
+
+            check_session_out(out, force=force, src=session)  # before the fit: --force replaces a session, nothing else
         cal, note = calibrate_session(session, parse_window(window, "--window") if window else None)
         if out is not None:
             write_calibrated_copy(session, out, cal, force=force)

@@ -43,9 +43,6 @@ def export(
     if fmt not in FORMATS:
         raise typer.BadParameter(f"expected one of {', '.join(FORMATS)}, got {format_!r}", param_hint="--format")
     with exit_on_error():
-        from tpos_cli.io.run_dir import check_run_summary
-
-        check_run_summary(Path(run))  # at the door: regular, bounded, of the shape tpos writes
         res = export_run(run, fmt, solution=solution, rate_hz=rate, out=out, trajectory=trajectory)
     for n in res.notes:
         typer.echo(f"note: {n}", err=True)

@@ -35,9 +35,6 @@ def report(
             from tpos_cli.report.files import terminate_as_interrupt
 
             with terminate_as_interrupt():
-                from tpos_cli.io.run_dir import check_run_summary
-
-                check_run_summary(Path(run))  # at the door: regular, bounded, of the shape tpos writes
                 res = make_report(run, truth, full=full)
             keep_until_exit()  # before the collector resumes (a one-shot `tpos report`)
     except KeyboardInterrupt:

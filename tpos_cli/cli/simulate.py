@@ -140,6 +140,9 @@ def simulate(
         if arg is not None:
             kw[key] = arg
     with exit_on_error():
+        from tpos_cli.io.run_dir import check_session_out
+
+        check_session_out(out, force=force)  # before the simulation: --force replaces a session, nothing else
         path = _run(scenario, kw, out, fmt, force, show_progress(quiet))
     typer.echo(f"{scenario}: wrote {path} (seed {seed})")
 

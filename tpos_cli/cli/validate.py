@@ -21,7 +21,7 @@ def validate(
 
     Example: tpos validate sample_logs/*/
     """
-    from tpos_cli.conventions import check_conventions
+    from tpos_cli.conventions import check_gps_clock, contract_errors, session_findings
     from tpos_cli.session import load_session
 
     bad = 0
@@ -29,7 +29,13 @@ def validate(
         try:
             with working(f"validating {s}"):
                 session = load_session(s)
-                warnings = [*session.warnings, *check_conventions(session)]
+                findings = session_findings(session)
+                errors = contract_errors(session, findings)  # a unit the contract forbids: invalid, not a warning
+                if errors:
+                    raise InvalidInputError(errors[0], errors)
+                warnings = [*session.warnings, *(f.reason for f in findings if f.reason)]
+                if session.gps is not None:
+                    warnings += check_gps_clock(session)
         except InvalidInputError as exc:
             bad += 1
             problems = exc.problems or [str(exc)]

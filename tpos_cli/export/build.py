@@ -7,6 +7,7 @@ combined, see `export.targets`) unless the trajectory is asked for; any other ru
 
 from __future__ import annotations
 
+import os
 import re
 import sys
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ from tpos_cli.report.solutions import choose_solution
 from tpos_cli.report.targets import combined_targets
 
 FORMATS = ("csv", "kml", "geojson", "gpx")
+TARGET_EXPORT_TRAJECTORY = ("t", "lat", "lon", "h", "solution")  # what a target export reads of a run's trajectory
 MAP_RATE_HZ = 1.0  # default rate of the map formats: a track a viewer draws smoothly, a file a person opens
 
 
@@ -86,6 +88,34 @@ def _default_path(run_dir: Path, kind: str, solution: str, fmt: str) -> Path:
     return run_dir / f"{kind}_{safe.replace('..', '__')}.{fmt}"
 
 
+# What an export may write into a tpos run directory (a directory holding summary.json): a file of an
+# export format's suffix (GeoJSON also as .json) that is not one of the run's or its report's JSON files.
+EXPORT_SUFFIXES = (".csv", ".kml", ".geojson", ".gpx", ".json")
+RUN_JSON_FILES = ("summary.json", "accuracy.json")
+
+
+def check_export_path(path: Path, out, session_dir: Path | None = None) -> None:
+    """InvalidInputError when `path` is not a regular file or a link (a device: replacing it whole
+    would put a file in its place), or when it (followed through links) would replace a session's input
+    or a run's own file: a file in a directory holding session.toml (a session) or in the run's own
+    `session_dir`, or in a run directory a file that is not an export (trajectory.parquet,
+    summary.json, report.pdf ...). A run's and a session's files are only ever written by the
+    commands that own them."""
+    if os.path.lexists(path) and not (Path(path).is_symlink() or Path(path).is_file()):
+        # the file is replaced whole (written beside it, then renamed over it): over a device, that
+        # would put a regular file in its place (as root: /dev/null itself)
+        raise InvalidInputError(f"-o {out}: is not a regular file (a device, FIFO or socket); exports are written as "
+                                "files (-o - writes to standard output)")
+    real = Path(path).resolve()
+    where = real.parent
+    if (where / "session.toml").is_file() or (session_dir is not None and real.is_relative_to(Path(session_dir).resolve())):
+        raise InvalidInputError(f"-o {out}: {real} is inside a session directory; exports never go among a session's "
+                                "input files: choose a file elsewhere")
+    if (where / "summary.json").is_file() and (real.suffix.lower() not in EXPORT_SUFFIXES or real.name in RUN_JSON_FILES):
+        raise InvalidInputError(f"-o {out}: {real.name} in the run directory {where} is the run's own file, not an export: "
+                                f"choose a name ending in {', '.join(EXPORT_SUFFIXES[:4])}")
+
+
 def export_run(
     run_dir: Path,
     fmt: str,
@@ -108,7 +138,11 @@ def export_run(
         raise InvalidInputError(f"--format {fmt}: expected one of {', '.join(FORMATS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InvalidInputError(f"--rate {rate_hz:g}: must be a positive number of Hz")
-    run = load_run(Path(run_dir))
+    targets_only = not trajectory and (Path(run_dir) / "targets.parquet").exists()
+    # a target export reads of the trajectory what it dates and places (times, the observer's position)
+    run = load_run(Path(run_dir), trajectory_columns=TARGET_EXPORT_TRAJECTORY if targets_only else None)
+    if targets_only and (run.targets is None or not len(run.targets)):  # no targets after all: the trajectory is exported
+        run = load_run(Path(run_dir))
     start_utc, why = checked_start_utc(read_start_utc(session_dir_of(run.summary, run.path)), _logger_times(run))
     notes = (why,) if why else ()
     s = run.summary
@@ -147,6 +181,12 @@ def export_run(
         sol = choose_solution(run.trajectory["solution"], solution, f"{run.path.name}/trajectory.parquet")
         rate = rate_hz if rate_hz is not None else (None if fmt == "csv" else MAP_RATE_HZ)
         table, zone = trajectory_table(run.trajectory, sol, rate)
+        if rate is not None and len(table) > 1:
+            own_hz = 1.0 / float(np.median(np.diff(table["t"].to_numpy(float))))
+            if rate > 1.5 * own_hz:  # no epochs to pick between: every one is exported, at the run's own rate
+                notes += (f"--rate {rate:g} Hz is above the solution's own rate (about {own_hz:.3g} Hz): every epoch is "
+                          "exported",)
+                rate = None
         utc = utc_strings(table["t"].to_numpy(float), start_utc, 6)  # to 1 us, as t
         if utc is not None:
             table.insert(1, "time_utc", utc)
@@ -173,5 +213,6 @@ def export_run(
     if not path.parent.is_dir():
         raise InvalidInputError(f"-o {out}: directory {path.parent} does not exist" if out is not None
                                 else f"{run.path.name}: the run directory is gone ({path.parent})")
+    check_export_path(path, out if out is not None else path, session_dir_of(run.summary, run.path))
     write_atomic(path, lambda p: p.write_bytes(data))
     return ExportResult(path, kind, sol, len(table), zone.label, rate, notes)

@@ -17,7 +17,7 @@ import pandas as pd
 import tomlkit
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.io.bounded import MAX_TOML_BYTES, parse_toml, read_bytes_bounded
+from tpos_cli.io.bounded import MAX_TOML_BYTES, parse_toml, read_bytes_bounded, toml_text
 
 PARQUET_TABLES = ("imu", "truth")  # large tables go to Parquet, the rest to CSV (readable)
 
@@ -105,11 +105,7 @@ def session_toml_text(toml_path: Path, toml_update: dict, default_name: str) -> 
     update merged in, and `[session] name`/`kind` when missing; checked by a re-parse."""
     where = str(toml_path)
     if toml_path.exists():
-        data = read_bytes_bounded(toml_path, where, MAX_TOML_BYTES)
-        try:
-            text = data.decode("utf-8")
-        except UnicodeDecodeError:
-            raise InvalidInputError(f"{where}: not UTF-8 text") from None
+        text = toml_text(read_bytes_bounded(toml_path, where, MAX_TOML_BYTES), where)
         parse_toml(text, where)
         doc = tomlkit.parse(text)
     else:
@@ -141,6 +137,11 @@ def write_session(out_dir: Path, tables: dict[str, pd.DataFrame], toml_update: d
     if out_dir.exists() and not out_dir.is_dir():
         raise InvalidInputError(f"{out_dir}: exists and is not a session directory")
     toml_path = out_dir / "session.toml"
+    if out_dir.is_dir() and not toml_path.exists() and any(out_dir.iterdir()):
+        # `-o s/../../../etc` wrote gps.csv and session.toml into /etc (audit, session 10); a raw-data folder
+        # would get a session mixed into it
+        raise InvalidInputError(f"{out_dir}: holds other files and is not a session (no session.toml): -o must name a "
+                                "session, or a new or empty directory")
     for name in tables:
         existing = [p for p in (out_dir / f"{name}.csv", out_dir / f"{name}.parquet") if p.exists()]
         if existing and not force:

@@ -121,12 +121,17 @@ def parse_toml(text: str, what: str) -> dict:
     return doc
 
 
-def read_toml(path: Path, what: str | None = None) -> dict:
-    """A small TOML file: regular, at most MAX_TOML_BYTES, UTF-8, nested at most MAX_TOML_DEPTH levels."""
-    what = what or str(path)
-    data = read_bytes_bounded(path, what, MAX_TOML_BYTES)
+def toml_text(data: bytes, what: str) -> str:
+    """The text of a TOML file's bytes: UTF-8, a leading byte-order mark (which Windows editors
+    write and TOML does not allow) dropped; else InvalidInputError."""
     try:
-        text = data.decode("utf-8")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise InvalidInputError(f"{what}: not UTF-8 text") from None
-    return parse_toml(text, what)
+
+
+def read_toml(path: Path, what: str | None = None) -> dict:
+    """A small TOML file: regular, at most MAX_TOML_BYTES, UTF-8 (`toml_text`), nested at most
+    MAX_TOML_DEPTH levels."""
+    what = what or str(path)
+    return parse_toml(toml_text(read_bytes_bounded(path, what, MAX_TOML_BYTES), what), what)

@@ -63,9 +63,34 @@ def check_run_dir(run_dir: Path, session_dir: Path) -> Path:
     return run_dir
 
 
-# summary.json's sections and the JSON types tpos writes them as (`pipeline.process_session`), for
-# the door of `tpos report` / `tpos export`: a file of another shape is refused in one line (exit 2)
-# before any code reads into it. None stands for an absent section.
+def check_session_out(out: Path, *, force: bool, src: Path | None = None) -> None:
+    """A directory a command writes a new session into (`tpos simulate OUT`, `tpos calibrate-mag -o
+    OUT`): absent or empty, or with `force` an existing session (a directory holding session.toml)
+    that holds neither the current directory nor the input session `src`. InvalidInputError
+    otherwise: --force replaces a session, never a directory of other files (`tpos simulate drive .
+    --force` deleted everything in the current directory)."""
+    out = Path(out)
+    if not os.path.lexists(out):
+        return
+    if not out.is_dir():
+        raise InvalidInputError(f"{out}: exists and is not a directory")
+    if not any(out.iterdir()):
+        return
+    if not force:
+        raise InvalidInputError(f"{out}: already exists and is not empty (use --force to replace a session)")
+    real = out.resolve()
+    if not (real / "session.toml").is_file():
+        raise InvalidInputError(f"{out}: is not a tpos session (no session.toml); --force replaces only a session "
+                                "directory, never a directory of other files: choose a new directory")
+    for what, inner in (("the current directory", Path.cwd()), ("the input session", src)):
+        if inner is not None and Path(inner).resolve().is_relative_to(real):
+            raise InvalidInputError(f"{out}: holds {what}; --force would delete it: choose another directory")
+
+
+# summary.json's sections and the JSON types tpos writes them as (`pipeline.process_session`): a file
+# of another shape is refused in one line (exit 2) before any code reads into it
+# (`report.rundir.load_run`, which `tpos report` and `tpos export` read it through). None stands for
+# an absent section.
 SUMMARY_TYPES: dict[str, type | tuple[type, ...]] = {
     "tpos_version": str, "created_utc": str, "session": dict, "pipeline": str, "pipeline_file": str, "chain": str,
     "config": dict, "config_sha256": str, "inputs": dict, "mask_gps": list, "gps_outages": list, "imu_gaps": list,
@@ -78,18 +103,10 @@ SUMMARY_PART_TYPES: dict[str, dict[str, type | tuple[type, ...]]] = {
 _JSON_NAMES = {dict: "an object", list: "a list", str: "text", int: "a number", float: "a number"}
 
 
-def check_run_summary(run_dir: Path) -> None:
-    """The run's summary.json at the door of `tpos report` / `tpos export`, read as untrusted
-    (`io.bounded.read_json_bounded`): an object whose sections (SUMMARY_TYPES, and the fields of
-    SUMMARY_PART_TYPES) have the JSON types tpos writes; InvalidInputError naming the first that has
-    not. Nothing when the file is absent (the report says what is missing)."""
-    from tpos_cli.io.bounded import read_json_bounded
-
-    path = Path(run_dir) / "summary.json"
-    if not path.exists():
-        return
-    what = f"{Path(run_dir).name}/summary.json"
-    doc = read_json_bounded(path, what)
+def check_summary_shape(doc, what: str) -> None:
+    """A parsed summary.json (`what` names it in messages): an object whose sections (SUMMARY_TYPES,
+    and the fields of SUMMARY_PART_TYPES) have the JSON types tpos writes; InvalidInputError naming
+    the first that has not."""
 
     def check(obj, types, where):
         if not isinstance(obj, dict):

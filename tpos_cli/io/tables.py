@@ -46,6 +46,10 @@ def find_table(session_dir: Path, name: str, csv_only: bool = False) -> Path | N
     """Path of table `name` in a session (`name.csv` or `name.parquet`), None if absent."""
     csv = session_dir / f"{name}.csv"
     parquet = session_dir / f"{name}.parquet"
+    for p in (csv,) if csv_only else (csv, parquet):
+        if p.is_symlink() and not p.exists():  # not "missing": the user sees the file there
+            raise InvalidInputError(f"{session_dir.name}/{p.name}: a link that leads nowhere (a missing file or a loop)",
+                                    [Problem(p.name, "a link that leads nowhere (a missing file or a loop)")])
     if not csv_only and csv.exists() and parquet.exists():
         raise InvalidInputError(
             f"{session_dir.name}/{name}.*: both {csv.name} and {parquet.name} exist; keep one",
@@ -204,9 +208,36 @@ def _read_parquet(path: Path, wanted: set[str]) -> pa.Table:
                 _fail(path, f"the column is of type {kind} (a date/time type); the contract wants numbers "
                       "(t in seconds on the logger clock, text columns as strings)", c, 1)
         try:
-            return pf.read(columns=columns)
+            table = pf.read(columns=columns)
         except (pa.ArrowException, OSError, ValueError, TypeError, KeyError) as exc:
             _fail(path, f"not a readable Parquet file ({str(exc).splitlines()[0][:160]})")
+    _check_time_precision(path, table)
+    return table
+
+
+# Times are stored to this resolution or better (1 % of a 1 kHz sample interval); float32 holds t = 1000 s to 61 us.
+T_RESOLUTION_S = 1e-5
+
+
+def _check_time_precision(path: Path, table: pa.Table) -> None:
+    """A `t` column in a float type too narrow for its values (float32 or float16 far from zero: a
+    100 Hz log at t = 1e5 s is stamped to 7.8 ms, every sample moved by up to 40 % of its interval)."""
+    if "t" not in table.column_names:
+        return
+    kind = table.schema.field("t").type
+    if not (pa.types.is_float32(kind) or pa.types.is_float16(kind)):
+        return
+    v = table.column("t").to_numpy(zero_copy_only=False)
+    finite = v[np.isfinite(v)]
+    if not finite.size:
+        return
+    i = int(np.argmax(np.abs(finite)))
+    resolution = float(np.spacing(np.abs(finite[i])))
+    if resolution > T_RESOLUTION_S:
+        row = int(np.flatnonzero(np.abs(v) == np.abs(finite[i]))[0]) + 1
+        width = "float32" if pa.types.is_float32(kind) else "float16"
+        _fail(path, f"{width} holds t = {float(finite[i]):.7g} s only to {resolution:.2g} s; write t as float64 (seconds)",
+              "t", row)
 
 
 def _to_pandas(path: Path, table: pa.Table) -> pd.DataFrame:

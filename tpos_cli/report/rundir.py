@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -11,11 +10,16 @@ import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.io.bounded import read_json_bounded
+from tpos_cli.io.run_dir import check_summary_shape
 
 TRAJECTORY_REQUIRED = ("t", "lat", "lon", "h", "roll", "pitch", "yaw", "solution")
 TARGETS_REQUIRED = ("id", "lat", "lon", "h", "solution")
 INNOVATIONS_REQUIRED = ("t", "nis", "accepted")  # plus solution, kind, dof (filled in when absent, see _complete_innovations)
 GPS_REQUIRED = ("t", "lat", "lon", "h")
+
+LABELS = ("solution", "kind", "id")
+# No quantity tpos writes comes near this; the squares the report and export take of larger values overflow float64.
+MAX_RUN_VALUE = 1e150
 
 # size of a measurement of each innovation kind, for tables without `dof` or `nu_*` columns (the
 # ranging chain: one scalar range, a north-east fix)
@@ -36,12 +40,14 @@ class RunData:
     mask_windows: np.ndarray  # (M, 2) logger clock: the --mask-gps windows alone
 
 
-def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame | None:
-    """A run table; its label columns (`solution`, `kind`) as pandas categoricals, so splitting an
-    hour-long 100 Hz table by solution costs one pass."""
+def _read(run_dir: Path, name: str, required: tuple[str, ...], columns: tuple[str, ...] | None = None) -> pd.DataFrame | None:
+    """A run table (only `columns` of it when given); its label columns (`solution`, `kind`) as
+    pandas categoricals, so splitting an hour-long 100 Hz table by solution costs one pass."""
     path = run_dir / name
     if not path.exists():
         return None
+    if columns is not None:
+        required = tuple(c for c in required if c in columns)
     try:
         import pyarrow as pa
         import pyarrow.compute as pc
@@ -51,7 +57,9 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
         labels = [
             f.name for f in schema if f.name in ("solution", "kind") and (pa.types.is_string(f.type) or pa.types.is_large_string(f.type))
         ]
-        table = pq.read_table(path, read_dictionary=labels)  # labels decoded once per row group, not once per row
+        names = None if columns is None else [f.name for f in schema if f.name in columns]
+        # labels decoded once per row group, not once per row
+        table = pq.read_table(path, columns=names, read_dictionary=[c for c in labels if names is None or c in names])
         for col in ("solution", "kind"):
             i = table.schema.get_field_index(col)
             if i >= 0 and (pa.types.is_string(table.schema.field(i).type) or pa.types.is_large_string(table.schema.field(i).type)):
@@ -62,14 +70,25 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...]) -> pd.DataFrame |
     missing = [c for c in required if c not in df.columns]
     if missing:
         raise InvalidInputError(f"{run_dir.name}/{name}: column '{missing[0]}': required column is missing")
-    for col in required:  # what tpos writes: numbers, NaN where absent, never inf (an altered file otherwise)
-        if col in ("solution", "kind", "id"):
+    for col in required:  # what tpos writes: numbers, labels in every row (an altered file otherwise)
+        if col in LABELS:
+            missing_label = np.flatnonzero(df[col].isna().to_numpy())
+            if missing_label.size:
+                raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}', row {int(missing_label[0]) + 1}: empty; "
+                                        "not a file tpos wrote (reprocess the session)")
             continue
         v = df[col].to_numpy()
         if v.dtype.kind not in "fiub":
             raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}': {v.dtype} where tpos writes numbers; "
                                     "not a file tpos wrote (reprocess the session)")
-        bad = np.flatnonzero(np.isinf(v)) if v.dtype.kind == "f" else np.array([], dtype=int)
+    # numbers: NaN where absent, never inf or a value whose square overflows; in the required columns, and in every
+    # float column of the tables the report and export take squares of (positions, sigmas), not the innovations
+    for col in df.columns if name != "innovations.parquet" else required:
+        v = df[col].to_numpy()
+        if v.dtype.kind != "f":
+            continue
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(np.abs(v) >= MAX_RUN_VALUE)
         if bad.size:
             raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}', row {int(bad[0]) + 1}: {v[bad[0]]} is not a "
                                     "value tpos writes; not a file tpos wrote (reprocess the session)")
@@ -151,19 +170,19 @@ def merge_windows(*arrays: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
-def load_run(run_dir: Path) -> RunData:
-    """Read a run directory; raises InvalidInputError when it is not one."""
+def load_run(run_dir: Path, *, trajectory_columns: tuple[str, ...] | None = None) -> RunData:
+    """Read a run directory; raises InvalidInputError when it is not one. `trajectory_columns`: read
+    only these of trajectory.parquet (a target export needs its times and positions, not an hour of
+    attitudes and sigmas)."""
     run_dir = Path(run_dir)
     sp = run_dir / "summary.json"
     if not run_dir.is_dir() or not sp.exists():
         raise InvalidInputError(f"{run_dir}: not a run directory (no summary.json); run `tpos process` first")
-    try:  # bounded: a FIFO or a deeply nested file must not block or crash a report
-        summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InvalidInputError(f"{run_dir.name}/summary.json: not readable JSON ({exc})") from exc
-    if not isinstance(summary, dict):
-        raise InvalidInputError(f"{run_dir.name}/summary.json: expected a JSON object")
-    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED)
+    # read once, as untrusted (bounded: a FIFO or a deeply nested file must not block or crash a report),
+    # and of the shape tpos writes before any code reads into it
+    summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
+    check_summary_shape(summary, f"{run_dir.name}/summary.json")
+    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED, trajectory_columns)
     tgts = _read(run_dir, "targets.parquet", TARGETS_REQUIRED)
     if tgts is not None:
         tgts["id"] = tgts["id"].astype(str)
