@@ -62,3 +62,23 @@ def test_unresolved_offset_when_the_separated_field_is_not_the_reference():
     assert mk(45.5, body + still).unresolved_offset_ut() == 0.0
     assert mk(57.0, body[:1] + still).unresolved_offset_ut() == pytest.approx(15.0)  # one adopted window suffices
     assert mk(57.0, still).offset_ut() == 0.0
+
+
+def test_windows_neither_model_fits_do_not_move_the_earth_field():
+    # a still log in 4 s windows: 9 windows of a 50 uT field, 12 of 52 uT (a small offset the still windows keep):
+    # the Earth field's magnitude is the median, 52 uT. Two of the 52 uT windows instead hold a field that changes
+    # inside them (a magnet being attached: a 20 uT ramp), which neither the room-fixed nor the body-offset model
+    # fits; their fitted magnitudes (~40 uT) must not vote, or the median falls to the other population's 50 uT
+    r = np.random.default_rng(3)
+    t = np.arange(0.0, 84.0, 0.01)
+    u = reference_field_ned(1.0, np.radians(65.0), 0.0)
+    w = (t // 4.0).astype(int)
+    mag = np.where(w[:, None] < 9, 50.0, 52.0) * u + r.normal(0, 0.3, (t.size, 3))
+    for k in (12, 17):
+        sl = w == k
+        mag[sl] -= np.linspace(0.0, 20.0, int(sl.sum()))[:, None] * u
+    acc = np.tile([0.0, 0.0, -9.81], (t.size, 1))
+    fs = survey(t, np.zeros((t.size, 3)), acc, mag, np.zeros(3))
+    assert not any(fs.windows[k].body_fixed for k in (12, 17))
+    assert fs.norm_ut == pytest.approx(52.0, abs=0.3)
+    assert np.degrees(fs.dip_rad) == pytest.approx(65.0, abs=0.5)
