@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tpos_cli import __version__, timebase
+from tpos_cli import __version__, schema, timebase
 from tpos_cli.advice import review
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
@@ -121,7 +121,8 @@ def _resolve_before_reading(session_dir, pipeline, overrides) -> ResolvedConfig 
     except InvalidInputError:
         return None
     kind = head.get("kind") if isinstance(head, dict) else None
-    return resolve_config(resolve_pipeline(None, kind), overrides) if isinstance(kind, str) else None
+    # a kind the contract does not know: the loader names the valid ones (no pipeline would help)
+    return resolve_config(resolve_pipeline(None, kind), overrides) if kind in schema.SESSION_KINDS else None
 
 
 def check_imu_gaps(session: Session, section: str, gap_max_s: float | None) -> None:
