@@ -416,3 +416,28 @@ def test_unmodelled_errors_are_added_in_place_only_to_a_covariance_no_other_hold
             assert in_place.P9 is s.P9
             np.testing.assert_array_equal(in_place.P9, copied.P9)
     np.testing.assert_allclose(copied.P9[:, 3:6, 3:6] - held[:k, 3:6, 3:6], vel, rtol=0, atol=1e-15)  # rounding
+
+
+@pytest.mark.parametrize("how", ["gps_clock", "offset"])
+def test_gps_fixes_outside_the_imu_span_are_invalid_input(session_dir, tmp_path, how):
+    """No fix within the IMU's time span (the GPS stamped on another clock, or a [time] gps_offset_s that
+    moves it away): a one-line invalid-input error naming the file, the column and the likely cause
+    (exit 2), before the run; the chain ran the whole log as dead reckoning, exit 0, verdict unreliable."""
+    import shutil
+
+    _, path = session_dir
+    s = tmp_path / "s"
+    shutil.copytree(path, s)
+    f = next(s.glob("gps.*"))
+    if how == "gps_clock":
+        d = pd.read_parquet(f) if f.suffix == ".parquet" else pd.read_csv(f)
+        d["t"] = d["t"] + 1.0e6
+        d.to_parquet(f, index=False) if f.suffix == ".parquet" else d.to_csv(f, index=False)
+    else:
+        toml = s / "session.toml"
+        assert "[time]" not in toml.read_text()
+        toml.write_text(toml.read_text() + "\n[time]\ngps_offset_s = 1e9\n")
+    with pytest.raises(InvalidInputError, match=rf"{f.name}: column 't': no position fix falls within the IMU's time "
+                                                 r"span .*another clock or \[time\] gps_offset_s is wrong"):
+        process_session(s, "drive-smooth", tmp_path / "run")
+    assert not (tmp_path / "run").exists()
