@@ -254,6 +254,23 @@ def test_gyro_in_deg_per_s(sims):
         _run(get("drive"), root, M.gyro_degps)
 
 
+def test_a_unit_the_contract_forbids_is_refused_before_the_chain_runs(sims, monkeypatch):
+    """audit (session 10): the deg/s refusal came from the verdict, after the chain's minutes of work (an hour
+    of target data: ~1 min); pipeline._process now makes the convention findings before the chain, once
+    (the verdict takes them, `review(session_findings=)`)."""
+    from tpos_cli import pipeline
+
+    def chain_must_not_run(chain):
+        def run(*a, **k):
+            raise AssertionError(f"the {chain} chain ran on a session the contract refuses")
+        return run
+
+    monkeypatch.setattr(pipeline, "chain_runner", chain_must_not_run)
+    get, root = sims
+    with pytest.raises(InvalidInputError, match=r"imu\.\w+: column 'gyro_z': .* the gyro is in deg/s, not rad/s"):
+        _run(get("drive"), root / "early", M.gyro_degps)
+
+
 def test_gyro_in_deg_per_s_found_from_the_flags(tmp_path):
     """A drive whose filter keeps its NIS near band on a 57x gyro but whose forward and backward runs
     disagree at nearly every epoch (seed 502 of the verdict benchmark, named only as the

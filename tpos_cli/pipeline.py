@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tpos_cli import __version__, schema, timebase
+from tpos_cli import __version__, conventions, schema, timebase
 from tpos_cli.advice import review
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
@@ -172,6 +172,9 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     run = chain_runner(pipe.chain)
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows))
+    with ctx.stage("conventions"):  # units, axes, signs; a unit the contract forbids is refused before the work
+        findings = conventions.session_findings(session)
+        conventions.refuse_contract_errors(session, findings)
     try:
         result: ChainOutput = run(session, cfg.params, ctx)
     except TposError:
@@ -182,7 +185,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     result.summary.pop("config", None)  # the chain's own echo of its parameters: cfg.resolved is the record
     with ctx.stage("quality"):  # the verdict (tpos_cli.quality); candidate fixes re-run the chain on a window
         verdict = review(session, result, chain=pipe.chain, config=cfg.resolved, params=cfg.params, run=run,
-                         counts={**session.counts, **ctx.counts})
+                         counts={**session.counts, **ctx.counts}, session_findings=findings)
     resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)
