@@ -52,6 +52,12 @@ CHAINS: dict[str, str] = {
 }
 
 
+def chain_needs_gps(chain: str, session: Session) -> bool:
+    """Whether `chain` cannot run on `session` without a GPS position fix: the drive filter always,
+    the target chain when session.toml gives no [observer] position (`target_fkf.observer_position`)."""
+    return chain == "drive_smooth" or (chain == "target_fkf" and session.meta.observer_lla is None)
+
+
 def chain_runner(chain: str) -> Callable[[Session, Section, RunContext], ChainOutput]:
     """The `run` function of a chain of the fixed table CHAINS (KeyError for any other name)."""
     return importlib.import_module(CHAINS[chain]).run
@@ -68,8 +74,11 @@ class RunSummary:
     summary: dict
 
 
-def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tuple[Session, Columns | None]:
-    """Withhold GPS fixes inside windows given on the logger clock; returns (session, withheld rows)."""
+def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]], *,
+             gps_needed: bool = False) -> tuple[Session, Columns | None]:
+    """Withhold GPS fixes inside windows given on the logger clock; returns (session, withheld rows).
+    `gps_needed` (the chain cannot run without a fix, `chain_needs_gps`): windows that withhold every
+    position fix are refused, naming the windows (the chain's own message would blame the gps file)."""
     if not windows_s:
         return session, None
     if session.gps is None:
@@ -88,6 +97,10 @@ def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tupl
                 f"{g.t_s[-1] + session.t0_s:.3f} s on the logger clock (the clock of the files' t column)")
     held = timebase.in_intervals(g.t_s, rel)
     keep = ~held
+    n_fix = int(g.valid.sum())
+    if gps_needed and n_fix and not (g.valid & keep).any():
+        given = " ".join(f"--mask-gps {a:g}:{b:g}" for a, b in windows_s)
+        raise InvalidInputError(f"{given}: withholds all {n_fix} GPS fixes; keep some outside the windows")
 
     def sub(m):
         return GpsData(t_s=g.t_s[m], lla=g.lla[m], fix=g.fix[m], nsat=g.nsat[m], hdop=g.hdop[m],
@@ -171,7 +184,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
     run = chain_runner(pipe.chain)
     with ctx.stage("time_alignment"):
-        session, withheld = mask_gps(session, list(mask_gps_windows))
+        session, withheld = mask_gps(session, list(mask_gps_windows), gps_needed=chain_needs_gps(pipe.chain, session))
     with ctx.stage("conventions"):  # units, axes, signs; a unit the contract forbids is refused before the work
         findings = conventions.session_findings(session)
         conventions.refuse_contract_errors(session, findings)

@@ -81,6 +81,31 @@ def test_mask_gps_makes_an_outage(session_dir, tmp_path):
     assert (out.run_dir / "withheld_gps.parquet").exists()
 
 
+def test_mask_gps_windows_that_withhold_every_fix_are_refused(session_dir, tmp_path):
+    """`--mask-gps` over the whole log: one line naming the windows (exit 2), before the run; it said
+    "gps.parquet: no row holds a position fix (... in all 0 rows left)", blaming a file that is fine. A chain
+    that runs without GPS (the target chain with an [observer] position) may have every fix withheld."""
+    import dataclasses
+
+    from tpos_cli.pipeline import chain_needs_gps, mask_gps
+    from tpos_cli.session import load_session
+
+    _, path = session_dir
+    with pytest.raises(InvalidInputError, match=r"^--mask-gps 900:1100 --mask-gps 1100:1200: withholds all \d+ GPS fixes; "
+                                                 r"keep some outside the windows$"):
+        process_session(path, "drive-smooth", tmp_path / "run", mask_gps_windows=[(900.0, 1100.0), (1100.0, 1200.0)])
+    assert not (tmp_path / "run").exists()
+    s = load_session(path, with_truth=False)
+    n = int(s.gps.valid.sum())
+    assert chain_needs_gps("drive_smooth", s) and chain_needs_gps("target_fkf", s)  # no [observer]: GPS places it
+    with pytest.raises(InvalidInputError, match=rf"withholds all {n} GPS fixes"):
+        mask_gps(s, [(0.0, 5000.0)], gps_needed=True)
+    s_obs = dataclasses.replace(s, meta=dataclasses.replace(s.meta, observer_lla=s.gps.lla[0]))
+    assert not chain_needs_gps("target_fkf", s_obs) and not chain_needs_gps("ranging_fatci", s)
+    masked, withheld = mask_gps(s_obs, [(0.0, 5000.0)], gps_needed=chain_needs_gps("target_fkf", s_obs))
+    assert not masked.gps.valid.any() and masked.counts["gps_withheld_fixes"] == s.gps.t_s.size
+
+
 def test_unknown_smoother_is_invalid_input(session_dir, tmp_path):
     _, path = session_dir
     with pytest.raises(InvalidInputError, match="smoother"):
