@@ -315,9 +315,12 @@ def test_gps_clock_0p3_s_late(sims):
 
 
 def test_gps_clock_1e6_s_off(sims):
+    # audit (session 10): no fix within the IMU's span is refused by the drive chain (exit 2, naming the clock
+    # and [time] gps_offset_s); it ran the log as dead reckoning, verdict unreliable "GPS clock"
     get, root = sims
-    q = _run(get("drive"), root, M.gps_late(1e6))
-    assert q["verdict"] == "unreliable" and _named(q, "GPS clock")
+    with pytest.raises(InvalidInputError, match=r"gps\.\w+: column 't': no position fix falls within the IMU's time span "
+                                                 r".* another clock \(the GPS clock, not the logger.s\) or \[time\] gps_offset_s is wrong"):
+        _run(get("drive"), root, M.gps_late(1e6))
 
 
 LEVER = (1.0, 0.0, -1.5)
@@ -359,11 +362,13 @@ def test_process_prints_the_verdict_and_strict_exits_1(sims):
     from tpos_cli.cli import app
 
     get, root = sims
-    d = M.plant(get("drive"), root / "strict" / "s", M.gps_late(1e6))
+    # FLU axes on an FRD drive: gravity 179 deg from up, verdict unreliable (a GPS clock 1e6 s off, used here
+    # before, is now refused by the drive chain: test_gps_clock_1e6_s_off)
+    d = M.plant(get("drive"), root / "strict" / "s", M.axes("FLU"))
     runner = CliRunner()
     res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run"), "-q", "--strict"])
     assert res.exit_code == 1 and "Traceback" not in res.output
-    assert "verdict: unreliable" in res.output and "GPS clock" in res.output
+    assert "verdict: unreliable" in res.output and "axes" in res.output
     assert (root / "strict" / "run" / "summary.json").exists()  # written all the same
     res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run2"), "-q"])
     assert res.exit_code == 0 and "verdict: unreliable" in res.output
