@@ -49,6 +49,39 @@ def test_calibrated_copy_keeps_the_session_toml_as_written(tmp_path):
     assert (tmp_path / "out" / "imu.csv").exists()
 
 
+def test_calibrated_copy_with_force_replaces_only_another_session(tmp_path):
+    """write_calibrated_copy(force=True) rmtree'd any dst: a directory of other files, or one holding the
+    input session (deleted before the copy read it). Now the CLI's guard (io.run_dir.check_session_out):
+    only another session is replaced."""
+    import pytest
+
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.magcal import MagCalibration, write_calibrated_copy
+
+    cal = MagCalibration(np.array([1.0, 2.0, 3.0]), np.eye(3), 50.0, 0.3, 2.0, 0.5)
+    parent = tmp_path / "p"
+    src = parent / "s"
+    src.mkdir(parents=True)
+    text = '[session]\nname = "s"\nkind = "target"\n\n[imu]\naxes = "FRD"\nrate_hz = 100.0\n'
+    (parent / "session.toml").write_text(text, encoding="utf-8")  # the parent looks like a session too
+    (src / "session.toml").write_text(text, encoding="utf-8")
+    (src / "imu.csv").write_text("t,gyro_x\n0,0\n")
+    with pytest.raises(InvalidInputError, match="holds the input session"):
+        write_calibrated_copy(src, parent, cal, force=True)
+    assert (src / "imu.csv").exists()
+    other = tmp_path / "notes"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    with pytest.raises(InvalidInputError, match="is not a tpos session"):
+        write_calibrated_copy(src, other, cal, force=True)
+    assert (other / "keep.txt").read_text() == "mine"
+    with pytest.raises(InvalidInputError, match="already exists"):
+        write_calibrated_copy(src, other, cal)
+    write_calibrated_copy(src, tmp_path / "out", cal)
+    write_calibrated_copy(src, tmp_path / "out", cal, force=True)  # a session: replaced
+    assert "hard_iron_ut" in (tmp_path / "out" / "session.toml").read_text()
+
+
 def test_field_profile_shows_a_magnet_attached_for_part_of_the_log():
     """One field keeps its magnitude range in every stretch of the log; a magnet carried for the middle
     third (BROAD trial 33: |m| 18-63 µT then, 43-46 µT before and after) widens that stretch alone."""

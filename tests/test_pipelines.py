@@ -45,3 +45,20 @@ def test_pipeline_resolves_before_any_data_is_read(path):
 
 def test_every_chain_has_a_model():
     assert set(CHAINS) == set(SECTIONS)
+
+
+def test_a_session_kind_the_contract_does_not_know_is_named_by_the_loader(tmp_path):
+    """`[session] kind = "boat"`: the loader's message with the valid kinds, not "no default pipeline ... pass -p"."""
+    import shutil
+    from pathlib import Path
+
+    from tpos_cli.pipeline import process_session
+
+    src = Path(__file__).resolve().parents[1] / "sample_logs" / "drive_outage"
+    s = tmp_path / "boat"
+    shutil.copytree(src, s)
+    toml = (s / "session.toml").read_text()
+    assert 'kind = "drive"' in toml
+    (s / "session.toml").write_text(toml.replace('kind = "drive"', 'kind = "boat"'))
+    with pytest.raises(InvalidInputError, match=r"kind must be one of target, drive, ranging, got 'boat'"):
+        process_session(s, run_dir=tmp_path / "run")

@@ -254,6 +254,23 @@ def test_gyro_in_deg_per_s(sims):
         _run(get("drive"), root, M.gyro_degps)
 
 
+def test_a_unit_the_contract_forbids_is_refused_before_the_chain_runs(sims, monkeypatch):
+    """audit (session 10): the deg/s refusal came from the verdict, after the chain's minutes of work (an hour
+    of target data: ~1 min); pipeline._process now makes the convention findings before the chain, once
+    (the verdict takes them, `review(session_findings=)`)."""
+    from tpos_cli import pipeline
+
+    def chain_must_not_run(chain):
+        def run(*a, **k):
+            raise AssertionError(f"the {chain} chain ran on a session the contract refuses")
+        return run
+
+    monkeypatch.setattr(pipeline, "chain_runner", chain_must_not_run)
+    get, root = sims
+    with pytest.raises(InvalidInputError, match=r"imu\.\w+: column 'gyro_z': .* the gyro is in deg/s, not rad/s"):
+        _run(get("drive"), root / "early", M.gyro_degps)
+
+
 def test_gyro_in_deg_per_s_found_from_the_flags(tmp_path):
     """A drive whose filter keeps its NIS near band on a 57x gyro but whose forward and backward runs
     disagree at nearly every epoch (seed 502 of the verdict benchmark, named only as the
@@ -298,9 +315,12 @@ def test_gps_clock_0p3_s_late(sims):
 
 
 def test_gps_clock_1e6_s_off(sims):
+    # audit (session 10): no fix within the IMU's span is refused by the drive chain (exit 2, naming the clock
+    # and [time] gps_offset_s); it ran the log as dead reckoning, verdict unreliable "GPS clock"
     get, root = sims
-    q = _run(get("drive"), root, M.gps_late(1e6))
-    assert q["verdict"] == "unreliable" and _named(q, "GPS clock")
+    with pytest.raises(InvalidInputError, match=r"gps\.\w+: column 't': no position fix falls within the IMU's time span "
+                                                 r".* another clock \(the GPS clock, not the logger.s\) or \[time\] gps_offset_s is wrong"):
+        _run(get("drive"), root, M.gps_late(1e6))
 
 
 LEVER = (1.0, 0.0, -1.5)
@@ -342,11 +362,13 @@ def test_process_prints_the_verdict_and_strict_exits_1(sims):
     from tpos_cli.cli import app
 
     get, root = sims
-    d = M.plant(get("drive"), root / "strict" / "s", M.gps_late(1e6))
+    # FLU axes on an FRD drive: gravity 179 deg from up, verdict unreliable (a GPS clock 1e6 s off, used here
+    # before, is now refused by the drive chain: test_gps_clock_1e6_s_off)
+    d = M.plant(get("drive"), root / "strict" / "s", M.axes("FLU"))
     runner = CliRunner()
     res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run"), "-q", "--strict"])
     assert res.exit_code == 1 and "Traceback" not in res.output
-    assert "verdict: unreliable" in res.output and "GPS clock" in res.output
+    assert "verdict: unreliable" in res.output and "axes" in res.output
     assert (root / "strict" / "run" / "summary.json").exists()  # written all the same
     res = runner.invoke(app, ["process", str(d), "-o", str(root / "strict" / "run2"), "-q"])
     assert res.exit_code == 0 and "verdict: unreliable" in res.output

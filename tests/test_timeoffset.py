@@ -86,3 +86,18 @@ def test_lowpass_is_the_centred_mean_and_its_decimated_rows_the_same_numbers():
         for step in (1, 2, 3, 50):
             np.testing.assert_array_equal(_lowpass(x, n, step), full[::step])
         np.testing.assert_array_equal(_lowpass(x[:, 0], n), full[:, 0])
+
+
+def test_vertical_rate_is_the_gyro_along_the_low_passed_down_direction():
+    """`vertical_rate_rps` = gyro . (-f / |f|), f the low-passed specific force, |f| numpy's norm: bit for bit."""
+    import numpy as np
+
+    from tpos_cli.timeoffset import vertical_rate_rps
+
+    rng = np.random.default_rng(6)
+    t = np.arange(2000) * 0.01
+    acc = rng.standard_normal((t.size, 3)) + [0.3, -0.2, -9.8]
+    gyro = rng.standard_normal((t.size, 3)) * 0.1
+    f = _lowpass(acc, 100)
+    expected = np.einsum("ij,ij->i", gyro, f / -np.linalg.norm(f, axis=1, keepdims=True))
+    np.testing.assert_array_equal(vertical_rate_rps(t, gyro, acc), expected)

@@ -147,12 +147,14 @@ def write_calibrated_copy(session_dir, out_dir, cal: MagCalibration, *, force: b
 
     from tpos_cli.errors import InvalidInputError
     from tpos_cli.importers.session_out import session_toml_text
+    from tpos_cli.io.run_dir import check_session_out
 
     src, dst = Path(session_dir).resolve(), Path(out_dir).resolve()
     if src == dst:
         raise InvalidInputError(f"{out_dir}: -o must name a new directory, not the input session")
-    if dst.exists() and not force:
-        raise InvalidInputError(f"{out_dir}: exists; use --force to replace it")
+    # absent or empty; with `force` an existing session only, holding neither the input session nor the
+    # current directory (the guard of `tpos calibrate-mag --force`, for library callers too)
+    check_session_out(Path(out_dir), force=force, src=src)
     text = session_toml_text(src / "session.toml", {"magnetic": cal.toml_keys()}, dst.name)
     if dst.exists():
         shutil.rmtree(dst)

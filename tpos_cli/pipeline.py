@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tpos_cli import __version__, timebase
+from tpos_cli import __version__, conventions, schema, timebase
 from tpos_cli.advice import review
 from tpos_cli.chains.context import ChainOutput, RunContext
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
@@ -52,6 +52,12 @@ CHAINS: dict[str, str] = {
 }
 
 
+def chain_needs_gps(chain: str, session: Session) -> bool:
+    """Whether `chain` cannot run on `session` without a GPS position fix: the drive filter always,
+    the target chain when session.toml gives no [observer] position (`target_fkf.observer_position`)."""
+    return chain == "drive_smooth" or (chain == "target_fkf" and session.meta.observer_lla is None)
+
+
 def chain_runner(chain: str) -> Callable[[Session, Section, RunContext], ChainOutput]:
     """The `run` function of a chain of the fixed table CHAINS (KeyError for any other name)."""
     return importlib.import_module(CHAINS[chain]).run
@@ -68,8 +74,11 @@ class RunSummary:
     summary: dict
 
 
-def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tuple[Session, Columns | None]:
-    """Withhold GPS fixes inside windows given on the logger clock; returns (session, withheld rows)."""
+def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]], *,
+             gps_needed: bool = False) -> tuple[Session, Columns | None]:
+    """Withhold GPS fixes inside windows given on the logger clock; returns (session, withheld rows).
+    `gps_needed` (the chain cannot run without a fix, `chain_needs_gps`): windows that withhold every
+    position fix are refused, naming the windows (the chain's own message would blame the gps file)."""
     if not windows_s:
         return session, None
     if session.gps is None:
@@ -88,6 +97,10 @@ def mask_gps(session: Session, windows_s: Sequence[tuple[float, float]]) -> tupl
                 f"{g.t_s[-1] + session.t0_s:.3f} s on the logger clock (the clock of the files' t column)")
     held = timebase.in_intervals(g.t_s, rel)
     keep = ~held
+    n_fix = int(g.valid.sum())
+    if gps_needed and n_fix and not (g.valid & keep).any():
+        given = " ".join(f"--mask-gps {a:g}:{b:g}" for a, b in windows_s)
+        raise InvalidInputError(f"{given}: withholds all {n_fix} GPS fixes; keep some outside the windows")
 
     def sub(m):
         return GpsData(t_s=g.t_s[m], lla=g.lla[m], fix=g.fix[m], nsat=g.nsat[m], hdop=g.hdop[m],
@@ -121,7 +134,8 @@ def _resolve_before_reading(session_dir, pipeline, overrides) -> ResolvedConfig 
     except InvalidInputError:
         return None
     kind = head.get("kind") if isinstance(head, dict) else None
-    return resolve_config(resolve_pipeline(None, kind), overrides) if isinstance(kind, str) else None
+    # a kind the contract does not know: the loader names the valid ones (no pipeline would help)
+    return resolve_config(resolve_pipeline(None, kind), overrides) if kind in schema.SESSION_KINDS else None
 
 
 def check_imu_gaps(session: Session, section: str, gap_max_s: float | None) -> None:
@@ -170,7 +184,10 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
     run = chain_runner(pipe.chain)
     with ctx.stage("time_alignment"):
-        session, withheld = mask_gps(session, list(mask_gps_windows))
+        session, withheld = mask_gps(session, list(mask_gps_windows), gps_needed=chain_needs_gps(pipe.chain, session))
+    with ctx.stage("conventions"):  # units, axes, signs; a unit the contract forbids is refused before the work
+        findings = conventions.session_findings(session)
+        conventions.refuse_contract_errors(session, findings)
     try:
         result: ChainOutput = run(session, cfg.params, ctx)
     except TposError:
@@ -181,7 +198,7 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     result.summary.pop("config", None)  # the chain's own echo of its parameters: cfg.resolved is the record
     with ctx.stage("quality"):  # the verdict (tpos_cli.quality); candidate fixes re-run the chain on a window
         verdict = review(session, result, chain=pipe.chain, config=cfg.resolved, params=cfg.params, run=run,
-                         counts={**session.counts, **ctx.counts})
+                         counts={**session.counts, **ctx.counts}, session_findings=findings)
     resolved, chash = cfg.resolved, cfg.sha256
     meta = {"version": __version__, "pipeline": pipe.name, "config_sha256": chash, "session": session.meta.name}
     out_dir.parent.mkdir(parents=True, exist_ok=True)

@@ -42,11 +42,13 @@ from tpos_cli.fusion.layout import Block
 from tpos_cli.fusion.nav_errors import apply_feedback
 from tpos_cli.trajectory import Solution
 
+# error_model="numpy" on every kernel: no zero-divisor test at each division (`tpos_cli.filters.kalman`).
+
 # What runs once per epoch or per output row without a recursion is numpy over all rows at once;
 # numba kernels are kept for the recursions (issue 15: each kernel compiles on a fresh install).
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def unpack_tril(tril, e, S):
     """S (n, n) = the symmetric matrix whose lower triangle by rows is tril[e] (numpy's
     `tril_indices` order, `fusion.engine.SymmetricStack`)."""
@@ -58,7 +60,7 @@ def unpack_tril(tril, e, S):
             c += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
     """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n),
     Ps9 (E,m,m)), Ps9 the leading m = min(n, 9) block (navigation) of the smoothed covariance: the
@@ -141,7 +143,7 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
     return xs_post, xs_pre, Ps9
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _corrected_rows(out_idx, nav, C, bias, xs, o_nav, o_C, o_bias):
     """Row k of o_*: the nominal (nav, C, bias) at sample out_idx[k] corrected by the error estimate xs[k]."""
     R = np.empty((3, 3))
@@ -257,7 +259,7 @@ def _disagreement(fwd: FilterRun, bwd: FilterRun, ef, eb, d, flag_probability, d
     return nis > float(chi2_threshold(flag_probability, 9)[9]), nis
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _tri(P, e, i, j):
     """Entry (i, j) of the covariance triangle P[e] (lower, by rows)."""
     if i < j:
@@ -265,7 +267,7 @@ def _tri(P, e, i, j):
     return P[e, i * (i + 1) // 2 + j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _disagreement_nis(ef, eb, f_P, b_P, d, cols, G):
     """nis (K,) of `_disagreement` by a Cholesky solve per row: S9 = (P_f + P_b)[:9, :9] from the
     runs' covariance triangles f_P, b_P (E, n (n + 1) / 2) at epochs ef, eb, d9 = d[:, :9]; with
@@ -317,7 +319,7 @@ def _disagreement_nis(ef, eb, f_P, b_P, d, cols, G):
     return nis
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _combine(ef, eb, f_P, b_P, d, out_w, o_xs, o_P9, mode):
     """Error estimates o_xs (K, n) about the forward nominal and their covariances o_P9 (K, 9, 9).
     f_P, b_P: the runs' covariances as lower triangles (`fusion.engine.SymmetricStack.tril`).

@@ -47,7 +47,9 @@ def _lowpass(x: np.ndarray, n: int, step: int = 1) -> np.ndarray:
     `_lowpass(x, n)[::step]`, without the rows between). The rows whose window lies inside are
     slices of c, only the ends gather."""
     N = x.shape[0]
-    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
+    c = np.empty((N + 1,) + x.shape[1:])
+    c[0] = 0.0
+    np.cumsum(x, axis=0, dtype=float, out=c[1:])  # (the sums of [0, x]: no concatenated copy of x)
 
     def means(i):  # the window means at rows i, gathered
         lo = np.clip(i - n // 2, 0, N)
@@ -71,7 +73,12 @@ def vertical_rate_rps(t_s, gyro_b_rps, acc_b_mps2, smooth_s: float = 1.0) -> np.
     t = np.asarray(t_s, float)
     dt = float(np.median(np.diff(t)))
     f = _lowpass(np.asarray(acc_b_mps2, float), max(1, int(round(smooth_s / dt))))
-    f /= -np.linalg.norm(f, axis=1, keepdims=True)  # the down direction (specific force points up at rest), in place
+    # the down direction (specific force points up at rest), in place; |f| as np.linalg.norm(f, axis=1) sums
+    # the squares (in order: the same numbers), without its slow reduction along a row of three (4 ms per hour)
+    norm = f[:, 0] * f[:, 0]
+    norm += f[:, 1] * f[:, 1]
+    norm += f[:, 2] * f[:, 2]
+    f /= -np.sqrt(norm)[:, None]
     return np.einsum("ij,ij->i", np.asarray(gyro_b_rps, float), f)
 
 

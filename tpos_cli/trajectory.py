@@ -60,7 +60,9 @@ def trajectory_columns(name: str, t, lla_deg, vel_ned_mps, C_nb, **kw) -> Column
     """Contract rows of one solution (`_trajectory_cols`) as `Columns`, 'solution' an object array."""
     cols = _trajectory_cols(name, t, lla_deg, vel_ned_mps, C_nb, **kw)
     k = cols["t"].size
-    cols["solution"] = np.full(k, name, dtype=object)
+    solution = np.empty(k, dtype=object)
+    solution.fill(name)  # the one str object in every row (np.full converts it to a new str per row: 2.8 ms per hour of 10 Hz rows)
+    cols["solution"] = solution
     return Columns(cols, k)
 
 

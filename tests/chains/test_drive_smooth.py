@@ -81,6 +81,31 @@ def test_mask_gps_makes_an_outage(session_dir, tmp_path):
     assert (out.run_dir / "withheld_gps.parquet").exists()
 
 
+def test_mask_gps_windows_that_withhold_every_fix_are_refused(session_dir, tmp_path):
+    """`--mask-gps` over the whole log: one line naming the windows (exit 2), before the run; it said
+    "gps.parquet: no row holds a position fix (... in all 0 rows left)", blaming a file that is fine. A chain
+    that runs without GPS (the target chain with an [observer] position) may have every fix withheld."""
+    import dataclasses
+
+    from tpos_cli.pipeline import chain_needs_gps, mask_gps
+    from tpos_cli.session import load_session
+
+    _, path = session_dir
+    with pytest.raises(InvalidInputError, match=r"^--mask-gps 900:1100 --mask-gps 1100:1200: withholds all \d+ GPS fixes; "
+                                                 r"keep some outside the windows$"):
+        process_session(path, "drive-smooth", tmp_path / "run", mask_gps_windows=[(900.0, 1100.0), (1100.0, 1200.0)])
+    assert not (tmp_path / "run").exists()
+    s = load_session(path, with_truth=False)
+    n = int(s.gps.valid.sum())
+    assert chain_needs_gps("drive_smooth", s) and chain_needs_gps("target_fkf", s)  # no [observer]: GPS places it
+    with pytest.raises(InvalidInputError, match=rf"withholds all {n} GPS fixes"):
+        mask_gps(s, [(0.0, 5000.0)], gps_needed=True)
+    s_obs = dataclasses.replace(s, meta=dataclasses.replace(s.meta, observer_lla=s.gps.lla[0]))
+    assert not chain_needs_gps("target_fkf", s_obs) and not chain_needs_gps("ranging_fatci", s)
+    masked, withheld = mask_gps(s_obs, [(0.0, 5000.0)], gps_needed=chain_needs_gps("target_fkf", s_obs))
+    assert not masked.gps.valid.any() and masked.counts["gps_withheld_fixes"] == s.gps.t_s.size
+
+
 def test_unknown_smoother_is_invalid_input(session_dir, tmp_path):
     _, path = session_dir
     with pytest.raises(InvalidInputError, match="smoother"):
@@ -416,3 +441,29 @@ def test_unmodelled_errors_are_added_in_place_only_to_a_covariance_no_other_hold
             assert in_place.P9 is s.P9
             np.testing.assert_array_equal(in_place.P9, copied.P9)
     np.testing.assert_allclose(copied.P9[:, 3:6, 3:6] - held[:k, 3:6, 3:6], vel, rtol=0, atol=1e-15)  # rounding
+
+
+@pytest.mark.parametrize("how", ["gps_clock", "offset"])
+def test_gps_fixes_outside_the_imu_span_are_invalid_input(session_dir, tmp_path, how):
+    """No fix within the IMU's time span (the GPS stamped on another clock, or a [time] gps_offset_s that
+    moves it away): a one-line invalid-input error naming the file, the column and the likely cause
+    (exit 2), before the run; the chain ran the whole log as dead reckoning, exit 0, verdict unreliable."""
+    import shutil
+
+    _, path = session_dir
+    s = tmp_path / "s"
+    shutil.copytree(path, s)
+    f = next(s.glob("gps.*"))
+    if how == "gps_clock":
+        d = pd.read_parquet(f) if f.suffix == ".parquet" else pd.read_csv(f)
+        d["t"] = d["t"] + 1.0e6
+        d.to_parquet(f, index=False) if f.suffix == ".parquet" else d.to_csv(f, index=False)
+    else:
+        toml = s / "session.toml"
+        assert "[time]" not in toml.read_text()
+        toml.write_text(toml.read_text() + "\n[time]\ngps_offset_s = 1e9\n")
+    with pytest.raises(InvalidInputError, match=rf"{f.name}: column 't': no position fix falls within the IMU's time "
+                                                 r"span .*another clock \(the GPS clock, not the logger.s\) "
+                                                 r"or \[time\] gps_offset_s is wrong"):
+        process_session(s, "drive-smooth", tmp_path / "run")
+    assert not (tmp_path / "run").exists()

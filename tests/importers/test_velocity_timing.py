@@ -1,6 +1,6 @@
 """Importers: velocities that are differences of the receiver's own fixes are named at import time
 (the raw walk's .pos and .ubx: RMS 0.036 m/s against the central differences 0.15 s earlier, 0.097 at
-their stamps). The test is the filter's own, `fusion.insgps.velocity_latency_s`."""
+their stamps). The test is the filter's own, `fusion.velocity_lag.velocity_latency_s`."""
 
 from __future__ import annotations
 
@@ -65,3 +65,17 @@ def test_the_note_is_the_filters_own_lag_at_every_fix_rate():
                                              np.ones((len(g), 3)), np.ones((len(g), 3))))
         assert abs(lag - 0.5 / rate_hz) < 1e-9 and note is not None and f"central differences {lag:g} s earlier" in note
         assert velocity_timing_note(_track("now", rate_hz=rate_hz, duration_s=120.0), "x.pos") is None
+
+
+def test_the_velocity_timing_note_does_not_import_numba():
+    """`tpos import` runs the filter's lag test without the filter: `fusion.velocity_lag` needs numpy only
+    (importing numba through `fusion.insgps` cost 0.2 s of every import; session 9 review)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys\nimport tpos_cli.importers.velocity_timing\n"
+            "assert 'numba' not in sys.modules, 'numba imported'\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         cwd=Path(__file__).resolve().parents[2])
+    assert res.returncode == 0, res.stderr[-2000:]

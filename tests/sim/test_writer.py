@@ -72,6 +72,28 @@ def test_refuses_to_overwrite_without_force(tmp_path):
     sim.write(tmp_path / "s", overwrite=True)
 
 
+def test_overwrite_replaces_only_a_session(tmp_path, monkeypatch):
+    """`write_session(overwrite=True)` (what `tpos simulate --force` calls) replaced any directory; a library
+    caller passing a directory of other files lost them. Now only a session is replaced, and not the one
+    holding the current directory (io.run_dir.check_session_out, the CLI's guard)."""
+    sim = simulate_ranging(10.0, seed=0)
+    other = tmp_path / "notes"
+    other.mkdir()
+    (other / "keep.txt").write_text("mine")
+    with pytest.raises(InvalidInputError, match="is not a tpos session"):
+        sim.write(other, overwrite=True)
+    assert (other / "keep.txt").read_text() == "mine"
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InvalidInputError, match="is not a directory"):
+        sim.write(tmp_path / "f", overwrite=True)
+    s = sim.write(tmp_path / "s")
+    (s / "sub").mkdir()
+    monkeypatch.chdir(s / "sub")
+    with pytest.raises(InvalidInputError, match="holds the current directory"):
+        sim.write(s, overwrite=True)
+    assert (s / "session.toml").is_file()
+
+
 def test_cli_simulate_then_validate(tmp_path):
     res = runner.invoke(app, ["simulate", "drive", str(tmp_path / "d"), "--seed", "3", "--duration", "30",
                               "--outage", "5:3", "--outage", "20:2"])

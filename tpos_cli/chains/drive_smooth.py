@@ -117,6 +117,17 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
         f = find_table(session.path, "gps")
         raise InvalidInputError(f"{f.name if f is not None else 'gps'}: no row holds a position fix (lat, lon, h empty or "
                                 f"fix = 0 in all {gps.t_s.size} rows left); the drive pipeline needs GPS fixes")
+    t_imu = session.imu.t_s
+    if not (ok & (gps.t_s >= t_imu[0]) & (gps.t_s <= t_imu[-1])).any():
+        # GPS on another clock (or a wrong [time] gps_offset_s): without this the drive ran the whole
+        # log as dead reckoning, exit 0 (the loader only warns: other chains may not need the GPS)
+        f = find_table(session.path, "gps")
+        t_fix = gps.t_s[ok] + session.t0_s
+        raise InvalidInputError(
+            f"{f.name if f is not None else 'gps'}: column 't': no position fix falls within the IMU's time span "
+            f"(fixes {t_fix[0]:.3f}-{t_fix[-1]:.3f} s, IMU {t_imu[0] + session.t0_s:.3f}-{t_imu[-1] + session.t0_s:.3f} s "
+            "on the logger clock, after [time] gps_offset_s): the GPS rows are stamped on another clock (the GPS clock, not "
+            "the logger's) or [time] gps_offset_s is wrong; the drive pipeline needs GPS fixes")
     wild = wild_fixes(gps.t_s[ok], gps.lla[ok], np.asarray(gps.sigma_neu_m[ok], dtype=float)[:, :2].max(axis=1))
     ok[np.flatnonzero(ok)[wild]] = False  # counted by the chain (`drive_summary`: gps_fixes_wild)
     sig = np.array(gps.sigma_neu_m[ok], dtype=float)

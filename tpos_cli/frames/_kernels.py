@@ -21,8 +21,10 @@ from tpos_cli.frames.earth import (
     F,
 )
 
+# error_model="numpy" on every kernel: no zero-divisor test at each division (`tpos_cli.filters.kalman`).
 
-@njit(cache=True)
+
+@njit(cache=True, error_model="numpy")
 def radii_m(lat):
     """(R_N meridian, R_E transverse) radii of curvature, m."""
     s2 = np.sin(lat) ** 2
@@ -31,7 +33,7 @@ def radii_m(lat):
     return A_M * (1.0 - E2) / (d * sd), A_M / sd  # d * sqrt(d), not d**1.5: the pow was 7 % of a strapdown step
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def normal_gravity(lat, h):
     """Normal gravity magnitude, m/s^2 (see earth.normal_gravity_mps2)."""
     s2 = np.sin(lat) ** 2
@@ -39,7 +41,7 @@ def normal_gravity(lat, h):
     return g0 * (1.0 - 2.0 / A_M * (1.0 + F + M_RATIO - 2.0 * F * s2) * h + 3.0 * h * h / (A_M * A_M))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def earth_rate_ned(lat):
     """Earth rate in NED, rad/s."""
     out = np.zeros(3)
@@ -48,7 +50,7 @@ def earth_rate_ned(lat):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def transport_rate_ned(lat, h, v):
     """Transport rate in NED, rad/s, from NED velocity v."""
     rn, re = radii_m(lat)
@@ -59,7 +61,7 @@ def transport_rate_ned(lat, h, v):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def skew(v):
     """Cross-product matrix of a 3-vector."""
     out = np.zeros((3, 3))
@@ -72,7 +74,7 @@ def skew(v):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rotvec_to_dcm_into(x, y, z, R):
     """Rodrigues DCM of rotation vector (x, y, z) written into R (3, 3), without allocating
     (for per-sample loops). Below 0.01 rad (an IMU sample's rotation, a filter's correction) the
@@ -98,7 +100,7 @@ def rotvec_to_dcm_into(x, y, z, R):
     R[2, 1] = s * x + c * y * z
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rotvec_to_dcm(rv):
     """Rodrigues' formula, with a series expansion near zero angle."""
     R = np.empty((3, 3))
@@ -106,7 +108,7 @@ def rotvec_to_dcm(rv):
     return R
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dcm_to_rotvec(C):
     """Rotation vector of a DCM (angle below pi)."""
     cos_a = min(1.0, max(-1.0, 0.5 * (C[0, 0] + C[1, 1] + C[2, 2] - 1.0)))
@@ -120,7 +122,7 @@ def dcm_to_rotvec(C):
     return w * (a / (2.0 * np.sin(a)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def euler_to_dcm(roll, pitch, yaw):
     """C_nb = Rz(yaw) Ry(pitch) Rx(roll)."""
     cr, sr = np.cos(roll), np.sin(roll)
@@ -139,7 +141,7 @@ def euler_to_dcm(roll, pitch, yaw):
     return C
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dcm_to_euler(C):
     """(roll, pitch, yaw) in rad from C_nb."""
     roll = np.arctan2(C[2, 1], C[2, 2])
@@ -148,13 +150,13 @@ def dcm_to_euler(C):
     return roll, pitch, yaw
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def orthonormalize(C):
     """Nearest-rotation correction of a DCM that drifted from orthonormality (first-order)."""
     return 1.5 * C - 0.5 * (C @ C.T @ C)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mat_vec3(A, v):
     """A v for A (3, 3) and v (3,), as a new array."""
     out = np.empty(3)
@@ -163,7 +165,7 @@ def mat_vec3(A, v):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def matT_vec3(A, v):
     """A^T v for A (3, 3) and v (3,), as a new array."""
     out = np.empty(3)
@@ -172,7 +174,7 @@ def matT_vec3(A, v):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mat_mat3(A, B):
     """A B for A, B (3, 3), as a new array."""
     out = np.empty((3, 3))
@@ -182,7 +184,7 @@ def mat_mat3(A, B):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mat_matT3(A, B):
     """A B^T for A, B (3, 3), as a new array."""
     out = np.empty((3, 3))

@@ -30,6 +30,8 @@ from tpos_cli.fusion.nav_errors import (
 )
 from tpos_cli.ins._kernels import mech_step
 
+# error_model="numpy" on every kernel: no zero-divisor test at each division (`tpos_cli.filters.kalman`).
+
 
 class ImuArrays(NamedTuple):
     """t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2: body-frame (FRD) mean rates over (t_{k-1}, t_k]."""
@@ -137,7 +139,7 @@ class EventResults(NamedTuple):
     accepted: np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _store(dst, k, src):
     """dst[k] = src for dst (N, n) and src (n,), by elements (an array assignment compiles a
     formatted shape-mismatch error with it, 2 s of the first run)."""
@@ -145,7 +147,7 @@ def _store(dst, k, src):
         dst[k, i] = src[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _store2(dst, k, src):
     """dst[k] = src for dst (N, n, m) and src (n, m), by elements."""
     for i in range(src.shape[0]):
@@ -153,7 +155,7 @@ def _store2(dst, k, src):
             dst[k, i, j] = src[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def store_tril(dst, k, S):
     """dst[k] = the lower triangle of S (n, n) by rows (S[0, 0], S[1, 0], S[1, 1], S[2, 0], ...:
     numpy's `tril_indices` order), dst (E, n (n + 1) / 2)."""
@@ -164,7 +166,7 @@ def store_tril(dst, k, S):
             c += 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _store_transition(out, k, Phi):
     """The RTS history's transition at epoch k: Phi's navigation block and its extra diagonal."""
     for i in range(N_NAV):
@@ -174,7 +176,7 @@ def _store_transition(out, k, Phi):
         out.ep_phi_extra[k, i] = Phi[N_NAV + i, N_NAV + i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 

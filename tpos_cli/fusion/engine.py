@@ -323,7 +323,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                      meas.gated[order].astype(np.bool_), meas.slot[order].astype(np.int64),
                      meas.par[order].astype(np.int64))
     aid = _aiding(cfg, meas, backward)
-    n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), np.unique(k_o))
+    k_distinct = k_o[np.flatnonzero(np.diff(k_o, prepend=-1))]  # k_o is sorted: np.unique's values without its hashing
+    n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), k_distinct)
     nr = n_ep if store_rts else 1
     keep = _nominal_idx(cfg.nominal_idx, n)
     rows = np.arange(n) if keep is None else (n - 1 - keep[::-1] if backward else keep)  # in the run's own time

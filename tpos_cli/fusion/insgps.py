@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, run_filter
 from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block
 from tpos_cli.fusion.measurements import Kind
+from tpos_cli.fusion.velocity_lag import LAG_GRID_S, velocity_latency_s  # noqa: F401  (re-exported: chains and tests import it here)
 
 _SLOT_POSITION, _SLOT_VELOCITY = 0, 1
 
@@ -97,37 +97,6 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) 
     # off until the fix's own velocity row has corrected it, and a column that changes by that much
     # from one fix to the next reads as information on the clock offset that the fixes do not hold
     return allm.take(np.lexsort((-np.asarray(allm.kind, dtype=np.int64), allm.par)))
-
-
-LAG_GRID_S = np.arange(0.0, 0.5001, 0.025)  # velocity lags tried (s)
-
-
-def velocity_latency_s(fixes: GpsFixes, grid_s=LAG_GRID_S, min_gain: float = 0.3) -> tuple[float, dict]:
-    """How late the logged GPS velocity is against the fixes' own positions (s, >= 0), from the GPS
-    alone: many receivers log the backward difference of positions, the velocity of half an
-    interval earlier (issue 11: 0.125 s at 4 Hz). The lag that best matches the logged horizontal
-    velocity to the central differences of the positions, if it cuts their RMS difference by at
-    least `min_gain` against no lag; else 0. Returns (lag_s, figures)."""
-    v = np.asarray(fixes.vel_ned_mps, dtype=float)
-    ok = np.isfinite(v[:, 0]) & np.isfinite(v[:, 1])
-    if ok.sum() < 20:
-        return 0.0, {"fixes": int(ok.sum())}
-    t = np.asarray(fixes.t_s, dtype=float)
-    ned = lla_to_ned(fixes.lla, fixes.lla[0])
-    n_m, e_m = ned[:, 0], ned[:, 1]
-    dt = np.diff(t)
-    good = (dt > 0) & (dt < 1.5 * np.median(dt))
-    tm = 0.5 * (t[1:] + t[:-1])[good]
-    vc = np.column_stack([np.diff(n_m)[good] / dt[good], np.diff(e_m)[good] / dt[good]])
-    rms = []
-    for tau in grid_s:
-        m = ok & (t - tau > tm[0]) & (t - tau < tm[-1])
-        vi = np.column_stack([np.interp(t[m] - tau, tm, vc[:, i]) for i in range(2)])
-        rms.append(float(np.sqrt(np.mean((v[m, :2] - vi) ** 2))))
-    rms = np.array(rms)
-    best = int(np.argmin(rms))
-    lag = float(grid_s[best]) if rms[best] < (1.0 - min_gain) * rms[0] else 0.0
-    return lag, {"lag_s": lag, "rms_mps_at_lag": round(float(rms[best]), 4), "rms_mps_at_0": round(float(rms[0]), 4)}
 
 
 def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig,

@@ -7,7 +7,7 @@ it. The contract has one `t` per GPS row, so the session cannot say so; `tpos pr
 velocity clock apart from the position clock by about half an interval. This module tells the user
 at import time.
 
-The test is the filter's own (`fusion.insgps.velocity_latency_s`: the lag, 0-0.5 s, that best matches
+The test is the filter's own (`fusion.velocity_lag.velocity_latency_s`: the lag, 0-0.5 s, that best matches
 the horizontal velocities to the central differences of the positions, kept when it cuts their RMS
 difference by 30 %), run once as logged and once on the log reversed in time, where a difference
 with the fix after becomes one with the fix before (t -> -t, v -> -v). The note is given when the
@@ -16,18 +16,19 @@ lag found is half an interval, within a quarter of one.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pandas as pd
 
-from tpos_cli.fusion.insgps import GpsFixes, velocity_latency_s
+from tpos_cli.fusion.velocity_lag import velocity_latency_s
 
 HALF_INTERVAL_TOLERANCE = 0.25  # of one fix interval: a lag this close to half an interval is a one-sided difference
 
 
-def _fixes(t_s, lla, vel_ne_mps) -> GpsFixes:
-    n = t_s.size
-    vel = np.column_stack([vel_ne_mps, np.zeros(n)])
-    return GpsFixes(t_s, lla, vel, np.ones((n, 3)), np.ones((n, 3)))
+def _fixes(t_s, lla, vel_ne_mps) -> SimpleNamespace:
+    """The fields `velocity_latency_s` reads (t_s, lla, vel_ned_mps)."""
+    return SimpleNamespace(t_s=t_s, lla=lla, vel_ned_mps=np.column_stack([vel_ne_mps, np.zeros(t_s.size)]))
 
 
 def velocity_timing_note(gps: pd.DataFrame, name: str) -> str | None:

@@ -17,8 +17,10 @@ from numba import njit
 from tpos_cli.frames._kernels import normal_gravity, radii_m, rotvec_to_dcm_into
 from tpos_cli.frames.earth import OMEGA_IE_RPS
 
+# error_model="numpy" on every kernel: no zero-divisor test at each division (`tpos_cli.filters.kalman`).
 
-@njit(cache=True)
+
+@njit(cache=True, error_model="numpy")
 def cross(a, b):
     """a x b for 3-vectors."""
     out = np.empty(3)
@@ -28,7 +30,7 @@ def cross(a, b):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def nav_rates(nav, earth_sign, w_ie, w_en):
     """Earth rate (times `earth_sign`) and transport rate in NED at the state `nav`, in place."""
     lat, h = nav[0], nav[2]
@@ -41,7 +43,7 @@ def nav_rates(nav, earth_sign, w_ie, w_en):
     w_en[2] = -nav[4] * np.tan(lat) / (re + h)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n, work=None):
     """One strapdown update over an IMU interval of length dt, in place on `nav` and `C`.
 
@@ -125,7 +127,7 @@ def mech_step(nav, C, dtheta, dv, dtheta_prev, dv_prev, dt, earth_sign, f_n, wor
     f_n[2] = d2 / dt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def integrate_kernel(t, gyro, acc, nav0, C0, earth_sign, out_nav, out_C):
     """Free-inertial integration of a whole log: out_nav (N, 6), out_C (N, 3, 3); row 0 = initial.
 

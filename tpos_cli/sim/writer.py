@@ -20,6 +20,7 @@ import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.rotation import axes_to_dcm
+from tpos_cli.io.run_dir import check_session_out
 
 if TYPE_CHECKING:  # annotations only: sim.result imports this module for SimResult.write
     from tpos_cli.sim.result import SimResult
@@ -159,9 +160,9 @@ def write_session(sim: SimResult, path: str | Path, *, fmt: str = "parquet", ove
     if fmt not in FORMATS:
         raise InvalidInputError(f"format: {fmt!r} is not one of {', '.join(FORMATS)}")
     out = Path(path)
-    if out.exists() and not overwrite:
-        if not out.is_dir() or any(out.iterdir()):
-            raise InvalidInputError(f"{out}: already exists and is not empty (use --force to replace it)")
+    # absent or empty; with `overwrite` an existing session only (never a directory of other files,
+    # nor one holding the current directory): the guard `tpos simulate --force` applies, for library callers too
+    check_session_out(out, force=overwrite)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; a session is an ordinary shared directory
