@@ -7,7 +7,7 @@ import pytest
 
 from tpos_cli.chains.drive_smooth import process_drive
 from tpos_cli.config import DriveSmoothParams
-from tpos_cli.fusion.gps_noise import normalized_square, scaled_fixes, solve_scale
+from tpos_cli.fusion.gps_noise import bracketed, normalized_square, scaled_fixes, solve_scale
 from tpos_cli.fusion.insgps import GpsFixes
 from tpos_cli.ins.mechanization import decimate_imu, integrate
 from tpos_cli.session import load_session
@@ -60,6 +60,19 @@ def test_normalized_square_and_scale_on_gaussian_innovations():
     assert np.isnan(solve_scale(nu * 0.1, hph + 1.0, np.full(n, 1.0)))
 
 
+def test_bracketed_keeps_the_root_search_inside_what_the_passes_found():
+    """m falls as s grows: passes with m > 1 (log m > 0) and m < 1 bracket the root; a step out of
+    the bracket goes to its midpoint, one inside stays, and with one side missing nothing changes."""
+    hist = [(0.0, np.log(0.3)), (-2.5, np.log(0.64)), (-3.1, np.log(1.40)), (-2.8, np.log(1.34))]
+    # the root lies in (-2.8, -2.5): the largest log s with m > 1, the smallest with m < 1
+    assert bracketed(-0.9, hist) == pytest.approx(-2.65)  # a secant through two nearly equal m
+    assert bracketed(-3.5, hist) == pytest.approx(-2.65)
+    assert bracketed(-2.7, hist) == -2.7
+    assert bracketed(5.0, hist[:1]) == 5.0  # only m < 1 seen: no bracket yet
+    # noisy passes that do not order (m > 1 above m < 1): no bracket to enforce
+    assert bracketed(1.0, [(0.0, np.log(1.2)), (-1.0, np.log(0.8))]) == 1.0
+
+
 def test_scaled_fixes_scales_each_group():
     f = GpsFixes(np.arange(3.0), np.zeros((3, 3)), np.zeros((3, 3)), np.ones((3, 3)), np.ones((3, 3)))
     g = scaled_fixes(f, [2.0, 3.0, 0.5, 0.25])
@@ -109,4 +122,7 @@ def test_consistent_log_keeps_its_sds(tmp_path):
     session = load_session(sim.write(tmp_path / "s"))
     res = process_drive(session, DriveSmoothParams(gps_sigma_vel_mps=0.05), None, names=("forward",))
     sc = res.info["gps_noise"]["scale"]
-    assert sc["pos_h"] == 1.0 and sc["pos_v"] == 1.0 and sc["vel_h"] == 1.0
+    assert sc["pos_h"] == 1.0 and sc["pos_v"] == 1.0
+    # the velocity SDs are the pipeline's (the simulator writes none): kept only while m is within
+    # 1.96 SDs of 1 (`DEFAULT_SD_Z`), else matched; set to the simulated 0.05 m/s, they stay near it
+    assert sc["vel_h"] == pytest.approx(1.0, abs=0.15)

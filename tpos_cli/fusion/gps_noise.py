@@ -35,6 +35,11 @@ from tpos_cli.ins.mechanization import decimate_to_rate
 GROUPS = ("pos_h", "pos_v", "vel_h", "vel_v")
 _COLS = ((0, 1), (2,), (3, 4), (5,))  # innovation columns of each group
 _GATE_1DOF = 15.137  # chi-square 1 d.o.f. quantile at 0.9999
+# how many SDs of its mean m may sit off 1 before a group's SDs move: the receiver's own figures
+# (3: evidence, overridden only on clear disagreement), the pipeline's defaults (1.96: the two-sided
+# 95 % level of the NIS check, `chains.drive_smooth.nis_band`)
+STATED_SD_Z = 3.0
+DEFAULT_SD_Z = 1.96
 
 
 @dataclass(frozen=True)
@@ -116,6 +121,21 @@ def solve_scale(nu, hph, var) -> float:
     return float(np.sqrt(lo * hi))
 
 
+def bracketed(log_s: float, hist) -> float:
+    """`log_s` kept inside the bracket the passes `hist` [(log s, log m), ...] found: m falls as s
+    grows, so the root lies above the largest log s with m > 1 and below the smallest with m < 1;
+    a step that leaves that interval (a secant through two noisy, nearly equal m) is replaced by its
+    midpoint (a safeguarded secant, as in Brent's method). Unchanged while one side is missing."""
+    below = [ls for ls, lm in hist if lm > 0.0]
+    above = [ls for ls, lm in hist if lm < 0.0]
+    if not below or not above:
+        return log_s
+    a, b = max(below), min(above)
+    if a < b and not a < log_s < b:
+        return 0.5 * (a + b)
+    return log_s
+
+
 def pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, after_s: float | None, span_s: float, rate_hz: float):
     """The stretch of log the cheap tuning passes run over: `span_s` from `after_s` (0 = all),
     IMU decimated to about `rate_hz`. Returns (t, gyro, acc, fixes, counted-fix mask, rate):
@@ -141,9 +161,11 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
 
     Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
     the scale is moved by a secant step on log m against log s (the first step from this pass's
-    innovations with its H P- H^T held fixed) until every |m - 1| < max(tol, 3 sqrt(2 / n)). `after_s`: only
-    fixes after this time count (the
-    heading may still be converging before); ignored when fewer than 30 fixes would remain.
+    innovations with its H P- H^T held fixed, every step kept inside the bracket of the passes so far,
+    `bracketed`) until every |m - 1| < max(tol, z sqrt(2 / n)), z = `STATED_SD_Z` for SDs the
+    receiver stated and `DEFAULT_SD_Z` for the pipeline's defaults. `after_s`: only fixes after this
+    time count (the heading may still be converging before); ignored when fewer than 30 fixes would
+    remain.
     `span_s`: the passes stop `span_s` after that (0 = whole log): 900 s give some 1800
     horizontal components, a variance to about 3%, and keep the passes cheap on long logs.
     `extra`: the motion-constraint rows of the final filter (its layout in `cfg`): matched on a
@@ -151,6 +173,7 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     (the final filter's GPS NIS then falls below its band).
     """
     td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
+    stated = np.asarray(fixes.from_receiver, dtype=bool)
     pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), nominal_idx=ENDS_ONLY)  # innovations only
     lo, hi = np.log(scale_bounds[0]), np.log(scale_bounds[1])
     log_s = np.zeros(4)
@@ -169,9 +192,12 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
             m_last[j], n_used[j] = normalized_square(nu[:, c], hph[:, c], var[:, c])
             if np.isfinite(m_last[j]):
                 hist[j].append((log_s[j], np.log(m_last[j])))
-        # a group moves only when its m is off by more than `tol` and by 3 SDs of a mean of
-        # n chi-square(1) / n values (sqrt(2 / n)): a consistent log keeps its SDs as given
-        tol_g = np.maximum(tol, 3.0 * np.sqrt(2.0 / np.maximum(n_used, 1)))
+        # a group moves only when its m is off by more than `tol` and by z SDs of a mean of n
+        # chi-square(1) / n values (sqrt(2 / n)): a consistent log keeps its SDs as given. z = 3
+        # where the receiver stated them (its figure is evidence); the pipeline's default SDs are
+        # a placeholder, kept only while m is consistent at the 95 % level the NIS check uses
+        z = np.where(stated, STATED_SD_Z, DEFAULT_SD_Z)
+        tol_g = np.maximum(tol, z * np.sqrt(2.0 / np.maximum(n_used, 1)))
         off = np.isfinite(m_last) & (np.abs(m_last - 1.0) >= tol_g)
         if not off.any() or passes == max_passes:
             break
@@ -188,7 +214,7 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
                 ls0, lm0 = hist[j][-2]
                 if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:  # a usable decreasing secant
                     step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
-            log_s[j] = float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi))
+            log_s[j] = bracketed(float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi)), hist[j])
     for j in range(4):
         # the loop stops within the tolerance: a last secant step between the two latest passes
         # (no further pass) removes most of that remainder for the groups that moved
@@ -196,6 +222,6 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
             (ls0, lm0), (ls1, lm1) = hist[j][-2], hist[j][-1]
             if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:
                 step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
-                log_s[j] = float(np.clip(ls1 + np.clip(step, -np.log(1.2), np.log(1.2)), lo, hi))
+                log_s[j] = bracketed(float(np.clip(ls1 + np.clip(step, -np.log(1.2), np.log(1.2)), lo, hi)), hist[j])
     return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last,
                     (float(fixes.t_s[count][0]), float(fixes.t_s[count][-1])) if count.any() else (np.nan, np.nan))
