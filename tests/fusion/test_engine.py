@@ -94,6 +94,38 @@ def test_nominal_kept_at_chosen_samples_equals_the_full_history():
         np.testing.assert_array_equal(ends.ep_P.tril, full.ep_P.tril)
 
 
+def test_backward_run_into_the_spent_rts_history_gives_the_same_numbers():
+    """`run_filter(reuse=)`: the backward run written into the forward run's RTS history (no longer
+    read after the smoother) holds the same numbers as one in fresh arrays, in that memory."""
+    t, gyro, acc, init, cfg = _still(n=501)
+    acc = acc + 0.01 * np.sin(np.arange(t.size) / 7.0)[:, None]
+    zupt = Measurements.rows(np.arange(0.05, 5.0, 0.5), Kind.ZUPT, np.zeros((10, 3)), np.tile(1e-4 * np.eye(3), (10, 1, 1)),
+                             dim=3, gated=False)
+    fwd = run_filter(t, gyro, acc, init, cfg, zupt)
+    start = backward_start(fwd, init.P0)
+    fresh = run_filter(t, gyro, acc, start, cfg, zupt, backward=True)
+    spent = (fwd.ep_Phi, fwd.ep_Ppred)
+    fwd.ep_Phi[...] = np.nan  # whatever the smoother left there
+    fwd.ep_Ppred[...] = np.nan
+    into = run_filter(t, gyro, acc, start, cfg, zupt, backward=True, reuse=spent)
+    assert np.shares_memory(into.ep_P.tril, fwd.ep_Phi) or np.shares_memory(into.ep_P.tril, fwd.ep_Ppred)
+    for a in ("nav", "C_nb", "bias", "ep_idx", "ev_nu", "ev_pvar", "ev_nis", "ev_accepted"):
+        np.testing.assert_array_equal(getattr(into, a), getattr(fresh, a))
+    np.testing.assert_array_equal(into.ep_P.tril, fresh.ep_P.tril)
+
+
+def test_reused_carves_views_first_fit_and_falls_back_to_new_arrays():
+    from tpos_cli.fusion.engine import _reused
+
+    a, b = np.zeros((4, 5)), np.zeros(7)
+    x, y, z, w = _reused((a, None, np.zeros(50, dtype=np.int64), np.zeros((9, 9))[:, :3], b), (3, 5), (2, 3), (5,), (4,))
+    assert x.shape == (3, 5) and np.shares_memory(x, a)
+    assert y.shape == (2, 3) and np.shares_memory(y, b)  # a has 5 left: the next with room
+    assert z.shape == (5,) and np.shares_memory(z, a) and not np.shares_memory(z, x)
+    assert w.shape == (4,) and not any(np.shares_memory(w, v) for v in (a, b))  # none has room left: a new array
+    assert all(v.flags.c_contiguous and v.dtype == np.float64 for v in (x, y, z, w))
+
+
 @pytest.mark.parametrize("idx", [[0, 5, 9], [5], [3, 4], [9, 0], [2, 2, 3], [], [0, 9], [1, 8]])
 def test_nominal_rows_are_sorted_unique_with_both_ends(idx):
     from tpos_cli.fusion.engine import _nominal_idx

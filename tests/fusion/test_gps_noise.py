@@ -7,7 +7,7 @@ import pytest
 
 from tpos_cli.chains.drive_smooth import process_drive
 from tpos_cli.config import DriveSmoothParams
-from tpos_cli.fusion.gps_noise import bracketed, normalized_square, scaled_fixes, solve_scale
+from tpos_cli.fusion.gps_noise import bracketed, normalized_square, rows_within, scaled_fixes, solve_scale
 from tpos_cli.fusion.insgps import GpsFixes
 from tpos_cli.ins.mechanization import decimate_imu, integrate
 from tpos_cli.session import load_session
@@ -126,3 +126,16 @@ def test_consistent_log_keeps_its_sds(tmp_path):
     # the velocity SDs are the pipeline's (the simulator writes none): kept only while m is within
     # 1.96 SDs of 1 (`DEFAULT_SD_Z`), else matched; set to the simulated 0.05 m/s, they stay near it
     assert sc["vel_h"] == pytest.approx(1.0, abs=0.15)
+
+
+def test_rows_within_keeps_the_rows_a_pass_can_process():
+    """The rows up to the pass's last sample (inclusive, as `run_filter` places them), in their order;
+    the same object when all fit, None stays None."""
+    from tpos_cli.fusion.engine import Measurements
+    from tpos_cli.fusion.measurements import Kind
+
+    t = np.array([0.5, 3.0, 1.0, 2.0, 2.5])
+    rows = Measurements.rows(t, Kind.ZUPT, np.zeros((5, 3)), np.tile(np.eye(3), (5, 1, 1)), dim=3, gated=False)
+    cut = rows_within(rows, 2.0)
+    np.testing.assert_array_equal(cut.t_s, [0.5, 1.0, 2.0])
+    assert rows_within(rows, 3.0) is rows and rows_within(None, 1.0) is None

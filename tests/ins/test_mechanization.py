@@ -72,6 +72,13 @@ def test_reverse_imu_pairs_intervals():
     # reversed row j covers (tau[j-1], tau[j]] = forward interval (t[N-1-j], t[N-j]] = forward row N-j
     np.testing.assert_array_equal(gr[1:], -g[[3, 2, 1]])
     np.testing.assert_array_equal(ar[1:], a[[3, 2, 1]])
+    # into the caller's arrays (whatever they held): the same numbers
+    out = (np.full(4, np.nan), np.full((4, 3), np.nan), np.full((4, 3), np.nan))
+    into = reverse_imu(t, g, a, out=out)
+    assert all(x is y for x, y in zip(into, out))
+    for x, y in zip(into, (tau, gr, ar)):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(gr[0], 0.0)
 
 
 def test_mech_step_with_the_callers_scratch_is_the_same_step():

@@ -44,7 +44,7 @@ from tpos_cli.fusion.gps_error import (
     unmodelled_velocity_var,
     velocity_span_s,
 )
-from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, pass_window, scaled_fixes
+from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, pass_window, rows_within, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, lever_arm_block, mounting_block, odometer_block
@@ -333,7 +333,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         td_, gd, ad, fixes_c, _, rate_c = pass_window(imu.t, imu.gyro, imu.acc, fixes, after, p.gps_noise_span_s,
                                                       COARSE_RATE_HZ)
         coarse = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_c))))
-        first = run_insgps(td_, gd, ad, fixes_c, init, coarse, store_rts=False, extra=zu)
+        first = run_insgps(td_, gd, ad, fixes_c, init, coarse, store_rts=False, extra=rows_within(zu, td_[-1]))
         gap_s = max(1.0, 1.5 * float(np.median(np.diff(fixes.t_s)))) if fixes.t_s.size > 1 else 1.0
         # slow platforms count too: a sample's travel direction is good to sd_v / speed rad, so the
         # floor is a multiple of the run's horizontal velocity SD at its covariance epochs next to

@@ -270,12 +270,16 @@ class FilterRun:
 
 
 def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfig, meas: Measurements, *,
-               backward: bool = False, store_rts: bool | None = None) -> FilterRun:
+               backward: bool = False, store_rts: bool | None = None, reuse=()) -> FilterRun:
     """Run the closed-loop filter over the IMU samples init.k0..N-1, forward or backward in time.
 
     t_s (N,) s, gyro_b_rps, acc_b_mps2 (N, 3) FRD; `init` the state at sample k0 (backward: at
     the last sample, forward-time signs); `meas` the aiding. `store_rts` (default: forward runs)
-    keeps the RTS history. Raises ProcessingError when an innovation covariance loses positive
+    keeps the RTS history. `reuse`: float64 arrays nobody reads any more (a forward run's RTS
+    history after `smoothing.rts`: ep_Phi, ep_Ppred) that this run overwrites where it fits
+    (`_reused`): its history (kept by the result) goes into the first, a backward run's reversed
+    IMU (dropped on return) into the others; the hour's backward run then writes into memory the
+    process has touched already instead of fresh pages. Raises ProcessingError when an innovation covariance loses positive
     definiteness or the nominal diverges.
     """
     k0 = int(init.k0)
@@ -308,7 +312,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     z = np.array(meas.z, dtype=float)
     if backward:
         z[np.isin(meas.kind, _VELOCITY_KINDS)] *= -1.0  # velocities in reversed time
-        t, gyro, acc = reverse_imu(t, gyro, acc)
+        t, gyro, acc = reverse_imu(t, gyro, acc, out=_reused(reuse[1:], (n,), (n, 3), (n, 3)))
         nav0[3:] *= -1.0
         bias0[3:6] *= -1.0
         bias0[6:][odd] *= -1.0
@@ -329,9 +333,10 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     keep = _nominal_idx(cfg.nominal_idx, n)
     rows = np.arange(n) if keep is None else (n - 1 - keep[::-1] if backward else keep)  # in the run's own time
     K = rows.size
-    out = History(np.empty((K, 6)), np.empty((K, 3, 3)), np.empty((K, nb)), rows, np.zeros(n_ep, np.int64),
+    ep_P, nav_o, C_o, bias_o, dx_o = _reused(reuse[:1], (n_ep, ns * (ns + 1) // 2), (K, 6), (K, 3, 3), (K, nb), (n_ep, ns))
+    out = History(nav_o, C_o, bias_o, rows, np.zeros(n_ep, np.int64),
                   np.empty((nr, N_NAV, N_NAV)), np.empty((nr, ns - N_NAV)), np.empty((nr, ns * (ns + 1) // 2)),
-                  np.empty((n_ep, ns * (ns + 1) // 2)), np.empty((n_ep, ns)))
+                  ep_P, dx_o)
     m = order.size
     res = EventResults(np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan), np.full(m, np.nan),
                        np.zeros(m, np.bool_))
@@ -372,6 +377,23 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, SymmetricStack(ep_P, ns),
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
                      lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None, keep)
+
+
+def _reused(arrays, *shapes) -> list[np.ndarray]:
+    """Uninitialized float64 arrays of the given shapes (C order), in that order of `shapes`,
+    each carved from the first of the C-contiguous float64 `arrays` with room left (a view of its
+    memory), else `np.empty`. The kernel writes every entry it hands out before reading it."""
+    free = [np.ravel(a) for a in arrays if a is not None and a.dtype == np.float64 and a.flags.c_contiguous]
+    out = []
+    for shape in shapes:
+        size = int(np.prod(shape))
+        i = next((i for i, b in enumerate(free) if b.size >= size), None)
+        if i is None:
+            out.append(np.empty(shape))
+            continue
+        out.append(free[i][:size].reshape(shape))
+        free[i] = free[i][size:]
+    return out
 
 
 def _nominal_idx(idx, n: int) -> np.ndarray | None:

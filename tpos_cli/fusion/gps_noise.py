@@ -153,6 +153,15 @@ def pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, after_s: float | N
     return td, gd, ad, fixes, count, rate_d
 
 
+def rows_within(rows: Measurements | None, t_end_s: float) -> Measurements | None:
+    """The rows of `rows` a pass ending at `t_end_s` can process (t_s <= t_end_s; a run skips the
+    later ones, `fusion.engine.run_filter`), so that each pass merges and sorts only those: the
+    same run, the hour's constraint rows cut to the pass's quarter once instead of every pass."""
+    if rows is None or not len(rows) or np.max(rows.t_s) <= t_end_s:
+        return rows
+    return rows.select(np.asarray(rows.t_s) <= t_end_s)
+
+
 def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                        after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
                        max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0),
@@ -173,6 +182,7 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     (the final filter's GPS NIS then falls below its band).
     """
     td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
+    extra = rows_within(extra, td[-1])
     stated = np.asarray(fixes.from_receiver, dtype=bool)
     pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), nominal_idx=ENDS_ONLY)  # innovations only
     lo, hi = np.log(scale_bounds[0]), np.log(scale_bounds[1])

@@ -32,21 +32,24 @@ def nav_vector(lla, vel_ned_mps) -> np.ndarray:
     return np.array([np.radians(lla[0]), np.radians(lla[1]), lla[2], *np.asarray(vel_ned_mps, dtype=float)])
 
 
-def reverse_imu(t_s, gyro_b_rps, acc_b_mps2):
+def reverse_imu(t_s, gyro_b_rps, acc_b_mps2, out=None):
     """Arrays for integrating a log backwards in time with the forward kernel (`earth_sign=-1`).
 
     Returns (tau_s, gyro, acc): tau = -t reversed; row j of the reversed log must hold the
     mean over (tau[j-1], tau[j]], which is forward row N-j; gyro negated (inverted rotations,
     paper 003 Sec. 4.2), specific force unchanged. The navigation velocity must be negated
-    on entry and on exit.
+    on entry and on exit. `out`: (N,), (N, 3), (N, 3) float64 arrays to write them into (None: new ones).
     """
     t = np.asarray(t_s, dtype=float)
-    tau = -t[::-1]
-    g = np.zeros_like(gyro_b_rps, dtype=float)
-    a = np.zeros_like(acc_b_mps2, dtype=float)
-    g[1:] = -np.asarray(gyro_b_rps, dtype=float)[:0:-1]
-    a[1:] = np.asarray(acc_b_mps2, dtype=float)[:0:-1]
-    return np.ascontiguousarray(tau), g, a
+    gyro = np.asarray(gyro_b_rps, dtype=float)
+    acc = np.asarray(acc_b_mps2, dtype=float)
+    tau, g, a = out if out is not None else (np.empty(t.shape), np.empty(gyro.shape), np.empty(acc.shape))
+    np.negative(t[::-1], out=tau)
+    g[0] = 0.0
+    a[0] = 0.0
+    np.negative(gyro[:0:-1], out=g[1:])
+    a[1:] = acc[:0:-1]
+    return tau, g, a
 
 
 def decimate_imu(t_s, gyro_b_rps, acc_b_mps2, factor: int):
