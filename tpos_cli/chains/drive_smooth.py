@@ -674,16 +674,20 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     need_rts = "rts" in names or ("smoothed" in names and p.smoother == "rts")
     sols = {}
     cfg_out = dataclasses.replace(cfg, nominal_idx=out_idx)  # the runs' nominal at the output rows only
+    spent = ()
     with stage("forward"):
         fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg_out, store_rts=need_rts, extra=extra)
     if need_rts:
         with stage("smoothing_rts"):
             sols["rts"] = smoothing.rts(fwd, out_idx)
-            # drop the RTS history before the backward run: it is the largest array of the run
+            # drop the RTS history before the backward run: it is the largest array of the run;
+            # the backward run writes its own history into that memory (no fresh pages to touch)
+            spent = (fwd.ep_Phi, fwd.ep_Ppred)
             fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)
     with stage("backward"):
         bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg_out,
-                         backward=True, extra=extra)
+                         backward=True, extra=extra, reuse=spent)
+        del spent
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols, cfg.C_vb)

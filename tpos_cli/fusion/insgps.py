@@ -100,18 +100,20 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) 
 
 
 def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig,
-               *, backward: bool = False, store_rts: bool | None = None, extra: Measurements | None = None) -> FilterRun:
+               *, backward: bool = False, store_rts: bool | None = None, extra: Measurements | None = None,
+               reuse=()) -> FilterRun:
     """Run the closed-loop INS/GPS filter over the log, forward or backward in time.
 
     For `backward`, `init` is the state at the LAST sample (forward-time signs). `extra`: further
     rows (motion constraints, `fusion.constraints`), processed after the fixes of the same sample.
+    `reuse`: arrays no longer read that the run may overwrite (`fusion.engine.run_filter`).
     """
     t = np.asarray(t_s, dtype=float)[init.k0:]
     t_run = -t[::-1] if backward else t
     meas = gps_measurements(fixes, t_run, backward=backward, gap_s=float(cfg.ungated_after_gap_s))
     if extra is not None and len(extra):
         meas = Measurements.merge(meas, extra)
-    return run_filter(t_s, gyro_b_rps, acc_b_mps2, init, cfg, meas, backward=backward, store_rts=store_rts)
+    return run_filter(t_s, gyro_b_rps, acc_b_mps2, init, cfg, meas, backward=backward, store_rts=store_rts, reuse=reuse)
 
 
 def gps_innovations(run: FilterRun, n_fixes: int) -> GpsInnovations:
