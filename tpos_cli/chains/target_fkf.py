@@ -506,8 +506,10 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
         locals_ = [sols[k] for k in ("lf1", "lf2") if k in sols]
         if len(locals_) == 2:
             fr = faults.detect(locals_, p.fault, gate_chi2)
-            sols["fkf"] = master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None)
-            sols["fkf_raw"] = master.fuse("fkf_raw", locals_, None, independent=True)
+            # nothing after the federation reads the fused solutions' gyro-scale or alignment sensitivities
+            # (their share is in P_att): only what `with_levelling` and targeting read is kept
+            sols["fkf"] = _covariance_parts(master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None))
+            sols["fkf_raw"] = _covariance_parts(master.fuse("fkf_raw", locals_, None, independent=True))
             summary["faults"] = {
                 name: {"excluded_fraction": float(1.0 - fr.ok[i].mean()),
                        "excluded_s": float(np.sum(np.diff(t, prepend=t[0])[~fr.ok[i]]))}
