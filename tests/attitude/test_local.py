@@ -321,3 +321,26 @@ def test_fusion_by_blocks_is_the_fusion_of_all_samples_at_once(monkeypatch):
             assert a is not None and a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64)), f
         assert (ref.var_al, ref.var_gm) == (blocks.var_al, blocks.var_gm)
     assert np.array_equal(whole.C_nb, master.fuse("fkf", [l1, l2], fr.weights()).C_nb)
+
+
+def test_fault_hold_loop_keeps_its_rule():
+    # faults._hold_faults (numba) against the rule written out: faulty from a trigger until recover_s after the
+    # last one AND agreeing with every filter not faulty at that moment (in order: one that recovers counts next)
+    rng = np.random.default_rng(5)
+    for S in (2, 3):
+        n = 4000
+        t = np.cumsum(rng.uniform(0.005, 0.015, n))
+        trig = rng.random((S, n)) < 0.01
+        cons = rng.random((S, S, n)) < 0.7
+        ok = np.ones((S, n), dtype=bool)
+        faults._hold_faults(t, trig, cons, 0.2, ok)
+        ref = np.ones((S, n), dtype=bool)
+        faulty, last = np.zeros(S, dtype=bool), np.full(S, -np.inf)
+        for k in range(n):
+            faulty |= trig[:, k]
+            last[trig[:, k]] = t[k]
+            for i in np.flatnonzero(faulty):
+                if t[k] - last[i] >= 0.2 and all(cons[i, j, k] for j in range(S) if j != i and not faulty[j]):
+                    faulty[i] = False
+            ref[:, k] = ~faulty
+        assert np.array_equal(ok, ref) and 0.05 < (~ok).mean() < 0.95
