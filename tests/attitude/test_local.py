@@ -301,3 +301,46 @@ def test_fusion_with_a_shared_gyro_scale_error_keeps_the_weights_and_adds_it_who
     D = sols[0].S_gm - sols[1].S_gm
     assert np.allclose(master.difference_cov(*sols), own[0].P_att + own[1].P_att + 1e-6 * D @ np.swapaxes(D, 1, 2))
     assert np.allclose(master.difference_cov(*sols, gyro_scale=False), own[0].P_att + own[1].P_att)
+
+
+def test_fusion_by_blocks_is_the_fusion_of_all_samples_at_once(monkeypatch):
+    # master.fuse fuses the full model by blocks of FUSE_BLOCK samples (memory): every sample is fused on its
+    # own, so the blocks change no bit of any output (fault weights excluding a filter on part of the log)
+    g, l1, l2, fr, whole = _magnet_run(1.0, True)
+    n = g.t.size
+    sols = [replace(s, s_al=np.linspace(0.0, 1.0, 3 * n).reshape(n, 3), var_al=1e-4) for s in (l1, l2)]
+    w = fr.weights()
+    w[:, : n // 3] = 0.0  # no weight at all: the plain fusion there
+    for weights in (None, w):
+        ref = master.fuse("fkf", sols, weights)
+        monkeypatch.setattr(master, "FUSE_BLOCK", 997)
+        blocks = master.fuse("fkf", sols, weights)
+        monkeypatch.undo()
+        for f in ("C_nb", "P_att", "S_ba", "Q_ba", "s_al"):
+            a, b = getattr(ref, f), getattr(blocks, f)
+            assert a is not None and a.shape == b.shape and np.array_equal(a.view(np.uint64), b.view(np.uint64)), f
+        assert (ref.var_al, ref.var_gm) == (blocks.var_al, blocks.var_gm)
+    assert np.array_equal(whole.C_nb, master.fuse("fkf", [l1, l2], fr.weights()).C_nb)
+
+
+def test_fault_hold_loop_keeps_its_rule():
+    # faults._hold_faults (numba) against the rule written out: faulty from a trigger until recover_s after the
+    # last one AND agreeing with every filter not faulty at that moment (in order: one that recovers counts next)
+    rng = np.random.default_rng(5)
+    for S in (2, 3):
+        n = 4000
+        t = np.cumsum(rng.uniform(0.005, 0.015, n))
+        trig = rng.random((S, n)) < 0.01
+        cons = rng.random((S, S, n)) < 0.7
+        ok = np.ones((S, n), dtype=bool)
+        faults._hold_faults(t, trig, cons, 0.2, ok)
+        ref = np.ones((S, n), dtype=bool)
+        faulty, last = np.zeros(S, dtype=bool), np.full(S, -np.inf)
+        for k in range(n):
+            faulty |= trig[:, k]
+            last[trig[:, k]] = t[k]
+            for i in np.flatnonzero(faulty):
+                if t[k] - last[i] >= 0.2 and all(cons[i, j, k] for j in range(S) if j != i and not faulty[j]):
+                    faulty[i] = False
+            ref[:, k] = ~faulty
+        assert np.array_equal(ok, ref) and 0.05 < (~ok).mean() < 0.95

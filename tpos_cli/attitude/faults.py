@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.stats import chi2
 
 from tpos_cli.attitude.local import AttitudeSolution
@@ -91,17 +92,32 @@ def detect(sols: list[AttitudeSolution], cfg: FaultConfig = FaultConfig(), range
             c = consistency_nis(sols[i], sols[j]) < thr
             cons[i, j] = cons[j, i] = c
     ok = np.ones((S, n), dtype=bool)
-    faulty = np.zeros(S, dtype=bool)
+    _hold_faults(np.ascontiguousarray(t, dtype=float), alarm | bad, cons, float(cfg.recover_s), ok)
+    return FaultReport(names=tuple(s.name for s in sols), ok=ok, alarm_nis=alarm, sensor_bad=bad)
+
+
+@njit(cache=True)
+def _hold_faults(t, trig, cons, recover_s, ok):
+    """ok (S, N) in place: a filter turns faulty where `trig` and stays so until `recover_s` after its last
+    trigger AND its attitude agrees (`cons` (S, S, N)) with every filter not faulty at that moment (the
+    filters taken in order: one that recovers counts for the next)."""
+    S, n = trig.shape
+    faulty = np.zeros(S, dtype=np.bool_)
     last_bad = np.full(S, -np.inf)
     for k in range(n):
-        trig = alarm[:, k] | bad[:, k]
-        faulty |= trig
-        last_bad[trig] = t[k]
-        for i in np.flatnonzero(faulty):
-            if t[k] - last_bad[i] < cfg.recover_s:
+        for i in range(S):
+            if trig[i, k]:
+                faulty[i] = True
+                last_bad[i] = t[k]
+        for i in range(S):
+            if not faulty[i] or t[k] - last_bad[i] < recover_s:
                 continue
-            others = [j for j in range(S) if j != i and not faulty[j]]
-            if all(cons[i, j, k] for j in others):
+            agree = True
+            for j in range(S):
+                if j != i and not faulty[j] and not cons[i, j, k]:
+                    agree = False
+                    break
+            if agree:
                 faulty[i] = False
-        ok[:, k] = ~faulty
-    return FaultReport(names=tuple(s.name for s in sols), ok=ok, alarm_nis=alarm, sensor_bad=bad)
+        for i in range(S):
+            ok[i, k] = not faulty[i]

@@ -358,25 +358,32 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
                     np.empty((n, 3, S0.shape[1])))
     K.marg_filter(samples, frame, kn, _hand(setup, dt_mean, share), gates, init, out)
     o = {f: getattr(out, f) for f in out._fields}
+    del out
     if backward:
         o = {k: v[::-1] if v.shape[0] == n else v for k, v in o.items()}
         o["bias"] = -o["bias"]
-    B = o["S_att"][:, :, 3:6]
-    P_att, s_al, var_al = np.ascontiguousarray(o["P_att"]), None, 0.0
-    if setup.align_heading_var_rad2 > 0.0:
+    # the sensitivities (N,3,S) are split into the solution's fields and freed before the covariance's
+    # temporaries (memory)
+    S_att = o.pop("S_att")
+    B = S_att[:, :, 3:6]
+    Q_ba = noise.acc_bias_mps2**2 / beta * (B @ np.swapaxes(B, 1, 2))
+    S_ba = np.ascontiguousarray(S_att[:, :, 0:3])
+    s_al = np.ascontiguousarray(S_att[:, :, 6]) if setup.align_heading_var_rad2 > 0.0 else None
+    S_gm = np.ascontiguousarray(S_att[:, :, K.S_GYRO:K.S_GYRO + 9]) if consider_gm else None
+    del S_att, B
+    P_att, var_al = np.ascontiguousarray(o["P_att"]), 0.0
+    if s_al is not None:
         # the prior's share of the alignment's heading error, P0[2,2] / beta s s^T (Eq. 23's bound), is that
         # error's own variance once: the cross-covariance with the filters that share it is `master.fuse`'s
         var_al = float(setup.align_heading_var_rad2)
-        s_al = np.ascontiguousarray(o["S_att"][:, :, 6])
         P_att = P_att + (var_al - P0[2, 2]) * (s_al[:, :, None] * s_al[:, None, :])
-    S_gm, var_gm = None, 0.0
-    if consider_gm:
+    var_gm = 0.0
+    if S_gm is not None:
         # the kernel's P_att holds none of dM (no state): its share is added once, exactly
         var_gm = float(setup.noise.gyro_scale_const_sd) ** 2
-        S_gm = np.ascontiguousarray(o["S_att"][:, :, K.S_GYRO:K.S_GYRO + 9])
         P_att = P_att + var_gm * (S_gm @ np.swapaxes(S_gm, 1, 2))
     return AttitudeSolution(
-        S_ba=np.ascontiguousarray(o["S_att"][:, :, 0:3]), Q_ba=noise.acc_bias_mps2**2 / beta * (B @ np.swapaxes(B, 1, 2)),
+        S_ba=S_ba, Q_ba=Q_ba,
         name=name, t_s=np.asarray(t_s, dtype=float), C_nb=np.ascontiguousarray(o["C"]), P_att=P_att, s_al=s_al,
         var_al=var_al, S_gm=S_gm, var_gm=var_gm, bias_rps=o["bias"], acc_bias_mps2=o["acc_bias"], var_bias=o["var_bias"],
         nis={"acc": o["nis_acc"], "mag": o["nis_mag"], "range": o["nis_rng"]},

@@ -98,11 +98,14 @@ class FieldSurvey:
 
 
 def _relative_rotations(t_s, gyro_b_rps, bias_rps, i0, i1):
+    """(i1 - i0, 3, 3) attitude of rows [i0, i1) relative to row i0, carried by the bias-corrected gyro."""
     R = np.empty((i1 - i0, 3, 3))
+    # every step's rotation in one call (row by row the same numbers as one call per step, ~30x faster)
+    steps = rotvec_to_dcm((np.asarray(gyro_b_rps[i0 + 1:i1]) - bias_rps) * np.diff(np.asarray(t_s[i0:i1]))[:, None])
     C = np.eye(3)
-    for j, k in enumerate(range(i0, i1)):
+    for j in range(i1 - i0):
         if j > 0:
-            C = C @ rotvec_to_dcm((gyro_b_rps[k] - bias_rps) * (t_s[k] - t_s[k - 1]))
+            C = C @ steps[j - 1]
         R[j] = C
     return R
 

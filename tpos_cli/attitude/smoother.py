@@ -103,17 +103,18 @@ def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Fil
     bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, backward_setup, use, backward=True, still=still)
     s = master.fuse(name, [fwd, bwd])
     lt, lh = fb_scale(fwd, bwd, diff_cov=diff_cov)
+    vb = np.concatenate([fwd.var_bias, bwd.var_bias], axis=1)
+    bg, vg = _fuse_diag(fwd.bias_rps, vb[:, 0:3], bwd.bias_rps, vb[:, 6:9])
+    ba, va = _fuse_diag(fwd.acc_bias_mps2, vb[:, 3:6], bwd.acc_bias_mps2, vb[:, 9:12])
+    mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)
+    mag_any = None if fwd.mag_ok is None else (fwd.mag_ok | bwd.mag_ok)
+    del bwd, vb  # the backward run is freed before the covariance's temporaries (memory: ~0.2 GB an hour at 100 Hz)
     ft, fh = excess_factor(lt), heading_excess_factor(lh)
     # the excess scales the noises the model left out; the gyro's scale/misalignment share is a prior that the
     # difference does not show where the runs share it (`master.fuse`): added once, as fused
     G = master.gyro_scale_cov(s)
     P = scale_covariance(s.P_att - G, ft, fh) + G
     Q = None if s.Q_ba is None else scale_covariance(s.Q_ba, ft, fh)
-    vb = np.concatenate([fwd.var_bias, bwd.var_bias], axis=1)
-    bg, vg = _fuse_diag(fwd.bias_rps, vb[:, 0:3], bwd.bias_rps, vb[:, 6:9])
-    ba, va = _fuse_diag(fwd.acc_bias_mps2, vb[:, 3:6], bwd.acc_bias_mps2, vb[:, 9:12])
-    mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)
-    mag_any = None if fwd.mag_ok is None else (fwd.mag_ok | bwd.mag_ok)
     return replace(fwd, C_nb=s.C_nb, P_att=P, bias_rps=bg, acc_bias_mps2=ba, var_bias=np.concatenate([vg, va], axis=1),
                    mag_ok=mag_ok, mag_any=mag_any, gyro_M=None, fb_scale=(lt, lh), S_ba=s.S_ba, Q_ba=Q, s_al=s.s_al, var_al=s.var_al,
                    S_gm=s.S_gm, var_gm=s.var_gm)

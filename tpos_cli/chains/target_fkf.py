@@ -398,7 +398,7 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
     imu = session.imu
     t = imu.t_s
     with ctx.stage("local filters"):
-        sols = {"gyro": run_full("gyro", t, imu.gyro_b_rps, imu.acc_b_mps2, None, None, setups.gyro, 0)}
+        sols = {"gyro": _covariance_parts(run_full("gyro", t, imu.gyro_b_rps, imu.acc_b_mps2, None, None, setups.gyro, 0))}
         mag = field.mag_b_ut if field is not None else imu.mag_b_ut
         if beams.rdiff is None:
             # LF1 alone holds all the information (Eq. 23-24: the shares sum to one over the local filters)
@@ -417,14 +417,15 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
                                        setups.backward, still=still, diff_cov=fb_diff_cov)
                 return run_full(name, t, imu.gyro_b_rps, imu.acc_b_mps2, mag_, rd, setups.forward, use, still=still)
 
-            sols["lf1"] = run("lf1", mag, None, K.USE_ACC | mot | (K.USE_MAG if mag is not None else 0))
+            # the smoothed biases are read by nothing after the filters (memory: 34 MB an hour at 100 Hz)
+            sols["lf1"] = _without_biases(run("lf1", mag, None, K.USE_ACC | mot | (K.USE_MAG if mag is not None else 0)))
             if field is not None and sols["lf1"].mag_ok is not None:
                 # the samples the survey masked were not used either
                 any_ = sols["lf1"].mag_any
                 sols["lf1"] = replace(sols["lf1"], mag_ok=sols["lf1"].mag_ok & ~field.disturbed,
                                       mag_any=None if any_ is None else any_ & ~field.disturbed)
             if beams.rdiff is not None:
-                sols["lf2"] = add_heading_variance(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot),
+                sols["lf2"] = add_heading_variance(_without_biases(run("lf2", None, beams.rdiff, K.USE_RANGE | K.USE_ACC | mot)),
                                                    beams.wall_var_rad2, beams.wall_lev_var_rad2,
                                                    beams.wall_align_var_rad2)
             summary["forward_backward_consistency"] = {
@@ -439,6 +440,17 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
         for k, s in sols.items():
             ctx.count(f"updates_{k}", int(sum(np.isfinite(v).sum() for v in s.nis.values())))
     return sols
+
+
+def _without_biases(sol: AttitudeSolution) -> AttitudeSolution:
+    return replace(sol, bias_rps=None, acc_bias_mps2=None, var_bias=None)
+
+
+def _covariance_parts(sol: AttitudeSolution) -> AttitudeSolution:
+    """`sol` with only what the chain reads of a solution outside the federation (the gyro-only run): its
+    attitude, covariance, accelerometer-bias sensitivity and prior share (`with_levelling`) and NIS (counts);
+    its gyro-scale sensitivity (N,3,9), biases and alignment sensitivity are freed."""
+    return AttitudeSolution(sol.name, sol.t_s, sol.C_nb, sol.P_att, nis=sol.nis, S_ba=sol.S_ba, Q_ba=sol.Q_ba)
 
 
 def unsupported_heading(sols: dict, mag_b_ut, decl: float, ctx: RunContext, summary: dict) -> dict:
@@ -499,8 +511,10 @@ def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContex
         locals_ = [sols[k] for k in ("lf1", "lf2") if k in sols]
         if len(locals_) == 2:
             fr = faults.detect(locals_, p.fault, gate_chi2)
-            sols["fkf"] = master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None)
-            sols["fkf_raw"] = master.fuse("fkf_raw", locals_, None, independent=True)
+            # nothing after the federation reads the fused solutions' gyro-scale or alignment sensitivities
+            # (their share is in P_att): only what `with_levelling` and targeting read is kept
+            sols["fkf"] = _covariance_parts(master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None))
+            sols["fkf_raw"] = _covariance_parts(master.fuse("fkf_raw", locals_, None, independent=True))
             summary["faults"] = {
                 name: {"excluded_fraction": float(1.0 - fr.ok[i].mean()),
                        "excluded_s": float(np.sum(np.diff(t, prepend=t[0])[~fr.ok[i]]))}
@@ -658,8 +672,15 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
     sols = unresolved_offset_heading(sols, field, session, start, ctx, summary)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
     summary["levelling_consider_sigma_deg"] = np.degrees(np.sqrt(np.diag(P_lev))).round(4).tolist()
-    fkf = sols["fkf"]
-    sols = {k: with_levelling(v, P_lev, noise) for k, v in sols.items()}
+    # what targeting reads of the unlevelled fkf (`_apply_offsets`); each solution then keeps its attitude and
+    # levelled covariance only, the rest freed as it goes (an hour at 100 Hz: ~0.2 GB per solution)
+    f = sols["fkf"]
+    fkf = AttitudeSolution("fkf", f.t_s, f.C_nb, f.P_att, var_bias=f.var_bias, S_ba=f.S_ba)
+    del f
+    for k in list(sols):
+        v = with_levelling(sols.pop(k), P_lev, noise)
+        sols[k] = AttitudeSolution(v.name, v.t_s, v.C_nb, v.P_att)
+        del v
     targets, tables = position_targets(session, p, sols, obs_lla, start, noise, ctx, summary, base_fkf=fkf, P_lev=P_lev)
     traj = _trajectory(sols, session.imu.t_s + session.t0_s, obs_lla)
     summary["solutions"] = list(sols)
