@@ -123,7 +123,7 @@ class DriveSmoothParams(Section):
     lever_arm_min_turn_deg: NonNegative = 90.0  # auto: the course must span at least this much
     gps_vel_latency_s: NonNegative | None = None  # how late the logged velocity is (s); None: the clock states
     # estimate it (gps_clock_sigma_s > 0), else from the
-    # log's own positions (`fusion.insgps.velocity_latency_s`: receivers that difference positions)
+    # log's own positions (`fusion.velocity_lag.velocity_latency_s`: receivers that difference positions)
     gps_noise: Literal["estimate", "given"] = "estimate"  # estimate: scale the GPS SDs by covariance
     # matching on a first decimated pass (`fusion.gps_noise`); given: the log's SDs or the defaults
     gps_noise_span_s: NonNegative = 900.0  # log time the estimation passes cover (0 = all)

@@ -443,6 +443,8 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
 
 
 def _without_biases(sol: AttitudeSolution) -> AttitudeSolution:
+    """`sol` without its smoothed gyro and accelerometer biases and their variance, which nothing after the
+    local filters reads (34 MB an hour at 100 Hz for lf1)."""
     return replace(sol, bias_rps=None, acc_bias_mps2=None, var_bias=None)
 
 
