@@ -682,10 +682,10 @@ def units_advice(session, output, runner: _Runner, gate_probability: float | Non
 def review(session, output, *, chain: str, config: Mapping | None, params, run: ChainRun,
            counts: Mapping | None = None, session_findings: list[Finding] | None = None) -> Quality:
     """The verdict of a run: convention checks on the session (`session_findings` when the caller
-    made them already, e.g. to refuse a unit before the work), the chain's own statistics
+    made them already: `pipeline._process` makes them before the chain runs and refuses there a unit
+    the contract forbids, `conventions.refuse_contract_errors`), the chain's own statistics
     (`quality.assess`), and candidate fixes tried by re-running the chain's `run` with `params`."""
     findings = list(conventions.session_findings(session) if session_findings is None else session_findings)
-    conventions.refuse_contract_errors(session, findings)  # a unit the contract forbids: invalid input (exit 2), no run
     if chain == "drive_smooth" and session.gps is not None and output is not None:
         runner = _Runner(session, output, run, params)
         # a run with clock states names its own estimate (`clock_state_finding`): no raw-data scan
