@@ -131,11 +131,9 @@ def export_run(
         raise InvalidInputError(f"--format {fmt}: expected one of {', '.join(FORMATS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InvalidInputError(f"--rate {rate_hz:g}: must be a positive number of Hz")
-    targets_only = not trajectory and (Path(run_dir) / "targets.parquet").exists()
-    # a target export reads of the trajectory what it dates and places (times, the observer's position)
-    run = load_run(Path(run_dir), trajectory_columns=TARGET_EXPORT_TRAJECTORY if targets_only else None)
-    if targets_only and (run.targets is None or not len(run.targets)):  # no targets after all: the trajectory is exported
-        run = load_run(Path(run_dir))
+    # a target export reads of the trajectory what it dates and places (times, the observer's position);
+    # a run without targets (or with an empty targets.parquet) exports its whole trajectory
+    run = load_run(Path(run_dir), trajectory_columns_if_targets=None if trajectory else TARGET_EXPORT_TRAJECTORY)
     start_utc, why = checked_start_utc(read_start_utc(session_dir_of(run.summary, run.path)), _logger_times(run))
     notes = (why,) if why else ()
     s = run.summary
