@@ -62,6 +62,13 @@ def find_table(session_dir: Path, name: str, csv_only: bool = False) -> Path | N
     return None
 
 
+def table_file_name(session_dir: Path | None, name: str) -> str:
+    """The file name a message gives for table `name` of a session: `gps.csv` or `gps.parquet` as the
+    session holds it, else `name` itself (absent, or a session without a directory)."""
+    path = find_table(Path(session_dir), name) if session_dir is not None else None
+    return path.name if path is not None else name
+
+
 SHOWN_CHARS = 60  # a value quoted in a message is cut to this many characters (a 5 MB cell is one line)
 
 
