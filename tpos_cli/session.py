@@ -645,6 +645,13 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
             c.problem(fname, f"lat and lon look exchanged: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) read "
                       f"the other way round, {ev[0]:.1f} m as given; swap the lat and lon columns", "lat", 1)
             return None
+        ev = plausibility.latlon_radians_evidence(t[moving], lla[moving, 0], lla[moving, 1],
+                                                  df["vn"][moving], df["ve"][moving])
+        if ev is not None:
+            c.problem(fname, f"lat and lon look like radians: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) "
+                      f"read as radians, {ev[0]:.1f} m as degrees; the contract requires degrees (multiply by 180/pi)",
+                      "lat", 1)
+            return None
     no_pos = (fix > 0) & ~np.isfinite(lla).all(axis=1)
     if no_pos.any():
         c.count("gps_fix_without_position", int(no_pos.sum()))

@@ -162,7 +162,7 @@ def overlapping_shots(s):
     pd.DataFrame({"id": ["T1", "T2"], "t_start": [1001.0, 1003.0], "t_end": [1004.0, 1006.0]}).to_csv(s / "shots.csv", index=False)
 
 
-def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False) -> None:
+def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False, radians: bool = False) -> None:
     """20 s of 1 Hz fixes on a curving 15-25 m/s track with the velocities that go with it."""
     t = 1000.0 + np.arange(10.0)
     heading = np.deg2rad(30.0 + 12.0 * np.arange(10.0))
@@ -176,11 +176,18 @@ def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False)
         lat, lon = lon, lat
     if swap_velocity:
         vn, ve = ve, vn
+    if radians:
+        lat, lon = np.deg2rad(lat), np.deg2rad(lon)
     pd.DataFrame({"t": t, "lat": lat, "lon": lon, "h": 50.0, "fix": 2, "vn": vn, "ve": ve, "vd": 0.0}).to_csv(s / "gps.csv", index=False)
 
 
 def gps_latlon_swapped(s):
     _moving_gps(s, swap_latlon=True)
+
+
+def gps_latlon_in_radians(s):
+    # audit (session 11): validate passed it; process blamed the gyro ("the gyro is in deg/s"), verdict unreliable
+    _moving_gps(s, radians=True)
 
 
 def gps_moving_as_given(s):
@@ -226,6 +233,7 @@ CASES = [
     (fifo_imu, {}, "imu.csv", "FIFO"),
     (nul_hole_after_valid_rows, {}, "imu.csv, row 1001", "NUL bytes"),
     (gps_latlon_swapped, {}, "gps.csv: column 'lat'", "lat and lon look exchanged"),
+    (gps_latlon_in_radians, {}, "gps.csv: column 'lat'", "lat and lon look like radians"),
     (gps_moving_as_given, {}, None, None),
     (gps_velocity_columns_swapped, {}, None, None),
     (gps_height_1e9, {}, "gps.csv: column 'h', row 5", "not an ellipsoidal height"),
