@@ -672,6 +672,12 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
 
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
+    unit = _gps_time_unit(t[keep] + _offset(meta, "gps") - t0, t[keep], t0 - _offset(meta, "gps"), imu_span_s)
+    if unit is not None:
+        c.problem(fname, f"the fixes span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
+                  f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
+                  "the contract requires seconds", "t", 2)
+        return None
     if imu_span_s is not None and not ((t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1]) & (fix[keep] > 0)).any():
         # counted and said; the run's verdict names the clock mistake and its fix (tpos_cli.quality)
         c.count("gps_outside_imu_span", 1)
@@ -683,6 +689,24 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
         nsat=opt(["nsat"])[keep, 0], hdop=opt(["hdop"])[keep, 0],
         vel_ned_mps=opt(["vn", "ve", "vd"])[keep], sigma_neu_m=opt(["sigma_n", "sigma_e", "sigma_u"])[keep],
     )
+
+
+def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None:
+    """(unit, factor) when GPS times are in milliseconds, microseconds or nanoseconds of the logger's
+    clock: fewer than half the rows fall within the IMU's span as given, at least 90 % do once divided
+    by the factor, and the rows are then 0.01-10 s apart (a GPS rate). `t_rel` relative to the logger's
+    t0, `t_raw` as logged, `origin` what `t_raw` less gives `t_rel`; None otherwise."""
+    if imu_span_s is None or t_rel.size < 3:
+        return None
+    a, b = imu_span_s
+    if np.mean((t_rel >= a) & (t_rel <= b)) >= 0.5:
+        return None
+    for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")):
+        scaled = t_raw / factor - origin
+        step = float(np.median(np.diff(scaled)))
+        if np.mean((scaled >= a) & (scaled <= b)) >= 0.9 and 0.01 <= step <= 10.0:
+            return unit, factor
+    return None
 
 
 def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):

@@ -148,6 +148,17 @@ def imu_time_in_ms(s):
     df.assign(t=df.t * 1000.0).to_csv(s / "imu.csv", index=False)
 
 
+def gps_time_in_ms(s):
+    # audit (session 11): validate said nothing; process ran dead reckoning, exit 0, the verdict blaming the GPS clock
+    df = pd.read_csv(s / "gps.csv")
+    df.assign(t=df.t * 1000.0).to_csv(s / "gps.csv", index=False)
+
+
+def gps_time_in_us(s):
+    df = pd.read_csv(s / "gps.csv")
+    df.assign(t=df.t * 1e6).to_csv(s / "gps.csv", index=False)
+
+
 def ranges_in_mm(s):
     df = pd.read_csv(s / "ranges.csv")
     df.assign(d1=df.d1 * 1000, d2=df.d2 * 1000, d3=df.d3 * 1000).to_csv(s / "ranges.csv", index=False)
@@ -256,6 +267,8 @@ CASES = [
     (singular_soft_iron, {}, "session.toml", "soft_iron is singular"),
     (gps_outside_imu_span, {}, None, "no GPS fix falls within the IMU's time span"),  # a warning: the verdict names it
     (imu_time_in_ms, {}, "imu.csv", "t is in milliseconds"),
+    (gps_time_in_ms, {}, "gps.csv: column 't', row 2", "divided by 1000 they fall within it: t is in milliseconds"),
+    (gps_time_in_us, {}, "gps.csv: column 't', row 2", "t is in microseconds"),
     (ranges_in_mm, {"with_ranges": True}, "ranges.csv", "millimetres"),
     (duplicate_target_ids, {}, "targets.csv", "target id 'T1' appears twice"),
     (overlapping_shots, {}, "shots.csv", "shot windows overlap"),
