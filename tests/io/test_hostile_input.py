@@ -81,6 +81,13 @@ def header_line_past_64_kib(s):
     (s / "imu.csv").write_text(",".join(f"c{i}" for i in range(n)) + "\n" + ",".join("0" for _ in range(n)) + "\n")
 
 
+def data_line_of_100_mb(s):
+    # audit (session 11): a 300 MB line after a valid header took pandas 1.7 GB to decode (the last-line check
+    # then named it); a line past 64 KiB is refused while the bytes are scanned
+    with open(s / "imu.csv", "ab") as fh:
+        fh.write(b"1" * (100 << 20) + b"\n")
+
+
 def csv_with_1500_columns(s):
     df = pd.read_csv(s / "imu.csv")
     extra = pd.DataFrame(np.zeros((len(df), 1500)), columns=[f"x{i}" for i in range(1500)])
@@ -256,6 +263,7 @@ CASES = [
     (sparse_nul_imu, {}, "imu.csv", "NUL bytes"),
     (parquet_with_many_rows, {}, "imu.parquet", "row limit"),
     (header_line_past_64_kib, {}, "imu.csv", "header line is longer than 64 KiB"),
+    (data_line_of_100_mb, {}, "imu.csv, row 1001", "a line longer than 64 KiB"),
     (csv_with_1500_columns, {}, "imu.csv", "more than 1000 columns"),
     (parquet_with_1500_columns, {}, "imu.parquet", "1507 columns: more than 1000"),
     (bad_pandas_metadata, {}, None, None),  # never parsed: the columns are read through Arrow (io.columns)
