@@ -475,6 +475,8 @@ def test_disk_full_while_writing_outputs_is_a_plain_exit_1_naming_the_run(tmp_pa
     res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(out)])
     assert res.exit_code == 1, res.output
     assert f"cannot write the run directory {out}" in res.output and "No space left" in res.output, res.output
+    # audit (session 11): pyarrow's wording "Error writing bytes to file. Detail: [errno 28] ..." was passed on as is
+    assert res.output.strip().endswith(f"cannot write the run directory {out}: No space left on device"), res.output
     assert "internal error" not in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # no partial run, lock or temporary directory
 

@@ -193,7 +193,10 @@ _ACTIVE: contextvars.ContextVar[list | None] = contextvars.ContextVar("tpos_run_
 
 def _plain(exc: OSError, out_dir: Path) -> TposError:
     where = f" ({exc.filename})" if exc.filename else ""
-    return TposError(f"cannot write the run directory {out_dir}: {exc.strerror or exc}{where}")
+    # pyarrow's OSError carries no errno: "Error writing bytes to file. Detail: [errno 28] No space left on device"
+    m = re.search(r"\[errno (\d+)\]", str(exc)) if exc.strerror is None else None
+    why = os.strerror(int(m.group(1))) if m else exc.strerror or exc
+    return TposError(f"cannot write the run directory {out_dir}: {why}{where}")
 
 
 @contextlib.contextmanager
