@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
+from tpos_cli.io.bounded import MAX_LINE_BYTES, MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
 from tpos_cli.io.columns import Columns
 
 if TYPE_CHECKING:
@@ -301,9 +301,6 @@ def _read_csv(path: Path) -> pd.DataFrame:
     df.columns = [str(c).strip() for c in df.columns]
     _check_last_line(path, n_header, len(df))
     return df
-
-
-MAX_LINE_BYTES = 65536  # a contract row (numbers, ids, labels) is a few hundred bytes; the header's limit too
 
 
 def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
