@@ -301,3 +301,17 @@ def test_a_run_whose_targets_table_is_empty_is_read_once(drive_run, tmp_path, mo
     res = _export(run, "-o", str(tmp_path / "a.csv"))
     assert [n for n, _ in seen].count("trajectory.parquet") == 1 and ("trajectory.parquet", None) in seen, seen
     assert [n for n, _ in seen].count("targets.parquet") == 1 and "trajectory" in res.stdout
+
+
+def test_a_kml_explains_the_fields_it_carries_only(target_run, drive_run, tmp_path):
+    # audit (session 11): a targets KML's description explained velocity, roll, pitch ... (every field an export
+    # can have); a target's placemarks carry none of them
+    run, _ = target_run
+    _export(run, "-f", "kml", "-o", str(tmp_path / "t.kml"))
+    desc = ET.parse(tmp_path / "t.kml").getroot().find(f"{KML}Document/{KML}description").text
+    assert "ell95_major_m:" in desc and "n_shots:" in desc
+    assert "vn:" not in desc and "roll:" not in desc and "sigma_yaw:" not in desc
+    drive, _ = drive_run
+    _export(drive, "-f", "kml", "--trajectory", "-o", str(tmp_path / "d.kml"))
+    desc = ET.parse(tmp_path / "d.kml").getroot().find(f"{KML}Document/{KML}description").text
+    assert "vn:" in desc and "roll:" in desc and "n_shots:" not in desc and "shot_chi2_dof:" not in desc
