@@ -40,6 +40,7 @@ ODOMETER_MAX_MPS = 200.0
 # static or moving, sits near 1 g).
 ACC_G_BAND = (0.5, 2.0)
 ACC_MPS2_BAND = (5.0, 15.0)
+ACC_SWITCH_MIN_S = 10.0  # a stretch of the log in g units within one in m/s² (`_acc_unit_switch`)
 # A declination beyond ±180 deg is not an angle of the contract's convention.
 DECLINATION_LIMIT_DEG = 180.0
 # A soft-iron matrix this ill-conditioned (or singular) destroys the magnetometer's direction.
@@ -569,12 +570,20 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         row = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)]) + 1
         c.problem(fname, f"angular rates up to {p999:.1f} (99.9th percentile of |gyro|) only make sense in deg/s; "
                   "the contract requires rad/s", "gyro_x", row)
-    acc_norm = float(np.median(np.linalg.norm(acc_k, axis=1)))
+    acc_norms = np.linalg.norm(acc_k, axis=1)
+    acc_norm = float(np.median(acc_norms))
     if ACC_G_BAND[0] <= acc_norm <= ACC_G_BAND[1]:
         c.problem(fname, f"median |acc| is {acc_norm:.3f}: that is g units; the contract requires m/s² "
                   "(multiply by 9.80665)", "acc_x", 1)
     elif not ACC_MPS2_BAND[0] <= acc_norm <= ACC_MPS2_BAND[1]:
         c.problem(fname, f"median |acc| is {acc_norm:.3g}, which is not gravity in m/s² (about 9.8)", "acc_x", 1)
+    else:
+        switch = _acc_unit_switch(t[keep], acc_norms)
+        if switch is not None:
+            row = int(np.flatnonzero(keep)[switch[0]]) + 1
+            c.problem(fname, f"|acc| is {switch[1]:.3g} from t = {t[keep][switch[0]]:.6g} s on (and about 9.8 elsewhere) for "
+                      f"at least {ACC_SWITCH_MIN_S:g} s: that part is in g units; the contract requires m/s² throughout",
+                      "acc_x", row)
     if mag is not None:
         mag_nan = keep & ~np.isfinite(mag).all(axis=1)
         if mag_nan.any():
@@ -618,6 +627,29 @@ def _load_imu(c: _Collector, meta: SessionMeta):
             return None
         c.warnings.append(f"{fname}: measured rate {1.0 / measured:.2f} Hz differs from [imu] rate_hz = {meta.rate_hz:g} by more than 10%")
     return t, gyro_b, acc_b, mag_b, gaps
+
+
+def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:
+    """(first sample, its block mean of |acc|) of a stretch logged in g within a log in m/s²
+    (two logs joined, a logger reconfigured): 1 s blocks whose mean |acc| lies in ACC_G_BAND for at
+    least ACC_SWITCH_MIN_S seconds in a log whose |acc| is gravity in m/s² (ACC_MPS2_BAND) overall. A
+    vehicle's |acc| stays near 9.8 m/s²; only a fall keeps it low, and then below 0.5 m/s²."""
+    if t_s.size < 2 or t_s[-1] - t_s[0] < 2 * ACC_SWITCH_MIN_S:
+        return None
+    block = np.floor(t_s - t_s[0]).astype(np.int64)  # 1 s blocks
+    norm = acc_norm_mps2
+    starts = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
+    med = np.add.reduceat(norm, starts) / np.diff(np.r_[starts, norm.size])  # block means: ms for an hour
+    in_g = (med >= ACC_G_BAND[0]) & (med <= ACC_G_BAND[1])
+    if in_g.sum() < ACC_SWITCH_MIN_S:
+        return None
+    # the longest run of consecutive g blocks
+    edges = np.flatnonzero(np.diff(np.r_[0, in_g.astype(np.int8), 0]))
+    runs = edges.reshape(-1, 2)
+    first, end = runs[np.argmax(runs[:, 1] - runs[:, 0])]
+    if end - first < ACC_SWITCH_MIN_S:
+        return None
+    return int(starts[first]), float(med[first])
 
 
 def _offset(meta: SessionMeta, name: str) -> float:

@@ -155,6 +155,16 @@ def imu_time_in_ms(s):
     df.assign(t=df.t * 1000.0).to_csv(s / "imu.csv", index=False)
 
 
+def acc_in_g_after_20_s(s):
+    # audit (session 11): two logs joined, the second in g: validate exit 0, process verdict unreliable ("at rest
+    # |f| = 5.47 m/s^2 ...: accelerometer scale or units are off"), outputs written, exit 0
+    df = pd.read_csv(s / "imu.csv")
+    later = np.arange(len(df)) >= 2000
+    for c in ("acc_x", "acc_y", "acc_z"):
+        df[c] = np.where(later, df[c] / 9.80665, df[c])
+    df.to_csv(s / "imu.csv", index=False)
+
+
 def gps_time_in_ms(s):
     # audit (session 11): validate said nothing; process ran dead reckoning, exit 0, the verdict blaming the GPS clock
     df = pd.read_csv(s / "gps.csv")
@@ -275,6 +285,7 @@ CASES = [
     (singular_soft_iron, {}, "session.toml", "soft_iron is singular"),
     (gps_outside_imu_span, {}, None, "no GPS fix falls within the IMU's time span"),  # a warning: the verdict names it
     (imu_time_in_ms, {}, "imu.csv", "t is in milliseconds"),
+    (acc_in_g_after_20_s, {"seconds": 40.0}, "imu.csv: column 'acc_x', row 2001", "that part is in g units"),
     (gps_time_in_ms, {}, "gps.csv: column 't', row 2", "divided by 1000 they fall within it: t is in milliseconds"),
     (gps_time_in_us, {}, "gps.csv: column 't', row 2", "t is in microseconds"),
     (ranges_in_mm, {"with_ranges": True}, "ranges.csv", "millimetres"),
