@@ -58,6 +58,12 @@ def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
     if behaviour == "stuck":
         signal.signal(signal.SIGALRM, signal.SIG_IGN)  # deaf to the alarm, as compiled code is
         time.sleep(120)
+    if behaviour == "claim_and_hang":  # as process_session mid-run: its run directory locked, a temporary beside it
+        from tpos_cli.io.run_dir import claim_run_dir
+
+        claim_run_dir(run_dir)
+        run_dir.with_name(f".{run_dir.name}.tmp-{os.getpid()}").mkdir()
+        time.sleep(120)
     inputs, config_sha = fake_fingerprint(session_dir, pipeline)
     tmp = run_dir.with_name(f".{run_dir.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -540,6 +546,27 @@ def test_pool_kills_a_worker_deaf_to_its_alarm(tmp_path, monkeypatch):
     assert time.monotonic() - t0 < 60
     assert [r.status for r in res.results] == ["failed", "ok", "failed"]
     assert "worker killed" in res.results[0].error and res.results[2].error.startswith("timed out after 1 s")
+
+
+def test_an_interrupted_batch_leaves_no_lock_or_temporary(tmp_path):
+    """audit (session 11): Ctrl-C or kill during `tpos batch` left the running workers' `.NAME.lock` files
+    (and `.NAME.tmp-PID` directories) in OUT until the next batch; they go with the workers."""
+    import _thread
+    import threading
+
+    sessions = make_sessions(tmp_path / "logs", {"a": "claim_and_hang", "b": "claim_and_hang", "c": "ok"})
+    out = tmp_path / "out"
+
+    def interrupt_when_both_run():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(list(out.glob(".*.tmp-*"))) < 2:
+            time.sleep(0.05)
+        _thread.interrupt_main()
+
+    threading.Thread(target=interrupt_when_both_run, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt):
+        b.run_batch(tasks_for(sessions, out), jobs=2, process=fake_process, is_current=fake_is_current)
+    assert sorted(p.name for p in out.iterdir()) == [], sorted(p.name for p in out.iterdir())
 
 
 def test_bad_timeout_is_invalid_input(tmp_path):
