@@ -355,15 +355,17 @@ def test_batch_e2e_real_pipeline_broken_session_and_resume(tmp_path):
 
 def report_threads(session_dir: Path, pipeline: str | None, run_dir: Path):
     """Stand-in that fails on purpose, carrying the worker's thread-limit environment in the message."""
-    raise ProcessingError(f"OMP={os.environ.get('OMP_NUM_THREADS')} NUMBA={os.environ.get('NUMBA_NUM_THREADS')}")
+    raise ProcessingError(f"OMP={os.environ.get('OMP_NUM_THREADS')} NUMBA={os.environ.get('NUMBA_NUM_THREADS')} "
+                          f"TPOS={os.environ.get('TPOS_THREADS')}")
 
 
 def test_pool_workers_compute_single_threaded(tmp_path, monkeypatch):
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setenv("NUMBA_NUM_THREADS", "3")  # the user's own choice is kept
+    monkeypatch.delenv("TPOS_THREADS", raising=False)  # tpos's helper threads too (chains.context.spare_cpu, s11-speed)
     sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok"})
     res = b.run_batch(tasks_for(sessions, tmp_path / "out"), jobs=2, process=report_threads, is_current=fake_is_current)
-    assert {r.error for r in res.results} == {"OMP=1 NUMBA=3"}
+    assert {r.error for r in res.results} == {"OMP=1 NUMBA=3 TPOS=1"}
     assert "OMP_NUM_THREADS" not in os.environ  # the parent's environment is restored
 
 

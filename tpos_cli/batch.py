@@ -530,7 +530,8 @@ def default_jobs() -> int:
 
 # One worker per core: each worker computes on one thread, or BLAS, OpenMP, numba and Arrow
 # thread pools in every worker would compete for the same cores.
-_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "ARROW_NUM_THREADS")
+_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "ARROW_NUM_THREADS",
+               "TPOS_THREADS")  # tpos_cli.chains.context.spare_cpu: no helper threads in a worker
 
 
 @contextlib.contextmanager
