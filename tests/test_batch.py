@@ -560,14 +560,22 @@ def test_an_interrupted_batch_leaves_no_lock_or_temporary(tmp_path):
     out = tmp_path / "out"
 
     def interrupt_when_both_run():
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 100  # before the workers' 120 s sleep ends
         while time.monotonic() < deadline and len(list(out.glob(".*.tmp-*"))) < 2:
             time.sleep(0.05)
-        _thread.interrupt_main()
+        if time.monotonic() < deadline:
+            _thread.interrupt_main()  # Ctrl-C, as the parent sees it
 
-    threading.Thread(target=interrupt_when_both_run, daemon=True).start()
-    with pytest.raises(KeyboardInterrupt):
-        b.run_batch(tasks_for(sessions, out), jobs=2, process=fake_process, is_current=fake_is_current)
+    # a test run in the background (nohup ... &) ignores SIGINT, and interrupt_main() then does nothing
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    watcher = threading.Thread(target=interrupt_when_both_run, daemon=True)
+    try:
+        watcher.start()
+        with pytest.raises(KeyboardInterrupt):
+            b.run_batch(tasks_for(sessions, out), jobs=2, process=fake_process, is_current=fake_is_current)
+    finally:
+        watcher.join()
+        signal.signal(signal.SIGINT, previous)
     assert sorted(p.name for p in out.iterdir()) == [], sorted(p.name for p in out.iterdir())
 
 
