@@ -58,6 +58,12 @@ def fake_process(session_dir: Path, pipeline: str | None, run_dir: Path):
     if behaviour == "stuck":
         signal.signal(signal.SIGALRM, signal.SIG_IGN)  # deaf to the alarm, as compiled code is
         time.sleep(120)
+    if behaviour == "claim_and_hang":  # as process_session mid-run: its run directory locked, a temporary beside it
+        from tpos_cli.io.run_dir import claim_run_dir
+
+        claim_run_dir(run_dir)
+        run_dir.with_name(f".{run_dir.name}.tmp-{os.getpid()}").mkdir()
+        time.sleep(120)
     inputs, config_sha = fake_fingerprint(session_dir, pipeline)
     tmp = run_dir.with_name(f".{run_dir.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -349,15 +355,17 @@ def test_batch_e2e_real_pipeline_broken_session_and_resume(tmp_path):
 
 def report_threads(session_dir: Path, pipeline: str | None, run_dir: Path):
     """Stand-in that fails on purpose, carrying the worker's thread-limit environment in the message."""
-    raise ProcessingError(f"OMP={os.environ.get('OMP_NUM_THREADS')} NUMBA={os.environ.get('NUMBA_NUM_THREADS')}")
+    raise ProcessingError(f"OMP={os.environ.get('OMP_NUM_THREADS')} NUMBA={os.environ.get('NUMBA_NUM_THREADS')} "
+                          f"TPOS={os.environ.get('TPOS_THREADS')}")
 
 
 def test_pool_workers_compute_single_threaded(tmp_path, monkeypatch):
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setenv("NUMBA_NUM_THREADS", "3")  # the user's own choice is kept
+    monkeypatch.delenv("TPOS_THREADS", raising=False)  # tpos's helper threads too (chains.context.spare_cpu, s11-speed)
     sessions = make_sessions(tmp_path / "logs", {"a": "ok", "b": "ok"})
     res = b.run_batch(tasks_for(sessions, tmp_path / "out"), jobs=2, process=report_threads, is_current=fake_is_current)
-    assert {r.error for r in res.results} == {"OMP=1 NUMBA=3"}
+    assert {r.error for r in res.results} == {"OMP=1 NUMBA=3 TPOS=1"}
     assert "OMP_NUM_THREADS" not in os.environ  # the parent's environment is restored
 
 
@@ -540,6 +548,35 @@ def test_pool_kills_a_worker_deaf_to_its_alarm(tmp_path, monkeypatch):
     assert time.monotonic() - t0 < 60
     assert [r.status for r in res.results] == ["failed", "ok", "failed"]
     assert "worker killed" in res.results[0].error and res.results[2].error.startswith("timed out after 1 s")
+
+
+def test_an_interrupted_batch_leaves_no_lock_or_temporary(tmp_path):
+    """audit (session 11): Ctrl-C or kill during `tpos batch` left the running workers' `.NAME.lock` files
+    (and `.NAME.tmp-PID` directories) in OUT until the next batch; they go with the workers."""
+    import _thread
+    import threading
+
+    sessions = make_sessions(tmp_path / "logs", {"a": "claim_and_hang", "b": "claim_and_hang", "c": "ok"})
+    out = tmp_path / "out"
+
+    def interrupt_when_both_run():
+        deadline = time.monotonic() + 100  # before the workers' 120 s sleep ends
+        while time.monotonic() < deadline and len(list(out.glob(".*.tmp-*"))) < 2:
+            time.sleep(0.05)
+        if time.monotonic() < deadline:
+            _thread.interrupt_main()  # Ctrl-C, as the parent sees it
+
+    # a test run in the background (nohup ... &) ignores SIGINT, and interrupt_main() then does nothing
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    watcher = threading.Thread(target=interrupt_when_both_run, daemon=True)
+    try:
+        watcher.start()
+        with pytest.raises(KeyboardInterrupt):
+            b.run_batch(tasks_for(sessions, out), jobs=2, process=fake_process, is_current=fake_is_current)
+    finally:
+        watcher.join()
+        signal.signal(signal.SIGINT, previous)
+    assert sorted(p.name for p in out.iterdir()) == [], sorted(p.name for p in out.iterdir())
 
 
 def test_bad_timeout_is_invalid_input(tmp_path):

@@ -54,6 +54,7 @@ from typing import Any
 
 from tpos_cli.errors import InvalidInputError, TposError
 from tpos_cli.io.bounded import read_json_bounded, read_toml
+from tpos_cli.io.run_dir import remove_leftovers
 
 STATUS_OK = "ok"
 STATUS_SKIPPED = "skipped"
@@ -529,7 +530,8 @@ def default_jobs() -> int:
 
 # One worker per core: each worker computes on one thread, or BLAS, OpenMP, numba and Arrow
 # thread pools in every worker would compete for the same cores.
-_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "ARROW_NUM_THREADS")
+_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "ARROW_NUM_THREADS",
+               "TPOS_THREADS")  # tpos_cli.chains.context.spare_cpu: no helper threads in a worker
 
 
 @contextlib.contextmanager
@@ -560,11 +562,14 @@ def _worker_ready() -> bool:
     return True
 
 
-def _kill_workers(ex: ProcessPoolExecutor) -> None:
+def _kill_workers(ex: ProcessPoolExecutor, wait_s: float = 0.0) -> None:
+    """Cancel the queued tasks and terminate the workers; with `wait_s`, wait that long for them to end."""
     procs = list((getattr(ex, "_processes", None) or {}).values())  # before shutdown drops them
     ex.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
         proc.terminate()
+    for proc in procs if wait_s else ():
+        proc.join(wait_s)
 
 
 def _run_pool(
@@ -601,8 +606,11 @@ def _run_pool(
                     pending = set()
         except KeyboardInterrupt:
             # stop now: drop the queued sessions and end the running ones (their outputs are still
-            # in temporary directories, never in place); the next call redoes them
-            _kill_workers(ex)
+            # in temporary directories, never in place); the next call redoes them. What the killed
+            # workers left beside the run directories (lock files, temporaries) goes with them.
+            _kill_workers(ex, wait_s=5.0)
+            for t in tasks:
+                remove_leftovers(Path(t.run_dir))
             raise
     # A worker died (segfault, out of memory, killed): the pool fails every task it still held,
     # without saying which one killed it. Rerun those one at a time in their own process, so the

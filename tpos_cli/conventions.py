@@ -388,14 +388,13 @@ def session_findings(session) -> list[Finding]:
 def contract_errors(session, findings) -> list[str]:
     """The findings that show a unit the session contract forbids (`Finding.contract_column`), as
     one-line errors naming the file and the column (the whole column: no row is worse than another)."""
-    from tpos_cli.io.tables import find_table
+    from tpos_cli.io.tables import table_file_name
 
     out = []
     for f in findings:
         if f.contract_column and f.reason:
             table, _, what = f.reason.partition(": ")
-            path = find_table(session.path, table) if session.path is not None else None
-            out.append(f"{path.name if path is not None else table}: column '{f.contract_column}': {what}")
+            out.append(f"{table_file_name(session.path, table)}: column '{f.contract_column}': {what}")
     return out
 
 

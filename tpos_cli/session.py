@@ -40,6 +40,7 @@ ODOMETER_MAX_MPS = 200.0
 # static or moving, sits near 1 g).
 ACC_G_BAND = (0.5, 2.0)
 ACC_MPS2_BAND = (5.0, 15.0)
+ACC_SWITCH_MIN_S = 10.0  # a stretch of the log in g units within one in m/s² (`_acc_unit_switch`)
 # A declination beyond ±180 deg is not an angle of the contract's convention.
 DECLINATION_LIMIT_DEG = 180.0
 # A soft-iron matrix this ill-conditioned (or singular) destroys the magnetometer's direction.
@@ -569,12 +570,20 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         row = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)]) + 1
         c.problem(fname, f"angular rates up to {p999:.1f} (99.9th percentile of |gyro|) only make sense in deg/s; "
                   "the contract requires rad/s", "gyro_x", row)
-    acc_norm = float(np.median(np.linalg.norm(acc_k, axis=1)))
+    acc_norms = np.linalg.norm(acc_k, axis=1)
+    acc_norm = float(np.median(acc_norms))
     if ACC_G_BAND[0] <= acc_norm <= ACC_G_BAND[1]:
         c.problem(fname, f"median |acc| is {acc_norm:.3f}: that is g units; the contract requires m/s² "
                   "(multiply by 9.80665)", "acc_x", 1)
     elif not ACC_MPS2_BAND[0] <= acc_norm <= ACC_MPS2_BAND[1]:
         c.problem(fname, f"median |acc| is {acc_norm:.3g}, which is not gravity in m/s² (about 9.8)", "acc_x", 1)
+    else:
+        switch = _acc_unit_switch(t[keep], acc_norms)
+        if switch is not None:
+            row = int(np.flatnonzero(keep)[switch[0]]) + 1
+            c.problem(fname, f"|acc| is {switch[1]:.3g} from t = {t[keep][switch[0]]:.6g} s on (and about 9.8 elsewhere) for "
+                      f"at least {ACC_SWITCH_MIN_S:g} s: that part is in g units; the contract requires m/s² throughout",
+                      "acc_x", row)
     if mag is not None:
         mag_nan = keep & ~np.isfinite(mag).all(axis=1)
         if mag_nan.any():
@@ -620,6 +629,29 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     return t, gyro_b, acc_b, mag_b, gaps
 
 
+def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:
+    """(first sample, its block mean of |acc|) of a stretch logged in g within a log in m/s²
+    (two logs joined, a logger reconfigured): 1 s blocks whose mean |acc| lies in ACC_G_BAND for at
+    least ACC_SWITCH_MIN_S seconds in a log whose |acc| is gravity in m/s² (ACC_MPS2_BAND) overall. A
+    vehicle's |acc| stays near 9.8 m/s²; only a fall keeps it low, and then below 0.5 m/s²."""
+    if t_s.size < 2 or t_s[-1] - t_s[0] < 2 * ACC_SWITCH_MIN_S:
+        return None
+    block = np.floor(t_s - t_s[0]).astype(np.int64)  # 1 s blocks
+    norm = acc_norm_mps2
+    starts = np.flatnonzero(np.r_[True, block[1:] != block[:-1]])
+    med = np.add.reduceat(norm, starts) / np.diff(np.r_[starts, norm.size])  # block means: ms for an hour
+    in_g = (med >= ACC_G_BAND[0]) & (med <= ACC_G_BAND[1])
+    if in_g.sum() < ACC_SWITCH_MIN_S:
+        return None
+    # the longest run of consecutive g blocks
+    edges = np.flatnonzero(np.diff(np.r_[0, in_g.astype(np.int8), 0]))
+    runs = edges.reshape(-1, 2)
+    first, end = runs[np.argmax(runs[:, 1] - runs[:, 0])]
+    if end - first < ACC_SWITCH_MIN_S:
+        return None
+    return int(starts[first]), float(med[first])
+
+
 def _offset(meta: SessionMeta, name: str) -> float:
     return float(meta.time_offsets_s.get(f"{name}_offset_s", 0.0))
 
@@ -645,6 +677,13 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
             c.problem(fname, f"lat and lon look exchanged: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) read "
                       f"the other way round, {ev[0]:.1f} m as given; swap the lat and lon columns", "lat", 1)
             return None
+        ev = plausibility.latlon_radians_evidence(t[moving], lla[moving, 0], lla[moving, 1],
+                                                  df["vn"][moving], df["ve"][moving])
+        if ev is not None:
+            c.problem(fname, f"lat and lon look like radians: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) "
+                      f"read as radians, {ev[0]:.1f} m as degrees; the contract requires degrees (multiply by 180/pi)",
+                      "lat", 1)
+            return None
     no_pos = (fix > 0) & ~np.isfinite(lla).all(axis=1)
     if no_pos.any():
         c.count("gps_fix_without_position", int(no_pos.sum()))
@@ -665,6 +704,12 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
 
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
+    unit = _gps_time_unit(t[keep] + _offset(meta, "gps") - t0, t[keep], t0 - _offset(meta, "gps"), imu_span_s)
+    if unit is not None:
+        c.problem(fname, f"the fixes span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
+                  f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
+                  "the contract requires seconds", "t", 2)
+        return None
     if imu_span_s is not None and not ((t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1]) & (fix[keep] > 0)).any():
         # counted and said; the run's verdict names the clock mistake and its fix (tpos_cli.quality)
         c.count("gps_outside_imu_span", 1)
@@ -676,6 +721,24 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
         nsat=opt(["nsat"])[keep, 0], hdop=opt(["hdop"])[keep, 0],
         vel_ned_mps=opt(["vn", "ve", "vd"])[keep], sigma_neu_m=opt(["sigma_n", "sigma_e", "sigma_u"])[keep],
     )
+
+
+def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None:
+    """(unit, factor) when GPS times are in milliseconds, microseconds or nanoseconds of the logger's
+    clock: fewer than half the rows fall within the IMU's span as given, at least 90 % do once divided
+    by the factor, and the rows are then 0.01-10 s apart (a GPS rate). `t_rel` relative to the logger's
+    t0, `t_raw` as logged, `origin` what `t_raw` less gives `t_rel`; None otherwise."""
+    if imu_span_s is None or t_rel.size < 3:
+        return None
+    a, b = imu_span_s
+    if np.mean((t_rel >= a) & (t_rel <= b)) >= 0.5:
+        return None
+    for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")):
+        scaled = t_raw / factor - origin
+        step = float(np.median(np.diff(scaled)))
+        if np.mean((scaled >= a) & (scaled <= b)) >= 0.9 and 0.01 <= step <= 10.0:
+            return unit, factor
+    return None
 
 
 def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):

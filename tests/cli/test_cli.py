@@ -247,3 +247,31 @@ def test_force_replaces_a_session_never_a_directory_of_other_files(tmp_path, mon
     res = CliRunner().invoke(app, ["calibrate-mag", str(sim / "inner" / "s"), "-o", str(sim), "--force"])
     assert res.exit_code == 2 and "holds the input session" in res.output
     assert (sim / "session.toml").is_file() and (sim / "inner" / "s" / "session.toml").is_file()
+
+
+@pytest.mark.parametrize("cmd", ["process", "export"])
+def test_kill_pid_is_an_interrupt_that_leaves_nothing(tmp_path, cmd):
+    """audit (session 11): `kill PID` (SIGTERM) ended `tpos process` where it stood (exit -15, no word) with
+    .run.lock and .run.tmp-PID left beside the run directory; only `tpos report` treated it as Ctrl-C."""
+    import os
+
+    s = write_minimal_session(tmp_path / "s")
+    out = tmp_path / "out"
+    out.mkdir()
+    if cmd == "export":
+        assert runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(tmp_path / "run")]).exit_code == 0
+    # SIGTERM arrives while the outputs are being written (a Parquet table into the temporary run directory, or
+    # the export's bytes into its temporary file)
+    patch = {"process": "import pyarrow.parquet as pq; pq.write_table = kill",
+             "export": "import pathlib; pathlib.Path.write_bytes = kill"}[cmd]
+    code = ("import os, signal, sys\n"
+            "def kill(*a, **k):\n    os.kill(os.getpid(), signal.SIGTERM)\n"
+            f"{patch}\n"
+            "from tpos_cli.cli import main\nsys.argv[0] = 'tpos'\nmain()\n")
+    args = {"process": ["process", str(s), "-p", "drive-smooth", "-o", str(out / "run")],
+            "export": ["export", str(tmp_path / "run"), "-o", str(out / "x.csv")]}[cmd]
+    res = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=240,
+                         env=dict(os.environ, NUMBA_NUM_THREADS="1"))
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 130 and len(lines) == 1 and lines[0].startswith(f"tpos {cmd}: interrupted"), (res.returncode, lines)
+    assert sorted(p.name for p in out.iterdir()) == []  # no run, lock, temporary directory or file

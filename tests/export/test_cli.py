@@ -8,8 +8,10 @@ import csv
 import io
 import json
 import os
+import shutil
 import stat
 import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import gpxpy
 import numpy as np
@@ -275,3 +277,41 @@ def test_a_target_export_reads_only_the_trajectorys_times_and_positions(target_r
     monkeypatch.setattr(build, "TARGET_EXPORT_TRAJECTORY", None)  # the whole table, as before
     _export(run, "-o", str(tmp_path / "b.csv"))
     assert seen[1] is None and (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+
+
+def test_a_run_whose_targets_table_is_empty_is_read_once(drive_run, tmp_path, monkeypatch):
+    # review (session 10): an empty targets.parquet made export_run read the run twice (summary, targets,
+    # innovations, and the trajectory: 5 columns, then the whole table); it reads it once, whole
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    run0, _ = drive_run
+    run = tmp_path / "run"
+    shutil.copytree(run0, run)
+    tg = pd.read_parquet(run / "targets.parquet")
+    tg.iloc[:0].to_parquet(run / "targets.parquet")
+    seen = []
+    real = pq.read_table
+
+    def spy(path, *a, **k):
+        seen.append((Path(path).name, k.get("columns")))
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(pq, "read_table", spy)
+    res = _export(run, "-o", str(tmp_path / "a.csv"))
+    assert [n for n, _ in seen].count("trajectory.parquet") == 1 and ("trajectory.parquet", None) in seen, seen
+    assert [n for n, _ in seen].count("targets.parquet") == 1 and "trajectory" in res.stdout
+
+
+def test_a_kml_explains_the_fields_it_carries_only(target_run, drive_run, tmp_path):
+    # audit (session 11): a targets KML's description explained velocity, roll, pitch ... (every field an export
+    # can have); a target's placemarks carry none of them
+    run, _ = target_run
+    _export(run, "-f", "kml", "-o", str(tmp_path / "t.kml"))
+    desc = ET.parse(tmp_path / "t.kml").getroot().find(f"{KML}Document/{KML}description").text
+    assert "ell95_major_m:" in desc and "n_shots:" in desc
+    assert "vn:" not in desc and "roll:" not in desc and "sigma_yaw:" not in desc
+    drive, _ = drive_run
+    _export(drive, "-f", "kml", "--trajectory", "-o", str(tmp_path / "d.kml"))
+    desc = ET.parse(tmp_path / "d.kml").getroot().find(f"{KML}Document/{KML}description").text
+    assert "vn:" in desc and "roll:" in desc and "n_shots:" not in desc and "shot_chi2_dof:" not in desc

@@ -103,6 +103,15 @@ def test_csv_import_refuses_an_impossible_position_naming_the_line(tmp_path, row
     assert not (tmp_path / "s").exists()
 
 
+def test_csv_import_refuses_a_line_that_is_no_log_line(tmp_path):
+    # audit (session 11): a 100 MB line after good rows was "dropped 1 unparsable line", exit 0, after a 745 MB peak
+    (tmp_path / "g.txt").write_text(GOOD_ROWS + "1600000002.0," + "1" * (1 << 20) + ",-73.5,30\n")
+    (tmp_path / "map.toml").write_text(MAPPING)
+    res = runner.invoke(app, ["import", "csv", str(tmp_path / "g.txt"), "--map", str(tmp_path / "map.toml"), "-o", str(tmp_path / "s")])
+    assert res.exit_code == 2 and "g.txt: line 4: longer than 64 KiB: not a line of a delimited log" in res.output, res.output
+    assert not (tmp_path / "s").exists()
+
+
 def test_csv_import_of_good_rows_still_works(tmp_path):
     (tmp_path / "g.txt").write_text(GOOD_ROWS)
     (tmp_path / "map.toml").write_text(MAPPING)

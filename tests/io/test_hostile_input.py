@@ -81,6 +81,13 @@ def header_line_past_64_kib(s):
     (s / "imu.csv").write_text(",".join(f"c{i}" for i in range(n)) + "\n" + ",".join("0" for _ in range(n)) + "\n")
 
 
+def data_line_of_100_mb(s):
+    # audit (session 11): a 300 MB line after a valid header took pandas 1.7 GB to decode (the last-line check
+    # then named it); a line past 64 KiB is refused while the bytes are scanned
+    with open(s / "imu.csv", "ab") as fh:
+        fh.write(b"1" * (100 << 20) + b"\n")
+
+
 def csv_with_1500_columns(s):
     df = pd.read_csv(s / "imu.csv")
     extra = pd.DataFrame(np.zeros((len(df), 1500)), columns=[f"x{i}" for i in range(1500)])
@@ -148,6 +155,27 @@ def imu_time_in_ms(s):
     df.assign(t=df.t * 1000.0).to_csv(s / "imu.csv", index=False)
 
 
+def acc_in_g_after_20_s(s):
+    # audit (session 11): two logs joined, the second in g: validate exit 0, process verdict unreliable ("at rest
+    # |f| = 5.47 m/s^2 ...: accelerometer scale or units are off"), outputs written, exit 0
+    df = pd.read_csv(s / "imu.csv")
+    later = np.arange(len(df)) >= 2000
+    for c in ("acc_x", "acc_y", "acc_z"):
+        df[c] = np.where(later, df[c] / 9.80665, df[c])
+    df.to_csv(s / "imu.csv", index=False)
+
+
+def gps_time_in_ms(s):
+    # audit (session 11): validate said nothing; process ran dead reckoning, exit 0, the verdict blaming the GPS clock
+    df = pd.read_csv(s / "gps.csv")
+    df.assign(t=df.t * 1000.0).to_csv(s / "gps.csv", index=False)
+
+
+def gps_time_in_us(s):
+    df = pd.read_csv(s / "gps.csv")
+    df.assign(t=df.t * 1e6).to_csv(s / "gps.csv", index=False)
+
+
 def ranges_in_mm(s):
     df = pd.read_csv(s / "ranges.csv")
     df.assign(d1=df.d1 * 1000, d2=df.d2 * 1000, d3=df.d3 * 1000).to_csv(s / "ranges.csv", index=False)
@@ -162,7 +190,7 @@ def overlapping_shots(s):
     pd.DataFrame({"id": ["T1", "T2"], "t_start": [1001.0, 1003.0], "t_end": [1004.0, 1006.0]}).to_csv(s / "shots.csv", index=False)
 
 
-def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False) -> None:
+def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False, radians: bool = False) -> None:
     """20 s of 1 Hz fixes on a curving 15-25 m/s track with the velocities that go with it."""
     t = 1000.0 + np.arange(10.0)
     heading = np.deg2rad(30.0 + 12.0 * np.arange(10.0))
@@ -176,11 +204,18 @@ def _moving_gps(s: Path, swap_latlon: bool = False, swap_velocity: bool = False)
         lat, lon = lon, lat
     if swap_velocity:
         vn, ve = ve, vn
+    if radians:
+        lat, lon = np.deg2rad(lat), np.deg2rad(lon)
     pd.DataFrame({"t": t, "lat": lat, "lon": lon, "h": 50.0, "fix": 2, "vn": vn, "ve": ve, "vd": 0.0}).to_csv(s / "gps.csv", index=False)
 
 
 def gps_latlon_swapped(s):
     _moving_gps(s, swap_latlon=True)
+
+
+def gps_latlon_in_radians(s):
+    # audit (session 11): validate passed it; process blamed the gyro ("the gyro is in deg/s"), verdict unreliable
+    _moving_gps(s, radians=True)
 
 
 def gps_moving_as_given(s):
@@ -226,6 +261,7 @@ CASES = [
     (fifo_imu, {}, "imu.csv", "FIFO"),
     (nul_hole_after_valid_rows, {}, "imu.csv, row 1001", "NUL bytes"),
     (gps_latlon_swapped, {}, "gps.csv: column 'lat'", "lat and lon look exchanged"),
+    (gps_latlon_in_radians, {}, "gps.csv: column 'lat'", "lat and lon look like radians"),
     (gps_moving_as_given, {}, None, None),
     (gps_velocity_columns_swapped, {}, None, None),
     (gps_height_1e9, {}, "gps.csv: column 'h', row 5", "not an ellipsoidal height"),
@@ -237,6 +273,7 @@ CASES = [
     (sparse_nul_imu, {}, "imu.csv", "NUL bytes"),
     (parquet_with_many_rows, {}, "imu.parquet", "row limit"),
     (header_line_past_64_kib, {}, "imu.csv", "header line is longer than 64 KiB"),
+    (data_line_of_100_mb, {}, "imu.csv, row 1001", "a line longer than 64 KiB"),
     (csv_with_1500_columns, {}, "imu.csv", "more than 1000 columns"),
     (parquet_with_1500_columns, {}, "imu.parquet", "1507 columns: more than 1000"),
     (bad_pandas_metadata, {}, None, None),  # never parsed: the columns are read through Arrow (io.columns)
@@ -248,6 +285,9 @@ CASES = [
     (singular_soft_iron, {}, "session.toml", "soft_iron is singular"),
     (gps_outside_imu_span, {}, None, "no GPS fix falls within the IMU's time span"),  # a warning: the verdict names it
     (imu_time_in_ms, {}, "imu.csv", "t is in milliseconds"),
+    (acc_in_g_after_20_s, {"seconds": 40.0}, "imu.csv: column 'acc_x', row 2001", "that part is in g units"),
+    (gps_time_in_ms, {}, "gps.csv: column 't', row 2", "divided by 1000 they fall within it: t is in milliseconds"),
+    (gps_time_in_us, {}, "gps.csv: column 't', row 2", "t is in microseconds"),
     (ranges_in_mm, {"with_ranges": True}, "ranges.csv", "millimetres"),
     (duplicate_target_ids, {}, "targets.csv", "target id 'T1' appears twice"),
     (overlapping_shots, {}, "shots.csv", "shot windows overlap"),
@@ -446,6 +486,8 @@ def test_disk_full_while_writing_outputs_is_a_plain_exit_1_naming_the_run(tmp_pa
     res = runner.invoke(app, ["process", str(s), "-p", "drive-smooth", "-o", str(out)])
     assert res.exit_code == 1, res.output
     assert f"cannot write the run directory {out}" in res.output and "No space left" in res.output, res.output
+    # audit (session 11): pyarrow's wording "Error writing bytes to file. Detail: [errno 28] ..." was passed on as is
+    assert res.output.strip().endswith(f"cannot write the run directory {out}: No space left on device"), res.output
     assert "internal error" not in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]  # no partial run, lock or temporary directory
 

@@ -157,8 +157,35 @@ def test_a_huge_cell_or_last_line_is_one_short_line(tmp_path):
     with pytest.raises(InvalidInputError) as exc:
         read_table(p, ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"))
     msg = str(exc.value)
-    assert msg.startswith("imu.csv: column 'gyro_x', row 2: 'xxx") and msg.endswith("(5242882 characters) is not a number")
+    # since session 11 a line past 64 KiB is refused before it is decoded (a 300 MB line took 1.7 GB); the cell
+    # itself was named "column 'gyro_x', row 2: 'xxx... (5242882 characters) is not a number" before
+    assert msg == "imu.csv, row 2: a line longer than 64 KiB: not a row of a contract table"
+    p.write_text(head + "0,0,0,0,0,0,-9.8\n1," + "x" * 60000 + ",0,0,0,0,-9.8\n")  # a long cell within the line limit
+    with pytest.raises(InvalidInputError) as exc:
+        read_table(p, ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"))
+    msg = str(exc.value)
+    assert msg.startswith("imu.csv: column 'gyro_x', row 2: 'xxx") and msg.endswith("(60002 characters) is not a number")
     assert len(msg) < 150
     p.write_text(head + "0,0,0,0,0,0,-9.8\n1,0,0,0," + "1" * 5000 + ",0\n")  # a long last line that IS cut short
     with pytest.raises(InvalidInputError, match="fields where the header has 7"):
         read_table(p, ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z"))
+
+
+def test_a_tables_file_name_in_messages_is_built_once(tmp_path):
+    """review (session 10): drive_smooth.fixes_from_session built "the gps file's name" in each refusal
+    (and conventions a third time); `table_file_name` serves all, and a session without a directory (a
+    library caller's) is named by the table, not an internal TypeError."""
+    import dataclasses
+
+    from tpos_cli.chains.drive_smooth import fixes_from_session
+    from tpos_cli.config import DriveSmoothParams
+    from tpos_cli.io.tables import table_file_name
+
+    s = write_minimal_session(tmp_path / "s")
+    assert table_file_name(s, "imu") == "imu.csv" and table_file_name(s, "anchors") == "anchors"
+    assert table_file_name(None, "gps") == "gps"
+    session = load_session(s)
+    gps = dataclasses.replace(session.gps, t_s=session.gps.t_s + 1e6)  # on another clock
+    for path, name in ((session.path, table_file_name(s, "gps")), (None, "gps")):
+        with pytest.raises(InvalidInputError, match=rf"^{name}: column 't': no position fix falls within the IMU"):
+            fixes_from_session(dataclasses.replace(session, gps=gps, path=path), DriveSmoothParams())

@@ -163,3 +163,24 @@ def test_a_target_that_is_not_a_regular_file_is_refused(tmp_path):
     with staged([link]) as tmps:  # a link is replaced, its target left alone
         tmps[link].write_text("new")
     assert not link.is_symlink() and link.read_text() == "new" and other.read_text() == "old"
+
+
+def test_a_link_to_a_fifo_or_directory_is_refused_and_left_alone(tmp_path):
+    """audit (session 11): a link to a FIFO (as `/dev/stdout` is a link to the terminal or pipe) was
+    replaced by a regular file (as root, `tpos export RUN -o /dev/stdout` would have replaced the
+    system's link); a dangling link is still replaced."""
+    from tpos_cli.errors import InvalidInputError
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    for name, target in (("stdout", fifo), ("dirlink", tmp_path)):
+        link = tmp_path / name
+        link.symlink_to(target)
+        with pytest.raises(InvalidInputError, match="exists and is not a regular file .a link to a device"):
+            write_atomic(link, lambda p: p.write_text("new"))
+        assert link.is_symlink() and link.readlink() == target
+    dangling = tmp_path / "dangling.pdf"
+    dangling.symlink_to(tmp_path / "nowhere")
+    write_atomic(dangling, lambda p: p.write_text("new"))
+    assert not dangling.is_symlink() and dangling.read_text() == "new"
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)

@@ -62,7 +62,7 @@ from tpos_cli.fusion.nav_errors import vibration_velocity_cov_b
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
 from tpos_cli.io.columns import Columns, concat
-from tpos_cli.io.tables import find_table
+from tpos_cli.io.tables import table_file_name
 from tpos_cli.quality import mounting_text
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
@@ -114,17 +114,15 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
         raise ProcessingError("gps: the drive pipeline needs a gps table")
     ok = gps.valid.copy()
     if not ok.any():
-        f = find_table(session.path, "gps")
-        raise InvalidInputError(f"{f.name if f is not None else 'gps'}: no row holds a position fix (lat, lon, h empty or "
+        raise InvalidInputError(f"{table_file_name(session.path, 'gps')}: no row holds a position fix (lat, lon, h empty or "
                                 f"fix = 0 in all {gps.t_s.size} rows left); the drive pipeline needs GPS fixes")
     t_imu = session.imu.t_s
     if not (ok & (gps.t_s >= t_imu[0]) & (gps.t_s <= t_imu[-1])).any():
         # GPS on another clock (or a wrong [time] gps_offset_s): without this the drive ran the whole
         # log as dead reckoning, exit 0 (the loader only warns: other chains may not need the GPS)
-        f = find_table(session.path, "gps")
         t_fix = gps.t_s[ok] + session.t0_s
         raise InvalidInputError(
-            f"{f.name if f is not None else 'gps'}: column 't': no position fix falls within the IMU's time span "
+            f"{table_file_name(session.path, 'gps')}: column 't': no position fix falls within the IMU's time span "
             f"(fixes {t_fix[0]:.3f}-{t_fix[-1]:.3f} s, IMU {t_imu[0] + session.t0_s:.3f}-{t_imu[-1] + session.t0_s:.3f} s "
             "on the logger clock, after [time] gps_offset_s): the GPS rows are stamped on another clock (the GPS clock, not "
             "the logger's) or [time] gps_offset_s is wrong; the drive pipeline needs GPS fixes")

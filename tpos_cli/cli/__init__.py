@@ -64,12 +64,15 @@ _INTERRUPTED = {
 
 
 def _interruptible(name: str, fn):
-    """`fn` saying one line and exiting 130 on Ctrl-C (signature kept for typer)."""
+    """`fn` saying one line and exiting 130 on Ctrl-C or `kill PID` (SIGTERM, which would otherwise end
+    the process where it stands, its temporaries and run-directory lock left behind) (signature kept for typer)."""
+    from tpos_cli.report.files import terminate_as_interrupt
 
     @functools.wraps(fn)
     def command(*args, **kwargs):
         try:
-            return fn(*args, **kwargs)
+            with terminate_as_interrupt():
+                return fn(*args, **kwargs)
         except KeyboardInterrupt:
             kept = _INTERRUPTED.get(name)
             typer.echo(f"tpos {name}: interrupted" + (f"; {kept}" if kept else ""), err=True)

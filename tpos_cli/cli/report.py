@@ -32,10 +32,8 @@ def report(
     try:
         with exit_on_error(), cyclic_gc_paused(), working(f"tpos report {run}"):  # the report's imports too
             from tpos_cli.report.build import make_report
-            from tpos_cli.report.files import terminate_as_interrupt
 
-            with terminate_as_interrupt():
-                res = make_report(run, truth, full=full)
+            res = make_report(run, truth, full=full)  # SIGTERM is an interrupt here too (cli._interruptible)
             keep_until_exit()  # before the collector resumes (a one-shot `tpos report`)
     except KeyboardInterrupt:
         typer.echo("tpos report: interrupted; the run's earlier report files, if any, are unchanged", err=True)

@@ -7,7 +7,6 @@ combined, see `export.targets`) unless the trajectory is asked for; any other ru
 
 from __future__ import annotations
 
-import os
 import re
 import sys
 from dataclasses import dataclass
@@ -95,17 +94,11 @@ RUN_JSON_FILES = ("summary.json", "accuracy.json")
 
 
 def check_export_path(path: Path, out, session_dir: Path | None = None) -> None:
-    """InvalidInputError when `path` is not a regular file or a link (a device: replacing it whole
-    would put a file in its place), or when it (followed through links) would replace a session's input
-    or a run's own file: a file in a directory holding session.toml (a session) or in the run's own
+    """InvalidInputError when `path` (followed through links) would replace a session's input or a
+    run's own file: a file in a directory holding session.toml (a session) or in the run's own
     `session_dir`, or in a run directory a file that is not an export (trajectory.parquet,
     summary.json, report.pdf ...). A run's and a session's files are only ever written by the
-    commands that own them."""
-    if os.path.lexists(path) and not (Path(path).is_symlink() or Path(path).is_file()):
-        # the file is replaced whole (written beside it, then renamed over it): over a device, that
-        # would put a regular file in its place (as root: /dev/null itself)
-        raise InvalidInputError(f"-o {out}: is not a regular file (a device, FIFO or socket); exports are written as "
-                                "files (-o - writes to standard output)")
+    commands that own them. A device or FIFO is refused by the writer (`report.files.check_replaceable`)."""
     real = Path(path).resolve()
     where = real.parent
     if (where / "session.toml").is_file() or (session_dir is not None and real.is_relative_to(Path(session_dir).resolve())):
@@ -138,11 +131,9 @@ def export_run(
         raise InvalidInputError(f"--format {fmt}: expected one of {', '.join(FORMATS)}")
     if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
         raise InvalidInputError(f"--rate {rate_hz:g}: must be a positive number of Hz")
-    targets_only = not trajectory and (Path(run_dir) / "targets.parquet").exists()
-    # a target export reads of the trajectory what it dates and places (times, the observer's position)
-    run = load_run(Path(run_dir), trajectory_columns=TARGET_EXPORT_TRAJECTORY if targets_only else None)
-    if targets_only and (run.targets is None or not len(run.targets)):  # no targets after all: the trajectory is exported
-        run = load_run(Path(run_dir))
+    # a target export reads of the trajectory what it dates and places (times, the observer's position);
+    # a run without targets (or with an empty targets.parquet) exports its whole trajectory
+    run = load_run(Path(run_dir), trajectory_columns_if_targets=None if trajectory else TARGET_EXPORT_TRAJECTORY)
     start_utc, why = checked_start_utc(read_start_utc(session_dir_of(run.summary, run.path)), _logger_times(run))
     notes = (why,) if why else ()
     s = run.summary

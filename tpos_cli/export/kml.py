@@ -37,11 +37,15 @@ def _fmt(k, v) -> str:
     return str(v)
 
 
-def _document(meta: ExportMeta):
+def _document(meta: ExportMeta, columns):
+    """The KML document with its styles; its description explains the data fields the placemarks carry
+    (`columns`), not every field an export can have (a target has no velocity or attitude)."""
     root = ET.Element("kml", {"xmlns": NS})
     doc = _sub(root, "Document")
     _sub(doc, "name", meta.title)
-    _sub(doc, "description", meta.description + " Data fields: " + "; ".join(f"{k}: {v}" for k, v in COLUMN_DOC.items()) + ".")
+    present = set(columns)
+    fields = "; ".join(f"{k}: {v}" for k, v in COLUMN_DOC.items() if k in present)
+    _sub(doc, "description", meta.description + (" Data fields: " + fields + "." if fields else ""))
     for sid, color, scale in (("target", "ff0000ff", "1.0"), ("observer", "ffff0000", "1.1"), ("epoch", "ff00ffff", "0.4")):
         st = _sub(doc, "Style", id=sid)
         icon = _sub(st, "IconStyle")
@@ -78,7 +82,7 @@ def _bytes(root) -> bytes:
 
 
 def targets(table: pd.DataFrame, meta: ExportMeta, observer: pd.DataFrame | None = None) -> bytes:
-    root, doc = _document(meta)
+    root, doc = _document(meta, [*table.columns, *(observer.columns if observer is not None else ())])
     for rows, style in ((table, "target"), (observer, "observer")):
         if rows is None:
             continue
@@ -89,7 +93,7 @@ def targets(table: pd.DataFrame, meta: ExportMeta, observer: pd.DataFrame | None
 
 
 def track(table: pd.DataFrame, meta: ExportMeta) -> bytes:
-    root, doc = _document(meta)
+    root, doc = _document(meta, table.columns)
     pm = _sub(doc, "Placemark")
     _sub(pm, "name", f"track {meta.solution}")
     _sub(pm, "styleUrl", "#track")

@@ -21,7 +21,7 @@ from tpos_cli.importers.gpstime import WEEK_S, gps_s_to_clock, unix_to_clock
 from tpos_cli.importers.mapping import CsvMapping
 from tpos_cli.importers.result import ImportResult
 from tpos_cli.importers.units import TIME_S
-from tpos_cli.io.bounded import read_source_bytes
+from tpos_cli.io.bounded import MAX_LINE_BYTES, read_source_bytes
 from tpos_cli.io.plausibility import H_MAX_M, H_MIN_M
 
 
@@ -31,6 +31,10 @@ def _data_lines(raw: bytes, m: CsvMapping, path: Path):
     if lines and lines[-1] == b"":
         lines = lines[:-1]
     lengths = np.array([len(x) for x in lines], np.int64)
+    long = np.flatnonzero(lengths > MAX_LINE_BYTES)
+    if long.size:  # not a damaged log line to drop: a file that is not a delimited log (pandas would take GBs)
+        raise InvalidInputError(f"{path}: line {int(long[0]) + 1}: longer than {MAX_LINE_BYTES // 1024} KiB: not a line "
+                                "of a delimited log; nothing written")
     keep = np.ones(len(lines), bool)
     keep[: m.skip_rows] = False
     cm = m.comment.encode() if m.comment else None

@@ -28,6 +28,9 @@ MAX_TOML_DEPTH = 16
 MAX_JSON_BYTES = 64 << 20
 # A receiver or logger file to import is read whole; larger ones are imported in parts (several SRC).
 MAX_SOURCE_BYTES = 512 << 20
+# A line of a contract table or of a delimited log (numbers, ids, labels) is a few hundred bytes; longer
+# is not a log line (a 300 MB line took pandas 1.7 GB to decode); the CSV header's limit too.
+MAX_LINE_BYTES = 65536
 
 
 def regular_file_size(path: Path, what: str, limit: int) -> int:

@@ -36,20 +36,9 @@ def first_bad_height(h_m: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, float] | None:
-    """(median mismatch as given, median mismatch with lat and lon exchanged), metres, when the fixes'
-    displacements match the logged velocities clearly better with the columns exchanged; else None.
-
-    Over spans of SWAP_LAG fixes (consecutive fixes at most SWAP_MAX_DT_S apart, so that the
-    displacement outgrows the fixes' own noise), the displacement between fixes i and j is compared
-    with the trapezoid integral of the velocities, d_v = sum (v_k + v_k+1) dt_k / 2, under three readings:
-      given:      dN = dlat R, dE = dlon R cos(lat)
-      swapped:    dN = dlon R, dE = dlat R cos(lon)      (lat and lon columns exchanged)
-      vel. swap:  positions as given against (ve, vn)    (velocity columns exchanged)
-    R is a spherical Earth's metres per radian: the readings differ by factors, not by the flattening.
-    The swap is reported only when the swapped reading fits SWAP_FIT_RATIO times better than both
-    others and the velocities add up to a track of at least SWAP_MIN_TRACK_M (a static log cannot tell).
-    """
+def _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
+    """(lat, lon at the span starts, dlat, dlon over the spans, dN, dE integrated from the velocities)
+    over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell."""
     t, lat, lon, vn, ve = (np.asarray(x, dtype=float) for x in (t_s, lat_deg, lon_deg, vn_mps, ve_mps))
     ok = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(vn) & np.isfinite(ve)
     t, lat, lon, vn, ve = t[ok], lat[ok], lon[ok], vn[ok], ve[ok]
@@ -68,14 +57,52 @@ def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, 
     if i.size < 4:
         return None
     j = i + lag
-    dvn, dve = n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
-    dlat, dlon = (lat[j] - lat[i]) * _M_PER_RAD_DEG, (lon[j] - lon[i]) * _M_PER_RAD_DEG
-    given = np.hypot(dlat - dvn, dlon * np.cos(np.deg2rad(lat[i])) - dve)
-    swapped = np.hypot(dlon - dvn, dlat * np.cos(np.deg2rad(lon[i])) - dve)
-    vel_swap = np.hypot(dlat - dve, dlon * np.cos(np.deg2rad(lat[i])) - dvn)
+    return lat[i], lon[i], lat[j] - lat[i], lon[j] - lon[i], n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
+
+
+def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, float] | None:
+    """(median mismatch as given, median mismatch with lat and lon exchanged), metres, when the fixes'
+    displacements match the logged velocities clearly better with the columns exchanged; else None.
+
+    Over spans of SWAP_LAG fixes (consecutive fixes at most SWAP_MAX_DT_S apart, so that the
+    displacement outgrows the fixes' own noise), the displacement between fixes i and j is compared
+    with the trapezoid integral of the velocities, d_v = sum (v_k + v_k+1) dt_k / 2, under three readings:
+      given:      dN = dlat R, dE = dlon R cos(lat)
+      swapped:    dN = dlon R, dE = dlat R cos(lon)      (lat and lon columns exchanged)
+      vel. swap:  positions as given against (ve, vn)    (velocity columns exchanged)
+    R is a spherical Earth's metres per radian: the readings differ by factors, not by the flattening.
+    The swap is reported only when the swapped reading fits SWAP_FIT_RATIO times better than both
+    others and the velocities add up to a track of at least SWAP_MIN_TRACK_M (a static log cannot tell).
+    """
+    spans = _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps)
+    if spans is None:
+        return None
+    lat, lon, dlat, dlon, dvn, dve = spans
+    dlat, dlon = dlat * _M_PER_RAD_DEG, dlon * _M_PER_RAD_DEG
+    given = np.hypot(dlat - dvn, dlon * np.cos(np.deg2rad(lat)) - dve)
+    swapped = np.hypot(dlon - dvn, dlat * np.cos(np.deg2rad(lon)) - dve)
+    vel_swap = np.hypot(dlat - dve, dlon * np.cos(np.deg2rad(lat)) - dvn)
     m_given, m_swapped, m_vel = (float(np.median(x)) for x in (given, swapped, vel_swap))
     if m_swapped * SWAP_FIT_RATIO < min(m_given, m_vel):
         return m_given, m_swapped
+    return None
+
+
+def latlon_radians_evidence(t_s, lat_col, lon_col, vn_mps, ve_mps) -> tuple[float, float] | None:
+    """(median mismatch read as degrees, median mismatch read as radians), metres, when the fixes'
+    displacements match the logged velocities SWAP_FIT_RATIO times better with lat and lon read as
+    radians (dN = dlat R, dE = dlon R cos(lat), lat in rad): a log writing radians in the degree
+    columns moves 57.3 times too little. Same spans and conditions as `latlon_swap_evidence`; else None."""
+    spans = _velocity_spans(t_s, lat_col, lon_col, vn_mps, ve_mps)
+    if spans is None:
+        return None
+    lat, _, dlat, dlon, dvn, dve = spans
+    as_deg = np.hypot(dlat * _M_PER_RAD_DEG - dvn, dlon * _M_PER_RAD_DEG * np.cos(np.deg2rad(lat)) - dve)
+    r = _M_PER_RAD_DEG * 180.0 / np.pi
+    as_rad = np.hypot(dlat * r - dvn, dlon * r * np.cos(lat) - dve)
+    m_deg, m_rad = float(np.median(as_deg)), float(np.median(as_rad))
+    if m_rad * SWAP_FIT_RATIO < m_deg:
+        return m_deg, m_rad
     return None
 
 

@@ -159,6 +159,26 @@ def remove_stale_partials(out_dir: Path) -> None:
             shutil.rmtree(p, ignore_errors=True)
 
 
+def remove_leftovers(out_dir: Path) -> None:
+    """Delete what killed runs into `out_dir` left beside it: their temporary directories
+    (`remove_stale_partials`) and the lock file when no process holds its lock any more."""
+    out_dir = Path(out_dir)
+    remove_stale_partials(out_dir)
+    lock_path = out_dir.parent / f".{out_dir.name}.lock"
+    try:
+        fd = os.open(lock_path, os.O_RDWR)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if os.fstat(fd).st_ino == os.stat(lock_path).st_ino:
+            os.unlink(lock_path)  # unheld, and still the file at that name: as `_Claim.release` does
+    except OSError:  # held by a live run, or gone meanwhile
+        pass
+    finally:
+        os.close(fd)
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -193,7 +213,10 @@ _ACTIVE: contextvars.ContextVar[list | None] = contextvars.ContextVar("tpos_run_
 
 def _plain(exc: OSError, out_dir: Path) -> TposError:
     where = f" ({exc.filename})" if exc.filename else ""
-    return TposError(f"cannot write the run directory {out_dir}: {exc.strerror or exc}{where}")
+    # pyarrow's OSError carries no errno: "Error writing bytes to file. Detail: [errno 28] No space left on device"
+    m = re.search(r"\[errno (\d+)\]", str(exc)) if exc.strerror is None else None
+    why = os.strerror(int(m.group(1))) if m else exc.strerror or exc
+    return TposError(f"cannot write the run directory {out_dir}: {why}{where}")
 
 
 @contextlib.contextmanager

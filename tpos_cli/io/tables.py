@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from tpos_cli.errors import InvalidInputError
-from tpos_cli.io.bounded import MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
+from tpos_cli.io.bounded import MAX_LINE_BYTES, MAX_TABLE_BYTES, MAX_TABLE_COLUMNS, MAX_TABLE_ROWS, regular_file_size
 from tpos_cli.io.columns import Columns
 
 if TYPE_CHECKING:
@@ -60,6 +60,13 @@ def find_table(session_dir: Path, name: str, csv_only: bool = False) -> Path | N
     if not csv_only and parquet.exists():
         return parquet
     return None
+
+
+def table_file_name(session_dir: Path | None, name: str) -> str:
+    """The file name a message gives for table `name` of a session: `gps.csv` or `gps.parquet` as the
+    session holds it, else `name` itself (absent, or a session without a directory)."""
+    path = find_table(Path(session_dir), name) if session_dir is not None else None
+    return path.name if path is not None else name
 
 
 SHOWN_CHARS = 60  # a value quoted in a message is cut to this many characters (a 5 MB cell is one line)
@@ -298,16 +305,31 @@ def _read_csv(path: Path) -> pd.DataFrame:
 
 def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
     """One pass over the bytes before pandas decodes them: the line count against MAX_TABLE_ROWS (a
-    2 GB file of short lines decodes to many GB of float64) and NUL bytes anywhere (a sparse hole
-    after a valid start), each refused with the row where it is."""
+    2 GB file of short lines decodes to many GB of float64), NUL bytes anywhere (a sparse hole after a
+    valid start) and lines longer than MAX_LINE_BYTES (a 300 MB line took pandas 1.7 GB to decode),
+    each refused with the row where it is."""
+    import numpy as np
+
     lines = 0
+    since_newline = 0  # bytes of the line still open at the end of the chunks read so far
     try:
         with open(path, "rb") as fh:
             while chunk := fh.read(chunk_bytes):
                 nul = chunk.find(b"\x00")
                 if nul >= 0:
                     _fail(path, "contains NUL bytes: a binary or sparse file, not CSV text", row=max(lines + chunk.count(b"\n", 0, nul), 1))
-                lines += chunk.count(b"\n")
+                ends = np.flatnonzero(np.frombuffer(chunk, dtype=np.uint8) == 10)
+                lengths = np.diff(ends, prepend=-1) - 1  # bytes before each newline since the previous one
+                if ends.size:
+                    lengths[0] += since_newline
+                    since_newline = len(chunk) - 1 - int(ends[-1])
+                else:
+                    since_newline += len(chunk)
+                long = np.flatnonzero(lengths > MAX_LINE_BYTES)
+                if long.size or since_newline > MAX_LINE_BYTES:
+                    row = lines + (int(long[0]) if long.size else ends.size)
+                    _fail(path, f"a line longer than {MAX_LINE_BYTES // 1024} KiB: not a row of a contract table", row=max(row, 1))
+                lines += ends.size
                 if lines > MAX_TABLE_ROWS + 1:
                     _fail(path, f"more than {MAX_TABLE_ROWS} rows, the row limit for a table")
     except OSError as exc:

@@ -63,18 +63,40 @@ def _create(tmp: Path) -> None:
     os.close(fd)
 
 
+def check_replaceable(path: Path) -> None:
+    """InvalidInputError (exit 2) unless `path` is absent, a regular file, or a link that is dangling or
+    names a regular file: the output is written beside `path` and renamed over it, which would put a
+    regular file in place of a device, FIFO, socket or directory, or of a link to one (as root,
+    `/dev/stdout` itself, a link to the terminal or pipe). A link to a regular file is replaced, its
+    target left alone."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return
+    mode = path.lstat().st_mode
+    if stat.S_ISLNK(mode):
+        try:
+            mode = path.stat().st_mode
+        except OSError:  # dangling or looping: nothing but the link is there to replace
+            return
+        what = "a link to a device, FIFO, socket or directory"
+    else:
+        what = "a device, FIFO, socket or directory"
+    if not stat.S_ISREG(mode):
+        raise InvalidInputError(f"{path}: exists and is not a regular file ({what}); outputs are written as whole "
+                                "files: choose another output name")
+
+
 @contextlib.contextmanager
 def staged(paths: Iterable[Path]):
     """Temporaries for several outputs, all renamed into place only when the block succeeds.
 
     Yields {final path: temporary path}; the caller writes each temporary. On any exception (or
-    KeyboardInterrupt) every temporary is removed and no final file is touched. A target that
-    exists as anything but a regular file or a link is refused (exit 2) before anything is written.
+    KeyboardInterrupt) every temporary is removed and no final file is touched. A target that is
+    not replaceable (`check_replaceable`) is refused (exit 2) before anything is written.
     """
     paths = [Path(p) for p in paths]
-    for p in paths:  # a rename would put a regular file in place of a device, FIFO, socket or directory
-        if os.path.lexists(p) and not (p.is_symlink() or stat.S_ISREG(p.lstat().st_mode)):
-            raise InvalidInputError(f"{p}: exists and is not a regular file; choose another output name")
+    for p in paths:
+        check_replaceable(p)
     for d in {p.parent for p in paths}:
         remove_stale_temporaries(d, [p.name for p in paths if p.parent == d])
     tmps: dict[Path, Path] = {}

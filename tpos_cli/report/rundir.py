@@ -170,10 +170,10 @@ def merge_windows(*arrays: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
-def load_run(run_dir: Path, *, trajectory_columns: tuple[str, ...] | None = None) -> RunData:
-    """Read a run directory; raises InvalidInputError when it is not one. `trajectory_columns`: read
-    only these of trajectory.parquet (a target export needs its times and positions, not an hour of
-    attitudes and sigmas)."""
+def load_run(run_dir: Path, *, trajectory_columns_if_targets: tuple[str, ...] | None = None) -> RunData:
+    """Read a run directory; raises InvalidInputError when it is not one. `trajectory_columns_if_targets`:
+    when targets.parquet holds a target, read only these of trajectory.parquet (a target export needs
+    its times and positions, not an hour of attitudes and sigmas); otherwise the whole table."""
     run_dir = Path(run_dir)
     sp = run_dir / "summary.json"
     if not run_dir.is_dir() or not sp.exists():
@@ -182,10 +182,11 @@ def load_run(run_dir: Path, *, trajectory_columns: tuple[str, ...] | None = None
     # and of the shape tpos writes before any code reads into it
     summary = read_json_bounded(sp, f"{run_dir.name}/summary.json")
     check_summary_shape(summary, f"{run_dir.name}/summary.json")
-    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED, trajectory_columns)
     tgts = _read(run_dir, "targets.parquet", TARGETS_REQUIRED)
     if tgts is not None:
         tgts["id"] = tgts["id"].astype(str)
+    columns = trajectory_columns_if_targets if tgts is not None and len(tgts) else None
+    traj = _read(run_dir, "trajectory.parquet", TRAJECTORY_REQUIRED, columns)
     withheld = _read(run_dir, "withheld_gps.parquet", GPS_REQUIRED)
     innov = _complete_innovations(_read(run_dir, "innovations.parquet", INNOVATIONS_REQUIRED))
     if traj is not None and len(traj):
