@@ -105,7 +105,8 @@ def filter_config(p: DriveSmoothParams, nz: ImuNoiseFigures, lever_b_m, rate_hz:
                   2 * sb_a**2 / p.bias_tau_s, 2 * sb_g**2 / p.bias_tau_s])
     layout = StateLayout((clock_block(p.gps_clock_sigma_s, p.gps_clock_rw_s_per_sqrt_s),) if p.gps_clock_sigma_s > 0 else ())
     return FilterConfig(q, p.bias_tau_s, p.bias_tau_s, max(1, int(round(p.cov_step_s * rate_hz))), p.gate_probability,
-                        p.max_consecutive_rejections, np.asarray(lever_b_m, dtype=float), p.outage_min_s, layout)
+                        p.max_consecutive_rejections, np.asarray(lever_b_m, dtype=float), p.outage_min_s, layout,
+                        reacquire=False)  # the tuning passes keep the old rule; `tune_gps` returns the final runs' settings
 
 
 def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
@@ -251,7 +252,8 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
              t0_s: float, extra: Measurements | None = None) -> tuple[GpsFixes, FilterConfig]:
     """GPS noise (covariance matching, `fusion.gps_noise`) and GPS error states (`fusion.gps_error`),
     on passes of the final filter (`cfg`, with the constraint rows `extra`); records what was
-    found in `info`. Returns the fixes with their SDs scaled and the settings."""
+    found in `info`. Returns the fixes with their SDs scaled and the settings of the final runs
+    (`final_settings`)."""
     after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
     gn = None
     if p.gps_noise == "estimate":
@@ -268,7 +270,7 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
                                  ("sigma_pos_h_m", "sigma_pos_v_m", "sigma_vel_h_mps", "sigma_vel_v_mps"),
                                  median_sigmas(fixes))}}
     if p.gps_error_model != "gauss_markov":
-        return fixes, cfg
+        return fixes, final_settings(cfg, gn)
     if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
         taus = (p.gps_gm_tau_s,) if p.gps_gm_tau_s is not None else TAU_GRID_S
         fit = fit_gps_error(imu.t, imu.gyro, imu.acc, fixes, init, cfg, taus_s=taus, after_s=after, span_s=p.gps_noise_span_s,
@@ -293,7 +295,22 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
         gn = raise_only(gn, fixes)
         fixes = scaled_fixes(fixes, gn.scale)
         info["gps_noise"].update(gn.summary())
-    return fixes, cfg
+    return fixes, final_settings(cfg, gn)
+
+
+def final_settings(cfg: FilterConfig, gn: GpsNoise | None) -> FilterConfig:
+    """`cfg` for the final forward and backward runs: re-acquisition after rejections
+    (`fusion.reacquire`) on, judged against the fixes' stated accuracy (the receiver's SDs, else the
+    pipeline's `gps_sigma_*`): per group the stated SD over the matched one, 1 where matching raised
+    it (`FilterConfig.stated_sd_factor`). The tuning passes keep the old rule (`filter_config`):
+    their statistics match R to the innovations, and a re-acquired row's covariance is grown to fit
+    its own innovation (on navego it moved the matched SDs, the clock and the start-up heading)."""
+    f = np.ones(4)
+    if gn is not None:
+        sc = np.asarray(gn.scale, dtype=float)
+        ok = np.isfinite(sc) & (sc > 0.0)
+        f[ok] = np.maximum(1.0, 1.0 / sc[ok])
+    return dataclasses.replace(cfg, reacquire=True, stated_sd_factor=f)
 
 
 WHEELED = ("car", "rover")
@@ -794,13 +811,17 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     if res.fixes.n_wild:
         ctx.count("gps_fixes_wild", res.fixes.n_wild)
         ctx.warn(f"{res.fixes.n_wild} GPS fix(es) far from where their neighbours place them were left out (fusion.screening)")
-    rejected = {}
+    rejected, reacquired = {}, {}
     for run_name in ("forward", "backward"):
         gi = res.innovations(run_name)
         for j, kind in enumerate(GPS_KINDS):
             n_rej = int(np.sum(~gi.accepted[:, j] & np.isfinite(gi.nis[:, j])))
             rejected[f"{run_name}_{kind}"] = n_rej
             ctx.count(f"{kind}_rejected_{run_name}", n_rej)
+        for kind, r in gps_reacquisitions(getattr(res, run_name)).items():
+            reacquired[f"{run_name}_{kind}"] = r
+            ctx.count(f"{kind}_reacquired_{run_name}", r["count"])
+            ctx.count(f"{kind}_downweighted_{run_name}", r["downweighted"])
     ctx.count("flagged_rows", int(res.flag.sum()))
     ce = res.info.get("gps_considered_error")
     if ce is not None:
@@ -823,6 +844,7 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "solutions": list(names),
         "gps_fixes": int(res.fixes.t_s.size),
         "gps_rejected": rejected,
+        "gps_reacquired": reacquired,  # rejected fixes re-acquired (covariance grown) or down-weighted (`fusion.reacquire`)
         "forward_mean_nis": mean_nis,  # 3 d.o.f. each (2 for speed/course velocity): about that when R fits
         "forward_nis_check": nis_check,
         "outages_s": (res.outages_s + t0_s).tolist(),
@@ -833,6 +855,22 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "constraints": {**res.info.get("constraints", {}), "forward": constraint_summary(res.forward),
                         "backward": constraint_summary(res.backward)},
     }
+
+
+def gps_reacquisitions(run: FilterRun) -> dict:
+    """Per GPS kind of a run (`fusion.reacquire`): re-acquisitions (rejected fixes applied because
+    they continued the filter's error from the last accepted fix, beyond their stated accuracy)
+    with the largest factor the position/velocity covariance was grown by, and down-weighted fixes
+    (applied after a long run of rejections beyond their stated accuracy that were no drift, R
+    grown to the gate's edge) with the largest factor of R."""
+    infl = run.ev_inflation if run.ev_inflation is not None else np.ones((len(run.measurements), 2))
+    out = {}
+    for kind, k in zip(GPS_KINDS, (Kind.GPS_POSITION, Kind.GPS_VELOCITY), strict=True):
+        r = (run.measurements.kind == k) & (infl[:, 0] != 1.0)
+        d = (run.measurements.kind == k) & (infl[:, 1] != 1.0)
+        out[kind] = {"count": int(r.sum()), "max_factor": round(float(infl[r, 0].max()), 3) if r.any() else 1.0,
+                     "downweighted": int(d.sum()), "max_r_factor": round(float(infl[d, 1].max()), 3) if d.any() else 1.0}
+    return out
 
 
 def lever_arm_report(res: DriveResult) -> dict | None:

@@ -28,6 +28,19 @@ from tpos_cli.fusion.nav_errors import (
     window_rate_b,
     window_vibration_velocity_b,
 )
+from tpos_cli.fusion.reacquire import (
+    anchor,
+    anchors,
+    deweight_to_fit,
+    drift_degree,
+    drift_nis_from_anchor,
+    inflate_to_fit,
+    nis_at_stated,
+    remember,
+    ring,
+    stated_factors,
+    stated_R,
+)
 from tpos_cli.ins._kernels import mech_step
 
 # error_model="numpy" on every kernel: no zero-divisor test at each division (`tpos_cli.filters.kalman`).
@@ -54,8 +67,10 @@ class Settings(NamedTuple):
     """q (4,) IMU PSDs [acc white, gyro white, acc-bias drive, gyro-bias drive] (SI); bias time
     constants (<= 0: random walk); earth_sign (-1 backward); cov_step (IMU samples per covariance
     epoch); extra_tau_s, extra_q (n_extra,) dynamics of the extra states; layout (N_BLOCKS,) int64
-    offsets (`StateLayout.offsets`); gate (4,) chi-square thresholds by dimension; max_reject:
-    consecutive rejections of a slot after which the next one is applied; store_rts; reverse_out:
+    offsets (`StateLayout.offsets`); gate (4,) chi-square thresholds by dimension; max_reject: 0
+    applies every row of a slot (no gate), else the rejections of a slot after which the next
+    rejected row goes in: as it is, or with reacquire as `fusion.reacquire` decides, against the
+    GPS fixes' stated accuracy over their R, stated_sd_factor (4,) (`FilterConfig.stated_sd_factor`); store_rts; reverse_out:
     the nominal of sample k is stored at row N-1-k (a backward run's history in forward order,
     without a reversed copy of the run's largest arrays)."""
 
@@ -69,6 +84,8 @@ class Settings(NamedTuple):
     layout: np.ndarray
     gate: np.ndarray
     max_reject: int
+    reacquire: bool
+    stated_sd_factor: np.ndarray
     store_rts: bool
     reverse_out: bool
 
@@ -130,13 +147,16 @@ class History(NamedTuple):
 
 class EventResults(NamedTuple):
     """Per measurement (kernel order): nu (E, 3) residual about the nominal, pvar (E, 3) diagonal
-    of H P- H^T, nis (E,), logdet (E,) log det S, accepted (E,)."""
+    of H P- H^T, nis (E,), logdet (E,) log det S, accepted (E,), inflation (E, 2) the factors
+    a re-acquisition grew the navigation covariance by and a long-rejected scattering row's R was
+    grown by before the update (1: none; pvar, nis and logdet are then those the update used)."""
 
     nu: np.ndarray
     pvar: np.ndarray
     nis: np.ndarray
     logdet: np.ndarray
     accepted: np.ndarray
+    inflation: np.ndarray
 
 
 @njit(cache=True, error_model="numpy")
@@ -187,8 +207,12 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     (`filters.kalman.predict_trapezoid`); the nominal of the Gauss-Markov
     extra states decays by exp(-dt / tau); then each measurement of the sample in turn: residual
     and rows (`measurements.measure`), NIS, gate (NIS above gate[m] rejects it, unless not
-    `gated` or its slot has `max_reject` consecutive rejections: the nominal has then left the
-    measurements for good, and locking it out would diverge), Joseph update and feedback into
+    `gated` or `max_reject` is 0; after `max_reject` rejections of its slot the next rejected row
+    goes in as it is, or with `reacquire` as `fusion.reacquire` decides: a drift of the filter from
+    where its last accepted row left it, beyond the row's stated accuracy, is re-acquired (the
+    position/velocity covariance grown until the row passes the gate); after `max_reject`
+    rejections a row beyond its stated accuracy goes in down-weighted to the gate's edge, one within
+    it as it is), Joseph update and feedback into
     the nominal (the error state is reset to 0 after each, so each measurement is linearized
     about the latest nominal). ep_dx of the epoch is the sum of the corrections fed back.
 
@@ -236,6 +260,9 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     for e in range(n_ev):
         n_slots = max(n_slots, ev.slot[e] + 1)
     consecutive = np.zeros(n_slots, np.int64)
+    ring_t, ring_nu, ring_R = ring(n_slots)  # each slot's last rejections (`fusion.reacquire`)
+    anc_t, anc_nu, anc_R, anc_ok = anchors(n_slots)  # each slot's last accepted row, after its update
+    f_stated = np.ones(3)  # a row's factors from R to its stated accuracy (`fusion.reacquire.stated_factors`)
     # covariance epoch 0 is the prior at sample 0 (what the smoothers start from)
     ep = 0  # (indexed by `ep`, not by the literal 0: numba would compile the stores once more for it)
     out.ep_idx[ep] = 0
@@ -315,7 +342,30 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 res.nis[e] = s
                 res.logdet[e] = logdet
                 slot = ev.slot[e]
-                accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and consecutive[slot] >= st.max_reject)
+                accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and st.max_reject <= 0)
+                if not accept and slot >= 0:
+                    last_chance = consecutive[slot] >= st.max_reject
+                    if not st.reacquire:  # the old rule: the row after max_reject rejections goes in as it is
+                        accept = last_chance
+                    else:  # filter or fixes wrong? (`fusion.reacquire`)
+                        remember(ring_t, ring_nu, ring_R, slot, consecutive[slot], imu.t[k] - ev.lag[e], z, R, m)
+                        stated_factors(ev.kind[e], st.stated_sd_factor, f_stated)
+                        beyond = not (0.0 <= nis_at_stated(P, H, R, z, m, f_stated) <= st.gate[m])
+                        a = drift_nis_from_anchor(ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok, slot,
+                                                  consecutive[slot], drift_degree(ev.kind[e] == Kind.GPS_VELOCITY), m)
+                        if beyond and 0.0 <= a <= st.gate[m]:  # a drift from the last accepted row, beyond the
+                            stated_R(R, f_stated, m)  # stated accuracy: the filter drifted; the row at that accuracy,
+                            res.inflation[e, 0] = inflate_to_fit(P, H, R, z, m, st.gate[m])  # P grown to admit it
+                            accept = True
+                        elif last_chance and beyond:  # not a drift: wrong fixes, in at the gate's edge
+                            res.inflation[e, 1] = deweight_to_fit(P, H, R, z, m, st.gate[m])
+                            accept = True
+                        elif last_chance:  # within its stated accuracy: in as it is (its pull is bounded by it)
+                            accept = True
+                        if res.inflation[e, 0] != 1.0 or res.inflation[e, 1] != 1.0:
+                            s, logdet = innovation_statistics(x, P, z, H, R, res.pvar[e])
+                            res.nis[e] = s
+                            res.logdet[e] = logdet
                 if accept:
                     if update(x, P, z, H, R) < 0.0:
                         return ep + 1, 1 + k
@@ -323,6 +373,10 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     for i in range(n):
                         dx_sum[i] += x[i]
                         x[i] = 0.0
+                    if st.reacquire and slot >= 0 and m > 1:  # the anchor: where the filter's error now stands
+                        measure(e, ev, aid, ranging, nav, C, bias, w_gps if is_gps else w_ib, acc_ned, vib_ned, st.layout,
+                                P, z, H, R)
+                        anchor(anc_t, anc_nu, anc_R, anc_ok, slot, imu.t[k] - ev.lag[e], z, R, m)
                 if slot >= 0:
                     consecutive[slot] = 0 if accept else consecutive[slot] + 1
                 res.accepted[e] = accept

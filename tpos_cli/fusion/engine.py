@@ -47,8 +47,13 @@ class FilterConfig:
     """SI settings of one filter. q (4,): white-noise PSDs [acc (m/s^2)^2 s, gyro rad^2/s,
     acc-bias drive (m/s^3)^2 s, gyro-bias drive (rad/s^2)^2 s]; tau <= 0: random-walk biases;
     cov_step: IMU samples per covariance epoch between measurements; gate_probability:
-    chi-square gate; max_consecutive_rejections: then the next one of that slot is applied
-    (0 = no gating); lever_arm_b_m (3,): GPS antenna in the body frame; ungated_after_gap_s > 0:
+    chi-square gate; max_consecutive_rejections: 0 = no gating of rows with a slot, else after
+    this many rejections in a row the next rejected one goes in (as it is, without `reacquire`);
+    reacquire: `fusion.reacquire`'s rule instead (a drift of the filter re-acquired, the covariance
+    grown; wrong fixes down-weighted), judged against stated_sd_factor (4,): the GPS fixes' stated
+    accuracy over their SDs here per group (pos_h, pos_v, vel_h, vel_v; > 1 where matching made
+    them smaller); lever_arm_b_m
+    (3,): GPS antenna in the body frame; ungated_after_gap_s > 0:
     the first GPS fix after a longer gap between fixes is not gated (`fusion.insgps`);
     layout: the states beyond the 15 navigation errors (`fusion.layout`); nominal_idx: the
     run-local samples whose nominal a run stores (None: every sample; the run's first and last
@@ -66,6 +71,8 @@ class FilterConfig:
     layout: StateLayout = field(default_factory=StateLayout)
     C_vb: np.ndarray = field(default_factory=lambda: np.eye(3))  # IMU body -> vehicle axes (NHC rows)
     nominal_idx: np.ndarray | None = None
+    reacquire: bool = False
+    stated_sd_factor: np.ndarray = field(default_factory=lambda: np.ones(4))
 
     @property
     def n_states(self) -> int:
@@ -223,7 +230,9 @@ class FilterRun:
     triangle by rows (numpy's `tril_indices` order; it is exactly symmetric).
     Per measurement (rows of `measurements`, the caller's order): ev_nu (E, 3) residual (NaN past
     dim or when not processed), ev_pvar (E, 3) diagonal of H P- H^T (R excluded), ev_nis (E,) (NaN
-    when not processed, e.g. outside the run), ev_logdet (E,) log det S, ev_accepted (E,).
+    when not processed, e.g. outside the run), ev_logdet (E,) log det S, ev_accepted (E,),
+    ev_inflation (E, 2) the factors a re-acquisition grew the navigation covariance by and a
+    long-rejected scattering row's R was grown by (1: none; `fusion.reacquire`).
     """
 
     backward: bool
@@ -246,6 +255,7 @@ class FilterRun:
     ev_accepted: np.ndarray
     ep_phi_extra: np.ndarray | None = None
     idx: np.ndarray | None = None
+    ev_inflation: np.ndarray | None = None  # (E, 2) [P, R] factors of re-acquired / down-weighted rows (1: none)
 
     def rows(self, idx) -> np.ndarray:
         """Rows of nav, C_nb and bias that hold the run-local samples idx (which the run must have
@@ -339,10 +349,11 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                   ep_P, dx_o)
     m = order.size
     res = EventResults(np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan), np.full(m, np.nan),
-                       np.zeros(m, np.bool_))
+                       np.zeros(m, np.bool_), np.ones((m, 2)))
     st = Settings(np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), -1.0 if backward else 1.0,
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
-                  chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(store_rts),
+                  chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(cfg.reacquire),
+                  np.asarray(cfg.stated_sd_factor, dtype=float), bool(store_rts),
                   bool(backward))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
     # None when no row needs the ranging models: numba then compiles the kernel without them
@@ -356,8 +367,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     # per measurement, back to the caller's order
     E = len(meas)
     nu, pvar = np.full((E, 3), np.nan), np.full((E, 3), np.nan)
-    nis, logdet, accepted = np.full(E, np.nan), np.full(E, np.nan), np.zeros(E, dtype=bool)
-    nu[order], pvar[order], nis[order], logdet[order], accepted[order] = res
+    nis, logdet, accepted, inflation = np.full(E, np.nan), np.full(E, np.nan), np.zeros(E, dtype=bool), np.ones((E, 2))
+    nu[order], pvar[order], nis[order], logdet[order], accepted[order], inflation[order] = res
     ep_idx, ep_P, ep_dx = out.ep_idx[:n_used], out.ep_P[:n_used], out.ep_dx[:n_used]
     nav, C, bias = out.nav, out.C, out.bias  # a backward run's stored in forward order (reverse_out)
     if backward:
@@ -376,7 +387,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     rts = store_rts and not backward
     return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, SymmetricStack(ep_P, ns),
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
-                     lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None, keep)
+                     lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None, keep,
+                     inflation)
 
 
 def _reused(arrays, *shapes) -> list[np.ndarray]:

@@ -1,0 +1,306 @@
+"""Re-acquisition after consecutive gate rejections (issue 11 item 6): filter or fixes wrong?
+
+When a slot's measurements (`fusion.engine.Measurements.slot`: GPS positions, GPS velocities, one
+anchor's ranges, ...) keep failing the chi-square gate, either the filter has drifted off (its
+covariance is too small for its error) or the measurements are wrong (multipath, a jump, a slow
+wander that the R matched to their fix-to-fix scatter leaves out). nu_j = z_j - h(nominal_j) at
+t_j: a drifted filter leaves in them its own error, which over a few fixes is a low-degree
+polynomial in time (a position error p + v t + a t^2 / 2; a velocity error v + a t) starting from
+where the last accepted row left it, plus the fixes' white noise of covariance R_j.
+
+The rule (`FilterConfig.reacquire`; the drive pipeline's final forward and backward runs; without
+it the row after `max_reject` rejections goes in as it is, the rule before):
+- drift (`drift_nis_from_anchor`): the divided difference of order d + 1 (d = 2 for positions, 1
+  for velocities) over the slot's last accepted row (its post-fit residual, re-measured after the
+  update: `anchor`) and its last d + 1 rejections, w = sum_j c_j nu_j, c_j = 1 / prod_{i != j}
+  (t_j - t_i), is zero for any polynomial through the anchor, and has covariance W = sum_j c_j^2 R_j
+  from the fixes' noise alone. NIS(w) within the gate: the rejections continue the filter's error
+  from where it stood. Fixes that stepped away (a multipath plateau) agree with each other but not
+  with the anchor; fixes that scatter agree with nothing.
+- beyond the stated accuracy (`nis_at_stated`): the row fails the gate even against
+  H P H^T + F R F, F the fixes' stated SD over the SD the filter uses
+  (`FilterConfig.stated_sd_factor`: the receiver's SDs, or the pipeline's stated `gps_sigma_*`,
+  over the matched ones). Fixes whose errors wander slowly within their stated accuracy pass the
+  drift test just as a drift of the filter does (the difference removes any smooth curve, whoever
+  owns it); the stated accuracy is what tells them apart.
+- both: re-acquired. The row goes in at its stated accuracy, with the filter's position and
+  velocity covariance grown by the least factor lambda under which it passes the gate
+  (`inflate_to_fit`: P <- D P D, D = sqrt(lambda) on those six states, so their cross terms with
+  the attitude and the rest grow by sqrt(lambda), the attitude block itself kept: growing it, or
+  growing P until the NIS is its mean instead of the gate's, let the next fixes turn the heading
+  of navego's filter by tens of degrees).
+- after `max_reject` rejections, no drift: beyond the stated accuracy the row goes in down-weighted,
+  its R grown until its NIS is the gate's (`deweight_to_fit`: a filter is never locked out of its
+  aiding, and a wrong fix moves it no more than one at the gate's edge); within it, as it is (its
+  pull is bounded by the stated accuracy).
+Scalar rows (one anchor's range) are never taken for a drift: a steady bias of one range (a
+blocked line of sight) continues itself just as well.
+
+Kernels over float64 arrays, called from the compiled filter loop (`fusion._kernels`); the ring
+of a slot's last rejections is (n_slots, WINDOW, ...) arrays indexed by the slot's count of
+consecutive rejections.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from tpos_cli.filters.kalman import _nis  # nu^T S^-1 nu by Cholesky, -1 if S is not PD
+from tpos_cli.fusion.layout import ATT
+from tpos_cli.fusion.measurements import Kind
+
+WINDOW = 4  # rejections remembered per slot: d + 2 for the largest degree d = 2
+N_INFLATED = ATT  # position and velocity errors: grown; attitude and the rest kept (their cross terms scale)
+_MAX_SQRT_LAMBDA = 1.0e4  # sqrt(lambda) at most: SDs grown 10^4-fold
+
+
+@njit(cache=True)
+def ring(n_slots):
+    """Empty rings of rejected innovations: times (S, W), innovations (S, W, 3), R (S, W, 3, 3)."""
+    return np.zeros((n_slots, WINDOW)), np.zeros((n_slots, WINDOW, 3)), np.zeros((n_slots, WINDOW, 3, 3))
+
+
+@njit(cache=True)
+def drift_degree(is_velocity: bool) -> int:
+    """Degree of the polynomial drift taken out: 1 for velocities, 2 for positions and ranges."""
+    return 1 if is_velocity else 2
+
+
+@njit(cache=True)
+def remember(ring_t, ring_nu, ring_R, slot, count, t, nu, R, m):
+    """Store the slot's rejection number `count` (0-based within its run of consecutive
+    rejections): time t (s), innovation nu (m,), R (m, m)."""
+    j = count % WINDOW
+    ring_t[slot, j] = t
+    for a in range(m):
+        ring_nu[slot, j, a] = nu[a]
+        for b in range(m):
+            ring_R[slot, j, a, b] = R[a, b]
+
+
+@njit(cache=True)
+def _divided_difference_nis(ts, nus, Rs, m):
+    """NIS of w = sum_j c_j nus[j], c_j = 1 / prod_{i != j} (ts[j] - ts[i]) (the divided difference
+    of order len(ts) - 1, zero for any polynomial of lower degree), against W = sum_j c_j^2 Rs[j];
+    -1 when two times coincide or W is singular."""
+    n = ts.shape[0]
+    w = np.zeros(m)
+    W = np.zeros((m, m))
+    for jj in range(n):
+        prod = 1.0
+        for ii in range(n):
+            if ii != jj:
+                dt = ts[jj] - ts[ii]
+                if dt == 0.0:
+                    return -1.0
+                prod *= dt
+        c = 1.0 / prod
+        for a in range(m):
+            w[a] += c * nus[jj, a]
+            for b in range(m):
+                W[a, b] += c * c * Rs[jj, a, b]
+    return _nis(w, W, np.empty((m, m)))
+
+
+@njit(cache=True)
+def drift_nis(ring_t, ring_nu, ring_R, slot, count, degree, m):
+    """NIS of the divided difference of order degree + 1 over the slot's last degree + 2
+    rejections (the last one number `count`); -1 when there are fewer, two share a time, its
+    covariance is singular, or the rows are scalars (m = 1: one anchor's range cannot tell a
+    drift of the filter from a steady bias of its own, e.g. a blocked line of sight)."""
+    n = degree + 2
+    if count + 1 < n or m < 2:
+        return -1.0
+    j = np.array([(count - jj) % WINDOW for jj in range(n)])
+    return _divided_difference_nis(ring_t[slot, j], ring_nu[slot, j, :m], ring_R[slot, j, :m, :m], m)
+
+
+@njit(cache=True)
+def anchors(n_slots):
+    """Each slot's last accepted row after its update: time (S,), post-fit residual (S, 3), R (S, 3, 3),
+    set (S,) bool."""
+    return np.zeros(n_slots), np.zeros((n_slots, 3)), np.zeros((n_slots, 3, 3)), np.zeros(n_slots, np.bool_)
+
+
+@njit(cache=True)
+def anchor(anc_t, anc_nu, anc_R, anc_ok, slot, t, nu, R, m):
+    """Store the slot's last accepted row: time t, post-fit residual nu (m,), R (m, m)."""
+    anc_t[slot] = t
+    anc_ok[slot] = True
+    for a in range(m):
+        anc_nu[slot, a] = nu[a]
+        for b in range(m):
+            anc_R[slot, a, b] = R[a, b]
+
+
+@njit(cache=True)
+def drift_nis_from_anchor(ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok, slot, count, degree, m):
+    """NIS of the divided difference of order degree + 1 over the slot's last accepted row (its
+    post-fit residual: where the filter's error stood after that update) and its degree + 1 last
+    rejections (the last one number `count`): a filter's error drifts continuously from where the
+    last accepted fix left it (a polynomial through the anchor), fixes that jumped do not (a step
+    away from it). -1 when there are too few, no anchor, two share a time, or m = 1 (`drift_nis`)."""
+    n = degree + 2
+    if count + 1 < n - 1 or m < 2 or not anc_ok[slot]:
+        return -1.0
+    ts = np.empty(n)
+    nus = np.empty((n, m))
+    Rs = np.empty((n, m, m))
+    ts[0] = anc_t[slot]
+    nus[0] = anc_nu[slot, :m]
+    Rs[0] = anc_R[slot, :m, :m]
+    for jj in range(1, n):
+        j = (count - (jj - 1)) % WINDOW
+        ts[jj] = ring_t[slot, j]
+        nus[jj] = ring_nu[slot, j, :m]
+        Rs[jj] = ring_R[slot, j, :m, :m]
+    return _divided_difference_nis(ts, nus, Rs, m)
+
+
+@njit(cache=True)
+def _nis_scaled(u, Ann, B, Aoo, R, nu, m):
+    """nu^T S(u)^-1 nu with S(u) = u^2 Ann + u (B + B^T) + Aoo + R; -1 if S is not PD."""
+    S = np.empty((m, m))
+    for a in range(m):
+        for b in range(m):
+            S[a, b] = u * u * Ann[a, b] + u * (B[a, b] + B[b, a]) + Aoo[a, b] + R[a, b]
+    return _nis(nu, S, np.empty((m, m)))
+
+
+@njit(cache=True)
+def _fit_factor(Ann, B, Aoo, R, nu, m, target):
+    """The smallest u in [1, _MAX_SQRT_LAMBDA] with nu^T S(u)^-1 nu <= target (`_nis_scaled`), by
+    bisection on log u; 1 when u = 1 already fits."""
+    if not _nis_scaled(1.0, Ann, B, Aoo, R, nu, m) > target:
+        return 1.0
+    lo, hi = 1.0, _MAX_SQRT_LAMBDA
+    if _nis_scaled(hi, Ann, B, Aoo, R, nu, m) > target:
+        return hi
+    for _ in range(60):  # |hi - lo| / hi below 1e-12 within 60 halvings of the log interval
+        mid = np.sqrt(lo * hi)
+        s = _nis_scaled(mid, Ann, B, Aoo, R, nu, m)
+        if s > target or s < 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return hi
+
+
+@njit(cache=True)
+def deweight_to_fit(P, H, R, nu, m, target):
+    """Scale R in place by c >= 1, the smallest with nu^T (H P H^T + c R)^-1 nu = target; returns c.
+    A fix whose slot has been rejected for long without agreeing rejections goes in so, its
+    influence that of a fix at the gate's edge (a down-weighted fix, not a trusted one)."""
+    A = _hph(P, H, m)[0]
+    zero = np.zeros((m, m))
+    u = _fit_factor(R, zero, A, zero, nu, m, target)
+    for a in range(m):
+        for b in range(m):
+            R[a, b] *= u * u
+    return u * u
+
+
+@njit(cache=True)
+def inflate_to_fit(P, H, R, nu, m, target):
+    """Grow P's position and velocity block in place, P <- D P D with D = diag(sqrt(lambda) on the
+    first N_INFLATED states, 1 elsewhere) (P stays symmetric PSD: the block's correlations, with
+    each other and with the rest, are kept), lambda >= 1 the smallest with
+    nu^T (H P H^T + R)^-1 nu <= target (bisection on sqrt(lambda)); returns lambda (1: P unchanged).
+    H (m, n), R (m, m), nu (m,) the innovation."""
+    n = P.shape[0]
+    k0 = N_INFLATED
+    Ann = np.zeros((m, m))  # H_n P_nn H_n^T (the inflated states)
+    B = np.zeros((m, m))  # H_n P_no H_o^T (their covariance with the rest)
+    Aoo = np.zeros((m, m))
+    for a in range(m):
+        for b in range(m):
+            snn = 0.0
+            sno = 0.0
+            soo = 0.0
+            for i in range(n):
+                ha = H[a, i]
+                if ha == 0.0:
+                    continue
+                for j in range(n):
+                    hb = H[b, j]
+                    if hb == 0.0:
+                        continue
+                    v = ha * P[i, j] * hb
+                    if i < k0 and j < k0:
+                        snn += v
+                    elif i < k0:
+                        sno += v
+                    elif j >= k0:
+                        soo += v
+            Ann[a, b] = snn
+            B[a, b] = sno
+            Aoo[a, b] = soo
+    u = _fit_factor(Ann, B, Aoo, R, nu, m, target)
+    if u == 1.0:
+        return 1.0
+    for i in range(n):
+        di = u if i < k0 else 1.0
+        for j in range(n):
+            dj = u if j < k0 else 1.0
+            P[i, j] *= di * dj
+    return u * u
+
+
+@njit(cache=True)
+def stated_factors(kind, sd_factor, f):
+    """f (3,) <- the factors from a row's R to the fixes' stated accuracy: GPS positions
+    sd_factor[[0, 0, 1]], GPS velocities sd_factor[[2, 2, 3]] (`FilterConfig.stated_sd_factor`),
+    1 for every other kind (its R is what it states)."""
+    for a in range(3):
+        f[a] = 1.0
+    if kind == Kind.GPS_POSITION:
+        f[0], f[1], f[2] = sd_factor[0], sd_factor[0], sd_factor[1]
+    elif kind == Kind.GPS_VELOCITY:
+        f[0], f[1], f[2] = sd_factor[2], sd_factor[2], sd_factor[3]
+
+
+@njit(cache=True)
+def stated_R(R, f, m):
+    """R <- F R F in place, F = diag(f): a row's covariance at its stated accuracy."""
+    for a in range(m):
+        for b in range(m):
+            R[a, b] *= f[a] * f[b]
+
+
+@njit(cache=True)
+def nis_at_stated(P, H, R, nu, m, f):
+    """nu^T (H P H^T + F R F)^-1 nu, F = diag(f): the innovation against the fixes' stated
+    accuracy instead of the R the filter uses (matched to the fix-to-fix scatter, which leaves out
+    an error the fixes share over minutes); -1 if not PD."""
+    S = _hph(P, H, m)[0]
+    for a in range(m):
+        for b in range(m):
+            S[a, b] += f[a] * R[a, b] * f[b]
+    return _nis(nu, S, np.empty((m, m)))
+
+
+@njit(cache=True)
+def _hph(P, H, m):
+    """(H P H^T (m, m), G = H P (m, n)), zeros of H skipped."""
+    n = P.shape[0]
+    G = np.zeros((m, n))
+    for a in range(m):
+        for i in range(n):
+            if H[a, i] != 0.0:
+                for j in range(n):
+                    G[a, j] += H[a, i] * P[i, j]
+    A = np.zeros((m, m))
+    for a in range(m):
+        for b in range(m):
+            v = 0.0
+            for j in range(n):
+                if H[b, j] != 0.0:
+                    v += G[a, j] * H[b, j]
+            A[a, b] = v
+    for a in range(m):  # exactly symmetric
+        for b in range(a + 1, m):
+            v = 0.5 * (A[a, b] + A[b, a])
+            A[a, b] = v
+            A[b, a] = v
+    return A, G
