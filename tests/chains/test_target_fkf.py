@@ -58,7 +58,10 @@ def test_full_model_handles_a_rolled_swaying_device(tmp_path, roll_deg):
     d = write_session(sim, tmp_path / "s", overwrite=True)
     rs = process_session(d, "target-fkf", tmp_path / "run")
     e = _errors(sim, rs.run_dir)
-    assert e["fkf"] <= 0.02  # the goal holds at any roll (measured ~0.009-0.010 m)
+    # the goal holds at any roll; measured 0.0200 m (roll 20) and 0.0180 m (-35) on every commit from
+    # d381ca7 to abc1283 (not the ~0.009-0.010 m once written here): at the goal's edge, fkf leaning on lf1,
+    # whose yaw is bold on these sims (notes marg11.md)
+    assert e["fkf"] <= 0.02
     assert abs(rs.summary["results"]["alignment"]["roll_deg"] - roll_deg) < 0.6  # levelling within the sway
 
 
