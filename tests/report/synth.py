@@ -53,9 +53,11 @@ def write_session(
     movement: bool = False,
     gps: bool = False,
     gps_lever_m=None,
+    gps_error_ned_m=(0.0, 0.0, 0.0),
     targets: list[tuple[str, np.ndarray, str]] | None = None,
 ) -> Path:
-    """A valid session directory (IMU at 10 Hz, static, FRD)."""
+    """A valid session directory (IMU at 10 Hz, static, FRD). With `gps`, fixes at the truth's
+    rows displaced by `gps_error_ned_m` (zero: the truth is the receiver's own solution)."""
     d.mkdir(parents=True, exist_ok=True)
     toml = [
         "[session]",
@@ -84,7 +86,7 @@ def write_session(
             df.loc[i, ["lat", "lon", "h"] + (["roll", "pitch", "yaw"] if attitude else [])] = np.nan
         df.to_csv(d / "truth.csv", index=False)
     if gps:
-        lla = truth_lla(tr)
+        lla = displaced(truth_lla(tr), np.tile(np.asarray(gps_error_ned_m, dtype=float), (tr.size, 1)))
         pd.DataFrame(
             {"t": T0 + tr, "lat": lla[:, 0], "lon": lla[:, 1], "h": lla[:, 2], "fix": 2, "sigma_n": 1.0, "sigma_e": 1.0, "sigma_u": 2.0}
         ).to_csv(d / "gps.csv", index=False)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 from matplotlib.figure import Figure
 
 from tests.report import synth
@@ -119,7 +120,7 @@ def test_page_1_rows_keep_the_tables_font(tmp_path):
 
     clk = {"estimate_s": -0.1087, "sigma_s": 0.01, "velocity_estimate_s": -0.2, "velocity_sigma_s": 0.01, "output_clock": "gps"}
     q = {"verdict": "suspect", "reasons": ["r"], "checks": {"flags": FLAGS, "magnetometer.rejected": {"fraction": 0.585}}}
-    s = synth.write_session(tmp_path / "s", movement=True, gps=True)
+    s = synth.write_session(tmp_path / "s", movement=True, gps=True, gps_error_ned_m=(0.4, -0.3, 0.5))  # truth independent
     traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], sigma=(0.5, 0.5, 0.5))
     r = _with_quality(synth.write_run(tmp_path / "r", s, traj, gps_outages=[[1010.0, 1013.0]], mask_gps=[[1010.0, 1013.0]]),
                       q, {"gps_clock_offset": clk, "gps_fixes": 5})
@@ -188,3 +189,28 @@ def test_page_1_states_the_accuracy_the_chain_used_with_gauss_markov_states(tmp_
                        {"alignment": {"gps_considered_error": clipped, "gps_error_states": states}})
     assert dict(headline_rows(build_context(r2)))["GPS SDs"] == (
         "none in the log: stated 0.50 m h, 2.50 m v used (scatter 0.12 m, GM 0.75 m)")
+
+
+def test_a_truth_that_is_the_fixes_the_run_used_is_no_truth_there(tmp_path):
+    # rtklibexplorer's drives and walk publish the receiver's own RTK solution as truth.csv: the same rows
+    # as gps.csv. Page 1 said "Inside the stated 95 % bound: horizontal 13 %" on the walk: the run's
+    # residual to a fix it used (variance R - P), read as its error (variance P)
+    s = synth.write_session(tmp_path / "s", movement=True, gps=True)  # truth rows = the fixes
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], sigma=(0.05, 0.05, 0.05))
+    ctx = build_context(synth.write_run(tmp_path / "r", s, traj))
+    rows = dict(headline_rows(ctx))
+    assert not ctx.has_truth and "Against the GPS fixes used" in rows and "Inside the stated 95 % bound" not in rows
+    assert "are the GPS fixes the run used" in ctx.truth.trajectory.description
+    # fixes withheld with --mask-gps: the truth rows there are independent, the others not
+    fixes = pd.read_csv(s / "gps.csv")
+    withheld = fixes[(fixes["t"] >= 1010.0) & (fixes["t"] <= 1013.0)]
+    ctx = build_context(synth.write_run(tmp_path / "r2", s, traj, mask_gps=[[1010.0, 1013.0]], withheld=withheld))
+    tt = ctx.truth.trajectory
+    np.testing.assert_array_equal(tt.independent, (tt.t >= 1010.0) & (tt.t <= 1013.0))
+    se = ctx.errors("smoothed")
+    assert np.isfinite(se.err_ned_m[:, 0]).sum() == ((se.t > 1010.0) & (se.t < 1013.0)).sum() + 2  # both ends: truth rows
+    assert "Error against truth the run did not use" in dict(headline_rows(ctx))
+    # a receiver's fixes a few decimetres off the truth: the truth is independent everywhere
+    s3 = synth.write_session(tmp_path / "s3", movement=True, gps=True, gps_error_ned_m=(0.4, -0.3, 0.5))
+    ctx = build_context(synth.write_run(tmp_path / "r3", s3, traj))
+    assert ctx.has_truth and ctx.truth.trajectory.independent.all()

@@ -302,7 +302,7 @@ def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", se
     sols: list[SolutionErrors] = []
     if truth is not None and run.trajectory is not None and truth.trajectory is not None:
         series = series if series is not None else solution_series(run.trajectory)
-        gps_truth = truth.trajectory.source == "gps"
+        gps_truth = not truth.trajectory.independent.all()  # GPS fixes, or a truth that holds the fixes the run used
         truth_at = None
         memo = _StatsMemo()
         for s in ordered_solutions(series):

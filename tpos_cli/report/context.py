@@ -77,13 +77,14 @@ class ReportContext:
     @property
     def truth_is_independent(self) -> bool:
         tt = self.truth.trajectory if self.truth is not None else None
-        return tt is not None and (tt.source == "truth" or bool(tt.independent.any()))
+        return tt is not None and bool(tt.independent.any())
 
     def errors(self, name: str, independent_only: bool = True) -> SolutionErrors | None:
-        """Errors of a solution against the trajectory truth; with GPS truth only at the epochs of
-        withheld fixes (the independent ones), none when no fix was withheld."""
+        """Errors of a solution against the trajectory truth; where the truth holds GPS fixes the run
+        used (GPS truth, or a publisher's truth that is the receiver's solution) only at its
+        independent epochs (withheld fixes), none when no fix was withheld."""
         se = next((se for se in self.acc.solutions if se.solution == name), None)
-        if se is None or not independent_only or self.truth.trajectory.source == "truth":
+        if se is None or not independent_only or self.truth.trajectory.independent.all():
             return se
         if not se.independent.any():
             return None

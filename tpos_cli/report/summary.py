@@ -247,7 +247,8 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     if se is not None and not ctx.static_observer:
         e = se.err_ned_m
         h = np.hypot(e[:, 0], e[:, 1])
-        src = "truth" if ctx.truth.trajectory.source == "truth" else "withheld GPS fixes"
+        tt = ctx.truth.trajectory
+        src = "truth" if tt.independent.all() else ("withheld GPS fixes" if tt.source == "gps" else "truth the run did not use")
         rows.append(
             (
                 f"Error against {src}",

@@ -101,6 +101,8 @@ def accuracy_section(ctx: ReportContext) -> Section | None:
     )
     if truth and ctx.truth.trajectory.source == "gps":
         sub += " Errors only at the GPS fixes withheld from the run (--mask-gps)."
+    elif truth and not ctx.truth.trajectory.independent.all():
+        sub += " Errors only where the truth is not a GPS fix the run used (its rows at withheld fixes, --mask-gps)."
     lines = [f"{s}: inside its own 95 % bound: {consistency_text(ctx, s)}" for s in shown if truth and consistency_text(ctx, s)]
 
     note_h = 0.035 if lines else 0.0

@@ -161,7 +161,42 @@ def interpolate_flag(t_truth, flag, t_query, max_gap_s: float):
 # ---------------------------------------------------------------- choosing the truth of a run
 
 
-def _truth_from_reference(session) -> TrajectoryTruth | None:
+SAME_ROW_S = 1e-3  # a truth row at a fix's time (s) ...
+SAME_ROW_M = 1e-3  # ... and place (m) is that fix written twice: a publisher's truth is the receiver's solution
+
+
+def used_fix_rows(t, lla, session, withheld) -> np.ndarray:
+    """Truth rows (t on the logger clock, lla) that are a GPS fix the run used: the same time
+    within SAME_ROW_S and the same point within SAME_ROW_M (fixes withheld by --mask-gps were not
+    used). Publishers of RTK drives give the receiver's own solution as the truth; a run that used
+    those fixes is judged against itself there (its residual to a fix has variance R - P, not P)."""
+    g = session.gps
+    used = np.zeros(t.size, dtype=bool)
+    if g is None or t.size == 0:
+        return used
+    ok = np.all(np.isfinite(g.lla), axis=1)
+    tg = np.asarray(g.t_s, dtype=float)[ok] + session.t0_s
+    lg = np.asarray(g.lla, dtype=float)[ok]
+    if withheld is not None and len(withheld):
+        tw = np.sort(withheld["t"].to_numpy(float))
+        j = np.clip(np.searchsorted(tw, tg), 1, max(tw.size - 1, 1))
+        near = np.minimum(np.abs(tw[j - 1] - tg), np.abs(tw[np.minimum(j, tw.size - 1)] - tg))
+        tg, lg = tg[near > SAME_ROW_S], lg[near > SAME_ROW_S]
+    if tg.size == 0:
+        return used
+    order = np.argsort(tg)
+    tg, lg = tg[order], lg[order]
+    j = np.clip(np.searchsorted(tg, t), 1, max(tg.size - 1, 1))
+    j = np.where(np.abs(tg[j - 1] - t) <= np.abs(tg[np.minimum(j, tg.size - 1)] - t), j - 1, np.minimum(j, tg.size - 1))
+    near = np.abs(tg[j] - t) <= SAME_ROW_S
+    if not near.any():
+        return used
+    d = np.full(t.size, np.inf)
+    d[near] = np.linalg.norm(lla_to_ned(lla[near], lg[j[near]][0]) - lla_to_ned(lg[j[near]], lg[j[near]][0]), axis=1)
+    return near & (d <= SAME_ROW_M)
+
+
+def _truth_from_reference(session, withheld=None) -> TrajectoryTruth | None:
     tr = session.truth
     if tr is None:
         return None
@@ -185,6 +220,10 @@ def _truth_from_reference(session) -> TrajectoryTruth | None:
         f"{', movement phase marked' if movement is not None else ''}); interpolation bridges gaps up to {gap:.3g} s; "
         "its own accuracy is what the data set's publisher states"
     )
+    used = used_fix_rows(t, lla, session, withheld)
+    if used.any():
+        desc += (f"; {int(used.sum())} of its rows are the GPS fixes the run used (same times and points): only the "
+                 f"{int((ok & ~used).sum())} others are independent truth")
     return TrajectoryTruth(
         source="truth",
         description=desc,
@@ -192,7 +231,7 @@ def _truth_from_reference(session) -> TrajectoryTruth | None:
         lla=lla,
         rpy_deg=rpy if has_att else None,
         movement=movement,
-        independent=np.ones(t.size, dtype=bool),
+        independent=~used,
         lever_arm_b_m=np.zeros(3),
         max_gap_s=gap,
     )
@@ -277,7 +316,7 @@ def _target_truth(session) -> TargetTruth | None:
 def choose_truth(session, *, withheld_gps=None, mask_windows=(), need_targets: bool, need_trajectory: bool) -> ReportTruth:
     """Pick the truth for a run from its session (see module docstring); fields are None where the
     session has nothing to judge that part of the run against (a quality-control-only report)."""
-    traj = _truth_from_reference(session) if need_trajectory else None
+    traj = _truth_from_reference(session, withheld_gps) if need_trajectory else None
     if need_trajectory and traj is None:
         traj = _truth_from_gps(session, withheld_gps, mask_windows)
     tgt = _target_truth(session) if need_targets else None
