@@ -23,7 +23,7 @@ import numpy as np
 
 from tpos_cli import __version__, conventions, schema, timebase
 from tpos_cli.advice import review
-from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext, warm_numba
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.bounded import read_toml
@@ -166,8 +166,13 @@ def process_session(
 ) -> RunSummary:
     """Process one session with one pipeline into a run directory (see docs/architecture.md)."""
     ctx = RunContext(progress=progress)
-    with ctx.live(f"tpos process {Path(session_dir).name}"), run_dir_claims():
-        return _process(ctx, session_dir, pipeline, run_dir, mask_gps_windows, overrides)
+    warm = warm_numba()  # with a spare CPU: numba's set-up while the session is read
+    try:
+        with ctx.live(f"tpos process {Path(session_dir).name}"), run_dir_claims():
+            return _process(ctx, session_dir, pipeline, run_dir, mask_gps_windows, overrides)
+    finally:
+        if warm is not None:
+            warm.join()
 
 
 def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, overrides) -> RunSummary:

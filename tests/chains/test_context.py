@@ -35,3 +35,15 @@ def test_status_line_says_when_numba_compiles():
     assert lines[1].endswith(" - compiling kernels (first run only)")
     assert "compiling" not in lines[2]
     assert len(lines) == 3
+
+
+def test_warm_numba_runs_only_with_a_spare_cpu(monkeypatch):
+    """One CPU: no helper thread; more: numba's set-up in a thread that finishes (under its compiler lock)."""
+    from tpos_cli.chains import context
+
+    monkeypatch.setattr(context, "spare_cpu", lambda: False)
+    assert context.warm_numba() is None
+    monkeypatch.setattr(context, "spare_cpu", lambda: True)
+    th = context.warm_numba()
+    th.join(timeout=120)
+    assert not th.is_alive()

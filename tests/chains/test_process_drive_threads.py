@@ -16,7 +16,7 @@ def session(tmp_path_factory):
 
 
 def _run(session, monkeypatch, spare: bool, names):
-    monkeypatch.setattr(ds, "_spare_cpu", lambda: spare)
+    monkeypatch.setattr(ds, "spare_cpu", lambda: spare)
     return ds.process_drive(session, DriveSmoothParams(), None, names=names)
 
 

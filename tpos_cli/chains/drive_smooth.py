@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -21,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tpos_cli import smoothing
-from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext, spare_cpu
 from tpos_cli.config import DriveSmoothParams
 from tpos_cli.consistency import mean_chi2
 from tpos_cli.conventions import output_on_gps_clock
@@ -683,7 +682,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     # ones: the same bits as in sequence. The backward run then takes fresh memory for its history
     # (the RTS smoother is still reading the forward one); on one CPU it writes into the spent history.
     with contextlib.ExitStack() as stack:
-        helper = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="tpos-drive")) if _spare_cpu() else None
+        helper = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="tpos-drive")) if spare_cpu() else None
         vib = helper.submit(vibration_velocity_cov_b, imu.t, imu.acc, out_idx) if helper is not None else None
         with stage("forward"):
             fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg_out, store_rts=need_rts, extra=extra)
@@ -719,13 +718,6 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
                        mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True)), C_vb)
-
-
-def _spare_cpu() -> bool:
-    """Whether this process may run on more than one CPU (`process_drive` then runs independent
-    work in a helper thread)."""
-    cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
-    return len(cpus) > 1
 
 
 def _timed(stage, name: str, fn, *args):
