@@ -169,6 +169,10 @@ def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
         if k != "total" and v > 0:
             print(f"{k:16s} {v:8.3f}  {100 * v / ts['total']:5.1f} %  {n / v:10.3g}")
     print(f"{'total':16s} {ts['total']:8.3f}")
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if cpus > 1:
+        print(f"({cpus} CPUs: smoothing_rts ran in a helper thread during backward, so the shares overlap; the wall "
+              "ratio below uses the second CPU, the CPU ratio counts both threads)")
     print(f"{'process (wall)':16s} {wall:8.3f}   (incl. interpreter start and imports)")
     print(f"reference loop   {ref:8.3f}")
     print(f"ratio process wall/reference (the whole `tpos process`, as issue 16 counts it; bytecode cached): {ratio:.2f} "
