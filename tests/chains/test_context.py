@@ -47,3 +47,12 @@ def test_warm_numba_runs_only_with_a_spare_cpu(monkeypatch):
     th = context.warm_numba()
     th.join(timeout=120)
     assert not th.is_alive()
+
+
+def test_tpos_threads_1_keeps_one_thread(monkeypatch):
+    from tpos_cli.chains.context import spare_cpu
+
+    monkeypatch.setenv("TPOS_THREADS", "1")
+    assert not spare_cpu()
+    monkeypatch.setenv("TPOS_THREADS", "2")
+    assert spare_cpu()

@@ -32,7 +32,11 @@ class ChainOutput:
 
 def spare_cpu() -> bool:
     """Whether this process may run on more than one CPU: independent work then goes to a helper
-    thread (`warm_numba`, `drive_smooth.process_drive`)."""
+    thread (`warm_numba`, `pipeline._beside`, `drive_smooth.process_drive`). TPOS_THREADS=1 in the
+    environment keeps every run on one thread (e.g. one process per core)."""
+    env = os.environ.get("TPOS_THREADS", "").strip()
+    if env.isdigit():
+        return int(env) > 1
     cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
     return len(cpus) > 1
 
