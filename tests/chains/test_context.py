@@ -56,3 +56,20 @@ def test_tpos_threads_1_keeps_one_thread(monkeypatch):
     assert not spare_cpu()
     monkeypatch.setenv("TPOS_THREADS", "2")
     assert spare_cpu()
+
+
+def test_a_busy_machine_has_no_spare_cpu(monkeypatch):
+    """Without TPOS_THREADS: a helper thread only while the load average leaves a CPU free."""
+    import os
+
+    from tpos_cli.chains.context import spare_cpu
+
+    monkeypatch.delenv("TPOS_THREADS", raising=False)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.9, 0.5, 0.5))
+    assert spare_cpu()
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.6, 0.5, 0.5))
+    assert not spare_cpu()
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert not spare_cpu()

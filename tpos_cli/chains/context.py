@@ -31,14 +31,21 @@ class ChainOutput:
 
 
 def spare_cpu() -> bool:
-    """Whether this process may run on more than one CPU: independent work then goes to a helper
-    thread (`warm_numba`, `pipeline._beside`, `drive_smooth.process_drive`). TPOS_THREADS=1 in the
-    environment keeps every run on one thread (e.g. one process per core)."""
+    """Whether a second CPU is free for this process: independent work then goes to a helper thread
+    (`warm_numba`, `pipeline._beside`, `drive_smooth.process_drive`; the results are the same bits
+    either way). Free: the process may run on more than one CPU and the system's one-minute load
+    average is below their number less a half (on a busy machine a second thread only competes
+    with the others' work and costs CPU). TPOS_THREADS in the environment decides instead: 1 keeps
+    every run on one thread (e.g. one process per core), 2 or more uses a helper thread."""
     env = os.environ.get("TPOS_THREADS", "").strip()
     if env.isdigit():
         return int(env) > 1
-    cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else range(os.cpu_count() or 1)
-    return len(cpus) > 1
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # not available on this system
+        load = 0.0
+    return n > 1 and load < n - 0.5
 
 
 def warm_numba() -> threading.Thread | None:

@@ -688,7 +688,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
             fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg_out, store_rts=need_rts, extra=extra)
         rts_sol = None
         if need_rts and helper is not None:
-            rts_sol = helper.submit(_timed, stage, "smoothing_rts", smoothing.rts, fwd, out_idx)
+            rts_sol = helper.submit(_timed, stage, "smoothing_rts_beside", smoothing.rts, fwd, out_idx)  # beside backward
             fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)  # the helper holds its own
         elif need_rts:
             with stage("smoothing_rts"):
