@@ -171,6 +171,11 @@ def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
         if k != "total" and v > 0:
             print(f"{k:16s} {v:8.3f}  {100 * v / ts['total']:5.1f} %  {n / v:10.3g}")
     print(f"{'total':16s} {ts['total']:8.3f}")
+    helper = "smoothing_rts_beside" in ts  # tpos_cli.chains.context.spare_cpu: a CPU was free
+    print("(the RTS smoother ran in a helper thread beside the backward run on a second CPU: the shares overlap; the wall "
+          "ratio below uses that CPU, the CPU ratio counts both threads)" if helper else
+          "(one thread: the process had one CPU or the load average left none free)")
+    threaded = sum("smoothing_rts_beside" in r[2]["timings_s"] for r in runs)
     print(f"{'process (wall)':16s} {wall:8.3f}   (incl. interpreter start and imports)")
     print(f"reference loop   {ref:8.3f}")
     print(f"ratio process wall/reference (the whole `tpos process`, as issue 16 counts it; bytecode cached): {ratio:.2f} "
@@ -179,6 +184,7 @@ def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
     print(f"process CPU/reference CPU (whole process, imports included): {np.median(cpu_ratios):.2f} "
           f"(median of {', '.join(f'{r:.2f}' for r in sorted(cpu_ratios))})")
     print(f"peak memory (max RSS of the timed processes, each its own): {rss_mb:.0f} MB (goal <= 600, issue 16)")
+    print(f"timed runs with a helper thread: {threaded} of {len(runs)}")
     ge = summ["results"]["alignment"].get("gps_error_states", {})
     print(f"GPS error states: sigma_h {ge.get('sigma_h_m')} m, tau {ge.get('tau_s')} s "
           f"({'18' if ge.get('sigma_h_m') else '15'}-state filter)")

@@ -62,3 +62,21 @@ def test_a_session_kind_the_contract_does_not_know_is_named_by_the_loader(tmp_pa
     (s / "session.toml").write_text(toml.replace('kind = "drive"', 'kind = "boat"'))
     with pytest.raises(InvalidInputError, match=r"kind must be one of target, drive, ranging, got 'boat'"):
         process_session(s, run_dir=tmp_path / "run")
+
+
+@pytest.mark.parametrize("spare", [False, True])
+def test_beside_returns_both_results_and_raises_either_failure(monkeypatch, spare):
+    """`pipeline._beside` (the conventions' checks beside the chain's import): the same results with
+    or without a helper thread, and an exception from either side reaches the caller."""
+    import tpos_cli.pipeline as pl
+
+    monkeypatch.setattr(pl, "spare_cpu", lambda: spare)
+    assert pl._beside(lambda: "chain", lambda x: x + 1, 41) == ("chain", 42)
+
+    def fails(_):
+        raise InvalidInputError("refused")
+
+    with pytest.raises(InvalidInputError, match="refused"):
+        pl._beside(lambda: "chain", fails, 0)
+    with pytest.raises(KeyError):
+        pl._beside(lambda: {}["nope"], lambda x: x, 0)

@@ -15,6 +15,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 
 from tpos_cli import __version__, conventions, schema, timebase
 from tpos_cli.advice import review
-from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext, spare_cpu, warm_numba
 from tpos_cli.config import ResolvedConfig, Section, resolve_config, resolve_pipeline
 from tpos_cli.errors import InvalidInputError, ProcessingError, TposError
 from tpos_cli.io.bounded import read_toml
@@ -61,6 +62,17 @@ def chain_needs_gps(chain: str, session: Session) -> bool:
 def chain_runner(chain: str) -> Callable[[Session, Section, RunContext], ChainOutput]:
     """The `run` function of a chain of the fixed table CHAINS (KeyError for any other name)."""
     return importlib.import_module(CHAINS[chain]).run
+
+
+def _beside(first: Callable, fn: Callable, *args):
+    """(first(), fn(*args)): with a spare CPU fn runs in a helper thread meanwhile (it must not
+    touch what `first` does), else after it."""
+    if not spare_cpu():
+        return first(), fn(*args)
+    with ThreadPoolExecutor(1, thread_name_prefix="tpos-pipeline") as helper:
+        job = helper.submit(fn, *args)
+        return first(), job.result()
+
 
 ACCURACY_NOTE = (
     "A zero exit code means processing completed; it is not a claim of accuracy. "
@@ -166,8 +178,13 @@ def process_session(
 ) -> RunSummary:
     """Process one session with one pipeline into a run directory (see docs/architecture.md)."""
     ctx = RunContext(progress=progress)
-    with ctx.live(f"tpos process {Path(session_dir).name}"), run_dir_claims():
-        return _process(ctx, session_dir, pipeline, run_dir, mask_gps_windows, overrides)
+    warm = warm_numba()  # with a spare CPU: numba's set-up while the session is read
+    try:
+        with ctx.live(f"tpos process {Path(session_dir).name}"), run_dir_claims():
+            return _process(ctx, session_dir, pipeline, run_dir, mask_gps_windows, overrides)
+    finally:
+        if warm is not None:
+            warm.join()
 
 
 def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, overrides) -> RunSummary:
@@ -182,11 +199,11 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     check_imu_gaps(session, pipe.chain, getattr(cfg.params, "imu_gap_max_s", None))
     out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
     claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
-    run = chain_runner(pipe.chain)
     with ctx.stage("time_alignment"):
         session, withheld = mask_gps(session, list(mask_gps_windows), gps_needed=chain_needs_gps(pipe.chain, session))
     with ctx.stage("conventions"):  # units, axes, signs; a unit the contract forbids is refused before the work
-        findings = conventions.session_findings(session)
+        # with a spare CPU the checks (numpy over the whole log) run beside the import of the chain's modules
+        run, findings = _beside(lambda: chain_runner(pipe.chain), conventions.session_findings, session)
         conventions.refuse_contract_errors(session, findings)
     try:
         result: ChainOutput = run(session, cfg.params, ctx)

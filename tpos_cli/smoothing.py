@@ -60,7 +60,7 @@ def unpack_tril(tril, e, S):
             c += 1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
     """Smoothed errors about the post-feedback nominal at each epoch: (xs_post (E,n), xs_pre (E,n),
     Ps9 (E,m,m)), Ps9 the leading m = min(n, 9) block (navigation) of the smoothed covariance: the
@@ -143,7 +143,7 @@ def rts_closed_loop(Phi_nav, phi_extra, Ppred_tril, Pfilt_tril, dx):
     return xs_post, xs_pre, Ps9
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _corrected_rows(out_idx, nav, C, bias, xs, o_nav, o_C, o_bias):
     """Row k of o_*: the nominal (nav, C, bias) at sample out_idx[k] corrected by the error estimate xs[k]."""
     R = np.empty((3, 3))

@@ -5,6 +5,8 @@
 from __future__ import annotations
 
 import contextlib
+import os
+import threading
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -26,6 +28,47 @@ class ChainOutput:
     tables: dict = field(default_factory=dict)
     files: dict = field(default_factory=dict)
     summary: dict = field(default_factory=dict)
+
+
+def spare_cpu() -> bool:
+    """Whether a second CPU is free for this process: independent work then goes to a helper thread
+    (`warm_numba`, `pipeline._beside`, `drive_smooth.process_drive`; the results are the same bits
+    either way). Free: the process may run on more than one CPU and the system's one-minute load
+    average is below their number less a half (on a busy machine a second thread only competes
+    with the others' work and costs CPU). TPOS_THREADS in the environment decides instead: 1 keeps
+    every run on one thread (e.g. one process per core), 2 or more uses a helper thread."""
+    env = os.environ.get("TPOS_THREADS", "").strip()
+    if env.isdigit():
+        return int(env) > 1
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # not available on this system
+        load = 0.0
+    return n > 1 and load < n - 0.5
+
+
+def warm_numba() -> threading.Thread | None:
+    """With a spare CPU, numba's first-dispatch set-up (its typing and lowering registries, ~0.2 s
+    CPU, scipy.linalg's import among it) started in a helper thread, so that it overlaps the
+    reading of the session (pyarrow and numpy release the GIL); under numba's compiler lock, which
+    the first kernel dispatch then waits for. Returns the thread (join it before exiting), or None."""
+    if not spare_cpu():
+        return None
+
+    def refresh() -> None:
+        from numba.core.compiler_lock import global_compiler_lock
+        from numba.core.registry import cpu_target
+
+        try:
+            with global_compiler_lock:
+                cpu_target.target_context.refresh()
+        except Exception:  # noqa: BLE001 - the first dispatch repeats it and reports what fails
+            pass
+
+    th = threading.Thread(target=refresh, name="tpos-numba-warm", daemon=True)
+    th.start()
+    return th
 
 
 class RunContext:

@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tpos_cli import smoothing
-from tpos_cli.chains.context import ChainOutput, RunContext
+from tpos_cli.chains.context import ChainOutput, RunContext, spare_cpu
 from tpos_cli.config import DriveSmoothParams
 from tpos_cli.consistency import mean_chi2
 from tpos_cli.conventions import output_on_gps_clock
@@ -690,25 +691,41 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     sols = {}
     cfg_out = dataclasses.replace(cfg, nominal_idx=out_idx)  # the runs' nominal at the output rows only
     spent = ()
-    with stage("forward"):
-        fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg_out, store_rts=need_rts, extra=extra)
-    if need_rts:
-        with stage("smoothing_rts"):
-            sols["rts"] = smoothing.rts(fwd, out_idx)
-            # drop the RTS history before the backward run: it is the largest array of the run;
-            # the backward run writes its own history into that memory (no fresh pages to touch)
-            spent = (fwd.ep_Phi, fwd.ep_Ppred)
-            fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)
-    with stage("backward"):
-        bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg_out,
-                         backward=True, extra=extra, reuse=spent)
-        del spent
+    # With a second CPU, work that does not depend on the runs goes to a helper thread: the vibration
+    # covariance (during the forward run) and the RTS smoother (during the backward run; both numba
+    # kernels release the GIL). Each task reads arrays nobody writes while it runs and returns new
+    # ones: the same bits as in sequence. The backward run then takes fresh memory for its history
+    # (the RTS smoother is still reading the forward one); on one CPU it writes into the spent history.
+    with contextlib.ExitStack() as stack:
+        helper = stack.enter_context(ThreadPoolExecutor(1, thread_name_prefix="tpos-drive")) if spare_cpu() else None
+        vib = helper.submit(vibration_velocity_cov_b, imu.t, imu.acc, out_idx) if helper is not None else None
+        with stage("forward"):
+            fwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, init, cfg_out, store_rts=need_rts, extra=extra)
+        rts_sol = None
+        if need_rts and helper is not None:
+            rts_sol = helper.submit(_timed, stage, "smoothing_rts_beside", smoothing.rts, fwd, out_idx)  # beside backward
+            fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)  # the helper holds its own
+        elif need_rts:
+            with stage("smoothing_rts"):
+                sols["rts"] = smoothing.rts(fwd, out_idx)
+                # drop the RTS history before the backward run: it is the largest array of the run;
+                # the backward run writes its own history into that memory (no fresh pages to touch)
+                spent = (fwd.ep_Phi, fwd.ep_Ppred)
+                fwd = dataclasses.replace(fwd, ep_Phi=None, ep_phi_extra=None, ep_Ppred=None)
+        with stage("backward"):
+            bwd = run_insgps(imu.t, imu.gyro, imu.acc, fixes, backward_start(fwd, initial_covariance(sig)), cfg_out,
+                             backward=True, extra=extra, reuse=spent)
+            del spent
+        if rts_sol is not None:
+            sols["rts"] = rts_sol.result()
+        S_vib_b = vib.result() if vib is not None else None
     with stage("smoothing"):
         outages = fix_outages(fixes.t_s, imu.t[-1], p.outage_min_s)
         sols, flag, nis = smooth(fwd, bwd, out_idx, outages, p, names, sols, cfg.C_vb)
     considered = considered_fix_error(p, fixes, info)
     fix_vel = considered_velocity(considered, fixes, fwd, info)
-    S_vib_b = vibration_velocity_cov_b(imu.t, imu.acc, out_idx)
+    if S_vib_b is None:
+        S_vib_b = vibration_velocity_cov_b(imu.t, imu.acc, out_idx)
     owned = owned_covariances(sols)  # added to in place: the copies were the process's peak (+70 MB on the hour)
     sols = {k: with_unmodelled_errors(at_stated_lever_arm(v, cfg), considered, S_vib_b[np.searchsorted(out_idx, v.idx)],
                                       fix_vel, owned=owned[k])
@@ -716,6 +733,12 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
                        mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True)), C_vb)
+
+
+def _timed(stage, name: str, fn, *args):
+    """fn(*args) timed as stage `name` (in a helper thread: the stage overlaps the caller's)."""
+    with stage(name):
+        return fn(*args)
 
 
 def nis_band(nis, innovation) -> dict | None:

@@ -244,9 +244,15 @@ def predict_trapezoid(x, P, Phi, Qc, dt, T, Tt):
     two), and x <- Phi x; in place, without allocating: T, Tt (n, n) are scratch. P and Qc exactly
     symmetric; P comes out exactly symmetric (the upper triangle of the product, mirrored)."""
     n = x.shape[0]
+    zero = True  # a closed-loop filter predicts x = 0: Phi 0 is +0.0 in every element (the sums start at +0.0)
     for i in range(n):
         T[0, i] = x[i]
+        if x[i] != 0.0:
+            zero = False
     for i in range(n):
+        if zero:
+            x[i] = 0.0
+            continue
         s = 0.0
         for k in range(n):
             s += Phi[i, k] * T[0, k]
@@ -269,13 +275,11 @@ def predict_trapezoid(x, P, Phi, Qc, dt, T, Tt):
 
 
 @njit(cache=True, error_model="numpy")
-def _innovation(x, P, z, H, R):
-    """(nu = z - H x (m,), H P (m, n) (= (P H^T)^T: P symmetric), S = H P H^T + R symmetrized
-    (m, m)). Zero elements of H are skipped (a measurement row touches a few states)."""
+def _innovation_into(x, P, z, H, R, nu, HP, S):
+    """nu = z - H x (m,), H P (m, n) (= (P H^T)^T: P symmetric), S = H P H^T + R symmetrized
+    (m, m), written into nu, HP, S. Zero elements of H are skipped (a measurement row touches a
+    few states)."""
     m, n = H.shape
-    nu = np.empty(m)
-    HP = np.empty((m, n))
-    S = np.empty((m, m))
     for i in range(m):
         s = z[i]
         for k in range(n):
@@ -291,17 +295,15 @@ def _innovation(x, P, z, H, R):
                     s += H[i, k] * HP[j, k]
             S[i, j] = s
     symmetrize(S)
-    return nu, HP, S
 
 
 @njit(cache=True, error_model="numpy")
-def _nis(nu, S, L):
-    """nu^T S^-1 nu, as the squared norm of the whitened innovation L^-1 nu (S = L L^T, L written);
-    -1 if S is not positive definite."""
+def _nis_into(nu, S, L, w):
+    """nu^T S^-1 nu, as the squared norm of the whitened innovation w = L^-1 nu (S = L L^T; L and
+    w (m,) written); -1 if S is not positive definite."""
     m = nu.shape[0]
     if not cholesky_into(S, L):
         return -1.0
-    w = np.empty(m)
     forward_substitute(L, nu, w)
     nis = 0.0
     for i in range(m):
@@ -312,7 +314,7 @@ def _nis(nu, S, L):
 @njit(cache=True, error_model="numpy")
 def _scalar_statistics(x, P, z, H, R):
     """(nu, h^T P h, S = h^T P h + R) of a scalar measurement (H (1, n)) without allocating;
-    the sums run in the order of `_innovation`'s, skipping zeros of h."""
+    the sums run in the order of `_innovation_into`'s, skipping zeros of h."""
     n = H.shape[1]
     nu = z[0]
     hph = 0.0
@@ -337,7 +339,13 @@ def _update_scalar(x, P, z, h, r):
     (I - k h^T) P (I - k h^T)^T + k r k^T expanded exactly (for any gain k) as
     P - k p^T - p k^T + s k k^T. Returns nu^2 / s, or -1 (nothing changed) if s <= 0."""
     n = h.shape[0]
-    p = np.empty(n)
+    return _update_scalar_into(x, P, z, h, r, np.empty(n), np.empty(n))
+
+
+@njit(cache=True, error_model="numpy")
+def _update_scalar_into(x, P, z, h, r, p, g):
+    """`_update_scalar` with p, g (n,) its scratch (P h and the gain)."""
+    n = h.shape[0]
     for i in range(n):
         p[i] = 0.0
     nu = z
@@ -355,8 +363,7 @@ def _update_scalar(x, P, z, h, r):
         return -1.0
     sq = np.sqrt(s)
     w = nu / sq
-    g = np.empty(n)  # the gain k, as a Cholesky solve with S = s computes it
-    for i in range(n):
+    for i in range(n):  # g: the gain k, as a Cholesky solve with S = s computes it
         g[i] = (p[i] / sq) / sq
         x[i] += g[i] * nu
     for i in range(n):
@@ -383,8 +390,27 @@ def update(x, P, z, H, R):
     m, n = H.shape
     if m == 1:
         return _update_scalar(x, P, z[0], H[0], R[0, 0])
-    L = np.zeros((m, m))
-    D = np.empty(m)
+    # one allocation for the scratch (L, D, zd, Hd, the state before, the rows' p and g): the NHC
+    # rows (m = 2) come at every fifth of a second of a drive
+    buf = np.empty(m * m + 2 * m + m * n + n + n * n + 2 * n)
+    o = 0
+    L = buf[o:o + m * m].reshape((m, m))
+    o += m * m
+    D = buf[o:o + m]
+    o += m
+    zd = buf[o:o + m]
+    o += m
+    Hd = buf[o:o + m * n].reshape((m, n))
+    o += m * n
+    x0 = buf[o:o + n]
+    o += n
+    P0 = buf[o:o + n * n].reshape((n, n))
+    o += n * n
+    p = buf[o:o + n]
+    g = buf[o + n:o + 2 * n]
+    for i in range(m):
+        for j in range(m):
+            L[i, j] = 0.0
     for j in range(m):  # R = L D L^T; a zero pivot (PSD R) leaves its column of L at zero
         d = R[j, j]
         for k in range(j):
@@ -396,8 +422,6 @@ def update(x, P, z, H, R):
             for k in range(j):
                 v -= L[i, k] * L[j, k] * D[k]
             L[i, j] = v / d if d > 0.0 else 0.0
-    zd = np.empty(m)
-    Hd = np.empty((m, n))
     for i in range(m):  # unit lower-triangular forward substitution
         s = z[i]
         for j in range(i):
@@ -408,11 +432,13 @@ def update(x, P, z, H, R):
             for j in range(i):
                 s -= L[i, j] * Hd[j, k]
             Hd[i, k] = s
-    x0 = x.copy()
-    P0 = P.copy()
+    for k in range(n):
+        x0[k] = x[k]
+        for j in range(n):
+            P0[k, j] = P[k, j]
     nis = 0.0
     for i in range(m):
-        v = _update_scalar(x, P, zd[i], Hd[i], D[i])
+        v = _update_scalar_into(x, P, zd[i], Hd[i], D[i], p, g)
         if v < 0.0:  # S not PD: leave the state as it was
             for k in range(n):
                 x[k] = x0[k]
@@ -438,15 +464,19 @@ def innovation_statistics(x, P, z, H, R, pvar):
         sq = np.sqrt(s)
         w = nu / sq
         return w * w, 2.0 * np.log(sq)
-    nu, HP, S = _innovation(x, P, z, H, R)
+    buf = np.empty(m + m * n + 2 * m * m + m)  # nu, HP, S, L, w: one allocation
+    nu = buf[:m]
+    HP = buf[m:m + m * n].reshape((m, n))
+    S = buf[m + m * n:m + m * n + m * m].reshape((m, m))
+    L = buf[m + m * n + m * m:m + m * n + 2 * m * m].reshape((m, m))
+    _innovation_into(x, P, z, H, R, nu, HP, S)
     for i in range(m):
         s = 0.0
         for k in range(n):
             if H[i, k] != 0.0:
                 s += H[i, k] * HP[i, k]
         pvar[i] = s
-    L = np.empty((m, m))
-    nis = _nis(nu, S, L)
+    nis = _nis_into(nu, S, L, buf[m + m * n + 2 * m * m:])
     if nis < 0.0:
         return nis, np.nan
     logdet = 0.0

@@ -196,7 +196,7 @@ def _store_transition(out, k, Phi):
         out.ep_phi_extra[k, i] = Phi[N_NAV + i, N_NAV + i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
