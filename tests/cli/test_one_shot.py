@@ -85,3 +85,25 @@ def test_a_one_shot_process_refusing_its_input_exits_2(tmp_path):
                          capture_output=True, text=True, timeout=600)
     assert res.returncode == 2 and res.stderr.startswith("error: ") and res.stderr.count("\n") == 1, res.stderr
     assert not (tmp_path / "a").exists()
+
+
+def test_unused_numpy_modules_load_on_first_use():
+    """`_common.defer_unused_imports` (one-shot only): scipy's import, which touches every attribute of
+    numpy, no longer runs numpy.f2py / numpy.testing; a caller that uses them gets them whole. In a
+    fresh interpreter: this one may hold them already."""
+    code = (
+        "import sys\n"
+        "from tpos_cli.cli import _common\n"
+        "_common.defer_unused_imports()\n"  # not one-shot: nothing changes
+        "assert 'numpy.f2py' not in sys.modules\n"
+        "_common.mark_one_shot()\n"
+        "_common.defer_unused_imports()\n"
+        "import scipy.linalg, scipy.special, numpy\n"
+        "assert 'numpy.f2py.crackfortran' not in sys.modules and 'numpy.testing._private.utils' not in sys.modules\n"
+        "numpy.testing.assert_array_equal(numpy.arange(3), [0, 1, 2])\n"
+        "from numpy.testing import assert_allclose\n"
+        "assert_allclose(1.0, 1.0)\n"
+        "import numpy.f2py\n"
+        "assert callable(numpy.f2py.get_include) and 'numpy.f2py.crackfortran' in sys.modules\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])

@@ -40,6 +40,37 @@ def keep_until_exit() -> None:
         gc.freeze()
 
 
+# numpy submodules no command uses that numpy imports on first attribute access, and scipy's array-API
+# layer touches every public attribute of numpy at scipy's first import (array_api_compat's
+# `clone_module`: `hasattr(numpy, name)` for each; numba's first dispatch imports scipy.linalg): about
+# 0.05 s CPU of every `tpos process` (numpy.f2py's crackfortran compiles some hundred regexes).
+_UNUSED_NUMPY_MODULES = ("numpy.f2py", "numpy.testing")
+
+
+def defer_unused_imports() -> None:
+    """In a one-shot process, register `_UNUSED_NUMPY_MODULES` as lazy modules (the standard library's
+    `importlib.util.LazyLoader`): the attribute numpy hands out is the module, whose code runs at the
+    first access to one of ITS attributes, so only a caller that uses it pays for its import. Modules
+    already imported are left as they are; nothing changes in a process that goes on."""
+    if not _one_shot:
+        return
+    import importlib.util
+
+    import numpy
+
+    for name in _UNUSED_NUMPY_MODULES:
+        if name in sys.modules:
+            continue
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None:
+            continue
+        spec.loader = importlib.util.LazyLoader(spec.loader)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        setattr(numpy, name.rpartition(".")[2], module)
+
+
 def run_to_exit(pause_collector: bool = True) -> None:
     """Called first by `tpos process`, `report` and `batch`. In a one-shot process only (never under
     CliRunner, tests or a library caller): with `pause_collector` the cyclic collector stays off for

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error, keep_until_exit, parse_window, run_to_exit, show_progress
+from tpos_cli.cli._common import defer_unused_imports, exit_on_error, keep_until_exit, parse_window, run_to_exit, show_progress
 from tpos_cli.io.bounded import MAX_TOML_DEPTH, toml_depth
 
 
@@ -51,6 +51,7 @@ def process(
     Example: tpos process sample_logs/drive_outage -o runs/drive --mask-gps 50:80
     """
     run_to_exit()  # a one-shot process: no cyclic collections, no interpreter teardown at the end
+    defer_unused_imports()  # numpy's f2py, testing: imported only if something uses them (one-shot only)
     windows = [parse_window(w, "--mask-gps") for w in mask_gps]
     overrides = _parse_set(set_)
     try:
