@@ -11,7 +11,9 @@ reference loop of the same algebra (15-state predict at every IMU sample, 6-dim 
 Accuracy: simulated MEMS drives with one 30 s outage and with two 60 s outages; horizontal
 RMS / max error inside and outside the outages per solution, and the forward filter's NEES.
 Calibration: the real-car case over 32 drives, the lever-arm and clock-offset states' errors over
-their SDs (8 drives cannot tell a state whose SD is off by a third).
+their SDs (8 drives cannot tell a state whose SD is off by a third); and on the real drive logs, a
+clock error planted on real sensors (GPS stamped 0.3 s late): the change of the clock estimates
+against the planted change, over their SDs.
 Real logs: GPS withheld (`--mask-gps`) in three 30 s windows while moving; forward and
 smoothed errors inside the windows against the session's truth, and how often the sigma columns
 cover them (GPS error states: `fusion.gps_error`).
@@ -320,6 +322,38 @@ def calibration(drives: int = 32, overrides=None) -> None:
     state whose SD is off by a third; 32 draws narrow it to [0.75, 1.24]."""
     accuracy_case("calibration states, the real-car case of `accuracy`", ((300.0, 30.0),),
                   seeds=tuple(range(1, drives + 1)), overrides=overrides, sim_kw=REAL_CAR)
+    planted_clock(overrides)
+
+
+PLANTED_LATE_S = 0.3
+
+
+def planted_clock(overrides=None, logs=None) -> None:
+    """Each real drive log processed as it is and with its GPS rows stamped PLANTED_LATE_S late
+    (the user's late GPS clock of the brief): the clock estimates must move by -PLANTED_LATE_S (a
+    position stamped t was taken at IMU time t + d), within their SDs. The log's own offset is
+    unknown; the planted change is exact truth on real sensors, vibration and all."""
+    from tpos_cli.pipeline import process_session
+
+    print(f"\nclock offset planted on real logs: GPS stamped {PLANTED_LATE_S} s late; change of the estimates "
+          f"(expected {-PLANTED_LATE_S:+.3f} s), z = (change - expected) / SD of the planted run's estimate")
+    print(f"{'session':34s} {'own pos / vel s':>17s} {'change pos':>11s} {'z':>6s} {'change vel':>11s} {'z':>6s}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in logs or (PART1, "rtklibexplorer_walk_0827", "comma2k19_seg40", "navego_canada_enav"):
+            if not (REAL / name).exists():
+                print(f"{name}: not found under {REAL}")
+                continue
+            est = []
+            for late in (0.0, PLANTED_LATE_S):
+                sdir = Path(tmp) / f"{name}_{late:g}"
+                M.plant(REAL / name, sdir, M.gps_late(late))
+                run = process_session(sdir, run_dir=Path(tmp) / f"run_{name}_{late:g}", overrides=overrides or {})
+                c = run.summary["results"]["gps_clock_offset"]
+                est.append((c["estimate_s"], c["sigma_s"], c["velocity_estimate_s"], c["velocity_sigma_s"]))
+            (p0, _, v0, _), (p1, sp1, v1, sv1) = est
+            dp, dv = p1 - p0, v1 - v0
+            print(f"{name:34s} {p0:+8.3f} / {v0:+6.3f} {dp:+11.3f} {(dp + PLANTED_LATE_S) / sp1:+6.1f} "
+                  f"{dv:+11.3f} {(dv + PLANTED_LATE_S) / sv1:+6.1f}")
 
 
 def accuracy(drives: int = 8, overrides=None) -> None:

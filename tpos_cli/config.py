@@ -105,7 +105,8 @@ class DriveSmoothParams(Section):
     gps_sigma_h_m: Positive = 1.5  # used when gps has no sigma columns
     gps_sigma_floor_m: NonNegative = 0.01  # reported SDs below this are raised to it (a receiver's
     # RTK SDs are used as given: raising them to decimetres lets the solution sit off centimetre fixes)
-    max_consecutive_rejections: Count = 5  # then the next fix is applied ungated
+    max_consecutive_rejections: Count = 5  # then the next rejected fix goes in: as it is in the tuning passes; in the
+    # final runs down-weighted to the gate's edge if beyond its stated accuracy (drifts re-acquired sooner: `fusion.reacquire`)
     gps_sigma_v_m: Positive = 2.5
     gps_sigma_vel_mps: Positive = 0.1
     use_gps_velocity: bool = True
