@@ -13,6 +13,7 @@ import json
 import os
 import shutil
 import signal
+import threading
 import time
 from pathlib import Path
 
@@ -542,19 +543,23 @@ def test_a_session_over_its_time_limit_fails_alone(tmp_path, behaviour):
 def test_pool_kills_a_worker_deaf_to_its_alarm(tmp_path, monkeypatch):
     monkeypatch.setattr(b, "HARD_GRACE_S", 2.0)
     sessions = make_sessions(tmp_path / "logs", {"stuck": "stuck", "fine": "ok", "slow": "hang"})
+    threads_before = set(threading.enumerate())
     t0 = time.monotonic()
     res = b.run_batch(tasks_for(sessions, tmp_path / "out", timeout_s=1.0), jobs=2, process=fake_process,
                       is_current=fake_is_current)
     assert time.monotonic() - t0 < 60
     assert [r.status for r in res.results] == ["failed", "ok", "failed"]
     assert "worker killed" in res.results[0].error and res.results[2].error.startswith("timed out after 1 s")
+    # audit (session 11): the killed pool's manager thread outlived run_batch (and the queue's feeder
+    # thread with it): a one-shot `tpos batch` then skipped its os._exit, and tests/cli/test_one_shot.py
+    # failed when run after this file
+    assert set(threading.enumerate()) <= threads_before, set(threading.enumerate()) - threads_before
 
 
 def test_an_interrupted_batch_leaves_no_lock_or_temporary(tmp_path):
     """audit (session 11): Ctrl-C or kill during `tpos batch` left the running workers' `.NAME.lock` files
     (and `.NAME.tmp-PID` directories) in OUT until the next batch; they go with the workers."""
     import _thread
-    import threading
 
     sessions = make_sessions(tmp_path / "logs", {"a": "claim_and_hang", "b": "claim_and_hang", "c": "ok"})
     out = tmp_path / "out"

@@ -226,3 +226,65 @@ def test_units_the_contract_forbids_are_errors_naming_file_and_column(tmp_path):
     odo["speed_mps"] /= 2.23694
     odo.to_parquet(s / "odometry.parquet", index=False)
     assert runner.invoke(app, ["validate", str(s)]).exit_code == 0
+
+
+def _gps_stamped_late(session, late_s):
+    import dataclasses
+
+    return dataclasses.replace(session, gps=dataclasses.replace(session.gps, t_s=session.gps.t_s + late_s))
+
+
+def test_a_course_only_clock_estimate_is_no_clock_statement(monkeypatch):
+    """audit (session 11): validate's log-only clock figure is the along-track channel's (CLOCK_CHANNELS):
+    an estimate the course channel alone carries (a walker: body yaw and path course are not rigidly tied)
+    is not stated as a clock offset; the gyro-sign check still reads the course channel."""
+    import types
+
+    from tpos_cli import conventions, timeoffset
+    from tpos_cli.errors import ProcessingError
+
+    asked = []
+
+    def estimate(session, *, channels, **kw):
+        asked.append(channels)
+        if "course" not in channels:
+            raise ProcessingError("time offset: GPS velocity changes do not follow the IMU")
+        return timeoffset.TimeOffset(0.268, 0.039, gain, 400, 0.27, channels=("course",), r2=(0.85, 0.12))
+
+    monkeypatch.setattr(timeoffset, "estimate_session_offset", estimate)
+    session = types.SimpleNamespace(meta=types.SimpleNamespace(time_offsets_s={}))
+    gain = 0.95
+    assert conventions.check_gps_clock(session) == [] and asked == [("course", "along"), ("along",)]
+    gain = -0.95
+    assert "opposite to the GPS course rate" in conventions.check_gps_clock(session)[0]
+
+
+@pytest.mark.parametrize("late_s", [0.3, -0.2])
+def test_a_clock_offset_on_a_simulated_drive_is_stated_from_the_along_track_channel(tmp_path, late_s):
+    from tpos_cli.conventions import check_gps_clock, gps_clock_estimate
+    from tpos_cli.session import load_session
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    write_session(SCENARIOS["drive"](duration_s=300.0, seed=4), tmp_path / "s", fmt="parquet")
+    session = _gps_stamped_late(load_session(tmp_path / "s"), late_s)
+    off = gps_clock_estimate(session)
+    assert off.channels == ("along",) and off.offset_s == pytest.approx(-late_s, abs=3 * off.sigma_s + 0.01)
+    (msg,) = check_gps_clock(session)
+    assert f"{abs(off.offset_s):.3f} ± {off.sigma_s:.3f} s {'late' if late_s > 0 else 'early'}" in msg
+
+
+@pytest.mark.skipif(not SHARED.exists(), reason="needs ../shared real sessions")
+def test_the_walk_gets_no_log_only_clock_claim_and_comma2k19_keeps_its_own():
+    """rtklibexplorer_walk_0827: the course channel alone said 0.268 s early (the filter's clock states:
+    velocities 0.099 s late); its along channel explains too little (R² 0.12) to time a clock. A shift
+    planted in its GPS moves the course estimate by as much, yet is no claim either. comma2k19_seg40's
+    along-track estimate (its u-blox velocities ~0.19 s late) is still stated."""
+    from tpos_cli.conventions import check_gps_clock, gps_clock_estimate
+    from tpos_cli.session import load_session
+
+    walk = load_session(SHARED / "rtklibexplorer_walk_0827", with_truth=False)
+    assert gps_clock_estimate(walk) is None
+    assert check_gps_clock(walk) == [] and check_gps_clock(_gps_stamped_late(walk, 0.3)) == []
+    (msg,) = check_gps_clock(load_session(SHARED / "comma2k19_seg40", with_truth=False))
+    assert "0.191 ± 0.024 s late against the IMU's forward specific force" in msg

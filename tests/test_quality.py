@@ -318,7 +318,7 @@ def test_gps_clock_1e6_s_off(sims):
     # audit (session 10): no fix within the IMU's span is refused by the drive chain (exit 2, naming the clock
     # and [time] gps_offset_s); it ran the log as dead reckoning, verdict unreliable "GPS clock"
     get, root = sims
-    with pytest.raises(InvalidInputError, match=r"gps\.\w+: column 't': no position fix falls within the IMU's time span "
+    with pytest.raises(InvalidInputError, match=r"gps\.\w+: column 't', row \d+: no position fix falls within the IMU's time span "
                                                  r".* another clock \(the GPS clock, not the logger.s\) or \[time\] gps_offset_s is wrong"):
         _run(get("drive"), root, M.gps_late(1e6))
 

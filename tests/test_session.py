@@ -260,3 +260,34 @@ def test_session_toml_arrays_take_numbers_only(tmp_path):
         toml = (d / "session.toml").read_text()
         (d / "session.toml").write_text(toml.replace("[imu]\n", f"[imu]\nmounting_rpy_deg = {val}\n"))
         assert "[imu] mounting_rpy_deg must be three finite numbers" in _refusal(d)
+
+
+def test_gps_on_another_clock_gets_one_answer_from_validate_and_process(tmp_path):
+    """audit (session 11): GPS `t` in seconds of the GPS week beside an IMU on the logger's clock: `tpos
+    validate` warned (exit 0) and `tpos process` refused it (exit 2). Both now refuse a drive session with
+    the same line (file, column, the first fix's row); a ranging or target session, whose chain may run
+    without the GPS, keeps the warning."""
+    from typer.testing import CliRunner
+
+    from tpos_cli.cli import app
+
+    d = write_minimal_session(tmp_path / "s")
+    gps = pd.read_csv(d / "gps.csv")
+    gps.assign(t=gps.t - gps.t.iloc[0] + 345600.0, fix=np.where(np.arange(len(gps)) < 2, 0, gps.fix)).to_csv(
+        d / "gps.csv", index=False)
+    with pytest.raises(InvalidInputError) as exc:
+        load_session(d)
+    assert "gps.csv: column 't', row 3: no position fix falls within the IMU's time span (fixes 345602.000-" in str(exc.value)
+    runner = CliRunner()
+    checked = runner.invoke(app, ["validate", str(d)])
+    processed = runner.invoke(app, ["process", str(d), "-o", str(tmp_path / "run")])
+    assert checked.exit_code == processed.exit_code == 2
+    line = "gps.csv: column 't', row 3: no position fix falls within the IMU's time span"
+    assert line in checked.output and line in processed.output and not (tmp_path / "run").exists()
+
+    r = write_minimal_session(tmp_path / "r", with_anchors=True)
+    gps = pd.read_csv(r / "gps.csv")
+    gps.assign(t=gps.t + 345600.0).to_csv(r / "gps.csv", index=False)
+    s = load_session(r)
+    assert s.meta.kind == "ranging" and s.counts["gps_outside_imu_span"] == 1
+    assert any("no GPS fix falls within the IMU's time span" in w for w in s.warnings)

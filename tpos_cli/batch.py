@@ -70,6 +70,8 @@ MAX_LIST_BYTES = 4 << 20
 DEFAULT_TIMEOUT_S = 7200.0
 # How long past its time limit a silent pool is given before its workers are killed.
 HARD_GRACE_S = 60.0
+# How long a killed pool's manager thread is waited for (it joins the terminated workers; a bound, not a pause).
+MANAGER_JOIN_S = 10.0
 # The earlier batch.json is read only up to this size (it holds one row per session).
 MAX_RECORD_BYTES = 256 << 20
 
@@ -563,13 +565,20 @@ def _worker_ready() -> bool:
 
 
 def _kill_workers(ex: ProcessPoolExecutor, wait_s: float = 0.0) -> None:
-    """Cancel the queued tasks and terminate the workers; with `wait_s`, wait that long for them to end."""
+    """Cancel the queued tasks and terminate the workers; with `wait_s`, wait that long for them to end.
+    The pool's manager thread is then joined (up to `MANAGER_JOIN_S`): it reaps the killed workers and
+    closes the pool's queues, and shutdown(wait=False) drops it, so the pool's `with` no longer waits
+    for it. Left running, it outlived the batch call (a thread alive after `run_batch` returned, which
+    turns off `end_process`'s os._exit and broke tests/cli/test_one_shot.py run after tests/test_batch.py)."""
     procs = list((getattr(ex, "_processes", None) or {}).values())  # before shutdown drops them
+    manager = getattr(ex, "_executor_manager_thread", None)  # likewise
     ex.shutdown(wait=False, cancel_futures=True)
     for proc in procs:
         proc.terminate()
     for proc in procs if wait_s else ():
         proc.join(wait_s)
+    if manager is not None:
+        manager.join(MANAGER_JOIN_S)
 
 
 def _run_pool(

@@ -8,7 +8,8 @@ the log with physics it must obey:
   vector fixed in the navigation frame, Earth rate neglected): a per-axis gain k in
   du/dt = u × (k ω) is 1 for a consistent log, -1 for a flipped gyro axis, π/180 for deg/s
   logged as rad/s, the sample interval for angle increments, and all -1 for a mirrored frame;
-- GPS course and speed changes match the integrated gyro and accelerometer (`timeoffset.py`), which gives the clock offset;
+- GPS course and speed changes match the integrated gyro and accelerometer (`timeoffset.py`); the speed
+  changes against the forward specific force give the clock offset (CLOCK_CHANNELS);
 - the magnetometer magnitude is the IGRF field at the session's position and date.
 GPS heights above sea level instead of the ellipsoid cannot be told from a session alone: that
 needs a geoid model (N up to ±100 m), and no maintained package ships a compact global one for
@@ -419,16 +420,27 @@ def check_conventions(session, *, clock: bool = True) -> list[str]:
 
 
 CLOCK_MIN_S = 0.05  # offsets below this are not reported: below the 4-20 Hz GPS intervals' resolution
+# The log-only estimate is stated as a clock offset from the along-track channel alone (`timeoffset`:
+# the GPS speed change against the integrated forward specific force), which Newton ties on any
+# carrier. The course channel ties the body's yaw to the path's course: rigid on a vehicle that does
+# not slip, not on a walker whose body turns before or after the path (sway, anticipation), so its
+# level there is behaviour, not a clock. Chosen after seeing the logs (audit, session 11; the lead's
+# measurement): rtklibexplorer_walk_0827's course channel alone (along R² 0.12, not used) said 0.268 s
+# early, the filter's clock states 0.099 s late. No threshold added: whether the along channel carries
+# an estimate is timeoffset's own MIN_R2 and GAIN_RANGE.
+CLOCK_CHANNELS = ("along",)
 
 
-def gps_clock_estimate(session, *, max_span_s: float | None = None, max_offset_s: float = 1.0):
-    """The IMU-GPS offset (`timeoffset.TimeOffset`) or None when the log cannot tell; with
-    `max_span_s`, estimated on the span of the log with the most turning and speed change."""
+def gps_clock_estimate(session, *, max_span_s: float | None = None, max_offset_s: float = 1.0,
+                       channels: tuple[str, ...] = CLOCK_CHANNELS):
+    """The IMU-GPS offset (`timeoffset.TimeOffset`) from `channels` (by default those that time a
+    clock, CLOCK_CHANNELS) or None when the log cannot tell; with `max_span_s`, estimated on the
+    span of the log with the most turning and speed change."""
     from tpos_cli.errors import TposError
     from tpos_cli.timeoffset import estimate_session_offset
 
     try:
-        return estimate_session_offset(session, max_offset_s=max_offset_s, max_span_s=max_span_s)
+        return estimate_session_offset(session, max_offset_s=max_offset_s, max_span_s=max_span_s, channels=channels)
     except TposError:
         return None
 
@@ -450,17 +462,16 @@ def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
 
     A measurement, not advice: `tpos process` tries it by reprocessing and suggests it only when
     the filter then fits the GPS better (`advice.py`)."""
-    off = gps_clock_estimate(session)
-    if off is None:
-        return []
-    if "course" in off.channels and off.gain < -0.5:
-        return [f"gps/imu: the gyro yaw rate is opposite to the GPS course rate (gain {off.gain:.2f}): "
+    both = gps_clock_estimate(session, channels=("course", "along"))
+    if both is not None and "course" in both.channels and both.gain < -0.5:
+        return [f"gps/imu: the gyro yaw rate is opposite to the GPS course rate (gain {both.gain:.2f}): "
                 "the vertical gyro axis sign or [imu] axes U/D is wrong"]
+    off = gps_clock_estimate(session)  # CLOCK_CHANNELS: a course-only estimate is no clock statement
     f = clock_finding(off, _current_gps_offset(session))
     if f is None or not f.figures["candidate"]:
         return []
-    return [f"gps/imu: GPS velocity changes are time-stamped {offset_text(off.offset_s, off.sigma_s)} against the IMU "
-            f"({' and '.join(off.channels)} from {off.n_used} GPS windows): a GPS clock offset? `tpos process` checks: "
+    return [f"gps/imu: GPS speed changes are time-stamped {offset_text(off.offset_s, off.sigma_s)} against the IMU's "
+            f"forward specific force ({off.n_used} GPS windows): a GPS clock offset? `tpos process` checks: "
             "the drive pipeline estimates the positions' and velocities' offsets as filter states and names them when "
             f"they matter; others try [time] gps_offset_s = {f.figures['suggest_gps_offset_s']:.3f} and suggest it if "
             "the GPS then fits better"]

@@ -710,8 +710,17 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
                   f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
                   "the contract requires seconds", "t", 2)
         return None
-    if imu_span_s is not None and not ((t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1]) & (fix[keep] > 0)).any():
-        # counted and said; the run's verdict names the clock mistake and its fix (tpos_cli.quality)
+    fixes = fix[keep] > 0
+    if imu_span_s is not None and meta.kind == "drive" and fixes.any() and \
+            not ((t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1]) & fixes).any():
+        # a drive's chain needs the fixes: refused here as `tpos process` refuses it (chains.drive_smooth.
+        # fixes_from_session), not a warning that validate passes and process then refuses
+        c.problem(fname, gps_outside_imu_span_message(t_rel[fixes][[0, -1]] + t0, np.asarray(imu_span_s) + t0),
+                  "t", int(np.flatnonzero(keep & (fix > 0))[0]) + 1)
+        return None
+    if imu_span_s is not None and not ((t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1]) & fixes).any():
+        # a chain that may run without GPS (target, ranging): counted and said; the run's verdict names
+        # the clock mistake and its fix (tpos_cli.quality)
         c.count("gps_outside_imu_span", 1)
         c.warnings.append(f"{fname}: no GPS fix falls within the IMU's time span (GPS {t_rel[0] + t0:.3f}-{t_rel[-1] + t0:.3f} s, "
                           f"IMU {imu_span_s[0] + t0:.3f}-{imu_span_s[1] + t0:.3f} s on the logger clock): wrong clock or "
@@ -721,6 +730,15 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
         nsat=opt(["nsat"])[keep, 0], hdop=opt(["hdop"])[keep, 0],
         vel_ned_mps=opt(["vn", "ve", "vd"])[keep], sigma_neu_m=opt(["sigma_n", "sigma_e", "sigma_u"])[keep],
     )
+
+
+def gps_outside_imu_span_message(fix_span_s, imu_span_s) -> str:
+    """What `tpos validate` and the drive chain say of position fixes none of which falls within the
+    IMU's span (first and last fix, first and last IMU sample: logger-clock seconds)."""
+    return (f"no position fix falls within the IMU's time span (fixes {fix_span_s[0]:.3f}-{fix_span_s[-1]:.3f} s, IMU "
+            f"{imu_span_s[0]:.3f}-{imu_span_s[-1]:.3f} s on the logger clock, after [time] gps_offset_s): the GPS rows "
+            "are stamped on another clock (the GPS clock, not the logger's) or [time] gps_offset_s is wrong; the drive "
+            "pipeline needs GPS fixes")
 
 
 def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None:

@@ -462,7 +462,7 @@ def test_gps_fixes_outside_the_imu_span_are_invalid_input(session_dir, tmp_path,
         toml = s / "session.toml"
         assert "[time]" not in toml.read_text()
         toml.write_text(toml.read_text() + "\n[time]\ngps_offset_s = 1e9\n")
-    with pytest.raises(InvalidInputError, match=rf"{f.name}: column 't': no position fix falls within the IMU's time "
+    with pytest.raises(InvalidInputError, match=rf"{f.name}: column 't', row 1: no position fix falls within the IMU's time "
                                                  r"span .*another clock \(the GPS clock, not the logger.s\) "
                                                  r"or \[time\] gps_offset_s is wrong"):
         process_session(s, "drive-smooth", tmp_path / "run")

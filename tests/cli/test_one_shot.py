@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -36,16 +37,44 @@ def test_nothing_ends_the_process_unless_a_one_shot_command_asked(monkeypatch):
     assert calls == []
 
 
-def test_end_process_exits_with_the_commands_code(monkeypatch, one_shot):
+@pytest.fixture
+def only_thread(monkeypatch):
+    """The test process as a one-shot command's is: its only thread, and atexit handlers recorded, not
+    run. pytest's process may hold threads other tests' libraries keep for the process (dask.distributed's
+    offload executor, started by tests/test_batch.py's Dask test, lives until exit), and running its
+    atexit handlers mid-suite would shut down multiprocessing's machinery for the tests after."""
+    ran = []
+    monkeypatch.setattr(_common.threading, "active_count", lambda: 1)
+    monkeypatch.setattr(_common.atexit, "_run_exitfuncs", lambda: ran.append("atexit"))
+    return ran
+
+
+def test_end_process_exits_with_the_commands_code(monkeypatch, one_shot, only_thread):
     calls = []
     monkeypatch.setattr(os, "_exit", calls.append)
     _common.run_to_exit()
     assert not gc.isenabled()
     for code in (None, 0, 1, 2):
         _common.end_process(code)
-    assert calls == [0, 0, 1, 2]
+    assert calls == [0, 0, 1, 2] and only_thread == ["atexit"] * 4
     _common.end_process("a message")  # SystemExit("...") prints it: Python's own exit does that
     assert calls == [0, 0, 1, 2]
+
+
+def test_end_process_leaves_the_exit_to_python_while_another_thread_runs(monkeypatch, one_shot):
+    calls = []
+    monkeypatch.setattr(os, "_exit", calls.append)
+    monkeypatch.setattr(_common.atexit, "_run_exitfuncs", lambda: calls.append("atexit"))
+    _common.run_to_exit()
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        _common.end_process(0)
+    finally:
+        stop.set()
+        other.join()
+    assert calls == []
 
 
 def test_batch_keeps_the_collector(monkeypatch, one_shot):

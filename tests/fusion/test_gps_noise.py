@@ -7,7 +7,7 @@ import pytest
 
 from tpos_cli.chains.drive_smooth import process_drive
 from tpos_cli.config import DriveSmoothParams
-from tpos_cli.fusion.gps_noise import bracketed, normalized_square, rows_within, scaled_fixes, solve_scale
+from tpos_cli.fusion.gps_noise import bracketed, last_secant, normalized_square, rows_within, scaled_fixes, solve_scale
 from tpos_cli.fusion.insgps import GpsFixes
 from tpos_cli.ins.mechanization import decimate_imu, integrate
 from tpos_cli.session import load_session
@@ -71,6 +71,24 @@ def test_bracketed_keeps_the_root_search_inside_what_the_passes_found():
     assert bracketed(5.0, hist[:1]) == 5.0  # only m < 1 seen: no bracket yet
     # noisy passes that do not order (m > 1 above m < 1): no bracket to enforce
     assert bracketed(1.0, [(0.0, np.log(1.2)), (-1.0, np.log(0.8))]) == 1.0
+
+
+def test_last_secant_steps_from_the_latest_pass_at_another_scale():
+    """After the loop: a group that stopped inside its band while other groups moved on has its
+    last passes at one scale (the walk log's vertical position: s 1 -> m 3.49, then twice s 3.035
+    -> m 1.44, 1.35); its last step is the secant through s 1 and the latest pass, at most x 1.2."""
+    lo, hi = np.log(0.02), np.log(50.0)
+    hist = [(0.0, np.log(3.493)), (np.log(3.035), np.log(1.435)), (np.log(3.035), np.log(1.352))]
+    # secant through (0, log 3.493) and (log 3.035, log 1.352): a step of +0.35 in log s, clipped to log 1.2
+    assert np.exp(last_secant(hist, lo, hi)) == pytest.approx(3.035 * 1.2)
+    # two passes at two scales: the plain secant between them, within the factor 1.2
+    two = [(0.0, np.log(1.3)), (np.log(1.1), np.log(1.1))]
+    s1 = -np.log(1.1) * np.log(1.1) / (np.log(1.1) - np.log(1.3))
+    assert last_secant(two, lo, hi) == pytest.approx(np.log(1.1) + s1)
+    # a group that never moved keeps its SDs (no scale but 1); an increasing m gives no step
+    assert last_secant([(0.0, np.log(1.2)), (0.0, np.log(1.25))], lo, hi) is None
+    assert last_secant([], lo, hi) is None
+    assert last_secant([(0.0, np.log(0.8)), (np.log(2.0), np.log(0.9))], lo, hi) is None
 
 
 def test_scaled_fixes_scales_each_group():

@@ -150,6 +150,13 @@ def gps_outside_imu_span(s):
     df.assign(t=df.t + 3600.0).to_csv(s / "gps.csv", index=False)
 
 
+def gps_in_gps_week_seconds(s):
+    """audit (session 11): GPS `t` as seconds of the GPS week (the receiver's clock) beside an IMU on
+    the logger's: `tpos validate` warned (exit 0) while `tpos process` refused it (exit 2)."""
+    df = pd.read_csv(s / "gps.csv")
+    df.assign(t=df.t - df.t.iloc[0] + 345600.0).to_csv(s / "gps.csv", index=False)
+
+
 def imu_time_in_ms(s):
     df = pd.read_csv(s / "imu.csv")
     df.assign(t=df.t * 1000.0).to_csv(s / "imu.csv", index=False)
@@ -283,7 +290,8 @@ CASES = [
     (time_as_scalar, {}, "session.toml", "time must be a table"),
     (declination_1e308, {}, "session.toml", "declination_deg 1e+308 is outside"),
     (singular_soft_iron, {}, "session.toml", "soft_iron is singular"),
-    (gps_outside_imu_span, {}, None, "no GPS fix falls within the IMU's time span"),  # a warning: the verdict names it
+    (gps_outside_imu_span, {}, "gps.csv: column 't', row 1", "no position fix falls within the IMU's time span"),
+    (gps_in_gps_week_seconds, {}, "gps.csv: column 't', row 1", "(fixes 345600.000-345609.000 s, IMU 1000.000-1009.990 s"),
     (imu_time_in_ms, {}, "imu.csv", "t is in milliseconds"),
     (acc_in_g_after_20_s, {"seconds": 40.0}, "imu.csv: column 'acc_x', row 2001", "that part is in g units"),
     (gps_time_in_ms, {}, "gps.csv: column 't', row 2", "divided by 1000 they fall within it: t is in milliseconds"),
@@ -558,16 +566,18 @@ def test_toml_files_with_a_byte_order_mark_are_read(tmp_path):
     assert read_toml(s / "session.toml") == read_toml_text(plain)
     res = runner.invoke(app, ["validate", str(s)])
     assert res.exit_code == 0, res.output
-    (tmp_path / "a.pos").write_text(POS)  # an import into it merges with the file as read
-    res = runner.invoke(app, ["import", "rtklib-pos", str(tmp_path / "a.pos"), "-o", str(s)])
-    assert res.exit_code == 0, res.output
-    assert read_toml(s / "session.toml")["session"] == read_toml_text(plain)["session"]
     pipe = tmp_path / "p.toml"
     from tpos_cli.config import pipelines_dir
 
     pipe.write_bytes(b"\xef\xbb\xbf" + (pipelines_dir() / "ingest.toml").read_bytes())
     res = runner.invoke(app, ["process", str(s), "-p", str(pipe), "-o", str(tmp_path / "run")])
     assert res.exit_code == 0, res.output
+    # (processed before the import below: POS's one fix, at 216000 s of the GPS week, lies outside
+    # this drive's IMU log, which a drive session refuses since session 11)
+    (tmp_path / "a.pos").write_text(POS)  # an import into it merges with the file as read
+    res = runner.invoke(app, ["import", "rtklib-pos", str(tmp_path / "a.pos"), "-o", str(s)])
+    assert res.exit_code == 0, res.output
+    assert read_toml(s / "session.toml")["session"] == read_toml_text(plain)["session"]
     (s / "session.toml").write_bytes(b"\xef\xbb\xbf\xef\xbb\xbf" + plain.encode())  # one mark only: a second is text
     res = runner.invoke(app, ["validate", str(s)])
     assert res.exit_code == 2 and "session.toml: not valid TOML" in res.output

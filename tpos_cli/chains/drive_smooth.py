@@ -122,12 +122,10 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     if not (ok & (gps.t_s >= t_imu[0]) & (gps.t_s <= t_imu[-1])).any():
         # GPS on another clock (or a wrong [time] gps_offset_s): without this the drive ran the whole
         # log as dead reckoning, exit 0 (the loader only warns: other chains may not need the GPS)
-        t_fix = gps.t_s[ok] + session.t0_s
-        raise InvalidInputError(
-            f"{table_file_name(session.path, 'gps')}: column 't': no position fix falls within the IMU's time span "
-            f"(fixes {t_fix[0]:.3f}-{t_fix[-1]:.3f} s, IMU {t_imu[0] + session.t0_s:.3f}-{t_imu[-1] + session.t0_s:.3f} s "
-            "on the logger clock, after [time] gps_offset_s): the GPS rows are stamped on another clock (the GPS clock, not "
-            "the logger's) or [time] gps_offset_s is wrong; the drive pipeline needs GPS fixes")
+        # (`load_session` refuses it for a drive session: this is for library callers' sessions)
+        from tpos_cli.session import gps_outside_imu_span_message  # here: the rest of this module is lever's
+        raise InvalidInputError(f"{table_file_name(session.path, 'gps')}: column 't': " + gps_outside_imu_span_message(
+            gps.t_s[ok][[0, -1]] + session.t0_s, t_imu[[0, -1]] + session.t0_s))
     wild = wild_fixes(gps.t_s[ok], gps.lla[ok], np.asarray(gps.sigma_neu_m[ok], dtype=float)[:, :2].max(axis=1))
     ok[np.flatnonzero(ok)[wild]] = False  # counted by the chain (`drive_summary`: gps_fixes_wild)
     sig = np.array(gps.sigma_neu_m[ok], dtype=float)

@@ -162,6 +162,27 @@ def rows_within(rows: Measurements | None, t_end_s: float) -> Measurements | Non
     return rows.select(np.asarray(rows.t_s) <= t_end_s)
 
 
+def last_secant(hist, lo: float, hi: float) -> float | None:
+    """The log scale of one group after the matching loop stopped within its tolerance: a secant
+    step on log m against log s between the group's latest pass and the latest pass at another
+    scale (`hist` [(log s, log m), ...] in pass order), at most a factor 1.2 and inside the
+    passes' bracket (`bracketed`) and [lo, hi]; None when the group never moved or the secant is
+    not usably decreasing. The latest pass at another scale, not the pass before: a group that
+    stopped while other groups moved on has its last passes at one scale (on the walk log the
+    vertical position was left at m 1.35, its first step's landing inside the 3-SD band)."""
+    if not hist:
+        return None
+    ls1, lm1 = hist[-1]
+    other = [h for h in hist if h[0] != ls1]
+    if not other:
+        return None
+    ls0, lm0 = other[-1]
+    if (lm1 - lm0) / (ls1 - ls0) >= -0.05:
+        return None
+    step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
+    return bracketed(float(np.clip(ls1 + np.clip(step, -np.log(1.2), np.log(1.2)), lo, hi)), hist)
+
+
 def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                        after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
                        max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0),
@@ -226,12 +247,10 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
                     step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
             log_s[j] = bracketed(float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi)), hist[j])
     for j in range(4):
-        # the loop stops within the tolerance: a last secant step between the two latest passes
-        # (no further pass) removes most of that remainder for the groups that moved
-        if len(hist[j]) >= 2:
-            (ls0, lm0), (ls1, lm1) = hist[j][-2], hist[j][-1]
-            if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:
-                step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
-                log_s[j] = bracketed(float(np.clip(ls1 + np.clip(step, -np.log(1.2), np.log(1.2)), lo, hi)), hist[j])
+        # the loop stops within the tolerance: a last secant step (no further pass) removes most
+        # of that remainder for the groups that moved
+        last = last_secant(hist[j], lo, hi)
+        if last is not None:
+            log_s[j] = last
     return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last,
                     (float(fixes.t_s[count][0]), float(fixes.t_s[count][-1])) if count.any() else (np.nan, np.nan))
