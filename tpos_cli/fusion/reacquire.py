@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import _nis  # nu^T S^-1 nu by Cholesky, -1 if S is not PD
+from tpos_cli.filters.kalman import _nis_into  # nu^T S^-1 nu by Cholesky, -1 if S is not PD
 from tpos_cli.fusion.layout import ATT
 from tpos_cli.fusion.measurements import Kind
 
@@ -100,7 +100,7 @@ def _divided_difference_nis(ts, nus, Rs, m):
             w[a] += c * nus[jj, a]
             for b in range(m):
                 W[a, b] += c * c * Rs[jj, a, b]
-    return _nis(w, W, np.empty((m, m)))
+    return _nis_into(w, W, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
@@ -165,7 +165,7 @@ def _nis_scaled(u, Ann, B, Aoo, R, nu, m):
     for a in range(m):
         for b in range(m):
             S[a, b] = u * u * Ann[a, b] + u * (B[a, b] + B[b, a]) + Aoo[a, b] + R[a, b]
-    return _nis(nu, S, np.empty((m, m)))
+    return _nis_into(nu, S, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
@@ -277,7 +277,7 @@ def nis_at_stated(P, H, R, nu, m, f):
     for a in range(m):
         for b in range(m):
             S[a, b] += f[a] * R[a, b] * f[b]
-    return _nis(nu, S, np.empty((m, m)))
+    return _nis_into(nu, S, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
