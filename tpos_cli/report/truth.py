@@ -165,6 +165,15 @@ SAME_ROW_S = 1e-3  # a truth row at a fix's time (s) ...
 SAME_ROW_M = 1e-3  # ... and place (m) is that fix written twice: a publisher's truth is the receiver's solution
 
 
+def nearest(t_sorted, t):
+    """(index into t_sorted (sorted, not empty) of the element nearest each of t, the lower one on
+    a tie; that element's |distance| to t)."""
+    j = np.clip(np.searchsorted(t_sorted, t), 1, max(t_sorted.size - 1, 1))
+    hi = np.minimum(j, t_sorted.size - 1)
+    k = np.where(np.abs(t_sorted[j - 1] - t) <= np.abs(t_sorted[hi] - t), j - 1, hi)
+    return k, np.abs(t_sorted[k] - t)
+
+
 def used_fix_rows(t, lla, session, withheld) -> np.ndarray:
     """Truth rows (t on the logger clock, lla) that are a GPS fix the run used: the same time
     within SAME_ROW_S and the same point within SAME_ROW_M (fixes withheld by --mask-gps were not
@@ -178,17 +187,14 @@ def used_fix_rows(t, lla, session, withheld) -> np.ndarray:
     tg = np.asarray(g.t_s, dtype=float)[ok] + session.t0_s
     lg = np.asarray(g.lla, dtype=float)[ok]
     if withheld is not None and len(withheld):
-        tw = np.sort(withheld["t"].to_numpy(float))
-        j = np.clip(np.searchsorted(tw, tg), 1, max(tw.size - 1, 1))
-        near = np.minimum(np.abs(tw[j - 1] - tg), np.abs(tw[np.minimum(j, tw.size - 1)] - tg))
-        tg, lg = tg[near > SAME_ROW_S], lg[near > SAME_ROW_S]
+        far = nearest(np.sort(withheld["t"].to_numpy(float)), tg)[1] > SAME_ROW_S
+        tg, lg = tg[far], lg[far]
     if tg.size == 0:
         return used
     order = np.argsort(tg)
     tg, lg = tg[order], lg[order]
-    j = np.clip(np.searchsorted(tg, t), 1, max(tg.size - 1, 1))
-    j = np.where(np.abs(tg[j - 1] - t) <= np.abs(tg[np.minimum(j, tg.size - 1)] - t), j - 1, np.minimum(j, tg.size - 1))
-    near = np.abs(tg[j] - t) <= SAME_ROW_S
+    j, dt = nearest(tg, t)
+    near = dt <= SAME_ROW_S
     if not near.any():
         return used
     d = np.full(t.size, np.inf)
@@ -268,10 +274,7 @@ def _truth_from_gps(session, withheld, mask_windows) -> TrajectoryTruth | None:
     indep = np.zeros(t.size, dtype=bool)
     if withheld is not None and len(withheld):
         # exactly the fixes the run did not see: those in withheld_gps.parquet
-        tw = np.sort(withheld["t"].to_numpy(float))
-        j = np.clip(np.searchsorted(tw, t), 1, max(tw.size - 1, 1))
-        near = np.minimum(np.abs(tw[j - 1] - t), np.abs(tw[np.minimum(j, tw.size - 1)] - t))
-        indep = near <= 1e-6
+        indep = nearest(np.sort(withheld["t"].to_numpy(float)), t)[1] <= 1e-6
     else:
         for a, b in mask:  # --mask-gps T0:T1 is a closed window
             indep |= (t >= a) & (t <= b)
