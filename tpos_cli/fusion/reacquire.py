@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import _nis_into  # nu^T S^-1 nu by Cholesky, -1 if S is not PD
+from tpos_cli.filters.kalman import _innovation_into, _nis_into  # S = H P H^T + R; nu^T S^-1 nu (-1: S not PD)
 from tpos_cli.fusion.layout import ATT
 from tpos_cli.fusion.measurements import Kind
 
@@ -192,7 +192,7 @@ def deweight_to_fit(P, H, R, nu, m, target):
     """Scale R in place by c >= 1, the smallest with nu^T (H P H^T + c R)^-1 nu = target; returns c.
     A fix whose slot has been rejected for long without agreeing rejections goes in so, its
     influence that of a fix at the gate's edge (a down-weighted fix, not a trusted one)."""
-    A = _hph(P, H, m)[0]
+    A = _hph(P, H, m)
     zero = np.zeros((m, m))
     u = _fit_factor(R, zero, A, zero, nu, m, target)
     for a in range(m):
@@ -273,7 +273,7 @@ def nis_at_stated(P, H, R, nu, m, f):
     """nu^T (H P H^T + F R F)^-1 nu, F = diag(f): the innovation against the fixes' stated
     accuracy instead of the R the filter uses (matched to the fix-to-fix scatter, which leaves out
     an error the fixes share over minutes); -1 if not PD."""
-    S = _hph(P, H, m)[0]
+    S = _hph(P, H, m)
     for a in range(m):
         for b in range(m):
             S[a, b] += f[a] * R[a, b] * f[b]
@@ -282,25 +282,8 @@ def nis_at_stated(P, H, R, nu, m, f):
 
 @njit(cache=True)
 def _hph(P, H, m):
-    """(H P H^T (m, m), G = H P (m, n)), zeros of H skipped."""
+    """H P H^T (m, m), exactly symmetric: `filters.kalman._innovation_into` with x = z = 0 and R = 0."""
     n = P.shape[0]
-    G = np.zeros((m, n))
-    for a in range(m):
-        for i in range(n):
-            if H[a, i] != 0.0:
-                for j in range(n):
-                    G[a, j] += H[a, i] * P[i, j]
-    A = np.zeros((m, m))
-    for a in range(m):
-        for b in range(m):
-            v = 0.0
-            for j in range(n):
-                if H[b, j] != 0.0:
-                    v += G[a, j] * H[b, j]
-            A[a, b] = v
-    for a in range(m):  # exactly symmetric
-        for b in range(a + 1, m):
-            v = 0.5 * (A[a, b] + A[b, a])
-            A[a, b] = v
-            A[b, a] = v
-    return A, G
+    S = np.empty((m, m))
+    _innovation_into(np.zeros(n), P, np.zeros(m), H[:m], np.zeros((m, m)), np.empty(m), np.empty((m, n)), S)
+    return S
