@@ -704,7 +704,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
 
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
-    unit = _gps_time_unit(t[keep] + _offset(meta, "gps") - t0, t[keep], t0 - _offset(meta, "gps"), imu_span_s)
+    unit = _gps_time_unit(t_rel, t[keep], t0 - _offset(meta, "gps"), imu_span_s)
     if unit is not None:
         c.problem(fname, f"the fixes span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
                   f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
