@@ -41,6 +41,8 @@ BAD = [
     (DRIVE, {"drive_smooth.cov_step_s": "0.1"}, "cov_step_s (--set drive_smooth.cov_step_s='0.1'): Input should be a valid number"),
     (DRIVE, {"drive_smooth.heading_hypotheses": True},
      "heading_hypotheses (--set drive_smooth.heading_hypotheses=True): Input should be a valid integer"),
+    (DRIVE, {"drive_smooth.heading_hypotheses": 100_000_000},  # a typo of 12: one filter pass each
+     "heading_hypotheses (--set drive_smooth.heading_hypotheses=100000000): Input should be less than or equal to 360"),
     (DRIVE, {"drive_smooth.gate_probabilty": 0.9},
      "gate_probabilty (--set drive_smooth.gate_probabilty=0.9): unknown key (did you mean 'gate_probability'?)"),
     (RANGING, {"ranging_fatci.smooth_source": "lc", "ranging_fatci.solutions": ["tc"]}, "smooth_source 'lc' is not among solutions ['tc']"),

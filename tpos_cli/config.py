@@ -84,7 +84,9 @@ class DriveSmoothParams(Section):
     gate_probability: Probability = 0.9999  # chi-square gate on GPS innovations
     flag_probability: Probability = 0.999  # forward/backward disagreement flag
     heading_min_speed_mps: Positive = 3.0  # course from GPS velocity once this fast
-    heading_hypotheses: Count = 12  # initial yaws tried by the filter (0 = trust the course / magnetometer)
+    # initial yaws tried by the filter (0 = trust the course / magnetometer); at most one per degree:
+    # each is a filter pass, and 1e8 (a typo) grew past 2.5 GB in 50 s (audit12)
+    heading_hypotheses: Annotated[int, Field(ge=0, le=360)] = 12
     heading_search_s: Positive = 30.0  # filter time after the platform first moved 5 m, per hypothesis
     gps_max_rate_hz: NonNegative = 1.0  # fixes used per second at most (0 = all): receiver fixes at
     # 5-20 Hz are correlated in time, and a filter treating them as white trusts them far too much
