@@ -314,28 +314,6 @@ def final_settings(cfg: FilterConfig, gn: GpsNoise | None) -> FilterConfig:
 
 WHEELED = ("car", "rover")
 COARSE_RATE_HZ = 25.0  # IMU rate of the first pass that finds the mounting
-TUNING_NHC_RATE_HZ = 1.0  # NHC rows per second in the GPS tuning passes (`tuning_rows`)
-
-
-def tuning_rows(extra: Measurements | None, nhc_rate_hz: float) -> Measurements | None:
-    """The constraint rows of the GPS tuning passes (`tune_gps`): every NHC row of the final filter's
-    (`nhc_rate_hz` a second) thinned to about TUNING_NHC_RATE_HZ, each with its own R (a row's error,
-    slip and vibration at that instant, is what it was; the kept rows are a subset, not an average);
-    the other kinds all kept. The passes step the covariance once a second (`fusion.gps_noise.pass_window`)
-    and every row makes a covariance epoch of its own (`fusion._kernels.error_state_kernel`): five NHC
-    rows a second made the passes' epochs six a second, 0.10 of 0.16 s CPU on the drive hour. The
-    passes need the constraints' share of the innovations taken out, not their full weight: on the
-    drive hour the matched velocity scales moved by 0.5 and 1.1 % (0.5002 -> 0.5027, 0.4803 -> 0.4858)."""
-    k = int(round(nhc_rate_hz / TUNING_NHC_RATE_HZ))
-    if extra is None or k <= 1:
-        return extra
-    nhc = np.flatnonzero(extra.kind == Kind.NHC)  # in time order (`Measurements.merge`)
-    if nhc.size == 0:
-        return extra
-    keep = np.ones(len(extra), dtype=bool)
-    keep[nhc] = False
-    keep[nhc[::k]] = True
-    return extra.select(keep)
 
 
 def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState,
@@ -703,7 +681,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
         cfg = lever_arm_states(p, fixes, init, cfg, info)
     with stage("gps_noise"):
-        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, tuning_rows(extra, p.nhc_rate_hz))
+        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra)
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))
     if extra_idx is not None and len(extra_idx):
         out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
