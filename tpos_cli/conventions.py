@@ -345,6 +345,18 @@ def odometry_findings(session) -> list[Finding]:
     return [Finding("conventions.odometry_unit", "ok", None, fig)]
 
 
+def _block_means(x: np.ndarray, k: int, m: int) -> np.ndarray:
+    """Means of the blocks of k rows of x[:m] (m a multiple of k): the same numbers as
+    x[:m].reshape(-1, k, 3).mean(axis=1), which adds the rows of a block in order to the first and
+    divides by k, from k strided slices instead of a reduction over the middle axis (3 vs 11 ms for
+    the drive hour's gyro and accelerometer)."""
+    out = x[0:m:k].copy()
+    for j in range(1, k):
+        out += x[j:m:k]
+    out /= k
+    return out
+
+
 def session_findings(session) -> list[Finding]:
     """The convention checks on a loaded Session that cost little on hours of data: gravity
     direction and magnitude, gyro at rest, tilt against gyro, course against gyro, magnetometer."""
@@ -357,7 +369,7 @@ def session_findings(session) -> list[Finding]:
     k = max(1, int(len(t) / max(t[-1] - t[0], 1e-9) // 20)) if len(t) > 1 else 1
     if k > 1:
         m = (len(t) // k) * k
-        t, gyro, acc = t[k - 1:m:k], gyro[:m].reshape(-1, k, 3).mean(axis=1), acc[:m].reshape(-1, k, 3).mean(axis=1)
+        t, gyro, acc = t[k - 1:m:k], _block_means(gyro, k, m), _block_means(acc, k, m)
     still = _still(t, gyro, acc)
     out = gravity_findings(t, gyro, acc, axes, still=still) + out
     out += course_findings(session)
