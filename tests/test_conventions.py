@@ -245,16 +245,16 @@ def test_a_course_only_clock_estimate_is_no_clock_statement(monkeypatch):
 
     asked = []
 
-    def estimate(session, *, channels, **kw):
-        asked.append(channels)
-        if "course" not in channels:
-            raise ProcessingError("time offset: GPS velocity changes do not follow the IMU")
-        return timeoffset.TimeOffset(0.268, 0.039, gain, 400, 0.27, channels=("course",), r2=(0.85, 0.12))
+    def estimate(session, *, channel_sets, **kw):  # one fit per set, on shared windows
+        asked.append(channel_sets)
+        return [timeoffset.TimeOffset(0.268, 0.039, gain, 400, 0.27, channels=("course",), r2=(0.85, 0.12))
+                if "course" in channels else ProcessingError("time offset: GPS velocity changes do not follow the IMU")
+                for channels in channel_sets]
 
-    monkeypatch.setattr(timeoffset, "estimate_session_offset", estimate)
+    monkeypatch.setattr(timeoffset, "estimate_session_offsets", estimate)
     session = types.SimpleNamespace(meta=types.SimpleNamespace(time_offsets_s={}))
     gain = 0.95
-    assert conventions.check_gps_clock(session) == [] and asked == [("course", "along"), ("along",)]
+    assert conventions.check_gps_clock(session) == [] and asked == [(("course", "along"), ("along",))]
     gain = -0.95
     assert "opposite to the GPS course rate" in conventions.check_gps_clock(session)[0]
 

@@ -32,6 +32,19 @@ def test_noise_free_is_exact(drive):
     assert r.offset_s == pytest.approx(0.2, abs=2e-3)  # exact data: limited by the grid/parabola only
 
 
+def test_channel_sets_fitted_together_are_each_fit_alone(drive):
+    """`estimate_gps_time_offsets` shares the windows and regressors between channel sets: each set's
+    result is the one a fit of that set alone gives, to the bit (`conventions.check_gps_clock` asks two)."""
+    from tpos_cli.timeoffset import estimate_gps_time_offsets
+
+    g, imu = drive.gps, drive.imu
+    args = (imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, g.t_s - 0.1, g.vel_ned_mps)
+    sets = (("course", "along"), ("along",), ("course",))
+    together = estimate_gps_time_offsets(*args, channel_sets=sets)
+    alone = [estimate_gps_time_offset(*args, channels=c) for c in sets]
+    assert repr(together) == repr(alone)  # floats' repr round-trips: equal bits (and NaN where a channel is unused)
+
+
 def test_too_little_motion_raises(drive):
     from tpos_cli.errors import ProcessingError
 

@@ -345,6 +345,18 @@ def odometry_findings(session) -> list[Finding]:
     return [Finding("conventions.odometry_unit", "ok", None, fig)]
 
 
+def _block_means(x: np.ndarray, k: int, m: int) -> np.ndarray:
+    """Means of the blocks of k rows of x[:m] (m a multiple of k): the same numbers as
+    x[:m].reshape(-1, k, 3).mean(axis=1), which adds the rows of a block in order to the first and
+    divides by k, from k strided slices instead of a reduction over the middle axis (3 vs 11 ms for
+    the drive hour's gyro and accelerometer)."""
+    out = x[0:m:k].copy()
+    for j in range(1, k):
+        out += x[j:m:k]
+    out /= k
+    return out
+
+
 def session_findings(session) -> list[Finding]:
     """The convention checks on a loaded Session that cost little on hours of data: gravity
     direction and magnitude, gyro at rest, tilt against gyro, course against gyro, magnetometer."""
@@ -357,7 +369,7 @@ def session_findings(session) -> list[Finding]:
     k = max(1, int(len(t) / max(t[-1] - t[0], 1e-9) // 20)) if len(t) > 1 else 1
     if k > 1:
         m = (len(t) // k) * k
-        t, gyro, acc = t[k - 1:m:k], gyro[:m].reshape(-1, k, 3).mean(axis=1), acc[:m].reshape(-1, k, 3).mean(axis=1)
+        t, gyro, acc = t[k - 1:m:k], _block_means(gyro, k, m), _block_means(acc, k, m)
     still = _still(t, gyro, acc)
     out = gravity_findings(t, gyro, acc, axes, still=still) + out
     out += course_findings(session)
@@ -436,13 +448,22 @@ def gps_clock_estimate(session, *, max_span_s: float | None = None, max_offset_s
     """The IMU-GPS offset (`timeoffset.TimeOffset`) from `channels` (by default those that time a
     clock, CLOCK_CHANNELS) or None when the log cannot tell; with `max_span_s`, estimated on the
     span of the log with the most turning and speed change."""
+    (off,) = gps_clock_estimates(session, (channels,), max_span_s=max_span_s, max_offset_s=max_offset_s)
+    return off
+
+
+def gps_clock_estimates(session, channel_sets: tuple[tuple[str, ...], ...], *, max_span_s: float | None = None,
+                        max_offset_s: float = 1.0) -> list:
+    """`gps_clock_estimate` from each set of channels in `channel_sets` (a TimeOffset or None each), on
+    windows and integrals formed once (`timeoffset.estimate_session_offsets`)."""
     from tpos_cli.errors import TposError
-    from tpos_cli.timeoffset import estimate_session_offset
+    from tpos_cli.timeoffset import estimate_session_offsets
 
     try:
-        return estimate_session_offset(session, max_offset_s=max_offset_s, max_span_s=max_span_s, channels=channels)
+        res = estimate_session_offsets(session, channel_sets=channel_sets, max_offset_s=max_offset_s, max_span_s=max_span_s)
     except TposError:
-        return None
+        return [None] * len(channel_sets)
+    return [None if isinstance(r, TposError) else r for r in res]
 
 
 def clock_finding(off, current_s: float = 0.0, max_offset_s: float = 1.0) -> Finding | None:
@@ -462,11 +483,12 @@ def check_gps_clock(session, *, max_abs_s: float = CLOCK_MIN_S) -> list[str]:
 
     A measurement, not advice: `tpos process` tries it by reprocessing and suggests it only when
     the filter then fits the GPS better (`advice.py`)."""
-    both = gps_clock_estimate(session, channels=("course", "along"))
+    # both channels for the gyro-sign check, CLOCK_CHANNELS for the clock (a course-only estimate is
+    # no clock statement): one fit of each on the same windows and integrals
+    both, off = gps_clock_estimates(session, (("course", "along"), CLOCK_CHANNELS))
     if both is not None and "course" in both.channels and both.gain < -0.5:
         return [f"gps/imu: the gyro yaw rate is opposite to the GPS course rate (gain {both.gain:.2f}): "
                 "the vertical gyro axis sign or [imu] axes U/D is wrong"]
-    off = gps_clock_estimate(session)  # CLOCK_CHANNELS: a course-only estimate is no clock statement
     f = clock_finding(off, _current_gps_offset(session))
     if f is None or not f.figures["candidate"]:
         return []

@@ -135,13 +135,27 @@ def _gps_windows(t_gps, vel, window_s, min_speed_mps) -> _Windows:
 
 
 def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, *,
-                             max_offset_s: float = 1.0, min_speed_mps: float = 0.5,
-                             window_s: float = 0.5, highpass_s: float = 30.0,
-                             min_samples: int = 20, n_blocks: int = 10,
-                             channels: tuple[str, ...] = ("course", "along")) -> TimeOffset:
-    """Offset δ (s) to add to GPS times so GPS velocity changes line up with the IMU.
+                             channels: tuple[str, ...] = ("course", "along"), **kw) -> TimeOffset:
+    """Offset δ (s) to add to GPS times so GPS velocity changes line up with the IMU, from `channels`
+    (`estimate_gps_time_offsets`, whose keywords it takes).
 
     Needs turns or speed changes while moving faster than `min_speed_mps`; raises ProcessingError otherwise.
+    """
+    (res,) = estimate_gps_time_offsets(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, channel_sets=(channels,), **kw)
+    if isinstance(res, ProcessingError):
+        raise res
+    return res
+
+
+def estimate_gps_time_offsets(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, *,
+                              channel_sets: tuple[tuple[str, ...], ...],
+                              max_offset_s: float = 1.0, min_speed_mps: float = 0.5,
+                              window_s: float = 0.5, highpass_s: float = 30.0,
+                              min_samples: int = 20, n_blocks: int = 10) -> list[TimeOffset | ProcessingError]:
+    """`estimate_gps_time_offset` from each set of channels in `channel_sets`, on one set of windows
+    and integrals (the regressors at each offset tried are formed once for all sets): per set its
+    TimeOffset, or the ProcessingError saying why it cannot tell. Raises ProcessingError when the
+    log has too few GPS windows for any set.
     """
     t = np.asarray(t_imu_s, float)
     acc = np.asarray(acc_b_mps2, float)
@@ -150,6 +164,9 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     # a sample holds the mean over (t_{k-1}, t_k] (architecture.md): rectangle sums are the exact
     # integrals at the sample times; a trapezoid would shift them by half a sample
     integ = np.concatenate([np.zeros((1, 3)), np.cumsum(np.column_stack([r[1:], acc[1:, 0], acc[1:, 1]]) * dt[:, None], axis=0)])
+    # one contiguous row per integral: np.interp copies a strided column of the log (N values) to
+    # read it, at each of the ~200 offsets the scans try (0.9 of 1.2 s CPU of an hour's estimate)
+    integ = np.ascontiguousarray(integ.T)
     vel = np.asarray(vel_ned_mps, float)
     w = _gps_windows(t_gps_s, vel, window_s, min_speed_mps)
     inside = (w.ta - max_offset_s > t[0]) & (w.tb + max_offset_s < t[-1]) & w.ok
@@ -172,11 +189,11 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     def regressors(delta):
         key = round(float(delta), 9)
         if key not in cache:
-            d = np.stack([np.interp(w.tb + delta, t, integ[:, k]) - np.interp(w.ta + delta, t, integ[:, k]) for k in range(3)], axis=1)
+            d = np.stack([np.interp(w.tb + delta, t, integ[k]) - np.interp(w.ta + delta, t, integ[k]) for k in range(3)], axis=1)
             cache[key] = {"course": hp((w.s_mean * d[:, 0])[:, None], mask), "along": hp(d[:, 1:], mask)}
         return cache[key]
 
-    def fit(delta, wts):
+    def fit(delta, wts, channels):
         X = regressors(delta)
         out = {}
         for c in channels:
@@ -187,8 +204,8 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
             out[c] = (float((wts[c] * res) @ res), k, res)
         return out
 
-    def scan(grid, wts, scale):
-        sse = np.array([[fit(d, wts)[c][0] for c in channels] for d in grid])
+    def scan(grid, wts, scale, channels):
+        sse = np.array([[fit(d, wts, channels)[c][0] for c in channels] for d in grid])
         J = (sse / scale).sum(axis=1)
         i = int(np.argmin(J))
         if 0 < i < grid.size - 1:  # parabola through the three best grid points
@@ -196,64 +213,78 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
             return grid[i] + (0.5 * (grid[1] - grid[0]) * (J[i - 1] - J[i + 1]) / den if den > 0 else 0.0), sse
         return grid[i], sse
 
-    # coarse to fine: the cost varies over the window length (0.5 s), so a 0.05 s grid finds its
-    # basin, and 0.01 s grids (with a parabola through the best three) refine it
-    step = 0.01
-    grid = np.arange(-max_offset_s, max_offset_s + 0.025, 0.05)
-    wts = dict(base_w)
-    scale = np.ones(len(channels))
-    best, sse = scan(grid, wts, scale)
+    def solve(channels) -> TimeOffset | ProcessingError:
+        # coarse to fine: the cost varies over the window length (0.5 s), so a 0.05 s grid finds its
+        # basin, and 0.01 s grids (with a parabola through the best three) refine it
+        step = 0.01
+        grid = np.arange(-max_offset_s, max_offset_s + 0.025, 0.05)
+        wts = dict(base_w)
+        scale = np.ones(len(channels))
+        best, sse = scan(grid, wts, scale, channels)
 
-    def near(x, half_s):
-        return x + np.arange(-half_s, half_s + step / 2, step)
+        def near(x, half_s):
+            return x + np.arange(-half_s, half_s + step / 2, step)
 
-    # channel noise levels at their own best; channels that explain too little are dropped
-    ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
-    r2 = 1 - sse.min(axis=0) / np.maximum(ss_y, 1e-300)
-    i_best = np.argmin(sse, axis=0)
-    gains = [float(np.linalg.norm(fit(grid[i], wts)[c][1])) for c, i in zip(channels, i_best)]
-    use = tuple(c for c, q, k in zip(channels, r2, gains) if q >= MIN_R2 and GAIN_RANGE[0] < k < GAIN_RANGE[1])
-    if not use:
-        raise ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, "
-                              f"gains {np.array2string(np.array(gains), precision=2)}); "
-                              "too little motion, or the GPS velocity is too noisy")
-    r2_all = tuple(float(q) for q in r2)
-    channels = use
-    for _ in range(2):  # IRLS with Huber weights on each channel's residuals at the current best
-        f = fit(best, wts)
-        for c in channels:
-            res = f[c][2][base_w[c] > 0]
-            s = 1.4826 * np.median(np.abs(res)) or 1.0
-            u = np.abs(f[c][2]) / (HUBER_K * s)
-            wts[c] = base_w[c] * np.minimum(1.0, 1.0 / np.maximum(u, 1e-12))
-        f = fit(best, wts)
-        scale = np.array([f[c][0] / max(wts[c].sum() - f[c][1].size, 1.0) for c in channels])
-        best, _ = scan(near(best, 0.1), wts, scale)
+        # channel noise levels at their own best; channels that explain too little are dropped
+        ss_y = np.array([float((wts[c] * y[c]) @ y[c]) for c in channels])
+        r2 = 1 - sse.min(axis=0) / np.maximum(ss_y, 1e-300)
+        i_best = np.argmin(sse, axis=0)
+        gains = [float(np.linalg.norm(fit(grid[i], wts, channels)[c][1])) for c, i in zip(channels, i_best)]
+        use = tuple(c for c, q, k in zip(channels, r2, gains) if q >= MIN_R2 and GAIN_RANGE[0] < k < GAIN_RANGE[1])
+        if not use:
+            return ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, "
+                                   f"gains {np.array2string(np.array(gains), precision=2)}); "
+                                   "too little motion, or the GPS velocity is too noisy")
+        r2_all = tuple(float(q) for q in r2)
+        channels = use
+        for _ in range(2):  # IRLS with Huber weights on each channel's residuals at the current best
+            f = fit(best, wts, channels)
+            for c in channels:
+                res = f[c][2][base_w[c] > 0]
+                s = 1.4826 * np.median(np.abs(res)) or 1.0
+                u = np.abs(f[c][2]) / (HUBER_K * s)
+                wts[c] = base_w[c] * np.minimum(1.0, 1.0 / np.maximum(u, 1e-12))
+            f = fit(best, wts, channels)
+            scale = np.array([f[c][0] / max(wts[c].sum() - f[c][1].size, 1.0) for c in channels])
+            best, _ = scan(near(best, 0.1), wts, scale, channels)
 
-    f = fit(best, wts)
-    # delete-one-block jackknife over contiguous blocks of the usable windows
-    idx = np.flatnonzero(inside)
-    blocks = [b for b in np.array_split(idx, n_blocks) if b.size]
-    local = near(best, 0.1)
-    reps = []
-    for b in blocks:
-        wb = {c: wts[c].copy() for c in channels}
-        for c in channels:
-            wb[c][b] = 0.0
-        reps.append(scan(local, wb, scale)[0])
-    reps = np.array(reps)
-    sigma = float(np.sqrt((len(reps) - 1) / len(reps) * np.sum((reps - reps.mean()) ** 2))) if len(reps) > 2 else float("inf")
-    gain = float(f["course"][1][0]) if "course" in channels else float("nan")
-    gain_x = float(f["along"][1][0]) if "along" in channels else float("nan")
-    rms = float("nan")
-    if "course" in channels:
-        rms = float(np.sqrt(f["course"][0] / wts["course"].sum()) / window_s / max(np.median(w.s_mean[inside]), 1e-9))
-    return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels, r2_all)
+        f = fit(best, wts, channels)
+        # delete-one-block jackknife over contiguous blocks of the usable windows
+        idx = np.flatnonzero(inside)
+        blocks = [b for b in np.array_split(idx, n_blocks) if b.size]
+        local = near(best, 0.1)
+        reps = []
+        for b in blocks:
+            wb = {c: wts[c].copy() for c in channels}
+            for c in channels:
+                wb[c][b] = 0.0
+            reps.append(scan(local, wb, scale, channels)[0])
+        reps = np.array(reps)
+        sigma = float(np.sqrt((len(reps) - 1) / len(reps) * np.sum((reps - reps.mean()) ** 2))) if len(reps) > 2 else float("inf")
+        gain = float(f["course"][1][0]) if "course" in channels else float("nan")
+        gain_x = float(f["along"][1][0]) if "along" in channels else float("nan")
+        rms = float("nan")
+        if "course" in channels:
+            rms = float(np.sqrt(f["course"][0] / wts["course"].sum()) / window_s / max(np.median(w.s_mean[inside]), 1e-9))
+        return TimeOffset(float(best), sigma, gain, int(sum(wts[c].astype(bool).sum() for c in channels)), rms, gain_x, channels, r2_all)
+
+    return [solve(tuple(c)) for c in channel_sets]
 
 
 def estimate_session_offset(session, *, max_span_s: float | None = None, **kw) -> TimeOffset:
     """`estimate_gps_time_offset` on a loaded Session (GPS times already include `[time]` offsets);
     with `max_span_s`, on the span of the log where GPS course and speed change most (`busiest_span`)."""
+    (res,) = estimate_session_offsets(session, channel_sets=(kw.pop("channels", ("course", "along")),),
+                                      max_span_s=max_span_s, **kw)
+    if isinstance(res, ProcessingError):
+        raise res
+    return res
+
+
+def estimate_session_offsets(session, *, channel_sets: tuple[tuple[str, ...], ...], max_span_s: float | None = None,
+                             **kw) -> list[TimeOffset | ProcessingError]:
+    """`estimate_gps_time_offsets` on a loaded Session (`estimate_session_offset`): one TimeOffset or
+    ProcessingError per set of channels; raises ProcessingError when the log cannot tell for any."""
     g = session.gps
     if g is None:
         raise ProcessingError("time offset: the session has no GPS")
@@ -268,7 +299,7 @@ def estimate_session_offset(session, *, max_span_s: float | None = None, **kw) -
         mi = (t >= a - pad) & (t <= b + pad)
         mg = (t_g >= a) & (t_g <= b)
         t, gyro, acc, t_g, vel = t[mi], gyro[mi], acc[mi], t_g[mg], vel[mg]
-    return estimate_gps_time_offset(t, gyro, acc, t_g, vel, **kw)
+    return estimate_gps_time_offsets(t, gyro, acc, t_g, vel, channel_sets=channel_sets, **kw)
 
 
 def busiest_span(t_gps_s, vel_ned_mps, span_s: float, min_speed_mps: float = 0.5) -> tuple[float, float]:
