@@ -193,6 +193,15 @@ def test_truth_from_another_session_is_used_for_truth_only(tmp_path):
     assert js["truth"]["trajectory"]["source"] == "truth" and js["session"]["inputs_verified"].startswith("no")
 
 
+def test_the_report_is_titled_by_the_runs_kind_not_the_truth_sessions(tmp_path):
+    # audit (session 12): a drive run reported with a target session's truth was titled "target survey"
+    from tpos_cli.report.build import build_context
+
+    r = _run(tmp_path)
+    other = synth.write_session(tmp_path / "other", kind="target", movement=True)
+    assert build_context(r, other).kind == "drive"
+
+
 def _tpos_report_killed_mid_write(run, sig) -> tuple[int, list[str]]:
     """`tpos report RUN` in a process of its own, sent `sig` while its temporaries exist (the PDF
     being written); returns its exit code and the temporaries left. None if it finished first

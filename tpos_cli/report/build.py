@@ -304,7 +304,9 @@ def build_context(
             )
         if session_note and truth.trajectory is not None and truth.trajectory.source == "gps":
             truth = ReportTruth(None, truth.targets, truth.session_path, truth.notes)  # another session's GPS is no truth
-    kind = session.meta.kind if session is not None else str((run.summary.get("session") or {}).get("kind") or "")
+    # the RUN's kind: a --truth session of another kind lends its truth, not its title (audit12: a drive
+    # reported with a target session's truth was titled "target survey (static observer)")
+    kind = str((run.summary.get("session") or {}).get("kind") or "") or (session.meta.kind if session is not None else "")
     with timed(clock, "load: solutions"):
         series = qc.solution_series(run.trajectory)
         order = rank_solutions(series)
