@@ -181,6 +181,7 @@ def test_odometry_in_km_h_is_named_from_the_gps_speed():
     gps.valid = np.ones(tg.size, dtype=bool)
     for scale, level, said in ((1.0, "ok", None), (1.04, "ok", None), (3.6, "unreliable", "in km/h, not m/s; divide by 3.6"),
                                (2.23694, "unreliable", "in mph"), (1000.0, "unreliable", "in mm/s"),
+                               (1.94384 * 1.02, "unreliable", "in knots"),  # 2 % scale error: nearer knots than mph (audit12)
                                (1.6, "suspect", "wrong unit, scale or column")):
         s = SimpleNamespace(gps=gps, odometry=SimpleNamespace(t_s=t, speed_mps=speed * scale))
         (f,) = odometry_findings(s)

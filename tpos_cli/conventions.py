@@ -301,8 +301,8 @@ def course_findings(session) -> list[Finding]:
 ODO_MIN_SPEED_MPS = 2.0
 ODO_MIN_SAMPLES = 20
 ODO_SCALE_TOL = 0.25  # a median ratio this far from 1 is no scale error (the contract: "a few percent")
-ODO_UNITS = ((3.6, "km/h", "divide by 3.6"), (2.23694, "mph", "multiply by 0.44704"), (1000.0, "mm/s", "divide by 1000"),
-             (100.0, "cm/s", "divide by 100"))
+ODO_UNITS = ((3.6, "km/h", "divide by 3.6"), (2.23694, "mph", "multiply by 0.44704"), (1.94384, "knots", "multiply by 0.514444"),
+             (1000.0, "mm/s", "divide by 1000"), (100.0, "cm/s", "divide by 100"))
 
 
 def odometry_findings(session) -> list[Finding]:
@@ -333,7 +333,7 @@ def odometry_findings(session) -> list[Finding]:
         return []
     ratio = float(np.median(odo.speed_mps[inside][moving] / g[moving]))
     fig = {"odometry_over_gps_speed": ratio, "samples": int(moving.sum())}
-    for factor, unit, fix in ODO_UNITS:
+    for factor, unit, fix in sorted(ODO_UNITS, key=lambda u: abs(ratio / u[0] - 1.0)):  # the nearest unit (mph and knots are 15 % apart)
         if abs(ratio / factor - 1.0) < ODO_SCALE_TOL / 2:
             return [Finding("conventions.odometry_unit", "unreliable",
                             f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} "
