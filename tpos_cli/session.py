@@ -671,14 +671,13 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
     if "vn" in df.columns and "ve" in df.columns and not any(p.file == fname for p in c.problems):
         moving = keep & (fix > 0)
-        ev = plausibility.latlon_swap_evidence(t[moving], lla[moving, 0], lla[moving, 1],
-                                               df["vn"][moving], df["ve"][moving])
+        spans = plausibility.velocity_spans(t[moving], lla[moving, 0], lla[moving, 1], df["vn"][moving], df["ve"][moving])
+        ev = plausibility.latlon_swap_evidence(spans)
         if ev is not None:
             c.problem(fname, f"lat and lon look exchanged: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) read "
                       f"the other way round, {ev[0]:.1f} m as given; swap the lat and lon columns", "lat", 1)
             return None
-        ev = plausibility.latlon_radians_evidence(t[moving], lla[moving, 0], lla[moving, 1],
-                                                  df["vn"][moving], df["ve"][moving])
+        ev = plausibility.latlon_radians_evidence(spans)
         if ev is not None:
             c.problem(fname, f"lat and lon look like radians: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) "
                       f"read as radians, {ev[0]:.1f} m as degrees; the contract requires degrees (multiply by 180/pi)",

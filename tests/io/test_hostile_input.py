@@ -319,6 +319,20 @@ def test_hostile_session_ends_cleanly_within_time_and_memory(tmp_path, case, opt
     assert len(lines) == 1 and fname in lines[0] and message in lines[0], lines
 
 
+def test_gps_velocity_spans_are_built_once_for_both_checks(tmp_path, monkeypatch):
+    """Review (session 11): the swap check and the radians check each built the fixes' velocity spans."""
+    from tpos_cli.io import plausibility
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "s")
+    _moving_gps(s)
+    calls = []
+    build = plausibility.velocity_spans
+    monkeypatch.setattr(plausibility, "velocity_spans", lambda *a: calls.append(1) or build(*a))
+    load_session(s)
+    assert len(calls) == 1
+
+
 # ------------------------------------------------------------------ outputs never leave their directory
 
 def test_pipeline_name_with_a_path_never_escapes_runs(tmp_path, monkeypatch):

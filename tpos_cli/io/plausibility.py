@@ -36,9 +36,10 @@ def first_bad_height(h_m: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
+def velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
     """(lat, lon at the span starts, dlat, dlon over the spans, dN, dE integrated from the velocities)
-    over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell."""
+    over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell.
+    Built once per GPS table and handed to both `latlon_swap_evidence` and `latlon_radians_evidence`."""
     t, lat, lon, vn, ve = (np.asarray(x, dtype=float) for x in (t_s, lat_deg, lon_deg, vn_mps, ve_mps))
     ok = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(vn) & np.isfinite(ve)
     t, lat, lon, vn, ve = t[ok], lat[ok], lon[ok], vn[ok], ve[ok]
@@ -60,9 +61,10 @@ def _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
     return lat[i], lon[i], lat[j] - lat[i], lon[j] - lon[i], n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
 
 
-def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, float] | None:
+def latlon_swap_evidence(spans) -> tuple[float, float] | None:
     """(median mismatch as given, median mismatch with lat and lon exchanged), metres, when the fixes'
     displacements match the logged velocities clearly better with the columns exchanged; else None.
+    `spans`: `velocity_spans` of the fixes (None: the log cannot tell).
 
     Over spans of SWAP_LAG fixes (consecutive fixes at most SWAP_MAX_DT_S apart, so that the
     displacement outgrows the fixes' own noise), the displacement between fixes i and j is compared
@@ -74,7 +76,6 @@ def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, 
     The swap is reported only when the swapped reading fits SWAP_FIT_RATIO times better than both
     others and the velocities add up to a track of at least SWAP_MIN_TRACK_M (a static log cannot tell).
     """
-    spans = _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps)
     if spans is None:
         return None
     lat, lon, dlat, dlon, dvn, dve = spans
@@ -88,12 +89,12 @@ def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, 
     return None
 
 
-def latlon_radians_evidence(t_s, lat_col, lon_col, vn_mps, ve_mps) -> tuple[float, float] | None:
+def latlon_radians_evidence(spans) -> tuple[float, float] | None:
     """(median mismatch read as degrees, median mismatch read as radians), metres, when the fixes'
     displacements match the logged velocities SWAP_FIT_RATIO times better with lat and lon read as
     radians (dN = dlat R, dE = dlon R cos(lat), lat in rad): a log writing radians in the degree
-    columns moves 57.3 times too little. Same spans and conditions as `latlon_swap_evidence`; else None."""
-    spans = _velocity_spans(t_s, lat_col, lon_col, vn_mps, ve_mps)
+    columns moves 57.3 times too little. `spans`: `velocity_spans` of the fixes as logged (lat/lon
+    columns in whatever unit they hold), as for `latlon_swap_evidence`; else None."""
     if spans is None:
         return None
     lat, _, dlat, dlon, dvn, dve = spans
