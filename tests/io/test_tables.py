@@ -189,3 +189,17 @@ def test_a_tables_file_name_in_messages_is_built_once(tmp_path):
     for path, name in ((session.path, table_file_name(s, "gps")), (None, "gps")):
         with pytest.raises(InvalidInputError, match=rf"^{name}: column 't': no position fix falls within the IMU"):
             fixes_from_session(dataclasses.replace(session, gps=gps, path=path), DriveSmoothParams())
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_a_missing_required_column_lists_the_columns_the_file_has(tmp_path, fmt):
+    # audit (session 12): a Parquet odometry table with `speed` for `speed_mps` said "found: t" (only the
+    # columns tpos reads), hiding the column the user had named differently
+    s = write_minimal_session(tmp_path / "s")
+    imu = pd.read_csv(s / "imu.csv").rename(columns={"acc_z": "accel_z"})
+    (s / "imu.csv").unlink()
+    imu.to_csv(s / "imu.csv", index=False) if fmt == "csv" else imu.to_parquet(s / "imu.parquet", index=False)
+    with pytest.raises(InvalidInputError) as e:
+        load_session(s)
+    assert f"imu.{fmt}: column 'acc_z': required column is missing (found: " in str(e.value)
+    assert "accel_z" in str(e.value)
