@@ -36,6 +36,10 @@ ACC_MAX_SAMPLE_MPS2 = 40_000.0
 MAG_MAX_SAMPLE_UT = 100_000.0
 # An odometry speed beyond this is no wheeled vehicle's (the fastest road cars reach about 140 m/s).
 ODOMETER_MAX_MPS = 200.0
+# Median spacing of a table's rows once its times are read in seconds: a GPS receiver's rate
+# (100 Hz to one fix per 10 s) and an odometer's or CAN bus's (up to 1 kHz).
+GPS_STEP_S = (0.01, 10.0)
+ODOMETRY_STEP_S = (0.001, 10.0)
 # A median specific-force magnitude in this band is g units, not m/s^2 (the median of any log,
 # static or moving, sits near 1 g).
 ACC_G_BAND = (0.5, 2.0)
@@ -703,11 +707,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
 
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
-    unit = _gps_time_unit(t_rel, t[keep], t0 - _offset(meta, "gps"), imu_span_s)
-    if unit is not None:
-        c.problem(fname, f"the fixes span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
-                  f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
-                  "the contract requires seconds", "t", 2)
+    if _refuse_time_unit(c, fname, "fixes", t_rel, t[keep], t0 - _offset(meta, "gps"), imu_span_s, t0):
         return None
     fixes = fix[keep] > 0
     if imu_span_s is not None and meta.kind == "drive" and fixes.any() and \
@@ -731,6 +731,19 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     )
 
 
+def _refuse_time_unit(c: _Collector, fname: str, what: str, t_rel, t_raw, origin, imu_span_s, t0: float,
+                      step_s=GPS_STEP_S) -> bool:
+    """Record the problem (column t, row 2) and return True when `_time_unit` finds the table's times
+    in milli-, micro- or nanoseconds; `what` names its rows ("fixes", "rows")."""
+    unit = _time_unit(t_rel, t_raw, origin, imu_span_s, step_s)
+    if unit is None:
+        return False
+    c.problem(fname, f"the {what} span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
+              f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
+              "the contract requires seconds", "t", 2)
+    return True
+
+
 def gps_outside_imu_span_message(fix_span_s, imu_span_s) -> str:
     """What `tpos validate` and the drive chain say of position fixes none of which falls within the
     IMU's span (first and last fix, first and last IMU sample: logger-clock seconds)."""
@@ -740,11 +753,11 @@ def gps_outside_imu_span_message(fix_span_s, imu_span_s) -> str:
             "pipeline needs GPS fixes")
 
 
-def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None:
-    """(unit, factor) when GPS times are in milliseconds, microseconds or nanoseconds of the logger's
-    clock: fewer than half the rows fall within the IMU's span as given, at least 90 % do once divided
-    by the factor, and the rows are then 0.01-10 s apart (a GPS rate). `t_rel` relative to the logger's
-    t0, `t_raw` as logged, `origin` what `t_raw` less gives `t_rel`; None otherwise."""
+def _time_unit(t_rel, t_raw, origin, imu_span_s, step_s=GPS_STEP_S) -> tuple[str, float] | None:
+    """(unit, factor) when a table's times are in milliseconds, microseconds or nanoseconds of the
+    logger's clock: fewer than half the rows fall within the IMU's span as given, at least 90 % do once
+    divided by the factor, and the rows are then `step_s` apart (the sensor's rate). `t_rel` relative
+    to the logger's t0, `t_raw` as logged, `origin` what `t_raw` less gives `t_rel`; None otherwise."""
     if imu_span_s is None or t_rel.size < 3:
         return None
     a, b = imu_span_s
@@ -753,7 +766,7 @@ def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None
     for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")):
         scaled = t_raw / factor - origin
         step = float(np.median(np.diff(scaled)))
-        if np.mean((scaled >= a) & (scaled <= b)) >= 0.9 and 0.01 <= step <= 10.0:
+        if np.mean((scaled >= a) & (scaled <= b)) >= 0.9 and step_s[0] <= step <= step_s[1]:
             return unit, factor
     return None
 
@@ -808,6 +821,8 @@ def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tupl
         c.problem(fname, "no row carries a speed value", "speed_mps")
         return None
     t_rel = t[keep] + _offset(meta, "odometry") - t0
+    if _refuse_time_unit(c, fname, "rows", t_rel, t[keep], t0 - _offset(meta, "odometry"), imu_span_s, t0, ODOMETRY_STEP_S):
+        return None
     if imu_span_s is not None:
         inside = (t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1])
         if not inside.any():

@@ -178,6 +178,18 @@ def gps_time_in_ms(s):
     df.assign(t=df.t * 1000.0).to_csv(s / "gps.csv", index=False)
 
 
+def odometry_time_in_ms(s):
+    # audit (session 12): validate and process exit 0, silent: 3 of the 200 rows fell inside the IMU's span and
+    # their speeds (the first 0.1 s of the drive) were used 0, 50 and 100 ms... as if at 0, 50 and 100 s
+    t = 1000.0 + np.arange(200) * 0.05
+    pd.DataFrame({"t": t * 1000.0, "speed_mps": 0.0}).to_csv(s / "odometry.csv", index=False)
+
+
+def odometry_in_seconds(s):
+    t = 1000.0 + np.arange(200) * 0.05
+    pd.DataFrame({"t": t, "speed_mps": 0.0}).to_csv(s / "odometry.csv", index=False)
+
+
 def gps_time_in_us(s):
     df = pd.read_csv(s / "gps.csv")
     df.assign(t=df.t * 1e6).to_csv(s / "gps.csv", index=False)
@@ -296,6 +308,9 @@ CASES = [
     (acc_in_g_after_20_s, {"seconds": 40.0}, "imu.csv: column 'acc_x', row 2001", "that part is in g units"),
     (gps_time_in_ms, {}, "gps.csv: column 't', row 2", "divided by 1000 they fall within it: t is in milliseconds"),
     (gps_time_in_us, {}, "gps.csv: column 't', row 2", "t is in microseconds"),
+    (odometry_time_in_ms, {}, "odometry.csv: column 't', row 2",
+     "the rows span 1e+06-1.00995e+06 where the IMU spans 1000-1009.99 s; divided by 1000 they fall within it: t is in milliseconds"),
+    (odometry_in_seconds, {}, None, None),
     (ranges_in_mm, {"with_ranges": True}, "ranges.csv", "millimetres"),
     (duplicate_target_ids, {}, "targets.csv", "target id 'T1' appears twice"),
     (overlapping_shots, {}, "shots.csv", "shot windows overlap"),
