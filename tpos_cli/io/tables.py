@@ -8,6 +8,7 @@ is read without it (its import is ~0.15 s CPU of a one-shot `tpos process`).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -295,7 +296,15 @@ def _read_csv(path: Path) -> pd.DataFrame:
                 _fail(path, f"the header is separated by {name}; the contract requires commas", row=None)
     n_header = len(header.split(","))
     try:
-        df = pd.read_csv(path, dtype=None, keep_default_na=True, na_values=[""], skipinitialspace=True, encoding="utf-8-sig")
+        # index_col=False: a data line with one empty field more than the header (a trailing comma the
+        # header lacks) is that trailing comma; pandas' default took the lines' first fields as an index
+        # and shifted every column by one (t read from gyro_x: "time goes backwards")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", pd.errors.ParserWarning)
+            df = pd.read_csv(path, dtype=None, keep_default_na=True, na_values=[""], skipinitialspace=True,
+                             encoding="utf-8-sig", index_col=False)
+    except pd.errors.ParserWarning:  # the first data line has more fields than the header (not one empty one)
+        _fail(path, f"has more fields than the {n_header} the header names (a value with no column)", row=1)
     except pd.errors.ParserError as exc:
         msg = str(exc)
         row = None
