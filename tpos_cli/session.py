@@ -45,6 +45,11 @@ ODOMETRY_STEP_S = (0.001, 10.0)
 ACC_G_BAND = (0.5, 2.0)
 ACC_MPS2_BAND = (5.0, 15.0)
 ACC_SWITCH_MIN_S = 10.0  # a stretch of the log in g units within one in m/s² (`_acc_unit_switch`)
+# The Earth's field at the surface is 22-67 µT (the extremes of the IGRF's total intensity). A median
+# magnetometer magnitude above the upper bound (150 times the strongest field, twice the widest MEMS
+# full scale, 4900 µT) is no reading in µT: nT; below the lower one (a tenth of the weakest field,
+# which no body-fixed hard iron cancels in every orientation) it is gauss or tesla, or no sensor.
+MAG_MEDIAN_UT = (2.0, 10_000.0)
 # A declination beyond ±180 deg is not an angle of the contract's convention.
 DECLINATION_LIMIT_DEG = 180.0
 # A soft-iron matrix this ill-conditioned (or singular) destroys the magnetometer's direction.
@@ -593,6 +598,9 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         if mag_nan.any():
             c.count("imu_mag_nan_samples", int(mag_nan.sum()))
             c.warnings.append(f"{fname}: {int(mag_nan.sum())} samples without a magnetometer value (kept; magnetometer treated as missing there)")
+        unit = _mag_unit_problem(mag if every_row else mag[keep])
+        if unit is not None:
+            c.problem(fname, unit, "mag_x")
     if any(p.file == fname for p in c.problems):
         return None
     C_bs = axes_to_dcm(meta.axes)
@@ -631,6 +639,26 @@ def _load_imu(c: _Collector, meta: SessionMeta):
             return None
         c.warnings.append(f"{fname}: measured rate {1.0 / measured:.2f} Hz differs from [imu] rate_hz = {meta.rate_hz:g} by more than 10%")
     return t, gyro_b, acc_b, mag_b, gaps
+
+
+def _mag_unit_problem(mag: np.ndarray) -> str | None:
+    """What is wrong with a magnetometer block (N, 3) as logged whose median |m| is outside
+    MAG_MEDIAN_UT (its unit, by the Earth's field of 22-67 µT), or None. Milligauss (220-670) is left
+    to `conventions.magnetometer_findings`: a µT log with a few hundred µT of hard iron reads the same."""
+    n = np.linalg.norm(mag[np.isfinite(mag).all(axis=1)], axis=1)
+    if n.size == 0:
+        return None
+    med = float(np.median(n))
+    if med > MAG_MEDIAN_UT[1]:
+        return (f"median |mag| is {med:.3g}, where the Earth's field is 22-67 µT and no magnetometer reads "
+                f"{MAG_MEDIAN_UT[1]:g} µT: it is nT; the contract requires µT (multiply by 0.001)")
+    if not n.any():
+        return "mag_x, mag_y and mag_z are zero in every sample: no magnetometer reading; leave the mag columns out"
+    if med < MAG_MEDIAN_UT[0]:
+        unit = ("it looks like gauss (multiply by 100)" if med >= 0.02 else
+                "it looks like tesla (multiply by 1e6)" if med <= 2e-4 else "another unit")
+        return f"median |mag| is {med:.3g}, where the Earth's field is 22-67 µT: {unit}; the contract requires µT"
+    return None
 
 
 def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:

@@ -190,6 +190,38 @@ def odometry_in_seconds(s):
     pd.DataFrame({"t": t, "speed_mps": 0.0}).to_csv(s / "odometry.csv", index=False)
 
 
+def _mag_times(s, factor: float) -> None:
+    """A static magnetometer reading the Earth's field at 45 N (about 20 µT north, 49 µT down) times `factor`."""
+    df = pd.read_csv(s / "imu.csv")
+    df.assign(mag_x=20.0 * factor, mag_y=0.5 * factor, mag_z=49.0 * factor).to_csv(s / "imu.csv", index=False)
+
+
+def mag_in_nt(s):
+    # audit (session 12): validate exit 0 with a warning; `tpos process` of a target session ended with exit 1,
+    # "LinAlgError: SVD did not converge" after a numpy RuntimeWarning on stderr
+    _mag_times(s, 1000.0)
+
+
+def mag_in_gauss(s):
+    _mag_times(s, 0.01)  # was exit 0, verdict "suspect: 29 % of the samples disturbed", no word of the unit
+
+
+def mag_in_tesla(s):
+    _mag_times(s, 1e-6)
+
+
+def mag_all_zero(s):
+    _mag_times(s, 0.0)  # was exit 1 in a target session: "the magnetic update needs setup.mag_ref"
+
+
+def mag_in_ut(s):
+    _mag_times(s, 1.0)
+
+
+def mag_in_milligauss(s):
+    _mag_times(s, 10.0)  # a µT log with a few hundred µT of hard iron reads the same: a warning, not a refusal
+
+
 def gps_time_in_us(s):
     df = pd.read_csv(s / "gps.csv")
     df.assign(t=df.t * 1e6).to_csv(s / "gps.csv", index=False)
@@ -311,6 +343,12 @@ CASES = [
     (odometry_time_in_ms, {}, "odometry.csv: column 't', row 2",
      "the rows span 1e+06-1.00995e+06 where the IMU spans 1000-1009.99 s; divided by 1000 they fall within it: t is in milliseconds"),
     (odometry_in_seconds, {}, None, None),
+    (mag_in_nt, {}, "imu.csv: column 'mag_x'", "median |mag| is 5.29e+04, where the Earth's field is 22-67 µT"),
+    (mag_in_gauss, {}, "imu.csv: column 'mag_x'", "it looks like gauss (multiply by 100); the contract requires µT"),
+    (mag_in_tesla, {}, "imu.csv: column 'mag_x'", "it looks like tesla (multiply by 1e6); the contract requires µT"),
+    (mag_all_zero, {}, "imu.csv: column 'mag_x'", "zero in every sample: no magnetometer reading"),
+    (mag_in_ut, {}, None, None),
+    (mag_in_milligauss, {}, None, "it looks like mG (milligauss)"),
     (ranges_in_mm, {"with_ranges": True}, "ranges.csv", "millimetres"),
     (duplicate_target_ids, {}, "targets.csv", "target id 'T1' appears twice"),
     (overlapping_shots, {}, "shots.csv", "shot windows overlap"),
