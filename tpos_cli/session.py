@@ -684,6 +684,30 @@ def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:
     return int(starts[first]), float(med[first])
 
 
+def _say_conflicting_duplicates(c: _Collector, fname: str, keep: np.ndarray, fix: np.ndarray, lla: np.ndarray) -> None:
+    """GPS rows dropped as duplicate stamps (`_check_time`: the first of each kept) whose fix or position
+    differs from the kept row's: counted (`gps_duplicate_conflicts`) and said with the largest distance and
+    its row, since which of two fixes of one epoch is right, the log cannot tell."""
+    dropped = np.flatnonzero(~keep)
+    if not dropped.size:
+        return
+    kept = np.maximum.accumulate(np.where(keep, np.arange(keep.size), 0))[dropped]  # each one's kept twin
+    a, b = lla[dropped], lla[kept]
+    m_per_deg = 6_371_000.0 * np.pi / 180.0  # a sphere: a figure for a message
+    dist = np.sqrt(((a[:, 0] - b[:, 0]) * m_per_deg) ** 2 + ((a[:, 1] - b[:, 1]) * m_per_deg * np.cos(np.radians(b[:, 0]))) ** 2
+                   + (a[:, 2] - b[:, 2]) ** 2)
+    same = (fix[dropped] == fix[kept]) & ((a == b) | (np.isnan(a) & np.isnan(b))).all(axis=1)
+    if same.all():
+        return
+    far = np.where(np.isfinite(dist) & ~same, dist, -1.0)
+    i = int(np.argmax(far))
+    c.count("gps_duplicate_conflicts", int((~same).sum()))
+    where = f"up to {far[i]:.3g} m from the kept fix (row {int(dropped[i]) + 1})" if far[i] >= 0 else \
+        f"a different fix type or a missing position (row {int(dropped[np.argmax(~same)]) + 1})"
+    c.warnings.append(f"{fname}: {int((~same).sum())} rows share a time stamp with an earlier row but not its fix: {where}; "
+                      "the first row of each time stamp is used")
+
+
 def _offset(meta: SessionMeta, name: str) -> float:
     return float(meta.time_offsets_s.get(f"{name}_offset_s", 0.0))
 
@@ -701,6 +725,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     fix = fix.astype(np.int64)
     lla = df.matrix(["lat", "lon", "h"])
     _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
+    _say_conflicting_duplicates(c, fname, keep, fix, lla)
     if "vn" in df.columns and "ve" in df.columns and not any(p.file == fname for p in c.problems):
         moving = keep & (fix > 0)
         spans = plausibility.velocity_spans(t[moving], lla[moving, 0], lla[moving, 1], df["vn"][moving], df["ve"][moving])

@@ -697,3 +697,23 @@ def test_a_table_that_is_a_dangling_or_looping_link_is_named_as_such(tmp_path):
     (s / "gps.parquet").symlink_to(tmp_path / "nothing.parquet")
     res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
     assert res.exit_code == 2 and "a link that leads nowhere" in res.output and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("lat_shift_deg", [0.0, 0.01])
+def test_a_gps_duplicate_stamp_with_another_fix_is_counted_and_said(tmp_path, lat_shift_deg):
+    # audit (session 12): a duplicate GPS stamp 1.1 km from the kept fix was one more "duplicate time stamp"
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "s")
+    g = pd.read_csv(s / "gps.csv")
+    twin = g.iloc[[3]].assign(lat=g.lat[3] + lat_shift_deg)
+    pd.concat([g.iloc[:4], twin, g.iloc[4:]]).to_csv(s / "gps.csv", index=False)
+    ses = load_session(s)
+    assert ses.counts["duplicate_stamps_gps"] == 1
+    said = [w for w in ses.warnings if "share a time stamp" in w]
+    if lat_shift_deg == 0.0:
+        assert "gps_duplicate_conflicts" not in ses.counts and not said
+        return
+    assert ses.counts["gps_duplicate_conflicts"] == 1
+    assert said == ["gps.csv: 1 rows share a time stamp with an earlier row but not its fix: up to 1.11e+03 m from the kept fix "
+                    "(row 5); the first row of each time stamp is used"]
