@@ -740,6 +740,14 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
                       f"read as radians, {ev[0]:.1f} m as degrees; the contract requires degrees (multiply by 180/pi)",
                       "lat", 1)
             return None
+    if "vd" in df.columns and not any(p.file == fname for p in c.problems):
+        moving = keep & (fix > 0)
+        ev = plausibility.height_feet_evidence(t[moving], lla[moving, 2], df["vd"][moving])
+        if ev is not None:
+            c.problem(fname, f"h looks like feet: the fixes' height changes are {ev[0]:.2f} ± {ev[1]:.2f} times what vd "
+                      f"integrates to ({plausibility.FEET_PER_M:.2f} in feet); the contract requires metres (multiply by 0.3048)",
+                      "h")
+            return None
     no_pos = (fix > 0) & ~np.isfinite(lla).all(axis=1)
     if no_pos.any():
         c.count("gps_fix_without_position", int(no_pos.sum()))

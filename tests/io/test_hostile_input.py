@@ -717,3 +717,32 @@ def test_a_gps_duplicate_stamp_with_another_fix_is_counted_and_said(tmp_path, la
     assert ses.counts["gps_duplicate_conflicts"] == 1
     assert said == ["gps.csv: 1 rows share a time stamp with an earlier row but not its fix: up to 1.11e+03 m from the kept fix "
                     "(row 5); the first row of each time stamp is used"]
+
+
+def _climbing_gps(s: Path, feet: bool, climb_m: float) -> None:
+    """120 s of 1 Hz fixes on a road that climbs and descends `climb_m` (vd as logged), heights with 0.5 m of noise."""
+    rng = np.random.default_rng(5)
+    t = 1000.0 + np.arange(120.0)
+    up = 0.5 * climb_m * (1.0 - np.cos(2 * np.pi * np.arange(120.0) / 60.0))
+    vd = -0.5 * climb_m * (2 * np.pi / 60.0) * np.sin(2 * np.pi * np.arange(120.0) / 60.0)
+    h = 50.0 + up + 0.5 * rng.standard_normal(120)
+    lat = 45.0 + 10.0 * np.arange(120.0) / 111_132.0
+    g = pd.DataFrame({"t": t, "lat": lat, "lon": -73.0, "h": h / 0.3048 if feet else h, "fix": 2, "vn": 10.0, "ve": 0.0, "vd": vd})
+    g.to_csv(s / "gps.csv", index=False)
+
+
+@pytest.mark.parametrize("feet,climb_m,refused", [(True, 30.0, True), (False, 30.0, False), (True, 0.0, False)])
+def test_gps_heights_in_feet_are_refused_where_the_fixes_climb(tmp_path, feet, climb_m, refused):
+    # audit (session 12): heights in feet passed validate and process (finding left by audit11); a log that climbs
+    # tells them by vd (rtklibexplorer part 1 with h in feet: gain 3.29 +- 0.02); a flat one cannot (accepted)
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "s", seconds=120.0)
+    _climbing_gps(s, feet, climb_m)
+    if not refused:
+        load_session(s, with_imu=False)
+        return
+    with pytest.raises(InvalidInputError) as e:
+        load_session(s, with_imu=False)
+    assert "gps.csv: column 'h': h looks like feet: the fixes' height changes are 3.2" in str(e.value)

@@ -36,6 +36,18 @@ def first_bad_height(h_m: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
+def _span_ends(t: np.ndarray):
+    """(i, j) index arrays of spans of `lag` fixes with no gap over SWAP_MAX_DT_S or time reversal
+    inside, the step ok mask and the lag; None when fewer than 4 such spans."""
+    dt = np.diff(t)
+    step_ok = (dt > 0) & (dt <= SWAP_MAX_DT_S)
+    lag = max(1, min(SWAP_LAG, t.size // 4))
+    bad_steps = np.concatenate([[0], np.cumsum(~step_ok)])
+    i = np.arange(t.size - lag)
+    i = i[bad_steps[i + lag] == bad_steps[i]]  # no gap or reversal inside the span
+    return None if i.size < 4 else (i, i + lag, step_ok, lag)
+
+
 def velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
     """(lat, lon at the span starts, dlat, dlon over the spans, dN, dE integrated from the velocities)
     over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell.
@@ -45,19 +57,15 @@ def velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
     t, lat, lon, vn, ve = t[ok], lat[ok], lon[ok], vn[ok], ve[ok]
     if t.size < 5:
         return None
+    ends = _span_ends(t)
+    if ends is None:
+        return None
+    i, j, step_ok, _ = ends
     dt = np.diff(t)
-    step_ok = (dt > 0) & (dt <= SWAP_MAX_DT_S)
     n_vel = np.concatenate([[0.0], np.cumsum(0.5 * (vn[1:] + vn[:-1]) * dt)])
     e_vel = np.concatenate([[0.0], np.cumsum(0.5 * (ve[1:] + ve[:-1]) * dt)])
     if np.hypot(np.diff(n_vel), np.diff(e_vel))[step_ok].sum() < SWAP_MIN_TRACK_M:
         return None
-    lag = max(1, min(SWAP_LAG, t.size // 4))
-    bad_steps = np.concatenate([[0], np.cumsum(~step_ok)])
-    i = np.arange(t.size - lag)
-    i = i[bad_steps[i + lag] == bad_steps[i]]  # no gap or reversal inside the span
-    if i.size < 4:
-        return None
-    j = i + lag
     return lat[i], lon[i], lat[j] - lat[i], lon[j] - lon[i], n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
 
 
@@ -104,6 +112,41 @@ def latlon_radians_evidence(spans) -> tuple[float, float] | None:
     m_deg, m_rad = float(np.median(as_deg)), float(np.median(as_rad))
     if m_rad * SWAP_FIT_RATIO < m_deg:
         return m_deg, m_rad
+    return None
+
+
+# Heights in feet against the logged vertical velocity: the heights' changes over non-overlapping spans
+# regressed on -integral(vd) give a gain that is 1 in metres and 1/0.3048 = 3.28 in feet. Said only
+# when the gain is within FEET_GAIN_TOL of 3.28, more than 5 SDs from 1, and the fixes climb and
+# descend at least FEET_MIN_CLIMB_M in all (a flat log cannot tell: its height changes are noise).
+FEET_PER_M = 1.0 / 0.3048
+FEET_GAIN_TOL = 0.15
+FEET_MIN_CLIMB_M = 20.0
+
+
+def height_feet_evidence(t_s, h, vd_mps) -> tuple[float, float] | None:
+    """(gain, its SD) of the fixes' height changes on the heights integrated from -vd, over
+    non-overlapping spans of SWAP_LAG fixes, when it shows heights in feet (see FEET_GAIN_TOL);
+    else None. Scale-free: shrinking the heights shrinks their noise too, so no fit ratio of two
+    readings can tell feet (a flat log in metres would fit "better" as feet)."""
+    t, h, vd = (np.asarray(x, dtype=float) for x in (t_s, h, vd_mps))
+    ok = np.isfinite(t) & np.isfinite(h) & np.isfinite(vd)
+    t, h, vd = t[ok], h[ok], vd[ok]
+    if t.size < 5:
+        return None
+    ends = _span_ends(t)
+    if ends is None:
+        return None
+    i, j, _, lag = ends
+    i, j = i[::lag], j[::lag]  # non-overlapping: independent spans for the SD
+    up = np.concatenate([[0.0], np.cumsum(-0.5 * (vd[1:] + vd[:-1]) * np.diff(t))])
+    dv, dh = up[j] - up[i], h[j] - h[i]
+    if i.size < 10 or np.abs(dv).sum() < FEET_MIN_CLIMB_M:
+        return None
+    k = float(dh @ dv / (dv @ dv))
+    sd = float(np.sqrt(np.sum((dh - k * dv) ** 2) / (i.size - 1) / (dv @ dv)))
+    if abs(k / FEET_PER_M - 1.0) < FEET_GAIN_TOL and k - 1.0 > 5.0 * sd:
+        return k, sd
     return None
 
 
