@@ -36,34 +36,39 @@ def first_bad_height(h_m: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def _span_ends(t: np.ndarray):
-    """(i, j) index arrays of spans of `lag` fixes with no gap over SWAP_MAX_DT_S or time reversal
-    inside, the step ok mask and the lag; None when fewer than 4 such spans."""
+def _finite_spans(t_s, *columns):
+    """The rows where `t_s` and every column are finite, and spans of SWAP_LAG fixes over them with no
+    gap over SWAP_MAX_DT_S or time reversal inside: ((t, *columns), i, j, step ok mask, lag), or None
+    when fewer than 5 rows or 4 spans."""
+    a = [np.asarray(x, dtype=float) for x in (t_s, *columns)]
+    ok = np.logical_and.reduce([np.isfinite(x) for x in a])
+    a = [x[ok] for x in a]
+    t = a[0]
+    if t.size < 5:
+        return None
     dt = np.diff(t)
     step_ok = (dt > 0) & (dt <= SWAP_MAX_DT_S)
     lag = max(1, min(SWAP_LAG, t.size // 4))
     bad_steps = np.concatenate([[0], np.cumsum(~step_ok)])
     i = np.arange(t.size - lag)
     i = i[bad_steps[i + lag] == bad_steps[i]]  # no gap or reversal inside the span
-    return None if i.size < 4 else (i, i + lag, step_ok, lag)
+    return None if i.size < 4 else (a, i, i + lag, step_ok, lag)
+
+
+def _integral(t: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Trapezoid integral of `v` from the first row to each row of `t`."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
 
 
 def velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
     """(lat, lon at the span starts, dlat, dlon over the spans, dN, dE integrated from the velocities)
     over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell.
     Built once per GPS table and handed to both `latlon_swap_evidence` and `latlon_radians_evidence`."""
-    t, lat, lon, vn, ve = (np.asarray(x, dtype=float) for x in (t_s, lat_deg, lon_deg, vn_mps, ve_mps))
-    ok = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(vn) & np.isfinite(ve)
-    t, lat, lon, vn, ve = t[ok], lat[ok], lon[ok], vn[ok], ve[ok]
-    if t.size < 5:
+    got = _finite_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps)
+    if got is None:
         return None
-    ends = _span_ends(t)
-    if ends is None:
-        return None
-    i, j, step_ok, _ = ends
-    dt = np.diff(t)
-    n_vel = np.concatenate([[0.0], np.cumsum(0.5 * (vn[1:] + vn[:-1]) * dt)])
-    e_vel = np.concatenate([[0.0], np.cumsum(0.5 * (ve[1:] + ve[:-1]) * dt)])
+    (t, lat, lon, vn, ve), i, j, step_ok, _ = got
+    n_vel, e_vel = _integral(t, vn), _integral(t, ve)
     if np.hypot(np.diff(n_vel), np.diff(e_vel))[step_ok].sum() < SWAP_MIN_TRACK_M:
         return None
     return lat[i], lon[i], lat[j] - lat[i], lon[j] - lon[i], n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
@@ -129,17 +134,12 @@ def height_feet_evidence(t_s, h, vd_mps) -> tuple[float, float] | None:
     non-overlapping spans of SWAP_LAG fixes, when it shows heights in feet (see FEET_GAIN_TOL);
     else None. Scale-free: shrinking the heights shrinks their noise too, so no fit ratio of two
     readings can tell feet (a flat log in metres would fit "better" as feet)."""
-    t, h, vd = (np.asarray(x, dtype=float) for x in (t_s, h, vd_mps))
-    ok = np.isfinite(t) & np.isfinite(h) & np.isfinite(vd)
-    t, h, vd = t[ok], h[ok], vd[ok]
-    if t.size < 5:
+    got = _finite_spans(t_s, h, vd_mps)
+    if got is None:
         return None
-    ends = _span_ends(t)
-    if ends is None:
-        return None
-    i, j, _, lag = ends
+    (t, h, vd), i, j, _, lag = got
     i, j = i[::lag], j[::lag]  # non-overlapping: independent spans for the SD
-    up = np.concatenate([[0.0], np.cumsum(-0.5 * (vd[1:] + vd[:-1]) * np.diff(t))])
+    up = -_integral(t, vd)
     dv, dh = up[j] - up[i], h[j] - h[i]
     if i.size < 10 or np.abs(dv).sum() < FEET_MIN_CLIMB_M:
         return None
