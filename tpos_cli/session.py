@@ -448,20 +448,26 @@ SECTIONS = tuple(schema.SESSION_TOML_KEYS)
 MOUNTING_LIMITS_DEG = (180.0, 90.0, 360.0)
 
 
+def mounting_problem(v) -> str | None:
+    """What is wrong with a `mounting_rpy_deg` value (three finite TOML numbers, degrees, within
+    MOUNTING_LIMITS_DEG), or None: the session's `[imu]` key and an import mapping's `[axes]` key."""
+    if not _is_matrix(v, (3,)):
+        return f"must be three finite numbers (roll, pitch, yaw in degrees), got {_v(v)}"
+    for name, val, lim in zip(("roll", "pitch", "yaw"), np.asarray(v, dtype=float), MOUNTING_LIMITS_DEG):
+        if abs(val) > lim:
+            return f"{name} {val:g} is outside ±{lim:g} degrees"
+    return None
+
+
 def _mounting(c: _Collector, imu: dict) -> np.ndarray | None:
     """`[imu] mounting_rpy_deg` as (3,) degrees, or None when the key is absent (unknown)."""
     if "mounting_rpy_deg" not in imu:
         return None
-    v = imu["mounting_rpy_deg"]
-    if not _is_matrix(v, (3,)):
-        c.problem("session.toml", f"[imu] mounting_rpy_deg must be three finite numbers (roll, pitch, yaw in degrees), got {_v(v)}")
+    problem = mounting_problem(imu["mounting_rpy_deg"])
+    if problem is not None:
+        c.problem("session.toml", f"[imu] mounting_rpy_deg {problem}")
         return None
-    rpy = np.asarray(v, dtype=float)
-    for name, val, lim in zip(("roll", "pitch", "yaw"), rpy, MOUNTING_LIMITS_DEG):
-        if abs(val) > lim:
-            c.problem("session.toml", f"[imu] mounting_rpy_deg {name} {val:g} is outside ±{lim:g} degrees")
-            return None
-    return rpy
+    return np.asarray(imu["mounting_rpy_deg"], dtype=float)
 
 
 def _v(x) -> str:
