@@ -36,11 +36,20 @@ ACC_MAX_SAMPLE_MPS2 = 40_000.0
 MAG_MAX_SAMPLE_UT = 100_000.0
 # An odometry speed beyond this is no wheeled vehicle's (the fastest road cars reach about 140 m/s).
 ODOMETER_MAX_MPS = 200.0
+# Median spacing of a table's rows once its times are read in seconds: a GPS receiver's rate
+# (100 Hz to one fix per 10 s) and an odometer's or CAN bus's (up to 1 kHz).
+GPS_STEP_S = (0.01, 10.0)
+ODOMETRY_STEP_S = (0.001, 10.0)
 # A median specific-force magnitude in this band is g units, not m/s^2 (the median of any log,
 # static or moving, sits near 1 g).
 ACC_G_BAND = (0.5, 2.0)
 ACC_MPS2_BAND = (5.0, 15.0)
 ACC_SWITCH_MIN_S = 10.0  # a stretch of the log in g units within one in m/s² (`_acc_unit_switch`)
+# The Earth's field at the surface is 22-67 µT (the extremes of the IGRF's total intensity). A median
+# magnetometer magnitude above the upper bound (150 times the strongest field, twice the widest MEMS
+# full scale, 4900 µT) is no reading in µT: nT; below the lower one (a tenth of the weakest field,
+# which no body-fixed hard iron cancels in every orientation) it is gauss or tesla, or no sensor.
+MAG_MEDIAN_UT = (2.0, 10_000.0)
 # A declination beyond ±180 deg is not an angle of the contract's convention.
 DECLINATION_LIMIT_DEG = 180.0
 # A soft-iron matrix this ill-conditioned (or singular) destroys the magnetometer's direction.
@@ -439,20 +448,26 @@ SECTIONS = tuple(schema.SESSION_TOML_KEYS)
 MOUNTING_LIMITS_DEG = (180.0, 90.0, 360.0)
 
 
+def mounting_problem(v) -> str | None:
+    """What is wrong with a `mounting_rpy_deg` value (three finite TOML numbers, degrees, within
+    MOUNTING_LIMITS_DEG), or None: the session's `[imu]` key and an import mapping's `[axes]` key."""
+    if not _is_matrix(v, (3,)):
+        return f"must be three finite numbers (roll, pitch, yaw in degrees), got {_v(v)}"
+    for name, val, lim in zip(("roll", "pitch", "yaw"), np.asarray(v, dtype=float), MOUNTING_LIMITS_DEG):
+        if abs(val) > lim:
+            return f"{name} {val:g} is outside ±{lim:g} degrees"
+    return None
+
+
 def _mounting(c: _Collector, imu: dict) -> np.ndarray | None:
     """`[imu] mounting_rpy_deg` as (3,) degrees, or None when the key is absent (unknown)."""
     if "mounting_rpy_deg" not in imu:
         return None
-    v = imu["mounting_rpy_deg"]
-    if not _is_matrix(v, (3,)):
-        c.problem("session.toml", f"[imu] mounting_rpy_deg must be three finite numbers (roll, pitch, yaw in degrees), got {_v(v)}")
+    problem = mounting_problem(imu["mounting_rpy_deg"])
+    if problem is not None:
+        c.problem("session.toml", f"[imu] mounting_rpy_deg {problem}")
         return None
-    rpy = np.asarray(v, dtype=float)
-    for name, val, lim in zip(("roll", "pitch", "yaw"), rpy, MOUNTING_LIMITS_DEG):
-        if abs(val) > lim:
-            c.problem("session.toml", f"[imu] mounting_rpy_deg {name} {val:g} is outside ±{lim:g} degrees")
-            return None
-    return rpy
+    return np.asarray(imu["mounting_rpy_deg"], dtype=float)
 
 
 def _v(x) -> str:
@@ -589,6 +604,9 @@ def _load_imu(c: _Collector, meta: SessionMeta):
         if mag_nan.any():
             c.count("imu_mag_nan_samples", int(mag_nan.sum()))
             c.warnings.append(f"{fname}: {int(mag_nan.sum())} samples without a magnetometer value (kept; magnetometer treated as missing there)")
+        unit = _mag_unit_problem(mag if every_row else mag[keep])
+        if unit is not None:
+            c.problem(fname, unit, "mag_x")
     if any(p.file == fname for p in c.problems):
         return None
     C_bs = axes_to_dcm(meta.axes)
@@ -629,6 +647,26 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     return t, gyro_b, acc_b, mag_b, gaps
 
 
+def _mag_unit_problem(mag: np.ndarray) -> str | None:
+    """What is wrong with a magnetometer block (N, 3) as logged whose median |m| is outside
+    MAG_MEDIAN_UT (its unit, by the Earth's field of 22-67 µT), or None. Milligauss (220-670) is left
+    to `conventions.magnetometer_findings`: a µT log with a few hundred µT of hard iron reads the same."""
+    n = np.linalg.norm(mag[np.isfinite(mag).all(axis=1)], axis=1)
+    if n.size == 0:
+        return None
+    med = float(np.median(n))
+    if med > MAG_MEDIAN_UT[1]:
+        return (f"median |mag| is {med:.3g}, where the Earth's field is 22-67 µT and no magnetometer reads "
+                f"{MAG_MEDIAN_UT[1]:g} µT: it is nT; the contract requires µT (multiply by 0.001)")
+    if not n.any():
+        return "mag_x, mag_y and mag_z are zero in every sample: no magnetometer reading; leave the mag columns out"
+    if med < MAG_MEDIAN_UT[0]:
+        unit = ("it looks like gauss (multiply by 100)" if med >= 0.02 else
+                "it looks like tesla (multiply by 1e6)" if med <= 2e-4 else "another unit")
+        return f"median |mag| is {med:.3g}, where the Earth's field is 22-67 µT: {unit}; the contract requires µT"
+    return None
+
+
 def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:
     """(first sample, its block mean of |acc|) of a stretch logged in g within a log in m/s²
     (two logs joined, a logger reconfigured): 1 s blocks whose mean |acc| lies in ACC_G_BAND for at
@@ -652,6 +690,30 @@ def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:
     return int(starts[first]), float(med[first])
 
 
+def _say_conflicting_duplicates(c: _Collector, fname: str, keep: np.ndarray, fix: np.ndarray, lla: np.ndarray) -> None:
+    """GPS rows dropped as duplicate stamps (`_check_time`: the first of each kept) whose fix or position
+    differs from the kept row's: counted (`gps_duplicate_conflicts`) and said with the largest distance and
+    its row, since which of two fixes of one epoch is right, the log cannot tell."""
+    dropped = np.flatnonzero(~keep)
+    if not dropped.size:
+        return
+    kept = np.maximum.accumulate(np.where(keep, np.arange(keep.size), 0))[dropped]  # each one's kept twin
+    a, b = lla[dropped], lla[kept]
+    m_per_deg = 6_371_000.0 * np.pi / 180.0  # a sphere: a figure for a message
+    dist = np.sqrt(((a[:, 0] - b[:, 0]) * m_per_deg) ** 2 + ((a[:, 1] - b[:, 1]) * m_per_deg * np.cos(np.radians(b[:, 0]))) ** 2
+                   + (a[:, 2] - b[:, 2]) ** 2)
+    same = (fix[dropped] == fix[kept]) & ((a == b) | (np.isnan(a) & np.isnan(b))).all(axis=1)
+    if same.all():
+        return
+    far = np.where(np.isfinite(dist) & ~same, dist, -1.0)
+    i = int(np.argmax(far))
+    c.count("gps_duplicate_conflicts", int((~same).sum()))
+    where = f"up to {far[i]:.3g} m from the kept fix (row {int(dropped[i]) + 1})" if far[i] >= 0 else \
+        f"a different fix type or a missing position (row {int(dropped[np.argmax(~same)]) + 1})"
+    c.warnings.append(f"{fname}: {int((~same).sum())} rows share a time stamp with an earlier row but not its fix: {where}; "
+                      "the first row of each time stamp is used")
+
+
 def _offset(meta: SessionMeta, name: str) -> float:
     return float(meta.time_offsets_s.get(f"{name}_offset_s", 0.0))
 
@@ -669,20 +731,28 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     fix = fix.astype(np.int64)
     lla = df.matrix(["lat", "lon", "h"])
     _check_latlon(c, fname, lla[:, 0], lla[:, 1], lla[:, 2])
+    _say_conflicting_duplicates(c, fname, keep, fix, lla)
     if "vn" in df.columns and "ve" in df.columns and not any(p.file == fname for p in c.problems):
         moving = keep & (fix > 0)
-        ev = plausibility.latlon_swap_evidence(t[moving], lla[moving, 0], lla[moving, 1],
-                                               df["vn"][moving], df["ve"][moving])
+        spans = plausibility.velocity_spans(t[moving], lla[moving, 0], lla[moving, 1], df["vn"][moving], df["ve"][moving])
+        ev = plausibility.latlon_swap_evidence(spans)
         if ev is not None:
             c.problem(fname, f"lat and lon look exchanged: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) read "
                       f"the other way round, {ev[0]:.1f} m as given; swap the lat and lon columns", "lat", 1)
             return None
-        ev = plausibility.latlon_radians_evidence(t[moving], lla[moving, 0], lla[moving, 1],
-                                                  df["vn"][moving], df["ve"][moving])
+        ev = plausibility.latlon_radians_evidence(spans)
         if ev is not None:
             c.problem(fname, f"lat and lon look like radians: the fixes' steps match vn/ve to {ev[1]:.1f} m (median) "
                       f"read as radians, {ev[0]:.1f} m as degrees; the contract requires degrees (multiply by 180/pi)",
                       "lat", 1)
+            return None
+    if "vd" in df.columns and not any(p.file == fname for p in c.problems):
+        moving = keep & (fix > 0)
+        ev = plausibility.height_feet_evidence(t[moving], lla[moving, 2], df["vd"][moving])
+        if ev is not None:
+            c.problem(fname, f"h looks like feet: the fixes' height changes are {ev[0]:.2f} ± {ev[1]:.2f} times what vd "
+                      f"integrates to ({plausibility.FEET_PER_M:.2f} in feet); the contract requires metres (multiply by 0.3048)",
+                      "h")
             return None
     no_pos = (fix > 0) & ~np.isfinite(lla).all(axis=1)
     if no_pos.any():
@@ -704,11 +774,7 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
 
     lla = np.where((fix > 0)[:, None], lla, np.nan)
     t_rel = t[keep] + _offset(meta, "gps") - t0
-    unit = _gps_time_unit(t_rel, t[keep], t0 - _offset(meta, "gps"), imu_span_s)
-    if unit is not None:
-        c.problem(fname, f"the fixes span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
-                  f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
-                  "the contract requires seconds", "t", 2)
+    if _refuse_time_unit(c, fname, "fixes", t_rel, t[keep], t0 - _offset(meta, "gps"), imu_span_s, t0):
         return None
     fixes = fix[keep] > 0
     if imu_span_s is not None and meta.kind == "drive" and fixes.any() and \
@@ -732,6 +798,19 @@ def _load_gps(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[flo
     )
 
 
+def _refuse_time_unit(c: _Collector, fname: str, what: str, t_rel, t_raw, origin, imu_span_s, t0: float,
+                      step_s=GPS_STEP_S) -> bool:
+    """Record the problem (column t, row 2) and return True when `_time_unit` finds the table's times
+    in milli-, micro- or nanoseconds; `what` names its rows ("fixes", "rows")."""
+    unit = _time_unit(t_rel, t_raw, origin, imu_span_s, step_s)
+    if unit is None:
+        return False
+    c.problem(fname, f"the {what} span {t_rel[0] + t0:.6g}-{t_rel[-1] + t0:.6g} where the IMU spans "
+              f"{imu_span_s[0] + t0:.6g}-{imu_span_s[1] + t0:.6g} s; divided by {unit[1]:g} they fall within it: t is in {unit[0]}; "
+              "the contract requires seconds", "t", 2)
+    return True
+
+
 def gps_outside_imu_span_message(fix_span_s, imu_span_s) -> str:
     """What `tpos validate` and the drive chain say of position fixes none of which falls within the
     IMU's span (first and last fix, first and last IMU sample: logger-clock seconds)."""
@@ -741,11 +820,11 @@ def gps_outside_imu_span_message(fix_span_s, imu_span_s) -> str:
             "pipeline needs GPS fixes")
 
 
-def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None:
-    """(unit, factor) when GPS times are in milliseconds, microseconds or nanoseconds of the logger's
-    clock: fewer than half the rows fall within the IMU's span as given, at least 90 % do once divided
-    by the factor, and the rows are then 0.01-10 s apart (a GPS rate). `t_rel` relative to the logger's
-    t0, `t_raw` as logged, `origin` what `t_raw` less gives `t_rel`; None otherwise."""
+def _time_unit(t_rel, t_raw, origin, imu_span_s, step_s=GPS_STEP_S) -> tuple[str, float] | None:
+    """(unit, factor) when a table's times are in milliseconds, microseconds or nanoseconds of the
+    logger's clock: fewer than half the rows fall within the IMU's span as given, at least 90 % do once
+    divided by the factor, and the rows are then `step_s` apart (the sensor's rate). `t_rel` relative
+    to the logger's t0, `t_raw` as logged, `origin` what `t_raw` less gives `t_rel`; None otherwise."""
     if imu_span_s is None or t_rel.size < 3:
         return None
     a, b = imu_span_s
@@ -754,7 +833,7 @@ def _gps_time_unit(t_rel, t_raw, origin, imu_span_s) -> tuple[str, float] | None
     for factor, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")):
         scaled = t_raw / factor - origin
         step = float(np.median(np.diff(scaled)))
-        if np.mean((scaled >= a) & (scaled <= b)) >= 0.9 and 0.01 <= step <= 10.0:
+        if np.mean((scaled >= a) & (scaled <= b)) >= 0.9 and step_s[0] <= step <= step_s[1]:
             return unit, factor
     return None
 
@@ -809,6 +888,8 @@ def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tupl
         c.problem(fname, "no row carries a speed value", "speed_mps")
         return None
     t_rel = t[keep] + _offset(meta, "odometry") - t0
+    if _refuse_time_unit(c, fname, "rows", t_rel, t[keep], t0 - _offset(meta, "odometry"), imu_span_s, t0, ODOMETRY_STEP_S):
+        return None
     if imu_span_s is not None:
         inside = (t_rel >= imu_span_s[0]) & (t_rel <= imu_span_s[1])
         if not inside.any():

@@ -179,9 +179,15 @@ def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
         (["-f", "shp"], "expected one of csv, kml, geojson, gpx"),
         (["-f", "csv", "--trajectory", "--rate", "0"], "must be a positive number"),
         (["-f", "csv", "-o", str(tmp_path / "nope" / "x.csv")], "does not exist"),
+        # audit (session 12): KML was written into a file named .csv, exit 0
+        (["-f", "kml", "-o", str(tmp_path / "x.csv")], "'kml' contradicts -o "),
+        (["-f", "csv", "-o", str(tmp_path / "x.json")], "'csv' contradicts -o "),
     ):
         res = runner.invoke(app, ["export", str(run), *args])
         assert res.exit_code == 2 and msg in res.output, res.output
+    assert not (tmp_path / "x.csv").exists() and not (tmp_path / "x.json").exists()
+    res = runner.invoke(app, ["export", str(run), "-f", "GeoJSON", "-o", str(tmp_path / "x.json")])  # .json names geojson
+    assert res.exit_code == 0 and json.loads((tmp_path / "x.json").read_text())["type"] == "FeatureCollection"
 
 
 def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):

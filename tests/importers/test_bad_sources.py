@@ -128,3 +128,44 @@ def test_ubx_of_bytes_that_are_no_utf8_after_a_dollar_is_refused_in_one_line(tmp
     res = CliRunner().invoke(app, ["import", "ubx", str(src), "-o", str(tmp_path / "s")])
     assert res.exit_code == 2 and res.output.strip().endswith("no UBX NAV-PVT messages (enable UBX-NAV-PVT output on the receiver)")
     assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "s").exists()
+
+
+IMU_MAPPING = textwrap.dedent("""
+    table = "imu"
+    [source]
+    delimiter = ","
+    header = true
+    [time]
+    column = "t"
+    unit = "s"
+    [columns]
+    acc_x = {{ from = "ax", unit = "g" }}
+    acc_y = {{ from = "ay", unit = "g" }}
+    acc_z = {{ from = "az", unit = "g" }}
+    gyro_x = {{ from = "gx", unit = "rad/s" }}
+    gyro_y = {{ from = "gy", unit = "rad/s" }}
+    gyro_z = {{ from = "gz", unit = "rad/s" }}
+    [axes]
+    mounting_rpy_deg = {rpy}
+""")
+
+
+@pytest.mark.parametrize("rpy,message", [
+    ("[0.0, nan, 4.0]", "must be three finite numbers (roll, pitch, yaw in degrees), got [0.0, nan, 4.0]"),
+    ("[true, 0, 0]", "must be three finite numbers (roll, pitch, yaw in degrees), got [True, 0, 0]"),
+    ("[[0.0], [1.0], [2.0]]", "must be three finite numbers"),
+    ("[0.0, 100.0, 0.0]", "pitch 100 is outside ±90 degrees"),
+    ("[0.0, -3.0, 4.0]", None),
+])
+def test_a_mapping_mounting_follows_the_sessions_rule(tmp_path, rpy, message):
+    # audit (session 12): NaN or inf wrote an imu table of NaN (exit 0), true was 1 degree, pitch 100 passed,
+    # [[0.0], [1.0], [2.0]] ended in "tpos: internal error" (exit 1)
+    rows = "t,ax,ay,az,gx,gy,gz\n" + "".join(f"{k / 100:.2f},0,0,-1,0.001,0,0\n" for k in range(200))
+    (tmp_path / "imu.csv").write_text(rows)
+    (tmp_path / "map.toml").write_text(IMU_MAPPING.format(rpy=rpy))
+    res = runner.invoke(app, ["import", "csv", str(tmp_path / "imu.csv"), "--map", str(tmp_path / "map.toml"), "-o", str(tmp_path / "s")])
+    if message is None:
+        assert res.exit_code == 0 and (tmp_path / "s" / "imu.parquet").exists(), res.output
+        return
+    assert res.exit_code == 2 and f"[axes] mounting_rpy_deg: {message}" in res.output, res.output
+    assert not (tmp_path / "s").exists()

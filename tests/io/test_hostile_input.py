@@ -178,6 +178,50 @@ def gps_time_in_ms(s):
     df.assign(t=df.t * 1000.0).to_csv(s / "gps.csv", index=False)
 
 
+def odometry_time_in_ms(s):
+    # audit (session 12): validate and process exit 0, silent: 3 of the 200 rows fell inside the IMU's span and
+    # their speeds (the first 0.1 s of the drive) were used 0, 50 and 100 ms... as if at 0, 50 and 100 s
+    t = 1000.0 + np.arange(200) * 0.05
+    pd.DataFrame({"t": t * 1000.0, "speed_mps": 0.0}).to_csv(s / "odometry.csv", index=False)
+
+
+def odometry_in_seconds(s):
+    t = 1000.0 + np.arange(200) * 0.05
+    pd.DataFrame({"t": t, "speed_mps": 0.0}).to_csv(s / "odometry.csv", index=False)
+
+
+def _mag_times(s, factor: float) -> None:
+    """A static magnetometer reading the Earth's field at 45 N (about 20 µT north, 49 µT down) times `factor`."""
+    df = pd.read_csv(s / "imu.csv")
+    df.assign(mag_x=20.0 * factor, mag_y=0.5 * factor, mag_z=49.0 * factor).to_csv(s / "imu.csv", index=False)
+
+
+def mag_in_nt(s):
+    # audit (session 12): validate exit 0 with a warning; `tpos process` of a target session ended with exit 1,
+    # "LinAlgError: SVD did not converge" after a numpy RuntimeWarning on stderr
+    _mag_times(s, 1000.0)
+
+
+def mag_in_gauss(s):
+    _mag_times(s, 0.01)  # was exit 0, verdict "suspect: 29 % of the samples disturbed", no word of the unit
+
+
+def mag_in_tesla(s):
+    _mag_times(s, 1e-6)
+
+
+def mag_all_zero(s):
+    _mag_times(s, 0.0)  # was exit 1 in a target session: "the magnetic update needs setup.mag_ref"
+
+
+def mag_in_ut(s):
+    _mag_times(s, 1.0)
+
+
+def mag_in_milligauss(s):
+    _mag_times(s, 10.0)  # a µT log with a few hundred µT of hard iron reads the same: a warning, not a refusal
+
+
 def gps_time_in_us(s):
     df = pd.read_csv(s / "gps.csv")
     df.assign(t=df.t * 1e6).to_csv(s / "gps.csv", index=False)
@@ -296,6 +340,15 @@ CASES = [
     (acc_in_g_after_20_s, {"seconds": 40.0}, "imu.csv: column 'acc_x', row 2001", "that part is in g units"),
     (gps_time_in_ms, {}, "gps.csv: column 't', row 2", "divided by 1000 they fall within it: t is in milliseconds"),
     (gps_time_in_us, {}, "gps.csv: column 't', row 2", "t is in microseconds"),
+    (odometry_time_in_ms, {}, "odometry.csv: column 't', row 2",
+     "the rows span 1e+06-1.00995e+06 where the IMU spans 1000-1009.99 s; divided by 1000 they fall within it: t is in milliseconds"),
+    (odometry_in_seconds, {}, None, None),
+    (mag_in_nt, {}, "imu.csv: column 'mag_x'", "median |mag| is 5.29e+04, where the Earth's field is 22-67 µT"),
+    (mag_in_gauss, {}, "imu.csv: column 'mag_x'", "it looks like gauss (multiply by 100); the contract requires µT"),
+    (mag_in_tesla, {}, "imu.csv: column 'mag_x'", "it looks like tesla (multiply by 1e6); the contract requires µT"),
+    (mag_all_zero, {}, "imu.csv: column 'mag_x'", "zero in every sample: no magnetometer reading"),
+    (mag_in_ut, {}, None, None),
+    (mag_in_milligauss, {}, None, "it looks like mG (milligauss)"),
     (ranges_in_mm, {"with_ranges": True}, "ranges.csv", "millimetres"),
     (duplicate_target_ids, {}, "targets.csv", "target id 'T1' appears twice"),
     (overlapping_shots, {}, "shots.csv", "shot windows overlap"),
@@ -317,6 +370,20 @@ def test_hostile_session_ends_cleanly_within_time_and_memory(tmp_path, case, opt
     assert res.returncode == 2, (res.returncode, res.stdout, res.stderr)
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and fname in lines[0] and message in lines[0], lines
+
+
+def test_gps_velocity_spans_are_built_once_for_both_checks(tmp_path, monkeypatch):
+    """Review (session 11): the swap check and the radians check each built the fixes' velocity spans."""
+    from tpos_cli.io import plausibility
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "s")
+    _moving_gps(s)
+    calls = []
+    build = plausibility.velocity_spans
+    monkeypatch.setattr(plausibility, "velocity_spans", lambda *a: calls.append(1) or build(*a))
+    load_session(s)
+    assert len(calls) == 1
 
 
 # ------------------------------------------------------------------ outputs never leave their directory
@@ -630,3 +697,52 @@ def test_a_table_that_is_a_dangling_or_looping_link_is_named_as_such(tmp_path):
     (s / "gps.parquet").symlink_to(tmp_path / "nothing.parquet")
     res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
     assert res.exit_code == 2 and "a link that leads nowhere" in res.output and not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("lat_shift_deg", [0.0, 0.01])
+def test_a_gps_duplicate_stamp_with_another_fix_is_counted_and_said(tmp_path, lat_shift_deg):
+    # audit (session 12): a duplicate GPS stamp 1.1 km from the kept fix was one more "duplicate time stamp"
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "s")
+    g = pd.read_csv(s / "gps.csv")
+    twin = g.iloc[[3]].assign(lat=g.lat[3] + lat_shift_deg)
+    pd.concat([g.iloc[:4], twin, g.iloc[4:]]).to_csv(s / "gps.csv", index=False)
+    ses = load_session(s)
+    assert ses.counts["duplicate_stamps_gps"] == 1
+    said = [w for w in ses.warnings if "share a time stamp" in w]
+    if lat_shift_deg == 0.0:
+        assert "gps_duplicate_conflicts" not in ses.counts and not said
+        return
+    assert ses.counts["gps_duplicate_conflicts"] == 1
+    assert said == ["gps.csv: 1 rows share a time stamp with an earlier row but not its fix: up to 1.11e+03 m from the kept fix "
+                    "(row 5); the first row of each time stamp is used"]
+
+
+def _climbing_gps(s: Path, feet: bool, climb_m: float) -> None:
+    """120 s of 1 Hz fixes on a road that climbs and descends `climb_m` (vd as logged), heights with 0.5 m of noise."""
+    rng = np.random.default_rng(5)
+    t = 1000.0 + np.arange(120.0)
+    up = 0.5 * climb_m * (1.0 - np.cos(2 * np.pi * np.arange(120.0) / 60.0))
+    vd = -0.5 * climb_m * (2 * np.pi / 60.0) * np.sin(2 * np.pi * np.arange(120.0) / 60.0)
+    h = 50.0 + up + 0.5 * rng.standard_normal(120)
+    lat = 45.0 + 10.0 * np.arange(120.0) / 111_132.0
+    g = pd.DataFrame({"t": t, "lat": lat, "lon": -73.0, "h": h / 0.3048 if feet else h, "fix": 2, "vn": 10.0, "ve": 0.0, "vd": vd})
+    g.to_csv(s / "gps.csv", index=False)
+
+
+@pytest.mark.parametrize("feet,climb_m,refused", [(True, 30.0, True), (False, 30.0, False), (True, 0.0, False)])
+def test_gps_heights_in_feet_are_refused_where_the_fixes_climb(tmp_path, feet, climb_m, refused):
+    # audit (session 12): heights in feet passed validate and process (finding left by audit11); a log that climbs
+    # tells them by vd (rtklibexplorer part 1 with h in feet: gain 3.29 +- 0.02); a flat one cannot (accepted)
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.session import load_session
+
+    s = write_minimal_session(tmp_path / "s", seconds=120.0)
+    _climbing_gps(s, feet, climb_m)
+    if not refused:
+        load_session(s, with_imu=False)
+        return
+    with pytest.raises(InvalidInputError) as e:
+        load_session(s, with_imu=False)
+    assert "gps.csv: column 'h': h looks like feet: the fixes' height changes are 3.2" in str(e.value)

@@ -189,3 +189,45 @@ def test_a_tables_file_name_in_messages_is_built_once(tmp_path):
     for path, name in ((session.path, table_file_name(s, "gps")), (None, "gps")):
         with pytest.raises(InvalidInputError, match=rf"^{name}: column 't': no position fix falls within the IMU"):
             fixes_from_session(dataclasses.replace(session, gps=gps, path=path), DriveSmoothParams())
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_a_missing_required_column_lists_the_columns_the_file_has(tmp_path, fmt):
+    # audit (session 12): a Parquet odometry table with `speed` for `speed_mps` said "found: t" (only the
+    # columns tpos reads), hiding the column the user had named differently
+    s = write_minimal_session(tmp_path / "s")
+    imu = pd.read_csv(s / "imu.csv").rename(columns={"acc_z": "accel_z"})
+    (s / "imu.csv").unlink()
+    imu.to_csv(s / "imu.csv", index=False) if fmt == "csv" else imu.to_parquet(s / "imu.parquet", index=False)
+    with pytest.raises(InvalidInputError) as e:
+        load_session(s)
+    assert f"imu.{fmt}: column 'acc_z': required column is missing (found: " in str(e.value)
+    assert "accel_z" in str(e.value)
+
+
+def _imu_lines(s):
+    text = (s / "imu.csv").read_text().splitlines()
+    return text[0], text[1:]
+
+
+@pytest.mark.parametrize("where", ["every_data_line", "first_data_line"])
+def test_a_trailing_comma_the_header_lacks_is_read_as_a_trailing_comma(tmp_path, where):
+    # audit (session 12): pandas took each line's first field as an index and shifted the columns by one
+    # (t read from gyro_x: "column 't', row 3: time goes backwards"); on the first line only, silently
+    s = write_minimal_session(tmp_path / "s")
+    want = load_session(s).imu
+    header, rows = _imu_lines(s)
+    rows = [r + "," for r in rows] if where == "every_data_line" else [rows[0] + ","] + rows[1:]
+    (s / "imu.csv").write_text("\n".join([header, *rows]) + "\n")
+    got = load_session(s).imu
+    assert np.array_equal(got.t_s, want.t_s) and np.array_equal(got.gyro_b_rps, want.gyro_b_rps)
+    assert np.array_equal(got.acc_b_mps2, want.acc_b_mps2)
+
+
+def test_a_value_beyond_the_headers_columns_is_refused_on_its_row(tmp_path):
+    s = write_minimal_session(tmp_path / "s")
+    header, rows = _imu_lines(s)
+    (s / "imu.csv").write_text("\n".join([header, rows[0] + ",7.5", *rows[1:]]) + "\n")
+    with pytest.raises(InvalidInputError) as e:
+        load_session(s)
+    assert str(e.value).startswith("s/imu.csv, row 1: has more fields than the ")

@@ -36,12 +36,14 @@ def export(
     """
     from tpos_cli.export.build import FORMATS, export_run
 
-    if format_ is None:
-        suffix = Path(out).suffix.lower().lstrip(".") if out not in (None, "-") else ""
-        format_ = {"json": "geojson"}.get(suffix, suffix) if suffix in FORMATS + ("json",) else "csv"
-    fmt = format_.lower()
+    suffix = Path(out).suffix.lower().lstrip(".") if out not in (None, "-") else ""
+    named = {"json": "geojson"}.get(suffix, suffix) if suffix in FORMATS + ("json",) else None  # the format -o names
+    fmt = (format_ or named or "csv").lower()
     if fmt not in FORMATS:
         raise typer.BadParameter(f"expected one of {', '.join(FORMATS)}, got {format_!r}", param_hint="--format")
+    if named is not None and named != fmt:  # KML written into drive.csv: a file no tool opens as what it is named
+        raise typer.BadParameter(f"{format_!r} contradicts -o {out} (a .{suffix} file): drop --format or name the file "
+                                 f"*.{fmt}", param_hint="--format")
     with exit_on_error():
         res = export_run(run, fmt, solution=solution, rate_hz=rate, out=out, trajectory=trajectory)
     for n in res.notes:

@@ -16,6 +16,7 @@ from tpos_cli.frames.rotation import axes_to_dcm, euler_to_dcm
 from tpos_cli.importers import units
 from tpos_cli.importers.gpstime import CLOCKS
 from tpos_cli.io.bounded import read_toml
+from tpos_cli.session import mounting_problem
 
 TABLE_COLUMNS = {
     "imu": ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z"),
@@ -194,8 +195,9 @@ def load_mapping(path: Path) -> CsvMapping:
         raise _err(path, "[axes]", "give 'sensor' letters or 'mounting_rpy_deg', not both")
     try:
         if rpy is not None:
-            if len(rpy) != 3:
-                raise _err(path, "[axes] mounting_rpy_deg", "must be [roll, pitch, yaw] in degrees")
+            problem = mounting_problem(rpy)  # the session's rule: NaN, true, [[0], [1], [2]] or pitch 100 wrote a broken imu table
+            if problem is not None:
+                raise _err(path, "[axes] mounting_rpy_deg", problem)
             # Groves' Euler-to-DCM: f_body(FRD) = C f_sensor with C = Rz(yaw) Ry(pitch) Rx(roll)
             C_bs = euler_to_dcm(*np.deg2rad(np.asarray(rpy, float)))
             write = write or "FRD"

@@ -36,33 +36,48 @@ def first_bad_height(h_m: np.ndarray) -> int | None:
     return int(bad[0]) if bad.size else None
 
 
-def _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
-    """(lat, lon at the span starts, dlat, dlon over the spans, dN, dE integrated from the velocities)
-    over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell."""
-    t, lat, lon, vn, ve = (np.asarray(x, dtype=float) for x in (t_s, lat_deg, lon_deg, vn_mps, ve_mps))
-    ok = np.isfinite(t) & np.isfinite(lat) & np.isfinite(lon) & np.isfinite(vn) & np.isfinite(ve)
-    t, lat, lon, vn, ve = t[ok], lat[ok], lon[ok], vn[ok], ve[ok]
+def _finite_spans(t_s, *columns):
+    """The rows where `t_s` and every column are finite, and spans of SWAP_LAG fixes over them with no
+    gap over SWAP_MAX_DT_S or time reversal inside: ((t, *columns), i, j, step ok mask, lag), or None
+    when fewer than 5 rows or 4 spans."""
+    a = [np.asarray(x, dtype=float) for x in (t_s, *columns)]
+    ok = np.logical_and.reduce([np.isfinite(x) for x in a])
+    a = [x[ok] for x in a]
+    t = a[0]
     if t.size < 5:
         return None
     dt = np.diff(t)
     step_ok = (dt > 0) & (dt <= SWAP_MAX_DT_S)
-    n_vel = np.concatenate([[0.0], np.cumsum(0.5 * (vn[1:] + vn[:-1]) * dt)])
-    e_vel = np.concatenate([[0.0], np.cumsum(0.5 * (ve[1:] + ve[:-1]) * dt)])
-    if np.hypot(np.diff(n_vel), np.diff(e_vel))[step_ok].sum() < SWAP_MIN_TRACK_M:
-        return None
     lag = max(1, min(SWAP_LAG, t.size // 4))
     bad_steps = np.concatenate([[0], np.cumsum(~step_ok)])
     i = np.arange(t.size - lag)
     i = i[bad_steps[i + lag] == bad_steps[i]]  # no gap or reversal inside the span
-    if i.size < 4:
+    return None if i.size < 4 else (a, i, i + lag, step_ok, lag)
+
+
+def _integral(t: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Trapezoid integral of `v` from the first row to each row of `t`."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+
+
+def velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps):
+    """(lat, lon at the span starts, dlat, dlon over the spans, dN, dE integrated from the velocities)
+    over spans of SWAP_LAG fixes (see `latlon_swap_evidence`), or None when the log cannot tell.
+    Built once per GPS table and handed to both `latlon_swap_evidence` and `latlon_radians_evidence`."""
+    got = _finite_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps)
+    if got is None:
         return None
-    j = i + lag
+    (t, lat, lon, vn, ve), i, j, step_ok, _ = got
+    n_vel, e_vel = _integral(t, vn), _integral(t, ve)
+    if np.hypot(np.diff(n_vel), np.diff(e_vel))[step_ok].sum() < SWAP_MIN_TRACK_M:
+        return None
     return lat[i], lon[i], lat[j] - lat[i], lon[j] - lon[i], n_vel[j] - n_vel[i], e_vel[j] - e_vel[i]
 
 
-def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, float] | None:
+def latlon_swap_evidence(spans) -> tuple[float, float] | None:
     """(median mismatch as given, median mismatch with lat and lon exchanged), metres, when the fixes'
     displacements match the logged velocities clearly better with the columns exchanged; else None.
+    `spans`: `velocity_spans` of the fixes (None: the log cannot tell).
 
     Over spans of SWAP_LAG fixes (consecutive fixes at most SWAP_MAX_DT_S apart, so that the
     displacement outgrows the fixes' own noise), the displacement between fixes i and j is compared
@@ -74,7 +89,6 @@ def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, 
     The swap is reported only when the swapped reading fits SWAP_FIT_RATIO times better than both
     others and the velocities add up to a track of at least SWAP_MIN_TRACK_M (a static log cannot tell).
     """
-    spans = _velocity_spans(t_s, lat_deg, lon_deg, vn_mps, ve_mps)
     if spans is None:
         return None
     lat, lon, dlat, dlon, dvn, dve = spans
@@ -88,12 +102,12 @@ def latlon_swap_evidence(t_s, lat_deg, lon_deg, vn_mps, ve_mps) -> tuple[float, 
     return None
 
 
-def latlon_radians_evidence(t_s, lat_col, lon_col, vn_mps, ve_mps) -> tuple[float, float] | None:
+def latlon_radians_evidence(spans) -> tuple[float, float] | None:
     """(median mismatch read as degrees, median mismatch read as radians), metres, when the fixes'
     displacements match the logged velocities SWAP_FIT_RATIO times better with lat and lon read as
     radians (dN = dlat R, dE = dlon R cos(lat), lat in rad): a log writing radians in the degree
-    columns moves 57.3 times too little. Same spans and conditions as `latlon_swap_evidence`; else None."""
-    spans = _velocity_spans(t_s, lat_col, lon_col, vn_mps, ve_mps)
+    columns moves 57.3 times too little. `spans`: `velocity_spans` of the fixes as logged (lat/lon
+    columns in whatever unit they hold), as for `latlon_swap_evidence`; else None."""
     if spans is None:
         return None
     lat, _, dlat, dlon, dvn, dve = spans
@@ -103,6 +117,36 @@ def latlon_radians_evidence(t_s, lat_col, lon_col, vn_mps, ve_mps) -> tuple[floa
     m_deg, m_rad = float(np.median(as_deg)), float(np.median(as_rad))
     if m_rad * SWAP_FIT_RATIO < m_deg:
         return m_deg, m_rad
+    return None
+
+
+# Heights in feet against the logged vertical velocity: the heights' changes over non-overlapping spans
+# regressed on -integral(vd) give a gain that is 1 in metres and 1/0.3048 = 3.28 in feet. Said only
+# when the gain is within FEET_GAIN_TOL of 3.28, more than 5 SDs from 1, and the fixes climb and
+# descend at least FEET_MIN_CLIMB_M in all (a flat log cannot tell: its height changes are noise).
+FEET_PER_M = 1.0 / 0.3048
+FEET_GAIN_TOL = 0.15
+FEET_MIN_CLIMB_M = 20.0
+
+
+def height_feet_evidence(t_s, h, vd_mps) -> tuple[float, float] | None:
+    """(gain, its SD) of the fixes' height changes on the heights integrated from -vd, over
+    non-overlapping spans of SWAP_LAG fixes, when it shows heights in feet (see FEET_GAIN_TOL);
+    else None. Scale-free: shrinking the heights shrinks their noise too, so no fit ratio of two
+    readings can tell feet (a flat log in metres would fit "better" as feet)."""
+    got = _finite_spans(t_s, h, vd_mps)
+    if got is None:
+        return None
+    (t, h, vd), i, j, _, lag = got
+    i, j = i[::lag], j[::lag]  # non-overlapping: independent spans for the SD
+    up = -_integral(t, vd)
+    dv, dh = up[j] - up[i], h[j] - h[i]
+    if i.size < 10 or np.abs(dv).sum() < FEET_MIN_CLIMB_M:
+        return None
+    k = float(dh @ dv / (dv @ dv))
+    sd = float(np.sqrt(np.sum((dh - k * dv) ** 2) / (i.size - 1) / (dv @ dv)))
+    if abs(k / FEET_PER_M - 1.0) < FEET_GAIN_TOL and k - 1.0 > 5.0 * sd:
+        return k, sd
     return None
 
 

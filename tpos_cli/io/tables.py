@@ -8,6 +8,7 @@ is read without it (its import is ~0.15 s CPU of a one-shot `tpos process`).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -94,14 +95,12 @@ def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (),
     except InvalidInputError as exc:
         _fail(path, str(exc).split(": ", 1)[1])
     if path.suffix == ".parquet":
-        table = _read_parquet(path, set(numeric) | set(text) | set(required))
+        table = _read_parquet(path, set(numeric) | set(text) | set(required), required)
         names, n_rows = table.column_names, table.num_rows
     else:
         table = _read_csv(path)
         names, n_rows = list(table.columns), len(table)
-    missing = [c for c in required if c not in names]
-    if missing:
-        _fail(path, f"required column is missing (found: {', '.join(map(str, names)) or 'none'})", missing[0])
+        _check_required(path, names, required)
     if n_rows == 0:
         _fail(path, "the table has a header but no data rows")
     out = _arrow_columns(table, numeric, text) if isinstance(table, pa.Table) else None
@@ -119,6 +118,16 @@ def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (),
         del table  # pyarrow's memory pool keeps the decoded buffers otherwise (an hour's drive: RSS 497 -> 399 MB after ingest)
         pa.default_memory_pool().release_unused()
     return Columns(out, n_rows)  # the converted columns as they are (no second copy of a 360k-row table)
+
+
+def _check_required(path: Path, names, required) -> None:
+    """Refuse a table without a required column, naming the columns the FILE has (all of them, not
+    only those tpos reads: a `speed` column where `speed_mps` is wanted is the user's clue)."""
+    missing = [c for c in required if c not in names]
+    if missing:
+        found = ", ".join(map(str, names)) or "none"
+        found = found if len(found) <= 4 * SHOWN_CHARS else f"{found[:4 * SHOWN_CHARS - 4]} ..."
+        _fail(path, f"required column is missing (found: {found})", missing[0])
 
 
 def _arrow_columns(table: pa.Table, numeric, text) -> dict[str, np.ndarray] | None:
@@ -187,9 +196,10 @@ def _to_float(path: Path, s: pd.Series, col: str) -> np.ndarray:
     return conv.to_numpy(dtype=np.float64, na_value=np.nan)
 
 
-def _read_parquet(path: Path, wanted: set[str]) -> pa.Table:
-    """Only the wanted columns, after the row count in the footer is checked; the pandas metadata
-    (index, dtypes) is ignored: a damaged one cannot matter, the columns are all tpos reads."""
+def _read_parquet(path: Path, wanted: set[str], required=()) -> pa.Table:
+    """Only the wanted columns, after the row count in the footer and the `required` columns in the
+    schema are checked; the pandas metadata (index, dtypes) is ignored: a damaged one cannot matter,
+    the columns are all tpos reads."""
     try:
         pf = pq.ParquetFile(path)  # one open for footer, schema and columns (pq.read_table: a dataset, three opens)
     except (pa.ArrowException, OSError, ValueError) as exc:
@@ -204,6 +214,7 @@ def _read_parquet(path: Path, wanted: set[str]) -> pa.Table:
             _fail(path, f"{meta.num_rows} rows is more than the {MAX_TABLE_ROWS}-row limit for a table")
         if meta.num_columns > MAX_TABLE_COLUMNS:
             _fail(path, f"{meta.num_columns} columns: more than {MAX_TABLE_COLUMNS}, not a contract table")
+        _check_required(path, names, required)
         columns = [c for c in names if c in wanted]
         repeated = sorted({c for c in columns if columns.count(c) > 1}, key=columns.index)
         if repeated:
@@ -285,7 +296,15 @@ def _read_csv(path: Path) -> pd.DataFrame:
                 _fail(path, f"the header is separated by {name}; the contract requires commas", row=None)
     n_header = len(header.split(","))
     try:
-        df = pd.read_csv(path, dtype=None, keep_default_na=True, na_values=[""], skipinitialspace=True, encoding="utf-8-sig")
+        # index_col=False: a data line with one empty field more than the header (a trailing comma the
+        # header lacks) is that trailing comma; pandas' default took the lines' first fields as an index
+        # and shifted every column by one (t read from gyro_x: "time goes backwards")
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", pd.errors.ParserWarning)
+            df = pd.read_csv(path, dtype=None, keep_default_na=True, na_values=[""], skipinitialspace=True,
+                             encoding="utf-8-sig", index_col=False)
+    except pd.errors.ParserWarning:  # the first data line has more fields than the header (not one empty one)
+        _fail(path, f"has more fields than the {n_header} the header names (a value with no column)", row=1)
     except pd.errors.ParserError as exc:
         msg = str(exc)
         row = None
