@@ -3,7 +3,10 @@ re-acquires its fixes with a grown covariance; fixes that wander within their st
 and scatter, or step away are not taken for a drift. Planted cases on an exactly simulated body at
 rest (the IMU and the fixes are the truth's own, but for the planted knock and fix errors)."""
 
+import functools
+
 import numpy as np
+import pytest
 from numpy.testing import assert_allclose
 from scipy.stats import chi2
 
@@ -140,29 +143,43 @@ def test_the_anchored_difference_tells_a_drift_from_a_step():
     assert drift_nis_from_anchor(t_ring, nu_ring, R_ring, *anc, 0, 2, 2, 3) > chi2.ppf(0.9999, 3)
 
 
-def test_a_filter_knocked_off_by_a_jump_reacquires_its_fixes():
+@functools.cache
+def _knocked(reacquire=True):
     """At rest on the truth, consistent; at 20 s the IMU reports 1 s of 2 m/s^2 north that never
-    happened: the filter runs off (1 m, then 2 m/s) with a covariance of centimetres. The fixes that
-    follow continue that error from where the last accepted one left the filter, far beyond their
-    stated accuracy (0.2 m: 10x their R): re-acquired (covariance grown) by the sixth, and the filter
-    is back within centimetres. The growth is the least that admits the fix, which leaves part of
-    the velocity error: a second, smaller drift (0.4 m) follows, caught by the fixes. The old rule
-    (the sixth in as it is, each sixth after) leaves it metres off for half a minute."""
+    happened; fixes stated at 0.2 m (10x their R)."""
     t_fix = np.arange(0.5, 60.0, 1.0)
     meas = _fixes(t_fix, np.zeros((t_fix.size, 3)))
-    run = _run(_nav(), 0.05, 0.01, meas, seconds=60.0, stated=10.0, knock=(20.0, 21.0, 2.0))
+    return _run(_nav(), 0.05, 0.01, meas, seconds=60.0, stated=10.0, knock=(20.0, 21.0, 2.0), reacquire=reacquire)
+
+
+def test_a_filter_knocked_off_by_a_jump_reacquires_its_fixes():
+    """The knock (`_knocked`): the filter runs off (1 m, then 2 m/s) with a covariance of
+    centimetres. The fixes that follow continue that error from where the last accepted one left
+    the filter, far beyond their stated accuracy: re-acquired (covariance grown) by the sixth. The
+    old rule (the sixth in as it is, each sixth after) leaves it metres off for half a minute."""
+    run = _knocked()
     acc, infl = run.ev_accepted, run.ev_inflation
     assert acc[:20].all() and not acc[20:23].any()
     j = 20 + np.flatnonzero(infl[20:, 0] > 1.0)
     assert j.size == 1 and j[0] <= 25 and acc[j[0]]  # re-acquired once, by the 6th rejected fix
     assert np.all(infl[:, 1] == 1.0)  # nothing down-weighted
+    old = _knocked(reacquire=False)
+    assert np.max(np.abs(_north_error_m(old))[old.ep_idx[(old.t_s[old.ep_idx] >= 30.0)]]) > 3.0
+
+
+@pytest.mark.xfail(strict=True, reason="known defect (lever12.md): the re-acquired fix also turns the tilt through the "
+                   "position/velocity cross terms grown with the block (0.56 mrad): a second drift of 0.45 m follows")
+def test_a_knocked_filter_reacquired_is_back_and_stays_back():
+    """After the re-acquisition the filter is back within centimetres and stays there: no second
+    drift (no later fix fails the gate)."""
+    run = _knocked()
+    acc, infl = run.ev_accepted, run.ev_inflation
+    j = 20 + np.flatnonzero(infl[20:, 0] > 1.0)
     err = np.abs(_north_error_m(run))
     t_ep = run.t_s[run.ep_idx]
-    assert np.max(err[run.ep_idx[(t_ep >= 30.0) & (t_ep < 35.0)]]) < 0.1  # back (metres off before)
-    assert np.max(err[run.ep_idx[t_ep >= 30.0]]) < 0.5
-    assert np.max(err[run.ep_idx[t_ep >= 45.0]]) < 0.1  # and after the second
-    old = _run(_nav(), 0.05, 0.01, meas, seconds=60.0, stated=10.0, knock=(20.0, 21.0, 2.0), reacquire=False)
-    assert np.max(np.abs(_north_error_m(old))[old.ep_idx[(old.t_s[old.ep_idx] >= 30.0)]]) > 3.0
+    # 0.05 m (set before the first run): 2.5 SDs of the 2 cm fixes (the filter without the knock reaches 0.034 m)
+    assert np.max(err[run.ep_idx[(t_ep >= 30.0) & (t_ep < 35.0)]]) < 0.05  # back (metres off before)
+    assert acc[j[0]:].all()  # no second drift: every later fix passes the gate
 
 
 def test_fixes_wandering_within_their_stated_accuracy_are_not_taken_for_a_drift():
@@ -184,21 +201,34 @@ def test_fixes_wandering_within_their_stated_accuracy_are_not_taken_for_a_drift(
     assert np.any(tight.ev_inflation[:, 0] > 1.0)
 
 
+@functools.cache
+def _started_off():
+    """The nominal 5 m north of the truth, moving north at 0.2 m/s; P says 5 cm and 1 cm/s."""
+    t_fix = np.arange(0.5, 30.0, 1.0)
+    return _run(_nav(5.0, 0.2), 0.05, 0.01, _fixes(t_fix, np.zeros((t_fix.size, 3))))
+
+
 def test_a_filter_that_starts_off_is_brought_back():
     """The nominal starts 5 m north of the truth, moving north at 0.2 m/s, with a covariance that
     says 5 cm and 1 cm/s: every fix fails the gate and no accepted row says where the filter's error
     stood: the sixth goes in down-weighted to the gate's edge; from that anchor on the rejected fixes
-    continue the filter's error: re-acquired within three more, the filter back to decimetres (the
-    least growth of P leaves its velocity error to a few more re-acquisitions)."""
-    t_fix = np.arange(0.5, 30.0, 1.0)
-    run = _run(_nav(5.0, 0.2), 0.05, 0.01, _fixes(t_fix, np.zeros((t_fix.size, 3))))
+    continue the filter's error: re-acquired within three more."""
+    run = _started_off()
     acc, infl = run.ev_accepted, run.ev_inflation
     assert not acc[:5].any() and acc[5] and infl[5, 1] > 1.0 and infl[5, 0] == 1.0
     j = np.flatnonzero(infl[:, 0] > 1.0)
     assert j.size >= 1 and j[0] <= 8 and acc[j[0]]
     assert np.all(np.delete(infl[:, 1], 5) == 1.0)
+
+
+@pytest.mark.xfail(strict=True, reason="known defect (lever12.md): each re-acquisition also turns the tilt through the "
+                   "grown cross terms; later drifts follow (0.44 m from 12 s)")
+def test_a_filter_that_starts_off_is_back_to_decimetres():
+    """After its re-acquisitions the started-off filter stays within decimetres from 12 s on (4 s after the first)."""
+    run = _started_off()
     err = np.abs(_north_error_m(run))
-    assert np.max(err[run.ep_idx[run.t_s[run.ep_idx] >= 12.0]]) < 0.5  # 6 m off before
+    # 0.3 m (set before the first run): decimetres, the 6 m drift taken out, not yet the fixes' 2 cm
+    assert np.max(err[run.ep_idx[run.t_s[run.ep_idx] >= 12.0]]) < 0.3  # 6 m off before
 
 
 def test_multipath_jumps_and_back_stay_rejected():

@@ -68,15 +68,20 @@ def drift_degree(is_velocity: bool) -> int:
 
 
 @njit(cache=True)
+def _put(ts, nus, Rs, i, t, nu, R, m):
+    """ts[i] = t, nus[i, :m] = nu, Rs[i, :m, :m] = R: one row of a slot's ring or of the anchors."""
+    ts[i] = t
+    for a in range(m):
+        nus[i, a] = nu[a]
+        for b in range(m):
+            Rs[i, a, b] = R[a, b]
+
+
+@njit(cache=True)
 def remember(ring_t, ring_nu, ring_R, slot, count, t, nu, R, m):
     """Store the slot's rejection number `count` (0-based within its run of consecutive
     rejections): time t (s), innovation nu (m,), R (m, m)."""
-    j = count % WINDOW
-    ring_t[slot, j] = t
-    for a in range(m):
-        ring_nu[slot, j, a] = nu[a]
-        for b in range(m):
-            ring_R[slot, j, a, b] = R[a, b]
+    _put(ring_t[slot], ring_nu[slot], ring_R[slot], count % WINDOW, t, nu, R, m)
 
 
 @njit(cache=True)
@@ -126,12 +131,8 @@ def anchors(n_slots):
 @njit(cache=True)
 def anchor(anc_t, anc_nu, anc_R, anc_ok, slot, t, nu, R, m):
     """Store the slot's last accepted row: time t, post-fit residual nu (m,), R (m, m)."""
-    anc_t[slot] = t
+    _put(anc_t, anc_nu, anc_R, slot, t, nu, R, m)
     anc_ok[slot] = True
-    for a in range(m):
-        anc_nu[slot, a] = nu[a]
-        for b in range(m):
-            anc_R[slot, a, b] = R[a, b]
 
 
 @njit(cache=True)
