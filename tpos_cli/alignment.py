@@ -170,7 +170,8 @@ def _turned_to(t_s, gyro_b_rps, window: StaticWindow, ref: int, bias_rps) -> np.
     return R
 
 
-def held_at(t_s, gyro_b_rps, vectors, window: StaticWindow, ref: int, gyro_noise_rps: float, acc_noise_mps2: float):
+def held_at(t_s, gyro_b_rps, vectors, window: StaticWindow, ref: int, gyro_noise_rps: float, acc_noise_mps2: float,
+            acc_bias_rw_mps2_rts: float = 0.0):
     """Body-frame vectors of a hand-held "still" window as they were at sample `ref`, and the variance (rad^2
     per axis) that turning them by the gyro adds.
 
@@ -186,7 +187,9 @@ def held_at(t_s, gyro_b_rps, vectors, window: StaticWindow, ref: int, gyro_noise
     variance v per tilt axis: the gyro's white noise (`gyro_noise_rps` per sample, dt apart) turns as a
     random walk from ref, whose line value at ref over T has variance (2/15) sigma_g^2 dt T (the integral of
     ((1 - u)(1 - 3u))^2 over [0, 1]), and the specific force's white noise (`acc_noise_mps2`) enters the
-    line's value at ref with 4/n against the mean's 1/n: 3 (sigma_a / g)^2 / n. So the turned vectors (and
+    line's value at ref with 4/n against the mean's 1/n: 3 (sigma_a / g)^2 / n; the accelerometer bias's
+    drift (random walk q = `acc_bias_rw_mps2_rts`, the filters' model of it) tilts the turned specific force
+    like a gyro bias error, the fitted slope s T/2 taking (3/10) (q / g)^2 T. So the turned vectors (and
     the corrected bias) are taken only where the turn's tilt d (2 dof, the turned mean against the plain one)
     is more than that noise explains at 95 %, |d|^2 > chi2_2(0.95) v = 5.99 v (k = 1), else the plain means
     and the window-mean rate (k = 0); k v is the variance per axis the turn adds. (Chosen after the smooth
@@ -206,20 +209,23 @@ def held_at(t_s, gyro_b_rps, vectors, window: StaticWindow, ref: int, gyro_noise
                        for v in vectors])
     plain = np.stack([np.nanmean(np.asarray(v, dtype=float)[i0:i1], axis=0) for v in vectors])
     dt = float(np.median(np.diff(t[i0:i1]))) if i1 - i0 > 1 else 0.0
-    v = (2.0 / 15.0 * float(gyro_noise_rps) ** 2 * dt * float(t[i1 - 1] - t[i0])
-         + 3.0 * float(acc_noise_mps2) ** 2 / float(plain[0] @ plain[0]) / (i1 - i0))
+    T, g2 = float(t[i1 - 1] - t[i0]), float(plain[0] @ plain[0])
+    v = (2.0 / 15.0 * float(gyro_noise_rps) ** 2 * dt * T + 3.0 * float(acc_noise_mps2) ** 2 / g2 / (i1 - i0)
+         + 0.3 * float(acc_bias_rw_mps2_rts) ** 2 / g2 * T)
     c = np.cross(plain[0], turned[0])
-    d2 = float(c @ c) / float(plain[0] @ plain[0]) / float(turned[0] @ turned[0])
+    d2 = float(c @ c) / g2 / float(turned[0] @ turned[0])
     k = 1.0 if d2 > CHI2_2DOF_95 * v else 0.0
     return plain + k * (turned - plain), k * v, bias - k * e_perp
 
 
 def coarse_alignment(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, window: StaticWindow, *,
                      declination_rad=0.0, lat_rad=0.0, acc_noise_mps2=0.01, mag_noise_ut=0.5,
-                     yaw_rad=None, ref: int | None = None, gyro_noise_rps: float = 0.0) -> Alignment:
+                     yaw_rad=None, ref: int | None = None, gyro_noise_rps: float = 0.0,
+                     acc_bias_rw_mps2_rts: float = 0.0) -> Alignment:
     """Average the window and apply Eq. 6 and Eq. 8 (yaw_rad overrides the magnetic yaw); with `ref`, the
     attitude at that sample of the window from the gyro-referenced specific force and field (`held_at`, with
-    the gyro's white noise `gyro_noise_rps` per sample) instead of the window's mean attitude, and the gyro
+    the gyro's white noise `gyro_noise_rps` per sample and the accelerometer bias's random walk
+    `acc_bias_rw_mps2_rts`) instead of the window's mean attitude, and the gyro
     bias `held_at` turned them with. The sigmas stay the mean's: the turn's own variance (`held_at`'s k v)
     is not added. Measured with an earlier, smooth share of the turn, 0.003-0.011 deg of it added to BROAD's
     alignments made the filters worse through their tilt prior (tpos/VQF 02 .552 -> .575, 26 .718 -> .741;
@@ -231,7 +237,8 @@ def coarse_alignment(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, window: StaticWindow
     n = window.i1 - window.i0
     if ref is not None:
         vecs = [acc_b_mps2] + ([mag_b_ut] if (yaw_rad is None and mag_b_ut is not None) else [])
-        held, _, bias_m = held_at(t_s, gyro_b_rps, vecs, window, ref, gyro_noise_rps, acc_noise_mps2)
+        held, _, bias_m = held_at(t_s, gyro_b_rps, vecs, window, ref, gyro_noise_rps, acc_noise_mps2,
+                                  acc_bias_rw_mps2_rts)
         f = held[0]
     else:
         f = np.mean(np.asarray(acc_b_mps2, dtype=float)[sl], axis=0)

@@ -219,7 +219,8 @@ def _carry(C, bias, t, gyro, i_from, i_to, w_ie_ned):
 
 def align_end(session: Session, p: TargetFkfParams, lat: float, decl: float, noise_mps2_ut, *, at_end: bool) -> End:
     """Coarse alignment (Eq. 6, 8) in the first (or, `at_end`, the last) still window of the log (white noise
-    `noise_mps2_ut` = (acc m/s^2, mag uT, gyro rad/s) per sample), levelled at its edge sample, carried
+    `noise_mps2_ut` = (acc m/s^2, mag uT, gyro rad/s) per sample and the accelerometer bias's random walk
+    m/s^2/sqrt(s)), levelled at its edge sample, carried
     by the gyro to the first (last) sample when the window does not reach it. Raises ProcessingError
     when the log has no such window."""
     imu = session.imu
@@ -236,7 +237,8 @@ def align_end(session: Session, p: TargetFkfParams, lat: float, decl: float, noi
     ref = win.i1 - 1 if at_end else win.i0
     # the attitude at the window's edge sample, not the window's mean attitude (a hand sways)
     A = al.coarse_alignment(t, g, a, m, win, declination_rad=decl, lat_rad=lat, acc_noise_mps2=noise_mps2_ut[0],
-                            mag_noise_ut=noise_mps2_ut[1], ref=ref, gyro_noise_rps=noise_mps2_ut[2])
+                            mag_noise_ut=noise_mps2_ut[1], ref=ref, gyro_noise_rps=noise_mps2_ut[2],
+                            acc_bias_rw_mps2_rts=noise_mps2_ut[3])
     sg = float(np.sqrt(np.mean(np.var(g[win.i0:win.i1], axis=0))))
     C_level = A.C_nb
     if ref != edge:
@@ -307,7 +309,7 @@ def beam_geometry(session: Session, start: End, noise: FilterNoise, yaw_var_rad2
     n_b = np.full((rdiff.shape[0], 3), np.nan)
     n_b[win.i0:win.i1][good] = beam_normal_b(in_win[good], rf.baseline_12_m, rf.baseline_13_m)
     held, _, _ = al.held_at(session.imu.t_s, session.imu.gyro_b_rps, [session.imu.acc_b_mps2, n_b], win, win.i0,
-                            noise.gyro_noise_rps, noise.acc_noise_mps2)
+                            noise.gyro_noise_rps, noise.acc_noise_mps2, noise.acc_bias_rw_mps2_rts)
     wall_n = wall_normal_ned(start.levelled_at(), held[1])
     # the wall azimuth inherits the alignment's yaw error plus the beam-difference noise
     # (d1 - d2 over b12 at the K returns); LF2's heading carries it as a constant bias
@@ -711,15 +713,18 @@ def _declination(session: Session, obs_lla, ctx: RunContext, summary: dict) -> f
 
 
 def _coarse_noise(session: Session, p: TargetFkfParams):
-    """(acc m/s^2, mag uT, gyro rad/s) white noise for the first alignment, before the still window's own
-    figures are known (`imu_noise.resolve_imu_noise` without measured values)."""
+    """(acc m/s^2, mag uT, gyro rad/s) white noise and the accelerometer bias's random walk (m/s^2/sqrt(s)) for
+    the first alignment, before the still window's own figures are known (`imu_noise.resolve_imu_noise`
+    without measured values)."""
     fig = resolve_imu_noise(p, session.meta.imu_noise, keys=("acc_noise_mg", "mag_noise_ut", "gyro_noise_dps"))
-    return fig["acc_noise_mg"] * 1e-3 * G0_MPS2, fig["mag_noise_ut"], float(np.radians(fig["gyro_noise_dps"]))
+    return (fig["acc_noise_mg"] * 1e-3 * G0_MPS2, fig["mag_noise_ut"], float(np.radians(fig["gyro_noise_dps"])),
+            p.acc_bias_rw_mg_per_rts * 1e-3 * G0_MPS2)
 
 
 def _white(noise: FilterNoise):
-    """(acc m/s^2, mag uT, gyro rad/s) white noise per sample of `noise` (`align_end`)."""
-    return noise.acc_noise_mps2, noise.mag_noise_ut, noise.gyro_noise_rps
+    """(acc m/s^2, mag uT, gyro rad/s) white noise per sample of `noise` and its accelerometer bias's random walk
+    (`align_end`)."""
+    return noise.acc_noise_mps2, noise.mag_noise_ut, noise.gyro_noise_rps, noise.acc_bias_rw_mps2_rts
 
 
 def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: FilterNoise, start: End, field,
