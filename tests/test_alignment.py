@@ -73,3 +73,36 @@ def test_moving_mean_equals_the_windowed_sums_it_defines(n, shape):
     # and it is the mean over the window: a plain loop (rounding level)
     loop = np.array([x[a:b].mean(axis=0) for a, b in zip(lo, hi)])
     np.testing.assert_allclose(got, loop, rtol=1e-9, atol=1e-12)
+
+
+def _swaying(t):
+    # a hand holding the device "still" at 20 deg roll sways 0.5 deg with a 7 s period
+    return np.radians([20.0 + 0.5 * np.sin(2 * np.pi * t / 7.0), 0.0, 30.0])
+
+
+def test_a_swaying_hold_is_levelled_at_its_edge_sample_not_at_its_mean_attitude():
+    g = make(_swaying, duration_s=12.0)
+    w = al.StaticWindow(0, int(np.searchsorted(g.t, 10.0)), "motion")
+    decl = np.arctan2(MAG_NED_UT[1], MAG_NED_UT[0])
+    kw = dict(declination_rad=decl, lat_rad=np.radians(45.5), acc_noise_mps2=0.0098, mag_noise_ut=0.3)
+    plain = al.coarse_alignment(g.t, g.gyro, g.acc, g.mag, w, **kw)
+    held = al.coarse_alignment(g.t, g.gyro, g.acc, g.mag, w, ref=0, gyro_noise_rps=1e-4, **kw)
+    # the window's mean roll is 0.106 deg above the first sample's (0.5 sin over 10/7 periods)
+    assert np.degrees(plain.roll_rad) - 20.0 > 0.08
+    err = np.array([held.roll_rad, held.pitch_rad, held.yaw_rad]) - _swaying(0.0)
+    assert abs(np.degrees(err[0])) < 0.01  # the acc noise's 4/n variance at the window's edge: ~0.004 deg SD
+    assert abs(np.angle(np.exp(1j * err[2]))) < 4 * held.sigma_rpy_rad[2]
+    # the window-mean rate holds the sway's net turn (0.2 deg / 10 s about x); the turned levelling removes it
+    assert abs(held.gyro_bias_rps[0] - g.bias[0]) < 0.1 * abs(plain.gyro_bias_rps[0] - g.bias[0])
+
+
+def test_a_hold_without_turn_keeps_the_window_means():
+    # a still device (gyro free of noise): the turn is the accelerometer noise's slope only, inside what that
+    # noise explains, so the referenced means are the plain ones
+    g = make(lambda t: np.radians([3.0, -8.0, 40.0]), duration_s=6.0, gyro_sd=0.0)
+    w = al.StaticWindow(0, g.t.size, "end_of_log")
+    plain = al.coarse_alignment(g.t, g.gyro, g.acc, g.mag, w)
+    for ref in (0, g.t.size - 1):
+        held = al.coarse_alignment(g.t, g.gyro, g.acc, g.mag, w, ref=ref, acc_noise_mps2=0.0098)
+        np.testing.assert_allclose([held.roll_rad, held.pitch_rad, held.yaw_rad],
+                                   [plain.roll_rad, plain.pitch_rad, plain.yaw_rad], rtol=0, atol=1e-9)

@@ -124,13 +124,16 @@ def observer_position(session: Session) -> tuple[np.ndarray, str]:
     raise InvalidInputError("session.toml: the target chain needs [observer] lat/lon/h or GPS fixes (gps.*) to place the observer")
 
 
-def wall_normal_ned(C_nb, rdiff_mean, b12, b13) -> np.ndarray:
-    """Horizontal unit normal (NED) of the wall from mean (d1-d2, d1-d3) at attitude C_nb.
+def beam_normal_b(rdiff_m, b12, b13) -> np.ndarray:
+    """(..., 3) body-frame (unnormalized) wall normal from (d1-d2, d1-d3) (..., 2):
+    n_b ~ (1, -(d1-d2)/b12, (d1-d3)/b13) solves d1 - d_i = n.C o_i / n.C e_x."""
+    r = np.asarray(rdiff_m, dtype=float)
+    return np.stack([np.ones(r.shape[:-1]), -r[..., 0] / b12, r[..., 1] / b13], axis=-1)
 
-    n_b ~ (1, -(d1-d2)/b12, (d1-d3)/b13) solves d1 - d_i = n.C o_i / n.C e_x; buildings' walls
-    are vertical, so the NED normal is projected onto the horizontal.
-    """
-    n_b = np.array([1.0, -rdiff_mean[0] / b12, rdiff_mean[1] / b13])
+
+def wall_normal_ned(C_nb, n_b) -> np.ndarray:
+    """Horizontal unit normal (NED) of the wall from its body-frame normal `n_b` (`beam_normal_b`) at attitude
+    C_nb; buildings' walls are vertical, so the NED normal is projected onto the horizontal."""
     n = C_nb @ n_b
     n[2] = 0.0
     return n / np.linalg.norm(n)
@@ -215,7 +218,9 @@ def _carry(C, bias, t, gyro, i_from, i_to, w_ie_ned):
 
 
 def align_end(session: Session, p: TargetFkfParams, lat: float, decl: float, noise_mps2_ut, *, at_end: bool) -> End:
-    """Coarse alignment (Eq. 6, 8) in the first (or, `at_end`, the last) still window of the log, carried
+    """Coarse alignment (Eq. 6, 8) in the first (or, `at_end`, the last) still window of the log (white noise
+    `noise_mps2_ut` = (acc m/s^2, mag uT, gyro rad/s) per sample and the accelerometer bias's random walk
+    m/s^2/sqrt(s)), levelled at its edge sample, carried
     by the gyro to the first (last) sample when the window does not reach it. Raises ProcessingError
     when the log has no such window."""
     imu = session.imu
@@ -228,11 +233,13 @@ def align_end(session: Session, p: TargetFkfParams, lat: float, decl: float, noi
         win = al.StaticWindow(n - w.i1, n - w.i0, w.end_reason)
     else:
         win = al.detect_static_window(t, g, a, m, **kw)
-    A = al.coarse_alignment(t, g, a, m, win, declination_rad=decl, lat_rad=lat, acc_noise_mps2=noise_mps2_ut[0],
-                            mag_noise_ut=noise_mps2_ut[1])
-    sg = float(np.sqrt(np.mean(np.var(g[win.i0:win.i1], axis=0))))
     edge = n - 1 if at_end else 0
     ref = win.i1 - 1 if at_end else win.i0
+    # the attitude at the window's edge sample, not the window's mean attitude (a hand sways)
+    A = al.coarse_alignment(t, g, a, m, win, declination_rad=decl, lat_rad=lat, acc_noise_mps2=noise_mps2_ut[0],
+                            mag_noise_ut=noise_mps2_ut[1], ref=ref, gyro_noise_rps=noise_mps2_ut[2],
+                            acc_bias_rw_mps2_rts=noise_mps2_ut[3])
+    sg = float(np.sqrt(np.mean(np.var(g[win.i0:win.i1], axis=0))))
     C_level = A.C_nb
     if ref != edge:
         A = replace(A, C_nb=_carry(A.C_nb, A.gyro_bias_rps, t, g, ref, edge, earth.earth_rate_ned_rps(lat)))
@@ -296,9 +303,16 @@ def beam_geometry(session: Session, start: End, noise: FilterNoise, yaw_var_rad2
     if good.sum() < 3:
         ctx.warn("ranges: fewer than 3 three-beam returns during the alignment window; LF2 is not run")
         return Beams(None, wall_n, 0.0)
-    wall_n = wall_normal_ned(A.C_nb, in_win[good].mean(axis=0), rf.baseline_12_m, rf.baseline_13_m)
-    # the wall azimuth inherits the alignment's yaw error plus the mean beam-difference noise
-    # (d1 - d2 over b12, K samples); LF2's heading carries it as a constant bias
+    # the beams' body-frame normal at each return, turned into the body frame at the sample the start
+    # alignment levelled (the window's first, `align_end`; `alignment.held_at`: a swaying hand turns the
+    # beams as it turns the accelerometer), at that attitude
+    n_b = np.full((rdiff.shape[0], 3), np.nan)
+    n_b[win.i0:win.i1][good] = beam_normal_b(in_win[good], rf.baseline_12_m, rf.baseline_13_m)
+    held, _, _ = al.held_at(session.imu.t_s, session.imu.gyro_b_rps, [session.imu.acc_b_mps2, n_b], win, win.i0,
+                            noise.gyro_noise_rps, noise.acc_noise_mps2, noise.acc_bias_rw_mps2_rts)
+    wall_n = wall_normal_ned(start.levelled_at(), held[1])
+    # the wall azimuth inherits the alignment's yaw error plus the beam-difference noise
+    # (d1 - d2 over b12 at the K returns); LF2's heading carries it as a constant bias
     var = float(yaw_var_rad2 + 2.0 * noise.range_sigma_m**2 / rf.baseline_12_m**2 / good.sum())
     summary["wall_azimuth_deg"] = float(np.degrees(np.arctan2(wall_n[1], wall_n[0])) % 360.0)
     summary["wall_azimuth_sigma_deg"] = float(np.degrees(np.sqrt(var)))
@@ -651,7 +665,7 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
         coarse = _coarse_noise(session, p)
         start = align_end(session, p, np.radians(obs_lla[0]), decl, coarse, at_end=False)
         noise = imu_figures(session, p, start, summary)
-        start = align_end(session, p, np.radians(obs_lla[0]), decl, (noise.acc_noise_mps2, noise.mag_noise_ut), at_end=False)
+        start = align_end(session, p, np.radians(obs_lla[0]), decl, _white(noise), at_end=False)
         summary["alignment"] = _alignment_summary(session, start)
     field = survey_field(session, p, start, obs_lla, ctx, summary)
     with ctx.stage("initial alignment"):
@@ -699,10 +713,18 @@ def _declination(session: Session, obs_lla, ctx: RunContext, summary: dict) -> f
 
 
 def _coarse_noise(session: Session, p: TargetFkfParams):
-    """(acc m/s^2, mag uT) white noise for the first alignment, before the still window's own figures
-    are known (`imu_noise.resolve_imu_noise` without measured values)."""
-    fig = resolve_imu_noise(p, session.meta.imu_noise, keys=("acc_noise_mg", "mag_noise_ut"))
-    return fig["acc_noise_mg"] * 1e-3 * G0_MPS2, fig["mag_noise_ut"]
+    """(acc m/s^2, mag uT, gyro rad/s) white noise and the accelerometer bias's random walk (m/s^2/sqrt(s)) for
+    the first alignment, before the still window's own figures are known (`imu_noise.resolve_imu_noise`
+    without measured values)."""
+    fig = resolve_imu_noise(p, session.meta.imu_noise, keys=("acc_noise_mg", "mag_noise_ut", "gyro_noise_dps"))
+    return (fig["acc_noise_mg"] * 1e-3 * G0_MPS2, fig["mag_noise_ut"], float(np.radians(fig["gyro_noise_dps"])),
+            p.acc_bias_rw_mg_per_rts * 1e-3 * G0_MPS2)
+
+
+def _white(noise: FilterNoise):
+    """(acc m/s^2, mag uT, gyro rad/s) white noise per sample of `noise` and its accelerometer bias's random walk
+    (`align_end`)."""
+    return noise.acc_noise_mps2, noise.mag_noise_ut, noise.gyro_noise_rps, noise.acc_bias_rw_mps2_rts
 
 
 def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: FilterNoise, start: End, field,
@@ -711,7 +733,7 @@ def _align_at_end(session: Session, p: TargetFkfParams, lat, decl, noise: Filter
     survey marked most of that window's field as disturbed, the start alignment carried to the end by the
     gyro (its heading and tilt then grow by the bias SD times the log)."""
     try:
-        end = align_end(session, p, lat, decl, (noise.acc_noise_mps2, noise.mag_noise_ut), at_end=True)
+        end = align_end(session, p, lat, decl, _white(noise), at_end=True)
         if field is None or np.mean(field.disturbed[end.window.i0:end.window.i1]) <= 0.5:
             return end
         ctx.warn("alignment: the magnetic field is disturbed at the end of the log; the backward run starts from "
