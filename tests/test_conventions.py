@@ -192,6 +192,77 @@ def test_odometry_in_km_h_is_named_from_the_gps_speed():
     assert odometry_findings(SimpleNamespace(gps=gps0, odometry=still)) == []  # never moving: nothing to compare
 
 
+def test_odometry_time_shift_is_named_from_the_cross_correlation():
+    # audit2 (session 12): odometry stamped 60 s late passed `tpos validate` and gave a verdict blaming the unit
+    from types import SimpleNamespace
+
+    from tpos_cli.conventions import ODO_LAG_MIN_S, odometry_findings, odometry_lag
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 180.0, 0.05)
+    speed = np.clip(8.0 + 5.0 * np.sin(t / 9.0) + 3.0 * np.sin(t / 3.1 + 1.0), 0.0, None)
+    tg = np.arange(0.0, 180.0, 1.0)
+    vg = np.interp(tg, t, speed) + rng.normal(0.0, 0.05, tg.size)
+    gps = SimpleNamespace(t_s=tg, lla=np.tile([45.0, -73.0, 50.0], (tg.size, 1)), fix=np.full(tg.size, 2),
+                          vel_ned_mps=np.column_stack([vg * 0.6, vg * 0.8, np.zeros(tg.size)]), valid=np.ones(tg.size, dtype=bool))
+
+    def odo(shift_s, scale=1.0, offset=0.0):
+        m = (t + shift_s >= 0.0) & (t + shift_s <= 180.0)  # the logger keeps what falls in its span
+        return SimpleNamespace(gps=gps, meta=SimpleNamespace(time_offsets_s={"odometry_offset_s": offset}),
+                               odometry=SimpleNamespace(t_s=t[m] + shift_s, speed_mps=speed[m] * scale))
+
+    fs = odometry_findings(odo(60.0, offset=2.0))
+    assert [f.check for f in fs] == ["conventions.odometry_clock", "conventions.odometry_unit"]
+    assert fs[0].level == "unreliable" and "60.0 s late" in fs[0].reason and "odometry_offset_s = -58.0" in fs[0].reason
+    assert fs[1].level == "ok" and fs[1].figures["odometry_over_gps_speed"] == pytest.approx(1.0, abs=0.02)
+    f = odometry_findings(odo(-2.5, scale=3.6))  # early, and in km/h: both named
+    assert "2.5 s early" in f[0].reason and f[1].contract_column == "speed_mps"
+    for latency in (0.0, 0.3, -0.4):  # a wheel or CAN speed's latency is no clock error
+        (f,) = odometry_findings(odo(latency))
+        assert f.level == "ok" and abs(f.figures["lag_s"] - latency) < 0.1, (latency, f.figures)
+    assert odometry_lag(tg, np.full(tg.size, 7.0), t, np.full(t.size, 7.0)) is None  # constant speeds cannot tell
+    assert ODO_LAG_MIN_S == 1.0
+
+
+def test_gps_clock_seconds_off_is_named_from_the_course_against_the_gyro():
+    # audit2 (session 12): a GPS stamped 5 s late passed `tpos validate` silently and gave a verdict "suspect"
+    # (forward/backward disagreement 88 %); the filter's clock states and the log-only estimate take < 1 s
+    from types import SimpleNamespace
+
+    from tpos_cli.conventions import gps_lag_findings, odometry_findings, session_findings
+
+    ti = np.arange(0.0, 200.0, 0.02)
+    rate = 0.2 * np.sin(ti / 6.0) + 0.15 * np.sin(ti / 2.3 + 0.5)  # rad/s about the vertical
+    psi = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(ti))])
+    tg = np.arange(0.0, 200.0, 1.0)
+    psi_g = np.interp(tg, ti, psi)
+    speed = 10.0 + 2.0 * np.sin(tg / 11.0)
+
+    def session(late_s, offset=0.0, odo=False):
+        t = tg + late_s
+        keep = t <= 200.0
+        gps = SimpleNamespace(t_s=t[keep], valid=np.ones(keep.sum(), dtype=bool), lla=np.tile([45.0, -73.0, 50.0], (keep.sum(), 1)),
+                              fix=np.full(keep.sum(), 2),
+                              vel_ned_mps=np.column_stack([speed * np.cos(psi_g), speed * np.sin(psi_g), np.zeros(tg.size)])[keep])
+        imu = SimpleNamespace(t_s=ti, gyro_b_rps=np.column_stack([0 * ti, 0 * ti, rate]),
+                              acc_b_mps2=np.tile([0.0, 0.0, -9.81], (ti.size, 1)), mag_b_ut=None)
+        o = SimpleNamespace(t_s=tg, speed_mps=speed) if odo else None
+        return SimpleNamespace(gps=gps, imu=imu, odometry=o, meta=SimpleNamespace(time_offsets_s={"gps_offset_s": offset}))
+
+    (f,) = gps_lag_findings(session(5.0, offset=0.5))
+    assert f.level == "unreliable" and "5.0 s late" in f.reason and "gps_offset_s = -4.5" in f.reason, f.reason
+    assert f.figures["lag_s"] == pytest.approx(5.0, abs=0.2)
+    for late in (0.0, 0.4):  # the filter's clock states take these
+        (f,) = gps_lag_findings(session(late))
+        assert f.level == "ok" and abs(f.figures["lag_s"] - late) < 0.2, f.figures
+    # the GPS late, the odometry right: the odometry is compared with the GPS put back on the IMU's clock
+    s = session(5.0, odo=True)
+    assert [f.check for f in odometry_findings(s) if f.level != "ok"] == ["conventions.odometry_clock"]  # alone: blamed
+    s.meta.axes = "FRD"
+    named = {f.check for f in session_findings(s) if f.level != "ok"}
+    assert "conventions.gps_clock_shift" in named and "conventions.odometry_clock" not in named, named
+
+
 def test_units_the_contract_forbids_are_errors_naming_file_and_column(tmp_path):
     # audit (session 10): a gyro in deg/s or an odometry column in mph was a warning of `tpos validate` (exit 0) and a
     # verdict of `tpos process`: both refuse it now (exit 2), one line naming the file and the column, no run

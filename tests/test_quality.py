@@ -246,6 +246,70 @@ def test_clean_ranging_session_is_ok(sims):
     assert q["verdict"] == "ok", q["reasons"]
 
 
+def test_stated_mounting_against_the_logs_travel_direction():
+    """audit2 (session 12): a `[imu] mounting_rpy_deg` in radians, or off by 90/180 deg, showed only as
+    forward/backward disagreement: the stated forward axis is compared with the log's travel direction."""
+    def res(stated, est=(0.0, -0.5, 89.6), sd=(None, 0.7, 0.8), source="session", platform="car"):
+        return {"constraints": {"platform": platform, "mounting": {"source": source, "mounting_rpy_deg": list(stated)},
+                                "travel_direction": {"mounting_rpy_deg": list(est), "sigma_rpy_deg": list(sd), "moving_s": 240.0}}}
+
+    (f,) = quality.stated_mounting_findings(res([0.0, 0.0, 1.57]))
+    assert f.level == "unreliable" and f.figures["radians"] and "written in radians?" in f.reason
+    assert "[imu] mounting_rpy_deg = [0, 0, 1.57]" in f.reason and "88 deg in yaw" in f.reason, f.reason
+    (f,) = quality.stated_mounting_findings(res([0.0, 0.0, -90.0]))  # 180 deg off: no radians reading explains it
+    assert f.level == "unreliable" and not f.figures["radians"] and "180 deg in yaw" in f.reason
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 91.0]))[0].level == "ok"  # within 3.29 sigma
+    # more than 3.29 sigma but within the chain's mounting_check_deg (20): a measured mounting a few deg off is no mistake
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 80.0]))[0].level == "ok"
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 0.0], sd=(None, 0.7, 30.0)))[0].level == "ok"  # 90 deg at 3 sigma
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 0.0], source="travel direction")) == []  # not stated
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 1.57], platform="pedestrian")) == []  # not applied
+    assert quality.stated_mounting_findings({"constraints": {"mounting": {"source": "session", "mounting_rpy_deg": [0, 0, 1]}}}) == []
+    (f,) = quality.stated_mounting_findings(res([0.0, 30.0, 0.0], est=(0.0, -0.5, 0.0)))  # pitch: about the body's y axis
+    assert f.level == "unreliable" and "in pitch" in f.reason and "in yaw" not in f.reason
+    np.testing.assert_allclose(quality.mounting_difference_deg([90.0, 5.0, 40.0], [90.0, 5.0, 10.0])[1], 30.0, atol=1e-9)
+    # the course-against-yaw sentence no longer says "set" a key the session has
+    chk = {"mounting_check": {"warning": True, "course_minus_yaw_median_deg": 90.0, "spread_deg": 1.0, "moving_s": 60.0,
+                              "min_speed_mps": 0.3}}
+    assert "or set [imu] mounting_rpy_deg" in quality.mounting_findings(chk)[0].reason
+    said = quality.mounting_findings({**chk, **res([0.0, 0.0, 90.0])})[0].reason
+    assert "check [imu] axes and the session's [imu] mounting_rpy_deg" in said and "or set" not in said
+
+
+def test_a_mounting_in_radians_is_named_end_to_end(sims):
+    """A car whose IMU is turned 90 deg, the session saying so in radians ([0, 0, 1.5708]): verdict
+    unreliable naming radians (before: suspect, forward/backward disagreement); said in degrees: ok."""
+    get, root = sims
+    src = get("drive", mounting_rpy_deg=(0.0, 0.0, 90.0))
+    q = _run(src, root, M.mounting_stated("[0.0, 0.0, 1.5708]", "mounting_radians"))
+    assert q["verdict"] == "unreliable" and _named(q, "mounting_rpy_deg", "written in radians?"), q["reasons"]
+    q = _run(src, root, M.mounting_stated("[0.0, 0.0, 90.0]", "mounting_degrees"))
+    assert q["checks"]["mounting.stated"]["difference_py_deg"][1] == pytest.approx(0.0, abs=5.0)
+    assert not any("mounting" in r for r in q["reasons"]), q["reasons"]
+
+
+def test_odometry_clock_late_is_named_not_the_unit(sims):
+    """audit2 (session 12): odometry stamped 20 s late was a verdict blaming the filter; the
+    cross-correlation of its speed with the GPS speed names the shift and the key that fixes it."""
+    get, root = sims
+    src = get("drive", odometry_rate_hz=20.0)
+    q = _run(src, root, M.odometry_late(20.0))
+    assert q["verdict"] == "unreliable" and _named(q, "odometry:", "s late (a clock offset", "odometry_offset_s = -"), q["reasons"]
+    assert q["checks"]["conventions.odometry_clock"]["lag_s"] == pytest.approx(20.0, abs=0.5)
+    assert q["checks"]["conventions.odometry_unit"].get("level", "ok") == "ok"  # the ratio on the aligned rows: m/s
+    q = _run(src, root)
+    assert "conventions.odometry_clock" not in q["checks"] and abs(q["checks"]["conventions.odometry_unit"]["lag_s"]) < 0.5
+
+
+def test_gps_clock_seconds_late_is_named(sims):
+    """audit2 (session 12): GPS rows stamped 5 s late: validate silent, verdict suspect on forward/backward
+    disagreement (88 % on drive_outage); now the course-against-gyro lag names it and the key."""
+    get, root = sims
+    q = _run(get("drive"), root, M.gps_late(5.0))
+    assert q["verdict"] == "unreliable" and _named(q, "gps:", "s late on the IMU's clock", "gps_offset_s = -"), q["reasons"]
+    assert q["checks"]["conventions.gps_clock_shift"]["lag_s"] == pytest.approx(5.0, abs=0.6)
+
+
 def test_gyro_in_deg_per_s(sims):
     # audit (session 10): a gyro the GPS course shows to be in deg/s breaks the contract: refused (exit 2) naming
     # the file and the column, no run (it was verdict unreliable with the same sentence)

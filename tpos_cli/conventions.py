@@ -9,7 +9,9 @@ the log with physics it must obey:
   du/dt = u × (k ω) is 1 for a consistent log, -1 for a flipped gyro axis, π/180 for deg/s
   logged as rad/s, the sample interval for angle increments, and all -1 for a mirrored frame;
 - GPS course and speed changes match the integrated gyro and accelerometer (`timeoffset.py`); the speed
-  changes against the forward specific force give the clock offset (CLOCK_CHANNELS);
+  changes against the forward specific force give the clock offset (CLOCK_CHANNELS); a clock
+  seconds off shows as the lag of the course's rate of turn behind the gyro's (`gps_turn_lag`);
+- the odometry's speed is the GPS speed to a few %, at no lag beyond its latency (`odometry_lag`);
 - the magnetometer magnitude is the IGRF field at the session's position and date.
 GPS heights above sea level instead of the ellipsoid cannot be told from a session alone: that
 needs a geoid model (N up to ±100 m), and no maintained package ships a compact global one for
@@ -305,14 +307,15 @@ ODO_UNITS = ((3.6, "km/h", "divide by 3.6"), (2.23694, "mph", "multiply by 0.447
              (1000.0, "mm/s", "divide by 1000"), (100.0, "cm/s", "divide by 100"))
 
 
-def odometry_findings(session) -> list[Finding]:
+def odometry_findings(session, gps_late_s: float = 0.0) -> list[Finding]:
     """The odometry's speed against the GPS's horizontal speed while moving: the median of their
     ratio names a km/h, mph, mm/s or cm/s column (within ODO_SCALE_TOL / 2 of the factor), or a scale
-    off by more than ODO_SCALE_TOL. The GPS speed is its logged vn, ve, else the fixes' differences."""
+    off by more than ODO_SCALE_TOL; and a clock shift (`odometry_lag`). The GPS speed is its logged
+    vn, ve, else the fixes' differences, its times less `gps_late_s` (a GPS clock shift already named)."""
     odo, gps = getattr(session, "odometry", None), session.gps
     if odo is None or gps is None or not gps.valid.any():
         return []
-    t = gps.t_s[gps.valid]
+    t = gps.t_s[gps.valid] - gps_late_s
     v = gps.vel_ned_mps[gps.valid]
     if np.isfinite(v[:, :2]).all(axis=1).mean() > 0.5:
         ok = np.isfinite(v[:, :2]).all(axis=1)
@@ -326,13 +329,33 @@ def odometry_findings(session) -> list[Finding]:
         t, speed = (0.5 * (t[1:] + t[:-1]))[good], (np.hypot(*np.diff(ne, axis=0).T) / np.where(good, dt, 1.0))[good]
     if t.size < 2:
         return []
-    inside = (odo.t_s >= t[0]) & (odo.t_s <= t[-1])
-    g = np.interp(odo.t_s[inside], t, speed)
+    lag = odometry_lag(t, speed, odo.t_s, odo.speed_mps)
+    shifted = lag is not None and lag["named"]
+    t_odo = odo.t_s - lag["lag_s"] if shifted else odo.t_s  # a named shift: the ratio on the aligned rows
+    inside = (t_odo >= t[0]) & (t_odo <= t[-1])
+    g = np.interp(t_odo[inside], t, speed)
     moving = g > ODO_MIN_SPEED_MPS
     if moving.sum() < ODO_MIN_SAMPLES:
         return []
     ratio = float(np.median(odo.speed_mps[inside][moving] / g[moving]))
     fig = {"odometry_over_gps_speed": ratio, "samples": int(moving.sum())}
+    out = []
+    if lag is not None:
+        fig.update({k: v for k, v in lag.items() if k != "named"})
+    if shifted:
+        cur = float(getattr(getattr(session, "meta", None), "time_offsets_s", {}).get("odometry_offset_s", 0.0))
+        d = lag["lag_s"]
+        r0 = "" if lag["correlation_unshifted"] is None else f", {lag['correlation_unshifted']:.2f} as stamped"
+        out.append(Finding("conventions.odometry_clock", "unreliable",
+                           f"odometry: its speed follows the GPS speed {abs(d):.1f} s {'later' if d > 0 else 'earlier'} (correlation "
+                           f"{lag['correlation']:.2f} at that shift{r0}): its t is {abs(d):.1f} s {'late' if d > 0 else 'early'} (a clock "
+                           f"offset, not a faulty sensor: each speed is fused at the wrong time); set [time] odometry_offset_s "
+                           f"= {cur - d:.1f}",
+                           dict(lag)))
+    return out + _odometry_unit(ratio, moving, fig)
+
+
+def _odometry_unit(ratio: float, moving, fig: dict) -> list[Finding]:
     for factor, unit, fix in sorted(ODO_UNITS, key=lambda u: abs(ratio / u[0] - 1.0)):  # the nearest unit (mph and knots are 15 % apart)
         if abs(ratio / factor - 1.0) < ODO_SCALE_TOL / 2:
             return [Finding("conventions.odometry_unit", "unreliable",
@@ -343,6 +366,145 @@ def odometry_findings(session) -> list[Finding]:
                         f"odometry: speed_mps is {ratio:.3g} times the GPS speed while moving ({int(moving.sum())} samples), "
                         "where a wheel or CAN speed is within a few % of it: wrong unit, scale or column", fig)]
     return [Finding("conventions.odometry_unit", "ok", None, fig)]
+
+
+# Odometry clock: the lag at which the odometry's speed best follows the GPS speed (cross-correlation).
+# Set before looking at any log: a wheel or CAN speed lags the ground speed by its latency, tens to a
+# few hundred ms, far below ODO_LAG_MIN_S; a speed that follows the GPS's at a correlation of
+# ODO_LAG_MIN_CORR has the same shape, not just a similar level.
+ODO_LAG_MIN_S = 1.0
+ODO_LAG_MIN_CORR = 0.9
+ODO_LAG_MAX_S = 300.0  # lags searched (within half the shorter series' span as well)
+ODO_LAG_COARSE_S, ODO_LAG_FINE_S = 1.0, 0.05
+
+
+def _lagged_correlation(g: np.ndarray, o: np.ndarray, k: int, min_n: int) -> float:
+    """Pearson correlation of g[i] with o[i + k] over the rows where both are finite (NaN if fewer
+    than min_n or either is constant there)."""
+    a, b = (g[:g.size - k], o[k:]) if k >= 0 else (g[-k:], o[:o.size + k])
+    m = np.isfinite(a) & np.isfinite(b)
+    if m.sum() < max(min_n, 3):
+        return float("nan")
+    a, b = a[m] - a[m].mean(), b[m] - b[m].mean()
+    den = float(np.sqrt(np.dot(a, a) * np.dot(b, b)))
+    return float(np.dot(a, b) / den) if den > 1e-9 * a.size else float("nan")
+
+
+def odometry_lag(t_gps, speed_gps, t_odo, speed_odo) -> dict | None:
+    """The shift (s) that best lines the odometry's speed up with the GPS's horizontal speed: lag_s
+    > 0 when the odometry is stamped late (its row stamped t + lag_s holds the speed at t), with
+    the correlation there and as stamped; `named` when |lag_s| >= ODO_LAG_MIN_S at a correlation of
+    at least ODO_LAG_MIN_CORR, above the one as stamped (`best_lag`). None when the speeds cannot
+    tell (no varying overlap)."""
+    return best_lag(t_gps, speed_gps, t_odo, speed_odo, ODO_LAG_MIN_S, ODO_LAG_MIN_CORR)
+
+
+def best_lag(t_ref, x_ref, t_lag, x_lag, min_lag_s: float, min_corr: float) -> dict | None:
+    """The shift of series (t_lag, x_lag) against (t_ref, x_ref) at their highest correlation:
+    lag_s > 0 when the second is stamped late (its value stamped t + lag_s belongs at t). Lags
+    whose overlap holds less than half of the shorter series are not tried; NaN values (e.g. a
+    course while standing) leave their rows out. A 1 s grid over +-ODO_LAG_MAX_S (and half the
+    shorter span), then ODO_LAG_FINE_S steps about the best, refined by a parabola. `named`: |lag_s|
+    >= min_lag_s at a correlation of at least min_corr, above the one as stamped."""
+    tg, vg = np.asarray(t_ref, dtype=float), np.asarray(x_ref, dtype=float)
+    to, vo = np.asarray(t_lag, dtype=float), np.asarray(x_lag, dtype=float)
+    if tg.size < 3 or to.size < 3:
+        return None
+    lo, hi = min(tg[0], to[0]), max(tg[-1], to[-1])
+    shorter = min(tg[-1] - tg[0], to[-1] - to[0])
+    max_lag = min(ODO_LAG_MAX_S, 0.5 * shorter)
+
+    def grids(step):
+        x = np.arange(lo, hi + 0.5 * step, step)
+        g = np.where((x >= tg[0]) & (x <= tg[-1]), np.interp(x, tg, vg), np.nan)
+        o = np.where((x >= to[0]) & (x <= to[-1]), np.interp(x, to, vo), np.nan)
+        n = min(np.isfinite(g).sum(), np.isfinite(o).sum())
+        return g, o, max(int(0.5 * n), ODO_MIN_SAMPLES)
+
+    g, o, min_n = grids(ODO_LAG_COARSE_S)
+    ks = np.arange(-int(max_lag / ODO_LAG_COARSE_S), int(max_lag / ODO_LAG_COARSE_S) + 1)
+    r = np.array([_lagged_correlation(g, o, int(k), min_n) for k in ks])
+    if not np.isfinite(r).any():
+        return None
+    best = float(ks[int(np.nanargmax(r))] * ODO_LAG_COARSE_S)
+    g, o, min_n = grids(ODO_LAG_FINE_S)
+    c = int(round(best / ODO_LAG_FINE_S))
+    span = int(round(2.0 * ODO_LAG_COARSE_S / ODO_LAG_FINE_S))
+    kf = np.arange(c - span, c + span + 1)
+    rf = np.array([_lagged_correlation(g, o, int(k), min_n) for k in kf])
+    if not np.isfinite(rf).any():
+        return None
+    j = int(np.nanargmax(rf))
+    lag, rbest = float(kf[j] * ODO_LAG_FINE_S), float(rf[j])
+    if 0 < j < kf.size - 1 and np.isfinite(rf[j - 1]) and np.isfinite(rf[j + 1]):
+        den = rf[j - 1] - 2.0 * rf[j] + rf[j + 1]
+        if den < 0:
+            lag += float(0.5 * (rf[j - 1] - rf[j + 1]) / den) * ODO_LAG_FINE_S
+    r0 = _lagged_correlation(g, o, 0, min_n)
+    named = abs(lag) >= min_lag_s and rbest >= min_corr and not (np.isfinite(r0) and r0 >= rbest)
+    return {"lag_s": round(lag, 3), "correlation": round(rbest, 4),
+            "correlation_unshifted": round(r0, 4) if np.isfinite(r0) else None, "named": bool(named)}
+
+
+# GPS clock shifted by seconds: the GPS course's rate of turn against the gyro's rotation about the
+# vertical (mounting-free: the vertical is the accelerometer's mean direction), by `best_lag`. Set
+# before looking at any log: below GPS_LAG_MIN_S the log-only clock estimate and the drive filter's
+# clock states take the offset (`gps_clock_estimate`, max 1 s); a course rate differenced from 1 Hz
+# velocities is noisier than a speed, hence a lower correlation than the odometry's.
+GPS_LAG_MIN_S = 1.0
+GPS_LAG_MIN_CORR = 0.8
+GPS_LAG_MIN_SPEED_MPS = 2.0  # the course of a slower platform is mostly noise
+GPS_LAG_STEP_S = 0.5
+
+
+def gps_turn_lag(session) -> dict | None:
+    """`best_lag` of the GPS course rate (deg/s while faster than GPS_LAG_MIN_SPEED_MPS, NaN when
+    slower) against the gyro's rate about the vertical, both averaged over GPS_LAG_STEP_S * 2."""
+    from tpos_cli.timeoffset import gps_velocity
+
+    g, imu = session.gps, session.imu
+    if g is None or g.valid.sum() < 10 or imu.t_s.size < 10:
+        return None
+    t = g.t_s[g.valid]
+    v = gps_velocity(t, g.lla[g.valid], g.vel_ned_mps[g.valid])
+    sp = np.hypot(v[:, 0], v[:, 1])
+    course = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
+    dt = np.diff(t)
+    ok = (dt > 0) & (sp[1:] > GPS_LAG_MIN_SPEED_MPS) & (sp[:-1] > GPS_LAG_MIN_SPEED_MPS)
+    if ok.sum() < ODO_MIN_SAMPLES:
+        return None
+    rate_g = np.where(ok, np.diff(course) / np.where(dt > 0, dt, 1.0), np.nan)
+    tm = 0.5 * (t[1:] + t[:-1])
+    acc = np.asarray(imu.acc_b_mps2, dtype=float)
+    down = -acc.mean(axis=0)
+    if not np.linalg.norm(down) > 0:
+        return None
+    down /= np.linalg.norm(down)
+    ti = np.asarray(imu.t_s, dtype=float)
+    w = np.asarray(imu.gyro_b_rps, dtype=float) @ down
+    psi = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti))])  # heading turned about the vertical
+    h = float(np.median(dt))  # the IMU's turn over the GPS interval about each stamp
+    te = np.arange(ti[0] + 0.5 * h, ti[-1] - 0.5 * h, GPS_LAG_STEP_S)
+    if te.size < 3:
+        return None
+    rate_i = (np.interp(te + 0.5 * h, ti, psi) - np.interp(te - 0.5 * h, ti, psi)) / h
+    return best_lag(te, rate_i, tm, rate_g, GPS_LAG_MIN_S, GPS_LAG_MIN_CORR)
+
+
+def gps_lag_findings(session) -> list[Finding]:
+    """A GPS clock seconds off the IMU's (`gps_turn_lag`): unreliable, naming the offset that undoes it."""
+    lag = gps_turn_lag(session)
+    if lag is None:
+        return []
+    fig = {k: v for k, v in lag.items() if k != "named"}
+    if not lag["named"]:
+        return [Finding("conventions.gps_clock_shift", "ok", None, fig)]
+    d, cur = lag["lag_s"], _current_gps_offset(session)
+    r0 = "" if lag["correlation_unshifted"] is None else f", {lag['correlation_unshifted']:.2f} as stamped"
+    return [Finding("conventions.gps_clock_shift", "unreliable",
+                    f"gps: the GPS course turns with the gyro {abs(d):.1f} s {'later' if d > 0 else 'earlier'} (correlation "
+                    f"{lag['correlation']:.2f} at that shift{r0}): the GPS rows are stamped {abs(d):.1f} s {'late' if d > 0 else 'early'} "
+                    f"on the IMU's clock, beyond what the filter's clock states take; set [time] gps_offset_s = {cur - d:.1f}", fig)]
 
 
 def _block_means(x: np.ndarray, k: int, m: int) -> np.ndarray:
@@ -394,7 +556,10 @@ def session_findings(session) -> list[Finding]:
 
         when = session.meta.start_utc or datetime(2020, 1, 1)  # the field drifts ~0.1 %/year: close enough
         out += magnetometer_findings(imu.mag_b_ut, pos, when)
-    out += odometry_findings(session)
+    gl = gps_lag_findings(session)
+    late = next((f.figures["lag_s"] for f in gl if f.level != "ok"), 0.0)
+    out += odometry_findings(session, late)  # against the GPS on the IMU's clock: its own shift, not the GPS's
+    out += gl
     return out
 
 

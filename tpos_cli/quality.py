@@ -14,6 +14,8 @@ test, never against values seen on particular logs:
   above `OUTLIER_ALLOWANCE` on top of the gate's own rate; unreliable when more than half of the
   updates are rejected: the filter no longer follows its aiding.
 - `mounting`: the chain's course-against-yaw check while moving (a sideways or reversed IMU).
+- `mounting.stated`: a session's `[imu] mounting_rpy_deg` against the mounting the log's travel
+  direction gives (`stated_mounting_findings`: wrong by tens of degrees, or written in radians).
 - `fusion`: a local filter the federated fusion left out for more than `DISTURBED_ALLOWANCE`.
 - `bias`: bias states that settled more than 3.29 of their prior SDs from zero (`bias_findings`).
 - `flags`: epochs where the forward and backward runs disagree beyond their covariances (the
@@ -197,9 +199,88 @@ def mounting_findings(results: Mapping | None) -> list[Finding]:
     if not m["warning"]:
         return [Finding("mounting", "ok", None, fig)]
     nan = float("nan")
-    return [Finding("mounting", "suspect",
-                    mounting_text(m.get("course_minus_yaw_median_deg", nan), m.get("spread_deg", nan), m.get("moving_s"),
-                                  m.get("min_speed_mps")), fig)]
+    text = mounting_text(m.get("course_minus_yaw_median_deg", nan), m.get("spread_deg", nan), m.get("moving_s"),
+                         m.get("min_speed_mps"))
+    if _stated_mounting(results) is not None:  # the key is there: "set it" is no advice
+        text = text.replace("check [imu] axes or set [imu] mounting_rpy_deg", "check [imu] axes and the session's [imu] mounting_rpy_deg")
+    return [Finding("mounting", "suspect", text, fig)]
+
+
+STATED_MOUNTING_Z = 3.29  # two-sided 99.9 %: the module's false-alarm rate per test
+
+
+def _stated_mounting(results: Mapping | None) -> list[float] | None:
+    """The session's `[imu] mounting_rpy_deg` as the drive chain applied it (its constraints record)."""
+    c = (results or {}).get("constraints")
+    m = c.get("mounting") if isinstance(c, Mapping) else None
+    if isinstance(m, Mapping) and m.get("source") == "session" and isinstance(m.get("mounting_rpy_deg"), (list, tuple)):
+        return [float(v) for v in m["mounting_rpy_deg"]]
+    return None
+
+
+def mounting_difference_deg(stated_rpy_deg, estimate_rpy_deg) -> tuple[float, float]:
+    """(pitch, yaw) in deg of the forward axis a stated mounting gives the vehicle, in the vehicle
+    axes of an estimated one (both `[imu] mounting_rpy_deg`: C_vb = euler_to_dcm, v_vehicle = C_vb
+    v_body): stated minus estimate for mountings that differ by a pure pitch or yaw; any roll, no
+    gimbal lock (the forward axes are compared, not Euler angles)."""
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    C_s = euler_to_dcm(*np.radians(np.asarray(stated_rpy_deg, dtype=float)))
+    C_e = euler_to_dcm(*np.radians(np.asarray(estimate_rpy_deg, dtype=float)))
+    w = C_e @ C_s[0]  # the stated forward axis (row 0 of C_vb: in body axes) in the estimate's vehicle axes
+    return float(np.degrees(np.arctan2(w[2], np.hypot(w[0], w[1])))), float(-np.degrees(np.arctan2(w[1], w[0])))
+
+
+def stated_mounting_findings(results: Mapping | None, config: Mapping | None = None, chain: str = "drive_smooth") -> list[Finding]:
+    """The session's `[imu] mounting_rpy_deg` against the mounting the log's own travel direction
+    gives (a first forward run without vehicle constraints, `fusion.constraints.travel_direction`,
+    with its SDs; the drive chain records it when the key is given and the platform is decided from
+    the log), on a wheeled platform (car, rover: the runs that apply the mounting). The stated
+    forward axis more than `STATED_MOUNTING_Z` combined SDs (the estimate's and the chain's prior
+    SD of a given mounting, `mounting_sigma_given_deg`) AND more than `mounting_check_deg` (the
+    chain's own course-against-yaw bound: a travel direction carries sideslip and road grade, a
+    few deg, that its SDs do not) off in pitch or yaw: the vehicle constraints (NHC) were applied
+    in the wrong axes and the attitude is not the vehicle's: unreliable. A key whose values, read
+    as radians, agree with the log is named as radians. Not an input error (exit 2): the estimate
+    rests on the log's motion."""
+    stated = _stated_mounting(results)
+    c = (results or {}).get("constraints") or {}
+    td = c.get("travel_direction") if isinstance(c, Mapping) else None
+    if stated is None or len(stated) != 3 or not isinstance(td, Mapping) or c.get("platform") not in ("car", "rover"):
+        return []  # a walker's unit may point anywhere, and only a wheeled platform's run applies the mounting
+    est, sd = td.get("mounting_rpy_deg"), td.get("sigma_rpy_deg")
+    if not isinstance(est, (list, tuple)) or len(est) != 3 or not isinstance(sd, (list, tuple)) or len(sd) != 3:
+        return []
+    given_sd = float(_param(config, chain, "mounting_sigma_given_deg", 0.5))
+    bound = float(_param(config, chain, "mounting_check_deg", 20.0))
+    sds = [float(np.hypot(float(s), given_sd)) if s is not None and np.isfinite(float(s)) else float("nan") for s in sd[1:]]
+
+    def off(rpy) -> tuple[list[float], bool]:
+        d = list(mounting_difference_deg(rpy, est))
+        return d, any(abs(x) > bound and abs(x) > STATED_MOUNTING_Z * s for x, s in zip(d, sds) if np.isfinite(s))
+
+    d, bad = off(stated)
+    fig = {"stated_rpy_deg": stated, "log_estimate_rpy_deg": list(est), "log_sigma_py_deg": list(sd[1:]),
+           "difference_py_deg": [round(x, 2) for x in d], "combined_sigma_py_deg": [round(s, 3) for s in sds],
+           "moving_s": td.get("moving_s")}
+    if not bad:
+        return [Finding("mounting.stated", "ok", None, fig)]
+    rad = [float(np.degrees(v)) for v in stated]
+    radians = any(stated) and max(abs(v) for v in stated) <= np.pi + 1e-6 and not off(rad)[1]
+    fig["radians"] = bool(radians)
+    where = " and ".join(f"{abs(x):.0f} deg in {n}" for x, s, n in zip(d, sds, ("pitch", "yaw"))
+                         if np.isfinite(s) and abs(x) > bound and abs(x) > STATED_MOUNTING_Z * s)
+    fmt = lambda v: "[" + ", ".join(f"{x:g}" for x in v) + "]"  # noqa: E731
+    text = (f"imu: [imu] mounting_rpy_deg = {fmt(stated)} turns the vehicle's forward axis {where} from the direction the "
+            f"log travels in (its mounting from the log: pitch {est[1]:.1f} +- {sds[0]:.1f}, yaw {est[2]:.1f} +- {sds[1]:.1f} deg, "
+            f"over {float(td.get('moving_s') or 0):.0f} s of motion): the vehicle constraints were applied in the wrong axes and "
+            "the attitude is not the vehicle's; ")
+    if radians:
+        text += (f"written in radians? {fmt([round(v, 4) for v in stated])} rad = {fmt([round(v, 1) for v in rad])} deg agrees "
+                 "with the log: write degrees")
+    else:
+        text += "check the key (degrees, body to vehicle), or leave it out and the mounting is estimated from the log"
+    return [Finding("mounting.stated", "unreliable", text, fig)]
 
 
 def flag_findings(trajectory: pd.DataFrame | Columns | None, flag_probability: float | None) -> list[Finding]:
@@ -405,6 +486,7 @@ def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd
     flag_p = _param(config, chain, flag_key)
     innovations = (tables or {}).get("innovations")
     fs = list(findings)
+    fs += stated_mounting_findings(results, config, chain)  # a cause: listed before the symptoms it makes
     fs += nis_findings(innovations, gate, (results or {}).get("noise_model_rel_sd"))
     fs += flag_findings(trajectory, flag_p)
     fs += mounting_findings(results)

@@ -2,8 +2,8 @@
 
 Each planter edits the files of a session (never the original: `plant` copies it first) the way a
 wrong export or a typo in `session.toml` would: units, axes letters, clock offsets, the GPS lever
-arm, anchor coordinates, rangefinder baselines, a magnetic disturbance. Shared by
-`tests/test_quality.py` and `benchmarks/verdict.py`.
+arm, anchor coordinates, rangefinder baselines, a magnetic disturbance, the odometry's clock, the
+IMU's stated mounting. Shared by `tests/test_quality.py` and `benchmarks/verdict.py`.
 """
 
 from __future__ import annotations
@@ -83,14 +83,32 @@ def axes(letters: str):
     return plant
 
 
+def _stamped_late(stem: str, seconds: float):
+    """The `stem` table's rows stamped `seconds` late on the logger clock."""
+    def plant(d: Path) -> None:
+        x = read(d, stem)
+        x["t"] = x["t"] + seconds
+        write(d, stem, x)
+    plant.__name__ = f"{stem}_late_{seconds:g}"
+    return plant
+
+
+def odometry_late(seconds: float):
+    """Odometry rows stamped `seconds` late on the logger clock."""
+    return _stamped_late("odometry", seconds)
+
+
+def mounting_stated(rpy_deg_text: str, name: str = "mounting_stated"):
+    """`[imu] mounting_rpy_deg = rpy_deg_text` (a TOML array, e.g. radians written for degrees)."""
+    def plant(d: Path) -> None:
+        set_toml(d, "imu", "mounting_rpy_deg", rpy_deg_text)
+    plant.__name__ = name
+    return plant
+
+
 def gps_late(seconds: float):
     """GPS rows stamped `seconds` late on the logger clock."""
-    def plant(d: Path) -> None:
-        g = read(d, "gps")
-        g["t"] = g["t"] + seconds
-        write(d, "gps", g)
-    plant.__name__ = f"gps_late_{seconds:g}"
-    return plant
+    return _stamped_late("gps", seconds)
 
 
 def antenna_offset(lever_b_m, declared_b_m):
