@@ -51,6 +51,9 @@ PLANTED = [
     ("drive", M.axes("FLU"), "axes", {}),
     ("drive", M.gps_late(0.3), "gps_offset_s", {"duration_s": 300.0, "outages": ((150.0, 30.0),)}),
     ("drive", M.gps_late(1e6), "GPS clock", {}),
+    ("drive", M.gps_late(5.0), "gps_offset_s", {}),  # seconds off: the course-against-gyro lag (audit2, session 12)
+    ("drive", M.odometry_late(20.0), "odometry_offset_s", {"odometry_rate_hz": 20.0}),
+    ("drive", M.mounting_stated("[0.0, 0.0, 1.5708]", "mounting_radians"), "mounting_rpy_deg", {"mounting_rpy_deg": (0.0, 0.0, 90.0)}),
     ("drive", M.antenna_offset(LEVER_M, LEVER_M), None, {"duration_s": 300.0, "gps_sigma_h_m": 0.3, "gps_sigma_v_m": 0.5}),
     ("drive", M.antenna_offset(LEVER_M, [-v for v in LEVER_M]), "lever_arm",
      {"duration_s": 300.0, "gps_sigma_h_m": 0.3, "gps_sigma_v_m": 0.5}),
