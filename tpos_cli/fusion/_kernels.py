@@ -29,6 +29,10 @@ from tpos_cli.fusion.nav_errors import (
     window_vibration_velocity_b,
 )
 from tpos_cli.fusion.reacquire import (
+    DRIFT,
+    JUMP,
+    JUMP_LOG_ODDS,
+    TRIAL_ROWS,
     anchor,
     anchors,
     deweight_to_fit,
@@ -42,6 +46,9 @@ from tpos_cli.fusion.reacquire import (
     stated_R,
 )
 from tpos_cli.ins._kernels import mech_step
+
+_NO_TRIAL, _FIRST, _SECOND, _REPLAY = 0, 1, 2, 3  # a re-acquisition's trial (`fusion.reacquire`): none; JUMP tried;
+# DRIFT tried; JUMP chosen and its stretch run once more
 
 # error_model="numpy" on every kernel: no zero-divisor test at each division (`tpos_cli.filters.kalman`).
 
@@ -197,6 +204,29 @@ def _store_transition(out, k, Phi):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def _copy_state(P, nav, C, bias, dx, dth, dv, cons, ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok,
+                P2, nav2, C2, bias2, dx2, dth2, dv2, cons2, ring_t2, ring_nu2, ring_R2, anc_t2, anc_nu2, anc_R2, anc_ok2):
+    """The filter loop's state within a sample (covariance, nominal, biases, the epoch's summed
+    corrections, the last increments, each slot's rejection count, ring and anchor) copied into the
+    second set of arrays: a re-acquisition's checkpoint, or the rewind to it (`fusion.reacquire`)."""
+    P2[:] = P
+    nav2[:] = nav
+    C2[:] = C
+    bias2[:] = bias
+    dx2[:] = dx
+    dth2[:] = dth
+    dv2[:] = dv
+    cons2[:] = cons
+    ring_t2[:] = ring_t
+    ring_nu2[:] = ring_nu
+    ring_R2[:] = ring_R
+    anc_t2[:] = anc_t
+    anc_nu2[:] = anc_nu
+    anc_R2[:] = anc_R
+    anc_ok2[:] = anc_ok
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
@@ -210,7 +240,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     `gated` or `max_reject` is 0; after `max_reject` rejections of its slot the next rejected row
     goes in as it is, or with `reacquire` as `fusion.reacquire` decides: a drift of the filter from
     where its last accepted row left it, beyond the row's stated accuracy, is re-acquired (the
-    position/velocity covariance grown until the row passes the gate); after `max_reject`
+    position/velocity covariance grown until the row passes the gate, under the reading of the
+    error the next rows favour: `fusion.reacquire`, the trial); after `max_reject`
     rejections a row beyond its stated accuracy goes in down-weighted to the gate's edge, one within
     it as it is), Joseph update and feedback into
     the nominal (the error state is reset to 0 after each, so each measurement is linearized
@@ -263,6 +294,18 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     ring_t, ring_nu, ring_R = ring(n_slots)  # each slot's last rejections (`fusion.reacquire`)
     anc_t, anc_nu, anc_R, anc_ok = anchors(n_slots)  # each slot's last accepted row, after its update
     f_stated = np.ones(3)  # a row's factors from R to its stated accuracy (`fusion.reacquire.stated_factors`)
+    # the re-acquisition's trial of its two readings (`fusion.reacquire`: the trial): the loop's state at the re-acquired row
+    ck_P, ck_nav, ck_C, ck_bias, ck_dx = np.empty_like(P), np.empty_like(nav), np.empty_like(C), np.empty_like(bias), np.empty(n)
+    ck_dth, ck_dv, ck_cons = np.empty(3), np.empty(3), np.empty(n_slots, np.int64)
+    ck_ring_t, ck_ring_nu, ck_ring_R = ring(n_slots)
+    ck_anc_t, ck_anc_nu, ck_anc_R, ck_anc_ok = anchors(n_slots)
+    ck_k, ck_e, ck_ep, ck_r, ck_last = 0, 0, 0, 0, 0
+    trial = _NO_TRIAL  # _NO_TRIAL, _FIRST (JUMP tried), _SECOND (DRIFT tried), _REPLAY (JUMP chosen, re-run)
+    reading = DRIFT
+    trial_slot = -1
+    trial_seen = 0  # rows of trial_slot after the re-acquired one
+    score = 0.0  # the stretch's log-likelihood under the reading tried
+    score_first = 0.0
     # covariance epoch 0 is the prior at sample 0 (what the smoothers start from)
     ep = 0  # (indexed by `ep`, not by the literal 0: numba would compile the stores once more for it)
     out.ep_idx[ep] = 0
@@ -290,32 +333,37 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     last = 0
     o_clock = st.layout[Block.CLOCK]
     dt_sum = 0.0
-    for k in range(1, n_t):
-        dt = imu.t[k] - imu.t[k - 1]  # (written out here: a helper inlined by numba (inline="always") cost 13 % of a run)
-        corrected_increments(imu.gyro, imu.acc, k, bias, dt, dth, dv)
-        mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, st.earth_sign, f_n, work)
-        for i in range(3):
-            dth_prev[i] = dth[i]
-            dv_prev[i] = dv[i]
-            f_sum[i] += f_n[i] * dt
-        for i in range(3):
-            w_ib[i] = dth[i] / dt
-        dt_sum += dt
-        has_ev = e < n_ev and ev.k[e] == k
-        if has_ev or k - last >= st.cov_step or k == n_t - 1:
+    k = 1
+    resume = False  # rewound to a re-acquired row (`fusion.reacquire`: the trial): its sample's mechanization and predict are done
+    while k < n_t:
+        if not resume:
+            dt = imu.t[k] - imu.t[k - 1]  # (written out: a helper inlined by numba (inline="always") cost 13 % of a run)
+            corrected_increments(imu.gyro, imu.acc, k, bias, dt, dth, dv)
+            mech_step(nav, C, dth, dv, dth_prev, dv_prev, dt, st.earth_sign, f_n, work)
             for i in range(3):
-                f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
-            error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
-            transition_into(F, dt_sum, Phi)
-            predict_trapezoid(x, P, Phi, Qc, dt_sum, T, Tt)  # P <- Phi P Phi^T + Qd, Qd trapezoidal
-            ep += 1
-            out.ep_idx[ep] = k
-            if st.store_rts:
-                _store_transition(out, ep, Phi)
-                store_tril(out.ep_Ppred, ep, P)
-            for i in range(n_extra):
-                if st.extra_tau_s[i] > 0.0:  # the nominal of a Gauss-Markov state follows its mean
-                    bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
+                dth_prev[i] = dth[i]
+                dv_prev[i] = dv[i]
+                f_sum[i] += f_n[i] * dt
+            for i in range(3):
+                w_ib[i] = dth[i] / dt
+            dt_sum += dt
+        has_ev = e < n_ev and ev.k[e] == k
+        if resume or has_ev or k - last >= st.cov_step or k == n_t - 1:
+            if not resume:
+                for i in range(3):
+                    f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
+                error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
+                transition_into(F, dt_sum, Phi)
+                predict_trapezoid(x, P, Phi, Qc, dt_sum, T, Tt)  # P <- Phi P Phi^T + Qd, Qd trapezoidal
+                ep += 1
+                out.ep_idx[ep] = k
+                if st.store_rts:
+                    _store_transition(out, ep, Phi)
+                    store_tril(out.ep_Ppred, ep, P)
+                for i in range(n_extra):
+                    if st.extra_tau_s[i] > 0.0:  # the nominal of a Gauss-Markov state follows its mean
+                        bias[6 + i] *= np.exp(-dt_sum / st.extra_tau_s[i])
+            resume = False
             while e < n_ev and ev.k[e] == k:
                 m = ev.dim[e]
                 is_gps = ev.kind[e] == Kind.GPS_POSITION or ev.kind[e] == Kind.GPS_VELOCITY
@@ -342,6 +390,10 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 res.nis[e] = s
                 res.logdet[e] = logdet
                 slot = ev.slot[e]
+                if trial != _NO_TRIAL and e > ck_e:  # the stretch scoring the reading under trial (`fusion.reacquire`: the trial)
+                    score -= 0.5 * (min(s, st.gate[m]) + logdet)
+                    if slot == trial_slot:
+                        trial_seen += 1
                 accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and st.max_reject <= 0)
                 if not accept and slot >= 0:
                     last_chance = consecutive[slot] >= st.max_reject
@@ -355,7 +407,14 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                                                   consecutive[slot], drift_degree(ev.kind[e] == Kind.GPS_VELOCITY), m)
                         if beyond and 0.0 <= a <= st.gate[m]:  # a drift from the last accepted row, beyond the
                             stated_R(R, f_stated, m)  # stated accuracy: the filter drifted; the row at that accuracy,
-                            res.inflation[e, 0] = inflate_to_fit(P, H, R, z, m, st.gate[m])  # P grown to admit it
+                            if trial == _NO_TRIAL:  # the loop's state here, to try each reading from (`fusion.reacquire`: the trial)
+                                trial, reading, trial_slot, trial_seen, score = _FIRST, JUMP, slot, 0, 0.0
+                                ck_k, ck_e, ck_ep, ck_r, ck_last = k, e, ep, r, last
+                                _copy_state(P, nav, C, bias, dx_sum, dth_prev, dv_prev, consecutive, ring_t, ring_nu,
+                                            ring_R, anc_t, anc_nu, anc_R, anc_ok, ck_P, ck_nav, ck_C, ck_bias, ck_dx,
+                                            ck_dth, ck_dv, ck_cons, ck_ring_t, ck_ring_nu, ck_ring_R, ck_anc_t,
+                                            ck_anc_nu, ck_anc_R, ck_anc_ok)
+                            res.inflation[e, 0] = inflate_to_fit(P, H, R, z, m, st.gate[m], reading == JUMP)  # P grown
                             accept = True
                         elif last_chance and beyond:  # not a drift: wrong fixes, in at the gate's edge
                             res.inflation[e, 1] = deweight_to_fit(P, H, R, z, m, st.gate[m])
@@ -393,4 +452,27 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             _store2(out.C, row, C)
             _store(out.bias, row, bias)
             r += 1
+        if trial != _NO_TRIAL and (trial_seen >= TRIAL_ROWS or k == n_t - 1):  # the stretch is over (`fusion.reacquire`: the trial)
+            rewind = False
+            if trial == _FIRST:
+                trial, reading, score_first, rewind = _SECOND, DRIFT, score, True
+            elif trial == _SECOND and score_first - score > JUMP_LOG_ODDS:  # JUMP favoured: its stretch once more
+                trial, reading, rewind = _REPLAY, JUMP, True
+            else:
+                trial, reading = _NO_TRIAL, DRIFT
+            if rewind:
+                for i in range(ck_e, e):
+                    res.inflation[i, 0] = 1.0
+                    res.inflation[i, 1] = 1.0
+                _copy_state(ck_P, ck_nav, ck_C, ck_bias, ck_dx, ck_dth, ck_dv, ck_cons, ck_ring_t, ck_ring_nu,
+                            ck_ring_R, ck_anc_t, ck_anc_nu, ck_anc_R, ck_anc_ok, P, nav, C, bias, dx_sum, dth_prev,
+                            dv_prev, consecutive, ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok)
+                k, e, ep, r, last = ck_k, ck_e, ck_ep, ck_r, ck_last
+                for i in range(3):
+                    w_ib[i] = dth_prev[i] / (imu.t[k] - imu.t[k - 1])  # (the rows' body rate at sample k)
+                f_sum[:] = 0.0
+                dt_sum = 0.0
+                trial_seen, score, resume = 0, 0.0, True
+                continue
+        k += 1
     return ep + 1, 0

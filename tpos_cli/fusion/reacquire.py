@@ -25,10 +25,24 @@ it the row after `max_reject` rejections goes in as it is, the rule before):
   owns it); the stated accuracy is what tells them apart.
 - both: re-acquired. The row goes in at its stated accuracy, with the filter's position and
   velocity covariance grown by the least factor lambda under which it passes the gate
-  (`inflate_to_fit`: P <- D P D, D = sqrt(lambda) on those six states, so their cross terms with
-  the attitude and the rest grow by sqrt(lambda), the attitude block itself kept: growing it, or
-  growing P until the NIS is its mean instead of the gate's, let the next fixes turn the heading
-  of navego's filter by tens of degrees).
+  (`inflate_to_fit`; the attitude block and the rest kept: growing them, or growing P until the
+  NIS is its mean instead of the gate's, let the next fixes turn the heading of navego's filter by
+  tens of degrees). How the growth meets the cross terms with the attitude and the biases is the
+  reading of where the error came from, and the fix alone cannot tell:
+  - DRIFT, the error came the way the model makes errors, through the attitude and the biases
+    (navego's early drift is its heading's): P <- D P D, the cross terms grown by sqrt(lambda), so
+    the fix turns the attitude by the regression the model expects;
+  - JUMP, an error the model did not produce (an IMU knock, a slip of the fixes): P_nn grown, the
+    cross terms kept; under DRIFT a knock's fix turns the tilt the knock never touched (0.56 mrad on
+    the planted knock: a second drift of 0.45 m).
+  The trial (`fusion._kernels`): from a checkpoint of the loop's whole state at the re-acquired
+  row, the stretch up to the slot's TRIAL_ROWS-th next row is run under JUMP, then under DRIFT,
+  each scored by its rows' log-likelihood, sum of -(min(NIS, gate) + log det S) / 2 (the model's
+  own S, before any growth; a row beyond the gate is an outlier under either reading: one wild
+  fix must not pick it); DRIFT, the model's own reading, stands unless JUMP scores more than
+  JUMP_LOG_ODDS higher (strong evidence), and then the stretch is run once more under JUMP.
+  Re-acquisitions within the stretch take the reading under trial. Cost: at most three runs of
+  the stretch per re-acquisition (rare).
 - after `max_reject` rejections, no drift: beyond the stated accuracy the row goes in down-weighted,
   its R grown until its NIS is the gate's (`deweight_to_fit`: a filter is never locked out of its
   aiding, and a wrong fix moves it no more than one at the gate's edge); within it, as it is (its
@@ -51,8 +65,12 @@ from tpos_cli.fusion.layout import ATT
 from tpos_cli.fusion.measurements import Kind
 
 WINDOW = 4  # rejections remembered per slot: d + 2 for the largest degree d = 2
-N_INFLATED = ATT  # position and velocity errors: grown; attitude and the rest kept (their cross terms scale)
+N_INFLATED = ATT  # position and velocity errors: grown; attitude and the rest kept (`inflate_to_fit`: their cross terms)
 _MAX_SQRT_LAMBDA = 1.0e4  # sqrt(lambda) at most: SDs grown 10^4-fold
+JUMP, DRIFT = 0, 1  # the two readings of a re-acquired error (`inflate_to_fit`), tried in this order
+TRIAL_ROWS = 10  # the stretch that scores them: up to the re-acquired slot's 10th next row (10 s of 1 Hz fixes)
+JUMP_LOG_ODDS = 3.0  # JUMP only when the stretch favours it by more (strong evidence: 2 ln B > 6, Kass & Raftery
+# 1995; chosen after seeing the margins: planted knock 6.3, start-off 33.5, navego 1.3 and 0.6, the walk 2.4)
 
 
 @njit(cache=True)
@@ -160,27 +178,28 @@ def drift_nis_from_anchor(ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok,
 
 
 @njit(cache=True)
-def _nis_scaled(u, Ann, B, Aoo, R, nu, m):
-    """nu^T S(u)^-1 nu with S(u) = u^2 Ann + u (B + B^T) + Aoo + R; -1 if S is not PD."""
+def _nis_scaled(u, Ann, B, Aoo, R, nu, m, cross):
+    """nu^T S(u)^-1 nu with S(u) = u^2 Ann + c (B + B^T) + Aoo + R, c = u if cross else 1; -1 if S is not PD."""
+    c = u if cross else 1.0
     S = np.empty((m, m))
     for a in range(m):
         for b in range(m):
-            S[a, b] = u * u * Ann[a, b] + u * (B[a, b] + B[b, a]) + Aoo[a, b] + R[a, b]
+            S[a, b] = u * u * Ann[a, b] + c * (B[a, b] + B[b, a]) + Aoo[a, b] + R[a, b]
     return _nis_into(nu, S, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
-def _fit_factor(Ann, B, Aoo, R, nu, m, target):
+def _fit_factor(Ann, B, Aoo, R, nu, m, target, cross):
     """The smallest u in [1, _MAX_SQRT_LAMBDA] with nu^T S(u)^-1 nu <= target (`_nis_scaled`), by
     bisection on log u; 1 when u = 1 already fits."""
-    if not _nis_scaled(1.0, Ann, B, Aoo, R, nu, m) > target:
+    if not _nis_scaled(1.0, Ann, B, Aoo, R, nu, m, cross) > target:
         return 1.0
     lo, hi = 1.0, _MAX_SQRT_LAMBDA
-    if _nis_scaled(hi, Ann, B, Aoo, R, nu, m) > target:
+    if _nis_scaled(hi, Ann, B, Aoo, R, nu, m, cross) > target:
         return hi
     for _ in range(60):  # |hi - lo| / hi below 1e-12 within 60 halvings of the log interval
         mid = np.sqrt(lo * hi)
-        s = _nis_scaled(mid, Ann, B, Aoo, R, nu, m)
+        s = _nis_scaled(mid, Ann, B, Aoo, R, nu, m, cross)
         if s > target or s < 0.0:
             lo = mid
         else:
@@ -195,7 +214,7 @@ def deweight_to_fit(P, H, R, nu, m, target):
     influence that of a fix at the gate's edge (a down-weighted fix, not a trusted one)."""
     A = _hph(P, H, m)
     zero = np.zeros((m, m))
-    u = _fit_factor(R, zero, A, zero, nu, m, target)
+    u = _fit_factor(R, zero, A, zero, nu, m, target, False)
     for a in range(m):
         for b in range(m):
             R[a, b] *= u * u
@@ -203,12 +222,19 @@ def deweight_to_fit(P, H, R, nu, m, target):
 
 
 @njit(cache=True)
-def inflate_to_fit(P, H, R, nu, m, target):
-    """Grow P's position and velocity block in place, P <- D P D with D = diag(sqrt(lambda) on the
-    first N_INFLATED states, 1 elsewhere) (P stays symmetric PSD: the block's correlations, with
-    each other and with the rest, are kept), lambda >= 1 the smallest with
+def inflate_to_fit(P, H, R, nu, m, target, jump):
+    """Grow P's position and velocity block in place by the least lambda >= 1 with
     nu^T (H P H^T + R)^-1 nu <= target (bisection on sqrt(lambda)); returns lambda (1: P unchanged).
-    H (m, n), R (m, m), nu (m,) the innovation."""
+    H (m, n), R (m, m), nu (m,) the innovation. The two readings of the error re-acquired
+    (`JUMP`, `DRIFT`; `fusion._kernels` tries both and keeps the one the next fixes favour):
+    - drift (jump False): the error came the way the filter's model makes errors, through the
+      attitude and the biases: P <- D P D with D = diag(sqrt(lambda) on the first N_INFLATED states,
+      1 elsewhere) (the block's correlations, with each other and with the rest, kept: its cross
+      terms grow by sqrt(lambda));
+    - jump (jump True): an independent jump of position and velocity the model did not produce (an
+      IMU knock, a slip of the fixes): P <- P + blockdiag((lambda - 1) P_nn, 0), the cross terms kept
+      (the fix then turns the attitude and the biases no more than before the jump).
+    P stays symmetric PSD either way."""
     n = P.shape[0]
     k0 = N_INFLATED
     Ann = np.zeros((m, m))  # H_n P_nn H_n^T (the inflated states)
@@ -237,13 +263,15 @@ def inflate_to_fit(P, H, R, nu, m, target):
             Ann[a, b] = snn
             B[a, b] = sno
             Aoo[a, b] = soo
-    u = _fit_factor(Ann, B, Aoo, R, nu, m, target)
+    u = _fit_factor(Ann, B, Aoo, R, nu, m, target, not jump)
     if u == 1.0:
         return 1.0
     for i in range(n):
         di = u if i < k0 else 1.0
         for j in range(n):
             dj = u if j < k0 else 1.0
+            if jump and (i >= k0 or j >= k0):
+                continue
             P[i, j] *= di * dj
     return u * u
 
