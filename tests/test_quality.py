@@ -505,3 +505,32 @@ def test_clock_state_suggests_one_offset_only_when_positions_and_velocities_agre
     comma = {"estimate_s": -0.095, "sigma_s": 0.018, "velocity_estimate_s": -0.150, "velocity_sigma_s": 0.017,
              "output_clock": "imu"}
     assert clock_state_finding(comma, 0.0, {})[0].level == "ok"
+
+
+def test_flags_at_most_epochs_in_long_runs_try_the_gyro_in_deg_per_s(monkeypatch):
+    """A 57x gyro's forward/backward flags come in long runs: 77 % flagged in three runs is a
+    "suspect" share (its lower bound over few effective epochs stays under half), and the verdict
+    never tried the deg/s reading (verdict.py seed 501, session 12: gyro in deg/s unnamed). A flagged
+    share above MAJORITY now runs the trial; the re-run decides what is named; 20 % flagged does not."""
+    from types import SimpleNamespace
+
+    from tpos_cli import advice
+
+    def output(share):
+        n = 1000
+        flag = np.zeros(n, bool)
+        for a in (0.0, 0.35, 0.7):  # three long runs of flagged epochs
+            flag[int(a * n):int(a * n + share * n / 3)] = True
+        traj = pd.DataFrame({"solution": "forward", "flag": flag})
+        return SimpleNamespace(trajectory=traj, tables={"innovations": pd.DataFrame({"nis": [], "kind": [], "solution": []})})
+
+    f, = quality.flag_findings(output(0.77).trajectory, 0.999)
+    assert f.level == "suspect" and f.figures["fraction"] > quality.MAJORITY  # the case the trial missed
+    tried = []
+    runner = SimpleNamespace(base=lambda: "base", session=None, label="the whole log",
+                             innovations=lambda s: tried.append(s) or "trial")
+    monkeypatch.setattr(advice, "with_gyro_scale", lambda s, k: k)
+    monkeypatch.setattr(advice, "compare", lambda b, c: advice.Comparison(100, 0.01, 5.0))
+    (u,) = advice.units_advice(None, output(0.77), runner, 0.9999, 0.999)
+    assert tried == [np.pi / 180.0] and u.level == "unreliable" and "deg/s" in u.reason
+    assert advice.units_advice(None, output(0.2), runner, 0.9999, 0.999) == [] and len(tried) == 1
