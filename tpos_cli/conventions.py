@@ -376,6 +376,7 @@ ODO_LAG_MIN_S = 1.0
 ODO_LAG_MIN_CORR = 0.9
 ODO_LAG_MAX_S = 300.0  # lags searched (within half the shorter series' span as well)
 ODO_LAG_COARSE_S, ODO_LAG_FINE_S = 1.0, 0.05
+LAG_MAX_GAP_STEPS = 3.0  # a series' interval beyond this many of its median steps is a gap (an outage), not interpolated
 
 
 def _lagged_correlation(g: np.ndarray, o: np.ndarray, k: int, min_n: int) -> float:
@@ -414,10 +415,17 @@ def best_lag(t_ref, x_ref, t_lag, x_lag, min_lag_s: float, min_corr: float) -> d
     shorter = min(tg[-1] - tg[0], to[-1] - to[0])
     max_lag = min(ODO_LAG_MAX_S, 0.5 * shorter)
 
+    def on_grid(x, t, v):
+        """v at the grid times x, NaN outside the series and inside its gaps (a straight line
+        across a GPS outage is no speed the platform had: it would pull the correlation down)."""
+        y = np.where((x >= t[0]) & (x <= t[-1]), np.interp(x, t, v), np.nan)
+        gap = LAG_MAX_GAP_STEPS * float(np.median(np.diff(t)))
+        j = np.clip(np.searchsorted(t, x), 1, t.size - 1)
+        return np.where(t[j] - t[j - 1] > gap, np.nan, y)
+
     def grids(step):
         x = np.arange(lo, hi + 0.5 * step, step)
-        g = np.where((x >= tg[0]) & (x <= tg[-1]), np.interp(x, tg, vg), np.nan)
-        o = np.where((x >= to[0]) & (x <= to[-1]), np.interp(x, to, vo), np.nan)
+        g, o = on_grid(x, tg, vg), on_grid(x, to, vo)
         n = min(np.isfinite(g).sum(), np.isfinite(o).sum())
         return g, o, max(int(0.5 * n), ODO_MIN_SAMPLES)
 
