@@ -463,12 +463,13 @@ GPS_LAG_MIN_S = 1.0
 GPS_LAG_MIN_CORR = 0.8
 GPS_LAG_MIN_SPEED_MPS = 2.0  # the course of a slower platform is mostly noise
 GPS_LAG_STEP_S = 0.5
+GPS_LAG_SPAN_S = 2.0 * ODO_LAG_MAX_S  # GPS span read at most (the busiest): 81 -> 30 ms on a 1 h drive, whatever its length
 
 
 def gps_turn_lag(session) -> dict | None:
     """`best_lag` of the GPS course rate (deg/s while faster than GPS_LAG_MIN_SPEED_MPS, NaN when
     slower) against the gyro's rate about the vertical, both averaged over GPS_LAG_STEP_S * 2."""
-    from tpos_cli.timeoffset import gps_velocity
+    from tpos_cli.timeoffset import busiest_span, gps_velocity
 
     g, imu = session.gps, session.imu
     if g is None or g.valid.sum() < 10 or imu.t_s.size < 10:
@@ -483,13 +484,22 @@ def gps_turn_lag(session) -> dict | None:
         return None
     rate_g = np.where(ok, np.diff(course) / np.where(dt > 0, dt, 1.0), np.nan)
     tm = 0.5 * (t[1:] + t[:-1])
-    acc = np.asarray(imu.acc_b_mps2, dtype=float)
+    ti = np.asarray(imu.t_s, dtype=float)
+    sel = slice(None)
+    if tm[-1] - tm[0] > GPS_LAG_SPAN_S:  # a bounded read of hours: the span with the most turning, and the
+        a, b = busiest_span(t, v, GPS_LAG_SPAN_S)  # IMU over it and the lags searched on either side
+        keep = (tm >= a) & (tm <= b)
+        tm, rate_g = tm[keep], rate_g[keep]
+        sel = slice(int(np.searchsorted(ti, a - ODO_LAG_MAX_S - 1.0)), int(np.searchsorted(ti, b + ODO_LAG_MAX_S + 1.0)))
+        if np.isfinite(rate_g).sum() < ODO_MIN_SAMPLES:
+            return None
+    ti = ti[sel]
+    acc = np.asarray(imu.acc_b_mps2, dtype=float)[sel]
     down = -acc.mean(axis=0)
     if not np.linalg.norm(down) > 0:
         return None
     down /= np.linalg.norm(down)
-    ti = np.asarray(imu.t_s, dtype=float)
-    w = np.asarray(imu.gyro_b_rps, dtype=float) @ down
+    w = np.asarray(imu.gyro_b_rps, dtype=float)[sel] @ down
     psi = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti))])  # heading turned about the vertical
     h = float(np.median(dt))  # the IMU's turn over the GPS interval about each stamp
     te = np.arange(ti[0] + 0.5 * h, ti[-1] - 0.5 * h, GPS_LAG_STEP_S)
