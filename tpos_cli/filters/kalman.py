@@ -275,7 +275,7 @@ def predict_trapezoid(x, P, Phi, Qc, dt, T, Tt):
 
 
 @njit(cache=True, error_model="numpy")
-def _innovation_into(x, P, z, H, R, nu, HP, S):
+def innovation_into(x, P, z, H, R, nu, HP, S):
     """nu = z - H x (m,), H P (m, n) (= (P H^T)^T: P symmetric), S = H P H^T + R symmetrized
     (m, m), written into nu, HP, S. Zero elements of H are skipped (a measurement row touches a
     few states)."""
@@ -298,7 +298,7 @@ def _innovation_into(x, P, z, H, R, nu, HP, S):
 
 
 @njit(cache=True, error_model="numpy")
-def _nis_into(nu, S, L, w):
+def nis_into(nu, S, L, w):
     """nu^T S^-1 nu, as the squared norm of the whitened innovation w = L^-1 nu (S = L L^T; L and
     w (m,) written); -1 if S is not positive definite."""
     m = nu.shape[0]
@@ -314,7 +314,7 @@ def _nis_into(nu, S, L, w):
 @njit(cache=True, error_model="numpy")
 def _scalar_statistics(x, P, z, H, R):
     """(nu, h^T P h, S = h^T P h + R) of a scalar measurement (H (1, n)) without allocating;
-    the sums run in the order of `_innovation_into`'s, skipping zeros of h."""
+    the sums run in the order of `innovation_into`'s, skipping zeros of h."""
     n = H.shape[1]
     nu = z[0]
     hph = 0.0
@@ -469,14 +469,14 @@ def innovation_statistics(x, P, z, H, R, pvar):
     HP = buf[m:m + m * n].reshape((m, n))
     S = buf[m + m * n:m + m * n + m * m].reshape((m, m))
     L = buf[m + m * n + m * m:m + m * n + 2 * m * m].reshape((m, m))
-    _innovation_into(x, P, z, H, R, nu, HP, S)
+    innovation_into(x, P, z, H, R, nu, HP, S)
     for i in range(m):
         s = 0.0
         for k in range(n):
             if H[i, k] != 0.0:
                 s += H[i, k] * HP[i, k]
         pvar[i] = s
-    nis = _nis_into(nu, S, L, buf[m + m * n + 2 * m * m:])
+    nis = nis_into(nu, S, L, buf[m + m * n + 2 * m * m:])
     if nis < 0.0:
         return nis, np.nan
     logdet = 0.0

@@ -60,7 +60,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import _innovation_into, _nis_into  # S = H P H^T + R; nu^T S^-1 nu (-1: S not PD)
+from tpos_cli.filters.kalman import innovation_into, nis_into  # S = H P H^T + R; nu^T S^-1 nu (-1: S not PD)
 from tpos_cli.fusion.layout import ATT
 from tpos_cli.fusion.measurements import Kind
 
@@ -123,7 +123,7 @@ def _divided_difference_nis(ts, nus, Rs, m):
             w[a] += c * nus[jj, a]
             for b in range(m):
                 W[a, b] += c * c * Rs[jj, a, b]
-    return _nis_into(w, W, np.empty((m, m)), np.empty(m))
+    return nis_into(w, W, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
@@ -185,7 +185,7 @@ def _nis_scaled(u, Ann, B, Aoo, R, nu, m, cross):
     for a in range(m):
         for b in range(m):
             S[a, b] = u * u * Ann[a, b] + c * (B[a, b] + B[b, a]) + Aoo[a, b] + R[a, b]
-    return _nis_into(nu, S, np.empty((m, m)), np.empty(m))
+    return nis_into(nu, S, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
@@ -306,13 +306,13 @@ def nis_at_stated(P, H, R, nu, m, f):
     for a in range(m):
         for b in range(m):
             S[a, b] += f[a] * R[a, b] * f[b]
-    return _nis_into(nu, S, np.empty((m, m)), np.empty(m))
+    return nis_into(nu, S, np.empty((m, m)), np.empty(m))
 
 
 @njit(cache=True)
 def _hph(P, H, m):
-    """H P H^T (m, m), exactly symmetric: `filters.kalman._innovation_into` with x = z = 0 and R = 0."""
+    """H P H^T (m, m), exactly symmetric: `filters.kalman.innovation_into` with x = z = 0 and R = 0."""
     n = P.shape[0]
     S = np.empty((m, m))
-    _innovation_into(np.zeros(n), P, np.zeros(m), H[:m], np.zeros((m, m)), np.empty(m), np.empty((m, n)), S)
+    innovation_into(np.zeros(n), P, np.zeros(m), H[:m], np.zeros((m, m)), np.empty(m), np.empty((m, n)), S)
     return S
