@@ -228,6 +228,13 @@ def test_odometry_time_shift_is_named_from_the_cross_correlation():
     m = t + 20.0 <= 180.0
     lag = odometry_lag(tg[out], vg[out], t[m] + 20.0, speed[m])
     assert lag["named"] and lag["lag_s"] == pytest.approx(20.0, abs=0.1) and lag["correlation"] > 0.99
+    # an hour: read over its busiest 600 s (GPS_LAG_SPAN_S), the shift found the same
+    t_h = np.arange(0.0, 3600.0, 0.05)
+    sp_h = np.clip(8.0 + 5.0 * np.sin(t_h / 9.0) + 3.0 * np.sin(t_h / 3.1 + 1.0), 0.0, None) * (1.0 + (t_h > 1800.0))
+    tg_h = np.arange(0.0, 3600.0, 1.0)
+    m = t_h + 60.0 <= 3600.0
+    lag = odometry_lag(tg_h, np.interp(tg_h, t_h, sp_h), t_h[m] + 60.0, sp_h[m])
+    assert lag["named"] and lag["lag_s"] == pytest.approx(60.0, abs=0.1)
 
 
 @pytest.mark.parametrize("span_s", [200.0, 1500.0])  # 1500 s: beyond GPS_LAG_SPAN_S, its busiest span is read

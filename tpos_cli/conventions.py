@@ -376,6 +376,7 @@ ODO_LAG_MIN_S = 1.0
 ODO_LAG_MIN_CORR = 0.9
 ODO_LAG_MAX_S = 300.0  # lags searched (within half the shorter series' span as well)
 ODO_LAG_COARSE_S, ODO_LAG_FINE_S = 1.0, 0.05
+GPS_LAG_SPAN_S = 2.0 * ODO_LAG_MAX_S  # GPS span read at most (the busiest) by the lag searches: 81 -> 30 ms on a 1 h drive
 LAG_MAX_GAP_STEPS = 3.0  # a series' interval beyond this many of its median steps is a gap (an outage), not interpolated
 
 
@@ -396,8 +397,18 @@ def odometry_lag(t_gps, speed_gps, t_odo, speed_odo) -> dict | None:
     > 0 when the odometry is stamped late (its row stamped t + lag_s holds the speed at t), with
     the correlation there and as stamped; `named` when |lag_s| >= ODO_LAG_MIN_S at a correlation of
     at least ODO_LAG_MIN_CORR, above the one as stamped (`best_lag`). None when the speeds cannot
-    tell (no varying overlap)."""
-    return best_lag(t_gps, speed_gps, t_odo, speed_odo, ODO_LAG_MIN_S, ODO_LAG_MIN_CORR)
+    tell (no varying overlap). A GPS span beyond GPS_LAG_SPAN_S is read over its 600 s of most speed
+    change (`timeoffset.busiest_span`), the odometry over it and the lags searched on either side."""
+    from tpos_cli.timeoffset import busiest_span
+
+    tg, vg = np.asarray(t_gps, dtype=float), np.asarray(speed_gps, dtype=float)
+    to, vo = np.asarray(t_odo, dtype=float), np.asarray(speed_odo, dtype=float)
+    if tg.size > 1 and tg[-1] - tg[0] > GPS_LAG_SPAN_S:  # a bounded read of hours
+        a, b = busiest_span(tg, np.column_stack([vg, np.zeros(tg.size)]), GPS_LAG_SPAN_S)
+        g = (tg >= a) & (tg <= b)
+        o = (to >= a - ODO_LAG_MAX_S - 1.0) & (to <= b + ODO_LAG_MAX_S + 1.0)
+        tg, vg, to, vo = tg[g], vg[g], to[o], vo[o]
+    return best_lag(tg, vg, to, vo, ODO_LAG_MIN_S, ODO_LAG_MIN_CORR)
 
 
 def best_lag(t_ref, x_ref, t_lag, x_lag, min_lag_s: float, min_corr: float) -> dict | None:
@@ -463,7 +474,6 @@ GPS_LAG_MIN_S = 1.0
 GPS_LAG_MIN_CORR = 0.8
 GPS_LAG_MIN_SPEED_MPS = 2.0  # the course of a slower platform is mostly noise
 GPS_LAG_STEP_S = 0.5
-GPS_LAG_SPAN_S = 2.0 * ODO_LAG_MAX_S  # GPS span read at most (the busiest): 81 -> 30 ms on a 1 h drive, whatever its length
 
 
 def gps_turn_lag(session) -> dict | None:
