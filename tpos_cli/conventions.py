@@ -466,7 +466,7 @@ def best_lag(t_ref, x_ref, t_lag, x_lag, min_lag_s: float, min_corr: float) -> d
 
 
 # GPS clock shifted by seconds: the GPS course's rate of turn against the gyro's rotation about the
-# vertical (mounting-free: the vertical is the accelerometer's mean direction), by `best_lag`. Set
+# vertical (mounting-free: `timeoffset.vertical_rate_rps`, about the low-passed gravity), by `best_lag`. Set
 # before looking at any log: below GPS_LAG_MIN_S the log-only clock estimate and the drive filter's
 # clock states take the offset (`gps_clock_estimate`, max 1 s); a course rate differenced from 1 Hz
 # velocities is noisier than a speed, hence a lower correlation than the odometry's.
@@ -479,7 +479,7 @@ GPS_LAG_STEP_S = 0.5
 def gps_turn_lag(session) -> dict | None:
     """`best_lag` of the GPS course rate (deg/s while faster than GPS_LAG_MIN_SPEED_MPS, NaN when
     slower) against the gyro's rate about the vertical, both averaged over GPS_LAG_STEP_S * 2."""
-    from tpos_cli.timeoffset import busiest_span, gps_velocity
+    from tpos_cli.timeoffset import busiest_span, gps_velocity, vertical_rate_rps
 
     g, imu = session.gps, session.imu
     if g is None or g.valid.sum() < 10 or imu.t_s.size < 10:
@@ -504,12 +504,7 @@ def gps_turn_lag(session) -> dict | None:
         if np.isfinite(rate_g).sum() < ODO_MIN_SAMPLES:
             return None
     ti = ti[sel]
-    acc = np.asarray(imu.acc_b_mps2, dtype=float)[sel]
-    down = -acc.mean(axis=0)
-    if not np.linalg.norm(down) > 0:
-        return None
-    down /= np.linalg.norm(down)
-    w = np.asarray(imu.gyro_b_rps, dtype=float)[sel] @ down
+    w = vertical_rate_rps(ti, np.asarray(imu.gyro_b_rps, dtype=float)[sel], np.asarray(imu.acc_b_mps2, dtype=float)[sel])
     psi = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(ti))])  # heading turned about the vertical
     h = float(np.median(dt))  # the IMU's turn over the GPS interval about each stamp
     te = np.arange(ti[0] + 0.5 * h, ti[-1] - 0.5 * h, GPS_LAG_STEP_S)
