@@ -4,6 +4,7 @@ Analytic oracle: a device tilting about x and y with gravity along its up axis. 
 ../shared are used when present (skipped otherwise).
 """
 
+import re
 import shutil
 
 import numpy as np
@@ -275,6 +276,46 @@ def test_gps_clock_seconds_off_is_named_from_the_course_against_the_gyro(span_s)
     s.meta.axes = "FRD"
     named = {f.check for f in session_findings(s) if f.level != "ok"}
     assert "conventions.gps_clock_shift" in named and "conventions.odometry_clock" not in named, named
+
+
+def test_gps_clock_seconds_off_is_sized_from_the_specific_force_on_a_drive_that_hardly_turns():
+    # audit (session 13): on the verdict benchmark's 120 s sims with few turns at speed (seeds 501/502) a GPS 5 s late
+    # was not sized by the course channel (r 0.16 / 0.51) and the first reason was the filter's clock states' 0.62 /
+    # 0.95 s, a wrong size; the magnitude of the specific force against the GPS velocity changes sizes it
+    from types import SimpleNamespace
+
+    from tpos_cli.conventions import gps_lag_findings
+
+    rng = np.random.default_rng(7)
+    ti = np.arange(0.0, 200.0, 0.01)
+    acc_f = 1.5 * np.sin(ti / 4.0) * (np.sin(ti / 17.0) > 0.3) + 0.8 * np.sin(ti / 2.1) * (ti % 50.0 < 15.0)
+    speed = 3.0 + np.concatenate([[0.0], np.cumsum(0.5 * (acc_f[1:] + acc_f[:-1]) * np.diff(ti))])
+    speed += 3.0 - speed.min()  # always moving, along one straight course (no turn)
+    tg = np.arange(0.0, 200.0, 1.0)
+    vg = np.interp(tg, ti, speed)
+    course = np.radians(30.0)
+    f_b = np.column_stack([acc_f, np.zeros(ti.size), np.full(ti.size, -9.81)]) + rng.normal(0.0, 0.05, (ti.size, 3))
+
+    def session(late_s):
+        t = tg + late_s
+        keep = t <= 200.0
+        n = int(keep.sum())
+        vel = np.column_stack([vg * np.cos(course), vg * np.sin(course), np.zeros(tg.size)])[keep] + rng.normal(0.0, 0.05, (n, 3))
+        gps = SimpleNamespace(t_s=t[keep], valid=np.ones(n, dtype=bool), lla=np.tile([45.0, -73.0, 50.0], (n, 1)),
+                              fix=np.full(n, 2), vel_ned_mps=vel)
+        imu = SimpleNamespace(t_s=ti, gyro_b_rps=np.zeros((ti.size, 3)), acc_b_mps2=f_b, mag_b_ut=None)
+        return SimpleNamespace(gps=gps, imu=imu, odometry=None, meta=SimpleNamespace(time_offsets_s={}))
+
+    (f,) = gps_lag_findings(session(5.0))
+    assert f.level == "unreliable" and f.figures["channel"] == "force", f
+    assert "specific force" in f.reason, f.reason
+    assert re.search(r" (4\.[89]|5\.[01]) s late .* gps_offset_s = -(4\.[89]|5\.[01])$", f.reason), f.reason
+    assert f.figures["lag_s"] == pytest.approx(5.0, abs=0.2)
+    (f,) = gps_lag_findings(session(-3.0))
+    assert f.level == "unreliable" and re.search(r" (2\.9|3\.[01]) s early .* gps_offset_s = (2\.9|3\.[01])$", f.reason), f.reason
+    for late in (0.0, 0.4):  # the filter's clock states take these
+        (f,) = gps_lag_findings(session(late))
+        assert f.level == "ok" and abs(f.figures["lag_s"] - late) < 0.3, f.figures
 
 
 def test_units_the_contract_forbids_are_errors_naming_file_and_column(tmp_path):

@@ -288,6 +288,32 @@ def test_a_mounting_in_radians_is_named_end_to_end(sims):
     assert not any("mounting" in r for r in q["reasons"]), q["reasons"]
 
 
+def test_stated_mounting_on_a_given_platform_is_checked_against_the_course():
+    """review (session 12): the stated-mounting check ran only on an auto platform (the chain computes the
+    travel direction only there); with `platform = "car"` the output's own course against yaw is the evidence."""
+    def res(stated, med=-88.7, warn=True, platform="car"):
+        return {"constraints": {"platform": platform, "mounting": {"source": "session", "mounting_rpy_deg": list(stated)}},
+                "mounting_check": {"warning": warn, "course_minus_yaw_median_deg": med, "spread_deg": 0.2, "moving_s": 102.0,
+                                   "min_speed_mps": 0.3, "threshold_deg": 20.0}}
+
+    (f,) = quality.stated_mounting_findings(res([0.0, 0.0, 1.5708]))
+    assert f.level == "unreliable" and f.figures["radians"] and "written in radians?" in f.reason, f.reason
+    assert "[imu] mounting_rpy_deg = [0, 0, 1.5708]" in f.reason and "89 deg in yaw" in f.reason and "about 90 deg" in f.reason
+    (f,) = quality.stated_mounting_findings(res([0.0, 0.0, 0.0], med=-90.3))
+    assert f.level == "unreliable" and not f.figures["radians"] and "check the key" in f.reason and "[imu] axes" in f.reason
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 90.0], med=0.1, warn=False)) == []
+    assert quality.stated_mounting_findings(res([0.0, 0.0, 1.5708], platform="pedestrian")) == []
+
+
+def test_a_mounting_in_radians_on_a_car_platform_is_named_end_to_end(sims):
+    """The same car with `platform = "car"` given: before, suspect on course-minus-yaw only (the key's radians unnamed)."""
+    get, root = sims
+    src = get("drive", mounting_rpy_deg=(0.0, 0.0, 90.0))
+    d = M.plant(src, root / "mounting_radians_car" / src.name, M.mounting_stated("[0.0, 0.0, 1.5708]", "mounting_radians"))
+    q = process_session(d, None, d.parent / "run", overrides={"drive_smooth.platform": "car"}).summary["quality"]
+    assert q["verdict"] == "unreliable" and _named(q, "mounting_rpy_deg", "written in radians?"), q["reasons"]
+
+
 def test_odometry_clock_late_is_named_not_the_unit(sims):
     """audit2 (session 12): odometry stamped 20 s late was a verdict blaming the filter; the
     cross-correlation of its speed with the GPS speed names the shift and the key that fixes it."""
@@ -308,6 +334,10 @@ def test_gps_clock_seconds_late_is_named(sims):
     q = _run(get("drive"), root, M.gps_late(5.0))
     assert q["verdict"] == "unreliable" and _named(q, "gps:", "s late on the IMU's clock", "gps_offset_s = -"), q["reasons"]
     assert q["checks"]["conventions.gps_clock_shift"]["lag_s"] == pytest.approx(5.0, abs=0.6)
+    # audit (session 13): the filter's clock states take a fraction of seconds off (here 0.84 s): no reason states
+    # that size next to the measured one; the figures stay, marked superseded
+    assert not any(r.startswith("gps/imu:") for r in q["reasons"]), q["reasons"]  # the clock advice's sentences
+    assert q["checks"]["clock"]["superseded_by"] == "conventions.gps_clock_shift"
 
 
 def test_gyro_in_deg_per_s(sims):

@@ -242,12 +242,15 @@ def stated_mounting_findings(results: Mapping | None, config: Mapping | None = N
     few deg, that its SDs do not) off in pitch or yaw: the vehicle constraints (NHC) were applied
     in the wrong axes and the attitude is not the vehicle's: unreliable. A key whose values, read
     as radians, agree with the log is named as radians. Not an input error (exit 2): the estimate
-    rests on the log's motion."""
+    rests on the log's motion. Without a travel direction (a platform given: the chain runs no
+    first run to decide it), the output's course against yaw (`_stated_mounting_against_course`)."""
     stated = _stated_mounting(results)
     c = (results or {}).get("constraints") or {}
     td = c.get("travel_direction") if isinstance(c, Mapping) else None
-    if stated is None or len(stated) != 3 or not isinstance(td, Mapping) or c.get("platform") not in ("car", "rover"):
+    if stated is None or len(stated) != 3 or c.get("platform") not in ("car", "rover"):
         return []  # a walker's unit may point anywhere, and only a wheeled platform's run applies the mounting
+    if not isinstance(td, Mapping):  # a platform given (no first run to decide it): the output's course against yaw
+        return _stated_mounting_against_course(stated, (results or {}).get("mounting_check"))
     est, sd = td.get("mounting_rpy_deg"), td.get("sigma_rpy_deg")
     if not isinstance(est, (list, tuple)) or len(est) != 3 or not isinstance(sd, (list, tuple)) or len(sd) != 3:
         return []
@@ -270,7 +273,7 @@ def stated_mounting_findings(results: Mapping | None, config: Mapping | None = N
     fig["radians"] = bool(radians)
     where = " and ".join(f"{abs(x):.0f} deg in {n}" for x, s, n in zip(d, sds, ("pitch", "yaw"))
                          if np.isfinite(s) and abs(x) > bound and abs(x) > STATED_MOUNTING_Z * s)
-    fmt = lambda v: "[" + ", ".join(f"{x:g}" for x in v) + "]"  # noqa: E731
+    fmt = _fmt_list
     text = (f"imu: [imu] mounting_rpy_deg = {fmt(stated)} turns the vehicle's forward axis {where} from the direction the "
             f"log travels in (its mounting from the log: pitch {est[1]:.1f} +- {sds[0]:.1f}, yaw {est[2]:.1f} +- {sds[1]:.1f} deg, "
             f"over {float(td.get('moving_s') or 0):.0f} s of motion): the vehicle constraints were applied in the wrong axes and "
@@ -280,6 +283,45 @@ def stated_mounting_findings(results: Mapping | None, config: Mapping | None = N
                  "with the log: write degrees")
     else:
         text += "check the key (degrees, body to vehicle), or leave it out and the mounting is estimated from the log"
+    return [Finding("mounting.stated", "unreliable", text, fig)]
+
+
+def _fmt_list(v) -> str:
+    return "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+
+def _stated_mounting_against_course(stated: list[float], check: Mapping | None) -> list[Finding]:
+    """`stated_mounting_findings` where the chain recorded no travel direction (a platform given,
+    "car" or "rover": no first run decides it): the chain's own course-against-yaw check of its
+    output, whose attitude is in the vehicle axes the stated mounting gives (`mounting_check`),
+    with its own bound (`mounting_check_deg`, median beyond it over at least 10 s of motion). Its
+    warning on a stated mounting: unreliable, naming the key (a yaw statement only: a stated
+    pitch the log contradicts is not seen here); the mounting the log implies is about the stated
+    yaw minus the median course-minus-yaw. Radians named when the values read as radians put the
+    yaw within the bound."""
+    if not isinstance(check, Mapping) or not check.get("warning"):
+        return []
+    med, bound = float(check.get("course_minus_yaw_median_deg", np.nan)), float(check.get("threshold_deg", 20.0))
+    if not np.isfinite(med):
+        return []
+    implied = stated[2] - med
+
+    def wrap(x):
+        return (x + 180.0) % 360.0 - 180.0
+
+    radians = any(stated) and max(abs(v) for v in stated) <= np.pi + 1e-6 and abs(wrap(np.degrees(stated[2]) - implied)) <= bound
+    fig = {"stated_rpy_deg": stated, "course_minus_yaw_median_deg": med, "log_yaw_deg": round(wrap(implied), 2),
+           "radians": bool(radians), "moving_s": check.get("moving_s"), "from": "mounting_check"}
+    text = (f"imu: [imu] mounting_rpy_deg = {_fmt_list(stated)} leaves the vehicle's forward axis {abs(med):.0f} deg in yaw "
+            f"off the course over ground (median over {float(check.get('moving_s') or 0):.0f} s of motion, spread "
+            f"{float(check.get('spread_deg', np.nan)):.0f} deg; the log's yaw of the mounting is about {wrap(implied):.0f} deg): "
+            "the vehicle constraints were applied in the wrong axes and the attitude is not the vehicle's; ")
+    if radians:
+        rad = [round(float(np.degrees(v)), 1) for v in stated]
+        text += (f"written in radians? {_fmt_list([round(v, 4) for v in stated])} rad = {_fmt_list(rad)} deg agrees with "
+                 "the log: write degrees")
+    else:
+        text += "check the key (degrees, body to vehicle) and [imu] axes, or leave the key out and the mounting is estimated from the log"
     return [Finding("mounting.stated", "unreliable", text, fig)]
 
 
