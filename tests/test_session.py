@@ -119,6 +119,9 @@ def test_odometry_in_both_formats_with_offset_and_nan(tmp_path, fmt):
     (lambda o: o.iloc[::-1], "column 't', row 2: time goes backwards"),
     (lambda o: o.drop(columns=["speed_mps"]), "column 'speed_mps': required column is missing"),
     (lambda o: o.assign(speed_mps=np.nan), "no row carries a speed value"),
+    # audit (session 13): both were read with exit 0 (one row of all kept; the first of two speed columns)
+    (lambda o: o.assign(t=10.0), "rows repeat the time stamp before them: t cannot resolve the samples"),
+    (lambda o: pd.concat([o, o[["speed_mps"]] * 2.0], axis=1), "column 'speed_mps': the column appears 2 times in the header"),
 ])
 def test_bad_odometry_is_refused(tmp_path, edit, message):
     d = write_minimal_session(tmp_path / "s", with_odometry=True)

@@ -862,12 +862,22 @@ def _load_ranges(c: _Collector, meta: SessionMeta, t0: float):
     return RangeData(t_s=t[keep] + _offset(meta, "ranges") - t0, range_m=d[keep])
 
 
+ODOMETRY_DUPLICATE_SHARE_MAX = 0.5  # set before looking at logs (no real log repeats an odometry stamp)
+
+
 def _load_odometry(c: _Collector, meta: SessionMeta, t0: float, imu_span_s: tuple[float, float] | None):
     """The optional `odometry` table: time checks, NaN speeds dropped and counted, speed >= 0."""
     got = _timed_table(c, "odometry", schema.ODOMETRY_REQUIRED, schema.ODOMETRY_REQUIRED)
     if got is None:
         return None
     df, fname, t, keep = got
+    dup = int((~keep).sum())
+    if dup > ODOMETRY_DUPLICATE_SHARE_MAX * t.size:
+        # a logger repeats a row now and then; most rows sharing a stamp is a time column that cannot tell the samples apart
+        # (all rows 10.0 kept one of 2401 and ran with exit 0, audit session 13)
+        c.problem(fname, f"{dup} of {t.size} rows repeat the time stamp before them: t cannot resolve the samples (too few "
+                  "decimals, or one value); write t in seconds with enough digits", "t")
+        return None
     v = df["speed_mps"]
     neg = np.flatnonzero(v < 0)
     if neg.size:

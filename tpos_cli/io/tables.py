@@ -98,7 +98,7 @@ def read_table(path: Path, numeric: tuple[str, ...], text: tuple[str, ...] = (),
         table = _read_parquet(path, set(numeric) | set(text) | set(required), required)
         names, n_rows = table.column_names, table.num_rows
     else:
-        table = _read_csv(path)
+        table = _read_csv(path, set(numeric) | set(text) | set(required))
         names, n_rows = list(table.columns), len(table)
         _check_required(path, names, required)
     if n_rows == 0:
@@ -267,7 +267,11 @@ def _to_pandas(path: Path, table: pa.Table) -> pd.DataFrame:
     return df
 
 
-def _read_csv(path: Path) -> pd.DataFrame:
+def _read_csv(path: Path, wanted: set[str] = frozenset()) -> pd.DataFrame:
+    """The CSV table, after the checks of its bytes; a `wanted` column named twice in the header is
+    refused as in a Parquet file (pandas would rename the second `name.1` and read the first)."""
+    import csv
+
     import pandas as pd
 
     try:
@@ -295,6 +299,10 @@ def _read_csv(path: Path) -> pd.DataFrame:
             if sep in header:
                 _fail(path, f"the header is separated by {name}; the contract requires commas", row=None)
     n_header = len(header.split(","))
+    heads = [h.strip() for h in next(csv.reader([header]), [])]
+    repeated = [h for h in heads if h in wanted and heads.count(h) > 1]
+    if repeated:
+        _fail(path, f"the column appears {heads.count(repeated[0])} times in the header; keep one", repeated[0])
     try:
         # index_col=False: a data line with one empty field more than the header (a trailing comma the
         # header lacks) is that trailing comma; pandas' default took the lines' first fields as an index
