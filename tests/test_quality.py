@@ -274,6 +274,8 @@ def test_stated_mounting_against_the_logs_travel_direction():
     assert "or set [imu] mounting_rpy_deg" in quality.mounting_findings(chk)[0].reason
     said = quality.mounting_findings({**chk, **res([0.0, 0.0, 90.0])})[0].reason
     assert "check [imu] axes and the session's [imu] mounting_rpy_deg" in said and "or set" not in said
+    # the chain's own warning takes the same sentence (`stated`, audit session 13: it said "or set" a key the session has)
+    assert quality.mounting_text(90.0, 1.0, stated=True) == quality.mounting_text(90.0, 1.0).replace("or set", "and the session's")
 
 
 def test_a_mounting_in_radians_is_named_end_to_end(sims):

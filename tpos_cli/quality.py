@@ -178,16 +178,19 @@ def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: f
     return out
 
 
-def mounting_text(off_deg: float, spread_deg: float, moving_s: float | None = None, min_speed_mps: float | None = None) -> str:
+def mounting_text(off_deg: float, spread_deg: float, moving_s: float | None = None, min_speed_mps: float | None = None,
+                  stated: bool = False) -> str:
     """The one sentence for the drive chain's mounting check (`fusion.mounting.course_minus_yaw`): the
     chain's warning and the verdict's reason. off_deg: median course over ground minus yaw while
-    moving (deg); spread_deg its spread; moving_s, min_speed_mps: how much motion it rests on."""
+    moving (deg); spread_deg its spread; moving_s, min_speed_mps: how much motion it rests on;
+    stated: the session gives `[imu] mounting_rpy_deg` ("set it" is then no advice: check it)."""
     moving = ("while moving" if moving_s is None or min_speed_mps is None
               else f"while moving faster than {float(min_speed_mps):g} m/s ({float(moving_s):.0f} s)")
+    key = "and the session's [imu] mounting_rpy_deg" if stated else "or set [imu] mounting_rpy_deg"
     return (f"mounting: {moving}, course over ground minus yaw is {float(off_deg):+.0f} deg (spread "
             f"{float(spread_deg):.0f} deg): the IMU's forward axis is turned about {-float(off_deg):+.0f} deg from the "
-            "direction of travel, so the attitude is the IMU's, not the vehicle's; check [imu] axes or set [imu] "
-            "mounting_rpy_deg (a car has little sideslip; a walker or hand-held unit may point elsewhere)")
+            f"direction of travel, so the attitude is the IMU's, not the vehicle's; check [imu] axes {key} "
+            "(a car has little sideslip; a walker or hand-held unit may point elsewhere)")
 
 
 def mounting_findings(results: Mapping | None) -> list[Finding]:
@@ -200,9 +203,7 @@ def mounting_findings(results: Mapping | None) -> list[Finding]:
         return [Finding("mounting", "ok", None, fig)]
     nan = float("nan")
     text = mounting_text(m.get("course_minus_yaw_median_deg", nan), m.get("spread_deg", nan), m.get("moving_s"),
-                         m.get("min_speed_mps"))
-    if _stated_mounting(results) is not None:  # the key is there: "set it" is no advice
-        text = text.replace("check [imu] axes or set [imu] mounting_rpy_deg", "check [imu] axes and the session's [imu] mounting_rpy_deg")
+                         m.get("min_speed_mps"), stated=_stated_mounting(results) is not None)
     return [Finding("mounting", "suspect", text, fig)]
 
 
