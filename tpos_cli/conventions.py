@@ -584,26 +584,18 @@ def gps_force_lag(session) -> dict | None:
 
 
 def gps_clock_lag(session) -> dict | None:
-    """The GPS clock's lag in seconds from the course's turns (`gps_turn_lag`), else from the
-    specific force's magnitude (`gps_force_lag`), with `channel` "course" or "force" and the other
-    channel's figures under its name. The force channel names a lag only where the course channel
-    does not tell another (a correlation of at least GPS_LAG_MIN_CORR at a lag GPS_LAG_MIN_S or more
-    away); when neither names one, the figures are those of the channel with the higher correlation."""
+    """The GPS clock's lag in seconds from the course's turns (`gps_turn_lag`) where they tell (a lag
+    named, or a correlation of at least GPS_LAG_MIN_CORR at its best lag: the force channel is then
+    not read, 18 ms on the drive hour), else from the specific force's magnitude (`gps_force_lag`),
+    with `channel` "course" or "force" and the course channel's figures under "course"; when
+    neither names a lag, the figures are those of the channel with the higher correlation."""
     turn = gps_turn_lag(session)
-    if turn is not None and turn["named"]:
+    if turn is not None and (turn["named"] or turn["correlation"] >= GPS_LAG_MIN_CORR):
         return {**turn, "channel": "course"}
     force = gps_force_lag(session)
-
-    def figs(x):
-        return {k: v for k, v in x.items() if k != "named"}
-
-    if force is not None and force["named"] and not (turn is not None and turn["correlation"] >= GPS_LAG_MIN_CORR
-                                                     and abs(turn["lag_s"] - force["lag_s"]) >= GPS_LAG_MIN_S):
-        return {**force, "channel": "force", **({"course": figs(turn)} if turn is not None else {})}
-    if turn is not None and (force is None or not force["correlation"] > turn["correlation"]):
-        return {**turn, "channel": "course", **({"force": figs(force)} if force is not None else {})}
-    return None if force is None else {**force, "named": False, "channel": "force",
-                                       **({"course": figs(turn)} if turn is not None else {})}
+    if force is None or (turn is not None and not force["named"] and not force["correlation"] > turn["correlation"]):
+        return None if turn is None else {**turn, "channel": "course"}
+    return {**force, "channel": "force", **({"course": {k: v for k, v in turn.items() if k != "named"}} if turn is not None else {})}
 
 
 def gps_lag_findings(session) -> list[Finding]:
