@@ -136,3 +136,17 @@ def test_unused_numpy_modules_load_on_first_use():
         "assert callable(numpy.f2py.get_include) and 'numpy.f2py.crackfortran' in sys.modules\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
+
+
+@pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])
+def test_main_gives_blas_one_thread_unless_the_user_sets_it(given, expected):
+    """`main()` sets OPENBLAS_NUM_THREADS=1 before numpy loads (threads spin-waiting after tpos's dot products took
+    the CPU on a busy machine); a number the user set is kept. In a fresh interpreter (`--version`: numpy never loads)."""
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    code = ("import os, sys\nfrom tpos_cli import cli\nsys.argv = ['tpos', '--version']\n"
+            "try:\n    cli.main()\nexcept SystemExit:\n    pass\nprint(os.environ.get('OPENBLAS_NUM_THREADS'), 'numpy' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout
+    assert out.split()[-2:] == [expected, "False"], out

@@ -91,6 +91,12 @@ for _name, _fn in (("validate", _validate.validate), ("inspect", _inspect.inspec
 def main() -> None:
     """Console-script entry point: a one-line message and exit code 1 for an unexpected failure."""
     _common.mark_one_shot()
+    # One BLAS thread unless the user says otherwise (read when numpy and scipy load their OpenBLAS, after this:
+    # no command module imports numpy at import time). tpos's BLAS calls are dots and small products a second
+    # thread does not speed up, and OpenBLAS threads spin-wait after each call: on a busy machine they took the
+    # CPU from the run (drive hour, 2 cores at load 5: conventions stage 3.2 s instead of 0.33 s, process CPU
+    # 4.3 s instead of 1.8 s). One thread also gives the same sums on every machine, as the benchmarks run.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         app()
     except SystemExit as exc:
