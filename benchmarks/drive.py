@@ -116,12 +116,20 @@ with open(sys.argv[1], "w") as f:
 """
 
 
+# BLAS/OpenMP thread limits a benchmark shell sets and a user's shell does not: the timed child runs without
+# them, as `tpos` runs for a user (the CLI sets what it needs itself, `cli.main`). With them set, the speed
+# figures hid what a user's run paid on a busy machine: OpenBLAS threads spin-waiting after the conventions
+# checks' dot products (drive hour at load 8, 2 cores: 4.3 s CPU instead of 1.8 s).
+_USER_UNSET = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 def child_env() -> dict:
     """A timed `tpos` child's environment: the repository's package with its bytecode cached, as an
     installed package has it (pip compiles it at install): PYTHONDONTWRITEBYTECODE, set in some
-    shells, is dropped, so the untimed warm-up run writes __pycache__."""
+    shells, is dropped, so the untimed warm-up run writes __pycache__; so are `_USER_UNSET`."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    for k in ("PYTHONDONTWRITEBYTECODE", *_USER_UNSET):
+        env.pop(k, None)
     return env
 
 
