@@ -3,6 +3,7 @@
 import re
 import shutil
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -43,6 +44,27 @@ def test_channel_sets_fitted_together_are_each_fit_alone(drive):
     together = estimate_gps_time_offsets(*args, channel_sets=sets)
     alone = [estimate_gps_time_offset(*args, channels=c) for c in sets]
     assert repr(together) == repr(alone)  # floats' repr round-trips: equal bits (and NaN where a channel is unused)
+
+
+def test_a_channel_set_that_cannot_tell_is_a_frozen_record_not_an_error_object(drive):
+    """review (session 12): `estimate_gps_time_offsets` returned a ProcessingError object per set that cannot
+    tell (an exception never raised, in a list); now a frozen NoOffset with its reason, which the one-set
+    wrappers raise as ProcessingError."""
+    import dataclasses
+
+    from tpos_cli.errors import ProcessingError
+    from tpos_cli.timeoffset import NoOffset, estimate_gps_time_offsets
+
+    g, imu = drive.gps, drive.imu
+    flat = np.zeros_like(imu.acc_b_mps2)
+    flat[:, 2] = -9.81  # no forward specific force: the along channel cannot tell
+    args = (imu.t_s, imu.gyro_b_rps, flat, g.t_s, g.vel_ned_mps)
+    course, along = estimate_gps_time_offsets(*args, channel_sets=(("course",), ("along",)))
+    assert isinstance(along, NoOffset) and "do not follow the IMU" in along.reason and not isinstance(course, NoOffset)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        along.reason = "x"
+    with pytest.raises(ProcessingError, match="do not follow the IMU"):
+        estimate_gps_time_offset(*args, channels=("along",))
 
 
 def test_too_little_motion_raises(drive):

@@ -40,6 +40,14 @@ class TimeOffset:
     r2: tuple[float, ...] = ()  # share of each tried channel's variance explained at its best offset
 
 
+@dataclass(frozen=True)
+class NoOffset:
+    """Why a set of channels gives no offset (`estimate_gps_time_offsets`): the one-line reason a
+    ProcessingError carries when a single set is asked for (`estimate_gps_time_offset`)."""
+
+    reason: str
+
+
 def _lowpass(x: np.ndarray, n: int, step: int = 1) -> np.ndarray:
     """Centred moving mean of x (N, ...) along axis 0 over n samples (fewer at the ends), from
     cumulative sums c: row i is (c[hi] - c[lo]) / (hi - lo) with lo = max(i - n // 2, 0) and
@@ -142,8 +150,8 @@ def estimate_gps_time_offset(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_m
     Needs turns or speed changes while moving faster than `min_speed_mps`; raises ProcessingError otherwise.
     """
     (res,) = estimate_gps_time_offsets(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_mps, channel_sets=(channels,), **kw)
-    if isinstance(res, ProcessingError):
-        raise res
+    if isinstance(res, NoOffset):
+        raise ProcessingError(res.reason)
     return res
 
 
@@ -151,11 +159,11 @@ def estimate_gps_time_offsets(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_
                               channel_sets: tuple[tuple[str, ...], ...],
                               max_offset_s: float = 1.0, min_speed_mps: float = 0.5,
                               window_s: float = 0.5, highpass_s: float = 30.0,
-                              min_samples: int = 20, n_blocks: int = 10) -> list[TimeOffset | ProcessingError]:
+                              min_samples: int = 20, n_blocks: int = 10) -> list[TimeOffset | NoOffset]:
     """`estimate_gps_time_offset` from each set of channels in `channel_sets`, on one set of windows
     and integrals (the regressors at each offset tried are formed once for all sets): per set its
-    TimeOffset, or the ProcessingError saying why it cannot tell. Raises ProcessingError when the
-    log has too few GPS windows for any set.
+    TimeOffset, or a NoOffset saying why it cannot tell. Raises ProcessingError when the log has too
+    few GPS windows for any set.
     """
     t = np.asarray(t_imu_s, float)
     acc = np.asarray(acc_b_mps2, float)
@@ -213,7 +221,7 @@ def estimate_gps_time_offsets(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_
             return grid[i] + (0.5 * (grid[1] - grid[0]) * (J[i - 1] - J[i + 1]) / den if den > 0 else 0.0), sse
         return grid[i], sse
 
-    def solve(channels) -> TimeOffset | ProcessingError:
+    def solve(channels) -> TimeOffset | NoOffset:
         # coarse to fine: the cost varies over the window length (0.5 s), so a 0.05 s grid finds its
         # basin, and 0.01 s grids (with a parabola through the best three) refine it
         step = 0.01
@@ -232,7 +240,7 @@ def estimate_gps_time_offsets(t_imu_s, gyro_b_rps, acc_b_mps2, t_gps_s, vel_ned_
         gains = [float(np.linalg.norm(fit(grid[i], wts, channels)[c][1])) for c, i in zip(channels, i_best)]
         use = tuple(c for c, q, k in zip(channels, r2, gains) if q >= MIN_R2 and GAIN_RANGE[0] < k < GAIN_RANGE[1])
         if not use:
-            return ProcessingError(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, "
+            return NoOffset(f"time offset: GPS velocity changes do not follow the IMU (R² {np.array2string(r2, precision=2)}, "
                                    f"gains {np.array2string(np.array(gains), precision=2)}); "
                                    "too little motion, or the GPS velocity is too noisy")
         r2_all = tuple(float(q) for q in r2)
@@ -276,15 +284,15 @@ def estimate_session_offset(session, *, max_span_s: float | None = None, **kw) -
     with `max_span_s`, on the span of the log where GPS course and speed change most (`busiest_span`)."""
     (res,) = estimate_session_offsets(session, channel_sets=(kw.pop("channels", ("course", "along")),),
                                       max_span_s=max_span_s, **kw)
-    if isinstance(res, ProcessingError):
-        raise res
+    if isinstance(res, NoOffset):
+        raise ProcessingError(res.reason)
     return res
 
 
 def estimate_session_offsets(session, *, channel_sets: tuple[tuple[str, ...], ...], max_span_s: float | None = None,
-                             **kw) -> list[TimeOffset | ProcessingError]:
+                             **kw) -> list[TimeOffset | NoOffset]:
     """`estimate_gps_time_offsets` on a loaded Session (`estimate_session_offset`): one TimeOffset or
-    ProcessingError per set of channels; raises ProcessingError when the log cannot tell for any."""
+    NoOffset per set of channels; raises ProcessingError when the log cannot tell for any."""
     g = session.gps
     if g is None:
         raise ProcessingError("time offset: the session has no GPS")
