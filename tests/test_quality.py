@@ -312,8 +312,12 @@ def test_a_mounting_in_radians_on_a_car_platform_is_named_end_to_end(sims):
     get, root = sims
     src = get("drive", mounting_rpy_deg=(0.0, 0.0, 90.0))
     d = M.plant(src, root / "mounting_radians_car" / src.name, M.mounting_stated("[0.0, 0.0, 1.5708]", "mounting_radians"))
-    q = process_session(d, None, d.parent / "run", overrides={"drive_smooth.platform": "car"}).summary["quality"]
+    summary = process_session(d, None, d.parent / "run", overrides={"drive_smooth.platform": "car"}).summary
+    q = summary["quality"]
     assert q["verdict"] == "unreliable" and _named(q, "mounting_rpy_deg", "written in radians?"), q["reasons"]
+    # the chain's own warning says check the key the session gives, not "or set" it (audit13)
+    said = [w for w in summary["warnings"] if w.startswith("mounting:")]
+    assert said and all("the session's [imu] mounting_rpy_deg" in w and "or set" not in w for w in said), said
 
 
 def test_odometry_clock_late_is_named_not_the_unit(sims):

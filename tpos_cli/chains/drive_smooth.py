@@ -643,9 +643,10 @@ def vehicle_axes_attitude(sol: Solution, C_vb, run: FilterRun, attitude_only: bo
     return vehicle_attitude(sol.C_nb, None if attitude_only else sol.P9[:, 6:9, 6:9], C_vb, m, sd, roll_sd)
 
 
-def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s) -> dict | None:
+def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s, stated: bool = False) -> dict | None:
     """Course over ground minus yaw of the best solution while moving (`fusion.mounting`), its
-    attitude in the axes the output reports (`axes`: `in_vehicle_axes` when a mounting applies)."""
+    attitude in the axes the output reports (`axes`: `in_vehicle_axes` when a mounting applies);
+    stated: the session gives `[imu] mounting_rpy_deg` (the sentence then says check it, not set it)."""
     best = next((n for n in ("smoothed", "rts", "two_filter", "forward") if n in sols), None)
     if p.mounting_check_deg <= 0 or best is None:
         return None
@@ -655,7 +656,7 @@ def mounting_check(sols: dict, t_s, p: DriveSmoothParams, axes=lambda s: s) -> d
     out = {"solution": best, "threshold_deg": p.mounting_check_deg, "warning": warn,
            **(chk.summary() if chk is not None else {"moving_s": 0.0})}
     if warn:  # the verdict's own sentence (printed once)
-        out["message"] = mounting_text(chk.median_deg, chk.spread_deg, chk.moving_s, chk.min_speed_mps)
+        out["message"] = mounting_text(chk.median_deg, chk.spread_deg, chk.moving_s, chk.min_speed_mps, stated=stated)
     return out
 
 
@@ -730,7 +731,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
             for k, v in sols.items()}
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
-                       mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True)), C_vb)
+                       mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True),
+                                      stated=session.meta.mounting_rpy_deg is not None), C_vb)
 
 
 def _timed(stage, name: str, fn, *args):
