@@ -29,7 +29,7 @@ from tests.attitude.gen import make
 from tests.attitude.test_local import _setup
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude.local import AttitudeSolution
-from tpos_cli.attitude.smoother import fb_scale, heading_scale, smooth_full
+from tpos_cli.attitude.smoother import fb_scale, heading_scale, heading_split, smooth_full
 from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm, rotvec_to_dcm
 
 N = 20000
@@ -89,6 +89,17 @@ def test_own_excess_is_measured_beside_the_drift():
     d = (gf - gb) * np.sqrt(VAR_GM) + rng.normal(0.0, np.sqrt(2.0 * 40.0) * _own_sd())  # own parts 40x their variance
     f, b = _runs(d, gf, gb)
     assert 40.0 * 0.85 < heading_scale(f, b, stride=1) < 40.0 * 1.15
+
+
+def test_no_drift_is_split_from_a_difference_its_own_parts_explain():
+    rng = np.random.default_rng(3)
+    # own errors as modelled and no drift; the drift's variance profile has the own parts' shape (as on the
+    # simulated paper-grade target sessions, notes marg213.md), so s o + lam g cannot tell them apart: the own
+    # parts explaining the difference (mean NEES <= chi2_1's 95 % point), nothing is split off as drift
+    gf = np.sqrt(2.0) * _own_sd() / np.sqrt(VAR_GM)
+    d = rng.normal(0.0, np.sqrt(2.0) * _own_sd())
+    f, b = _runs(d, gf, np.zeros(N))
+    assert heading_split(f, b, stride=1) == (fb_scale(f, b, stride=1)[1], 0.0)
 
 
 SEEDS = 60
