@@ -24,9 +24,10 @@ inside by construction (the alignment's heading prior is .000-.003 deg on these 
 removing an offset could only lower the NEES. The per-axis NEES above rebuild a NED covariance from the three
 written Euler sigmas as if independent; the column "NEES roll pitch yaw" scores each written sigma against its
 own angle's error (`euler_nees`), the exact test of what the trajectory states.
-The last column needs no truth: LF1's forward/backward consistency scale (`smoother.fb_scale`, mean NEES per dof
-of the two runs' difference against their own covariances; 1 for honest runs), which the smoother's global
-covariance factor is built from.
+The last column needs no truth: LF1's forward/backward consistency scales, tilt (`smoother.fb_scale`, mean NEES per
+dof of the two runs' difference against their own covariances; 1 for honest runs) and heading (`smoother.heading_split`:
+the same test with the gyro scale/misalignment drift the difference holds taken out; 0 where that drift explains
+all of it), which the smoother's covariance factors are built from.
 
     pip install vqf ; python benchmarks/marg_real.py
 """
