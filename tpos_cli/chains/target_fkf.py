@@ -253,7 +253,7 @@ def imu_figures(session: Session, p: TargetFkfParams, start: End, summary: dict)
     fig = resolve_imu_noise(p, session.meta.imu_noise, measured={
         "gyro_noise_dps": measured.get("gyro_dps"), "acc_noise_mg": measured.get("acc_mg"),
         "mag_noise_ut": measured.get("mag_ut")}, measured_label="measured in the still window",
-        keys=("gyro_noise_dps", "acc_noise_mg", "gyro_bias_dph", "acc_bias_mg", "mag_noise_ut", "gyro_scale_const_ppm"))
+        keys=("gyro_noise_dps", "acc_noise_mg", "gyro_bias_dph", "acc_bias_mg", "mag_noise_ut"))
     summary["imu_noise"] = fig.summary()
     rf = session.meta.rangefinders
     return FilterNoise(
@@ -261,7 +261,7 @@ def imu_figures(session: Session, p: TargetFkfParams, start: End, summary: dict)
         gyro_bias_rw_rps_rts=np.radians(p.gyro_bias_rw_dph_per_rth / 3600.0 / 60.0),
         acc_noise_mps2=fig["acc_noise_mg"] * 1e-3 * G0_MPS2, mag_noise_ut=fig["mag_noise_ut"],
         range_sigma_m=rf.sigma_m if (rf is not None and rf.sigma_m is not None) else p.range_sigma_m,
-        gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6, gyro_scale_const_sd=fig["gyro_scale_const_ppm"] * 1e-6,
+        gyro_scale_sd=p.gyro_scale_sd_ppm * 1e-6, gyro_scale_const_sd=p.gyro_scale_const_ppm * 1e-6,
         acc_bias_mps2=fig["acc_bias_mg"] * 1e-3 * G0_MPS2,
         acc_bias_rw_mps2_rts=p.acc_bias_rw_mg_per_rts * 1e-3 * G0_MPS2)
 
