@@ -203,27 +203,47 @@ def _store_transition(out, k, Phi):
         out.ep_phi_extra[k, i] = Phi[N_NAV + i, N_NAV + i]
 
 
+class LoopState(NamedTuple):
+    """The filter loop's state within a sample that a re-acquisition's trial checkpoints and rewinds
+    to (`fusion.reacquire`: the trial): the loop's own arrays (changed in place, never rebound), or a
+    second set of the same shapes holding the checkpoint."""
+
+    P: np.ndarray  # (n, n) error-state covariance
+    nav: np.ndarray  # nominal position, velocity
+    C: np.ndarray  # (3, 3) nominal attitude
+    bias: np.ndarray  # accelerometer and gyro biases
+    dx_sum: np.ndarray  # (n,) the covariance epoch's summed corrections
+    dth_prev: np.ndarray  # (3,) the last angle increment, rad
+    dv_prev: np.ndarray  # (3,) the last velocity increment, m/s
+    consecutive: np.ndarray  # (slots,) int64: each slot's rejections in a row
+    ring_t: np.ndarray  # each slot's last rejections (`fusion.reacquire.ring`)
+    ring_nu: np.ndarray
+    ring_R: np.ndarray
+    anc_t: np.ndarray  # each slot's last accepted row, after its update (`fusion.reacquire.anchors`)
+    anc_nu: np.ndarray
+    anc_R: np.ndarray
+    anc_ok: np.ndarray
+
+
 @njit(cache=True, error_model="numpy", nogil=True)
-def _copy_state(P, nav, C, bias, dx, dth, dv, cons, ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok,
-                P2, nav2, C2, bias2, dx2, dth2, dv2, cons2, ring_t2, ring_nu2, ring_R2, anc_t2, anc_nu2, anc_R2, anc_ok2):
-    """The filter loop's state within a sample (covariance, nominal, biases, the epoch's summed
-    corrections, the last increments, each slot's rejection count, ring and anchor) copied into the
-    second set of arrays: a re-acquisition's checkpoint, or the rewind to it (`fusion.reacquire`)."""
-    P2[:] = P
-    nav2[:] = nav
-    C2[:] = C
-    bias2[:] = bias
-    dx2[:] = dx
-    dth2[:] = dth
-    dv2[:] = dv
-    cons2[:] = cons
-    ring_t2[:] = ring_t
-    ring_nu2[:] = ring_nu
-    ring_R2[:] = ring_R
-    anc_t2[:] = anc_t
-    anc_nu2[:] = anc_nu
-    anc_R2[:] = anc_R
-    anc_ok2[:] = anc_ok
+def _copy_state(src, dst):
+    """Every array of LoopState `src` copied into `dst`'s: a re-acquisition's checkpoint, or the
+    rewind to it (`fusion.reacquire`)."""
+    dst.P[:] = src.P
+    dst.nav[:] = src.nav
+    dst.C[:] = src.C
+    dst.bias[:] = src.bias
+    dst.dx_sum[:] = src.dx_sum
+    dst.dth_prev[:] = src.dth_prev
+    dst.dv_prev[:] = src.dv_prev
+    dst.consecutive[:] = src.consecutive
+    dst.ring_t[:] = src.ring_t
+    dst.ring_nu[:] = src.ring_nu
+    dst.ring_R[:] = src.ring_R
+    dst.anc_t[:] = src.anc_t
+    dst.anc_nu[:] = src.anc_nu
+    dst.anc_R[:] = src.anc_R
+    dst.anc_ok[:] = src.anc_ok
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -295,10 +315,13 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     anc_t, anc_nu, anc_R, anc_ok = anchors(n_slots)  # each slot's last accepted row, after its update
     f_stated = np.ones(3)  # a row's factors from R to its stated accuracy (`fusion.reacquire.stated_factors`)
     # the re-acquisition's trial of its two readings (`fusion.reacquire`: the trial): the loop's state at the re-acquired row
-    ck_P, ck_nav, ck_C, ck_bias, ck_dx = np.empty_like(P), np.empty_like(nav), np.empty_like(C), np.empty_like(bias), np.empty(n)
-    ck_dth, ck_dv, ck_cons = np.empty(3), np.empty(3), np.empty(n_slots, np.int64)
+    live = LoopState(P, nav, C, bias, dx_sum, dth_prev, dv_prev, consecutive, ring_t, ring_nu, ring_R, anc_t, anc_nu,
+                     anc_R, anc_ok)
     ck_ring_t, ck_ring_nu, ck_ring_R = ring(n_slots)
     ck_anc_t, ck_anc_nu, ck_anc_R, ck_anc_ok = anchors(n_slots)
+    ck = LoopState(np.empty_like(P), np.empty_like(nav), np.empty_like(C), np.empty_like(bias), np.empty(n), np.empty(3),
+                   np.empty(3), np.empty(n_slots, np.int64), ck_ring_t, ck_ring_nu, ck_ring_R, ck_anc_t, ck_anc_nu,
+                   ck_anc_R, ck_anc_ok)
     ck_k, ck_e, ck_ep, ck_r, ck_last = 0, 0, 0, 0, 0
     trial = _NO_TRIAL  # _NO_TRIAL, _FIRST (JUMP tried), _SECOND (DRIFT tried), _REPLAY (JUMP chosen, re-run)
     reading = DRIFT
@@ -410,10 +433,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                             if trial == _NO_TRIAL:  # the loop's state here, to try each reading from (`fusion.reacquire`: the trial)
                                 trial, reading, trial_slot, trial_seen, score = _FIRST, JUMP, slot, 0, 0.0
                                 ck_k, ck_e, ck_ep, ck_r, ck_last = k, e, ep, r, last
-                                _copy_state(P, nav, C, bias, dx_sum, dth_prev, dv_prev, consecutive, ring_t, ring_nu,
-                                            ring_R, anc_t, anc_nu, anc_R, anc_ok, ck_P, ck_nav, ck_C, ck_bias, ck_dx,
-                                            ck_dth, ck_dv, ck_cons, ck_ring_t, ck_ring_nu, ck_ring_R, ck_anc_t,
-                                            ck_anc_nu, ck_anc_R, ck_anc_ok)
+                                _copy_state(live, ck)
                             res.inflation[e, 0] = inflate_to_fit(P, H, R, z, m, st.gate[m], reading == JUMP)  # P grown
                             accept = True
                         elif last_chance and beyond:  # not a drift: wrong fixes, in at the gate's edge
@@ -464,9 +484,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 for i in range(ck_e, e):
                     res.inflation[i, 0] = 1.0
                     res.inflation[i, 1] = 1.0
-                _copy_state(ck_P, ck_nav, ck_C, ck_bias, ck_dx, ck_dth, ck_dv, ck_cons, ck_ring_t, ck_ring_nu,
-                            ck_ring_R, ck_anc_t, ck_anc_nu, ck_anc_R, ck_anc_ok, P, nav, C, bias, dx_sum, dth_prev,
-                            dv_prev, consecutive, ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok)
+                _copy_state(ck, live)
                 k, e, ep, r, last = ck_k, ck_e, ck_ep, ck_r, ck_last
                 for i in range(3):
                     w_ib[i] = dth_prev[i] / (imu.t[k] - imu.t[k - 1])  # (the rows' body rate at sample k)
