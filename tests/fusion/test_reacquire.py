@@ -164,6 +164,7 @@ def test_a_filter_knocked_off_by_a_jump_reacquires_its_fixes():
     assert acc[:20].all() and not acc[20:23].any()
     j = 20 + np.flatnonzero(infl[20:, 0] > 1.0)
     assert j.size == 1 and j[0] <= 25 and acc[j[0]]  # re-acquired once, by the 6th rejected fix
+    assert np.flatnonzero(run.ev_jump).tolist() == [j[0]]  # and read as a jump (the trial kept JUMP)
     assert np.all(infl[:, 1] == 1.0)  # nothing down-weighted
     old = _knocked(reacquire=False)
     assert np.max(np.abs(_north_error_m(old))[old.ep_idx[(old.t_s[old.ep_idx] >= 30.0)]]) > 3.0
@@ -196,7 +197,7 @@ def test_fixes_wandering_within_their_stated_accuracy_are_not_taken_for_a_drift(
     meas = _fixes(t_fix, off)
     run = _run(_nav(), 0.05, 0.01, meas, seconds=60.0, stated=75.0)
     assert (~run.ev_accepted).sum() >= 10  # runs of rejections
-    assert np.all(run.ev_inflation == 1.0)  # never re-acquired nor down-weighted
+    assert np.all(run.ev_inflation == 1.0) and not run.ev_jump.any()  # never re-acquired nor down-weighted
     old = _run(_nav(), 0.05, 0.01, meas, seconds=60.0, reacquire=False)
     assert_allclose(run.ev_nis, old.ev_nis, rtol=0, atol=0)  # the old rule exactly
     tight = _run(_nav(), 0.05, 0.01, meas, seconds=60.0, stated=1.0)

@@ -883,15 +883,18 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
 def gps_reacquisitions(run: FilterRun) -> dict:
     """Per GPS kind of a run (`fusion.reacquire`): re-acquisitions (rejected fixes applied because
     they continued the filter's error from the last accepted fix, beyond their stated accuracy)
-    with the largest factor the position/velocity covariance was grown by, and down-weighted fixes
-    (applied after a long run of rejections beyond their stated accuracy that were no drift, R
-    grown to the gate's edge) with the largest factor of R."""
+    with the largest factor the position/velocity covariance was grown by and how many of them were
+    read as a jump of the filter (its position/velocity alone grown; the others as a drift, with
+    their cross terms), and down-weighted fixes (applied after a long run of rejections beyond their
+    stated accuracy that were no drift, R grown to the gate's edge) with the largest factor of R."""
     infl = run.ev_inflation if run.ev_inflation is not None else np.ones((len(run.measurements), 2))
+    jump = run.ev_jump if run.ev_jump is not None else np.zeros(len(run.measurements), dtype=bool)
     out = {}
     for kind, k in zip(GPS_KINDS, (Kind.GPS_POSITION, Kind.GPS_VELOCITY), strict=True):
         r = (run.measurements.kind == k) & (infl[:, 0] != 1.0)
         d = (run.measurements.kind == k) & (infl[:, 1] != 1.0)
-        out[kind] = {"count": int(r.sum()), "max_factor": round(float(infl[r, 0].max()), 3) if r.any() else 1.0,
+        out[kind] = {"count": int(r.sum()), "read_as_jump": int((r & jump).sum()),
+                     "max_factor": round(float(infl[r, 0].max()), 3) if r.any() else 1.0,
                      "downweighted": int(d.sum()), "max_r_factor": round(float(infl[d, 1].max()), 3) if d.any() else 1.0}
     return out
 

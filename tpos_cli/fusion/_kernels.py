@@ -156,7 +156,9 @@ class EventResults(NamedTuple):
     """Per measurement (kernel order): nu (E, 3) residual about the nominal, pvar (E, 3) diagonal
     of H P- H^T, nis (E,), logdet (E,) log det S, accepted (E,), inflation (E, 2) the factors
     a re-acquisition grew the navigation covariance by and a long-rejected scattering row's R was
-    grown by before the update (1: none; pvar, nis and logdet are then those the update used)."""
+    grown by before the update (1: none; pvar, nis and logdet are then those the update used),
+    jump (E,) a re-acquired row read as a jump of the filter's position/velocity (`fusion.reacquire`:
+    the trial kept JUMP; False where it kept DRIFT or nothing was re-acquired)."""
 
     nu: np.ndarray
     pvar: np.ndarray
@@ -164,6 +166,7 @@ class EventResults(NamedTuple):
     logdet: np.ndarray
     accepted: np.ndarray
     inflation: np.ndarray
+    jump: np.ndarray
 
 
 @njit(cache=True, error_model="numpy")
@@ -435,6 +438,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                                 ck_k, ck_e, ck_ep, ck_r, ck_last = k, e, ep, r, last
                                 _copy_state(live, ck)
                             res.inflation[e, 0] = inflate_to_fit(P, H, R, z, m, st.gate[m], reading == JUMP)  # P grown
+                            res.jump[e] = reading == JUMP
                             accept = True
                         elif last_chance and beyond:  # not a drift: wrong fixes, in at the gate's edge
                             res.inflation[e, 1] = deweight_to_fit(P, H, R, z, m, st.gate[m])
@@ -484,6 +488,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 for i in range(ck_e, e):
                     res.inflation[i, 0] = 1.0
                     res.inflation[i, 1] = 1.0
+                    res.jump[i] = False
                 _copy_state(ck, live)
                 k, e, ep, r, last = ck_k, ck_e, ck_ep, ck_r, ck_last
                 for i in range(3):

@@ -232,7 +232,8 @@ class FilterRun:
     dim or when not processed), ev_pvar (E, 3) diagonal of H P- H^T (R excluded), ev_nis (E,) (NaN
     when not processed, e.g. outside the run), ev_logdet (E,) log det S, ev_accepted (E,),
     ev_inflation (E, 2) the factors a re-acquisition grew the navigation covariance by and a
-    long-rejected scattering row's R was grown by (1: none; `fusion.reacquire`).
+    long-rejected scattering row's R was grown by (1: none; `fusion.reacquire`), ev_jump (E,) the
+    re-acquired rows read as a jump of the filter's position/velocity (its trial kept JUMP).
     """
 
     backward: bool
@@ -256,6 +257,7 @@ class FilterRun:
     ep_phi_extra: np.ndarray | None = None
     idx: np.ndarray | None = None
     ev_inflation: np.ndarray | None = None  # (E, 2) [P, R] factors of re-acquired / down-weighted rows (1: none)
+    ev_jump: np.ndarray | None = None  # (E,) re-acquired rows read as a jump (the trial kept JUMP; `fusion.reacquire`)
 
     def rows(self, idx) -> np.ndarray:
         """Rows of nav, C_nb and bias that hold the run-local samples idx (which the run must have
@@ -349,7 +351,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                   ep_P, dx_o)
     m = order.size
     res = EventResults(np.full((m, 3), np.nan), np.full((m, 3), np.nan), np.full(m, np.nan), np.full(m, np.nan),
-                       np.zeros(m, np.bool_), np.ones((m, 2)))
+                       np.zeros(m, np.bool_), np.ones((m, 2)), np.zeros(m, np.bool_))
     st = Settings(np.asarray(cfg.q, dtype=float), float(cfg.tau_acc_s), float(cfg.tau_gyro_s), -1.0 if backward else 1.0,
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
                   chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(cfg.reacquire),
@@ -368,7 +370,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     E = len(meas)
     nu, pvar = np.full((E, 3), np.nan), np.full((E, 3), np.nan)
     nis, logdet, accepted, inflation = np.full(E, np.nan), np.full(E, np.nan), np.zeros(E, dtype=bool), np.ones((E, 2))
-    nu[order], pvar[order], nis[order], logdet[order], accepted[order], inflation[order] = res
+    jump = np.zeros(E, dtype=bool)
+    nu[order], pvar[order], nis[order], logdet[order], accepted[order], inflation[order], jump[order] = res
     ep_idx, ep_P, ep_dx = out.ep_idx[:n_used], out.ep_P[:n_used], out.ep_dx[:n_used]
     nav, C, bias = out.nav, out.C, out.bias  # a backward run's stored in forward order (reverse_out)
     if backward:
@@ -388,7 +391,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     return FilterRun(backward, k0, np.asarray(t_s, dtype=float)[k0:], nav, C, bias, ep_idx, SymmetricStack(ep_P, ns),
                      out.ep_Phi[:n_used] if rts else None, out.ep_Ppred[:n_used] if rts else None, ep_dx,
                      lay, meas, nu, pvar, nis, logdet, accepted, out.ep_phi_extra[:n_used] if rts else None, keep,
-                     inflation)
+                     inflation, jump)
 
 
 def _reused(arrays, *shapes) -> list[np.ndarray]:
