@@ -554,7 +554,9 @@ def real_logs(overrides: dict | None = None, logs: tuple | None = None) -> None:
             for kind, ck in res["forward_nis_check"].items():
                 if ck is not None:
                     print(f"{'':28s}forward {kind} NIS {ck['mean']:.2f}, dof {ck['dof']:.0f} [{ck['band95'][0]:.2f}, "
-                          f"{ck['band95'][1]:.2f}], {ck['fixes']} applied, {res['gps_rejected'][f'forward_{kind}']} rejected")
+                          f"{ck['band95'][1]:.2f}], {ck['fixes']} applied, {res['gps_rejected'][f'forward_{kind}']} rejected"
+                          + "".join(f"; {name} {r['mean']:.2f} [{r['band95'][0]:.2f}, {r['band95'][1]:.2f}] of {r['fixes']}"
+                                    for name, r in (ck.get("by_regime") or {}).items()))
             for kind, ck in c.get("forward", {}).items():
                 if isinstance(ck, dict) and "rows" in ck and ck["nis"] is not None:
                     print(f"{'':28s}forward {kind}: {ck['rows']} rows, {ck['rejected']} rejected, NIS {ck['nis']['mean']:.2f} "

@@ -202,6 +202,13 @@ def test_default_pipeline_on_a_real_walk(tmp_path):
     e = lla_to_ned(lla, ref[0]) - lla_to_ned(ref, ref[0])
     # truth is the RTK solution the filter uses (floored to 0.3 m SD): smoothed within 0.3 m RMS
     assert np.sqrt(np.mean(np.hypot(e[:, 0], e[:, 1]) ** 2)) < 0.3
+    # the walker stops: the NIS check also on the fixes at its stops and on those while moving (each fix in one)
+    assert len(res["constraints"]["stop_intervals_s"]) == res["constraints"]["stops"] > 0
+    for kind in ("gps_pos", "gps_vel"):
+        chk = res["forward_nis_check"][kind]
+        reg = chk["by_regime"]
+        assert reg["standing"]["fixes"] > 0 and reg["moving"]["fixes"] > 0
+        assert reg["standing"]["fixes"] + reg["moving"]["fixes"] == chk["fixes"]
 
 
 def test_summary_reports_gps_noise_nis_band_and_mounting(session_dir, tmp_path):

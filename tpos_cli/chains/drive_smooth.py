@@ -331,7 +331,9 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
                          min_duration_s=p.stop_min_duration_s)
     platform, decided = p.platform, "pipeline"
     mounting = session.meta.mounting_rpy_deg
-    out: dict = {"stops": int(stops.intervals_s.shape[0]), "stopped_s": round(stops.total_s, 1), "stops_from": stops.sources}
+    out: dict = {"stops": int(stops.intervals_s.shape[0]), "stopped_s": round(stops.total_s, 1), "stops_from": stops.sources,
+                 "stop_intervals_s": [[round(float(a) + session.t0_s, 2), round(float(b) + session.t0_s, 2)]
+                                      for a, b in stops.intervals_s]}  # on the logger clock, as outages_s
     C_vb = None
     if mounting is not None:
         C_vb = euler_to_dcm(*np.radians(np.asarray(mounting, dtype=float)))
@@ -856,11 +858,18 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     if mounting is not None and "message" in mounting:
         ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
     gi = res.innovations("forward")
+    standing = _at_stops(res.fixes.t_s, (res.info.get("constraints") or {}).get("stop_intervals_s"), t0_s)
     mean_nis, nis_check = {}, {}
     for j, kind in enumerate(GPS_KINDS):
-        a = gi.nis[gi.accepted[:, j], j]
+        used = gi.accepted[:, j]
+        a = gi.nis[used, j]
         mean_nis[kind] = float(np.mean(a)) if a.size else None
-        nis_check[kind] = nis_band(a, gi.innovation[gi.accepted[:, j], 3 * j: 3 * j + 3])
+        nis_check[kind] = nis_band(a, gi.innovation[used, 3 * j: 3 * j + 3])
+        if nis_check[kind] is not None and standing is not None and (used & standing).any() and (used & ~standing).any():
+            # the same check on the fixes at stops and while moving: one noise figure serves both, and the mean of
+            # the whole run is a mixture whose value moves with the share of each (notes diag13.md)
+            nis_check[kind]["by_regime"] = {name: nis_band(gi.nis[used & sel, j], gi.innovation[used & sel, 3 * j: 3 * j + 3])
+                                            for name, sel in (("standing", standing), ("moving", ~standing))}
     return {
         "alignment": {k: v for k, v in res.info.items() if k != "lever_arm"},  # that one: "lever_arm" below
         "smoothed_method": p.smoother,
@@ -878,6 +887,15 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "constraints": {**res.info.get("constraints", {}), "forward": constraint_summary(res.forward),
                         "backward": constraint_summary(res.backward)},
     }
+
+
+def _at_stops(t_s, intervals_s, t0_s: float) -> np.ndarray | None:
+    """(M,) bool: the fixes at times t_s (session seconds) inside a detected stop (`intervals_s`,
+    [[t0, t1]] on the logger clock: summary's constraints.stop_intervals_s); None without stops."""
+    if not intervals_s:
+        return None
+    iv = np.asarray(intervals_s, dtype=float) - t0_s
+    return np.any((t_s[:, None] >= iv[None, :, 0]) & (t_s[:, None] <= iv[None, :, 1]), axis=1)
 
 
 def gps_reacquisitions(run: FilterRun) -> dict:
