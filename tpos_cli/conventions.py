@@ -381,6 +381,13 @@ GPS_LAG_SPAN_S = 2.0 * ODO_LAG_MAX_S  # GPS span read at most (the busiest) by t
 LAG_MAX_GAP_STEPS = 3.0  # a series' interval beyond this many of its median steps is a gap (an outage), not interpolated
 
 
+def _rows_about(t_s, a_s: float, b_s: float) -> slice:
+    """The rows of a sorted series (IMU, odometry) a bounded lag search reads about the GPS span
+    [a_s, b_s]: it and the lags searched (ODO_LAG_MAX_S) on either side, both ends included."""
+    lo, hi = a_s - ODO_LAG_MAX_S - 1.0, b_s + ODO_LAG_MAX_S + 1.0
+    return slice(int(np.searchsorted(t_s, lo)), int(np.searchsorted(t_s, hi, side="right")))
+
+
 def _lagged_correlation(g: np.ndarray, o: np.ndarray, k: int, min_n: int) -> float:
     """Pearson correlation of g[i] with o[i + k] over the rows where both are finite (NaN if fewer
     than min_n or either is constant there)."""
@@ -407,7 +414,7 @@ def odometry_lag(t_gps, speed_gps, t_odo, speed_odo) -> dict | None:
     if tg.size > 1 and tg[-1] - tg[0] > GPS_LAG_SPAN_S:  # a bounded read of hours
         a, b = busiest_span(tg, np.column_stack([vg, np.zeros(tg.size)]), GPS_LAG_SPAN_S)
         g = (tg >= a) & (tg <= b)
-        o = (to >= a - ODO_LAG_MAX_S - 1.0) & (to <= b + ODO_LAG_MAX_S + 1.0)
+        o = _rows_about(to, a, b)
         tg, vg, to, vo = tg[g], vg[g], to[o], vo[o]
     return best_lag(tg, vg, to, vo, ODO_LAG_MIN_S, ODO_LAG_MIN_CORR)
 
@@ -477,10 +484,6 @@ GPS_LAG_MIN_SPEED_MPS = 2.0  # the course of a slower platform is mostly noise
 GPS_LAG_STEP_S = 0.5
 
 
-def _imu_rows_about(t_imu_s, a_s: float, b_s: float) -> slice:
-    """The IMU rows a bounded lag search reads about the GPS span [a_s, b_s]: it and the lags
-    searched (ODO_LAG_MAX_S) on either side."""
-    return slice(int(np.searchsorted(t_imu_s, a_s - ODO_LAG_MAX_S - 1.0)), int(np.searchsorted(t_imu_s, b_s + ODO_LAG_MAX_S + 1.0)))
 
 
 def gps_turn_lag(session) -> dict | None:
@@ -507,7 +510,7 @@ def gps_turn_lag(session) -> dict | None:
         a, b = busiest_span(t, v, GPS_LAG_SPAN_S)  # IMU over it and the lags searched on either side
         keep = (tm >= a) & (tm <= b)
         tm, rate_g = tm[keep], rate_g[keep]
-        sel = _imu_rows_about(ti, a, b)
+        sel = _rows_about(ti, a, b)
         if np.isfinite(rate_g).sum() < ODO_MIN_SAMPLES:
             return None
     ti = ti[sel]
@@ -569,7 +572,7 @@ def gps_force_lag(session) -> dict | None:
         lo, hi = busiest_span(t, v, GPS_LAG_SPAN_S)
         keep = (tm >= lo) & (tm <= hi)
         tm, f2_g = tm[keep], f2_g[keep]
-        sel = _imu_rows_about(ti, lo, hi)
+        sel = _rows_about(ti, lo, hi)
     if np.isfinite(f2_g).sum() < ODO_MIN_SAMPLES:
         return None
     ti, acc = ti[sel], np.asarray(imu.acc_b_mps2, dtype=float)[sel]
