@@ -211,6 +211,18 @@ def test_default_pipeline_on_a_real_walk(tmp_path):
         assert reg["standing"]["fixes"] + reg["moving"]["fixes"] == chk["fixes"]
 
 
+def test_fixes_at_stops_are_classified_on_the_unrounded_stop_intervals():
+    """The per-regime NIS check classes a fix as standing from the detected stops themselves, not the
+    summary's copy rounded to 0.01 s: a fix 3 ms before a stop that starts at 12.004 s is moving
+    (the rounded start, 12.00 s, took it in)."""
+    from tpos_cli.chains.drive_smooth import _at_stops
+
+    t = np.array([12.001, 12.004, 15.0, 20.0, 20.003, 30.0])
+    got = _at_stops(t, np.array([[12.004, 20.0]]))
+    assert got.tolist() == [False, True, True, True, False, False]
+    assert _at_stops(t, np.zeros((0, 2))) is None and _at_stops(t, None) is None
+
+
 def test_summary_reports_gps_noise_nis_band_and_mounting(session_dir, tmp_path):
     """A correctly mounted simulated car: estimated GPS SDs = the simulated ones, no mounting warning."""
     _, path = session_dir

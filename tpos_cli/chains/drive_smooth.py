@@ -202,6 +202,7 @@ class DriveResult:
     info: dict
     mounting: dict | None = None  # course - yaw check of the first solution in `names` after forward
     C_vb: np.ndarray | None = None  # IMU body to vehicle axes, when the run applied a mounting (NHC)
+    stop_intervals_s: np.ndarray | None = None  # (K, 2) detected stops, session seconds (unrounded)
 
     def innovations(self, run: str = "forward") -> GpsInnovations:
         """Per-fix results of the forward or backward run."""
@@ -317,13 +318,14 @@ COARSE_RATE_HZ = 25.0  # IMU rate of the first pass that finds the mounting
 
 
 def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState,
-                       cfg: FilterConfig, info: dict) -> tuple[FilterConfig, Measurements | None]:
+                       cfg: FilterConfig, info: dict) -> tuple[FilterConfig, Measurements | None, np.ndarray]:
     """The platform's motion constraints (`fusion.constraints`): stops from GPS / odometer speed
     (ZUPT, and ZARU on a wheeled vehicle), NHC in the vehicle axes of a wheeled one. The mounting
     comes from `[imu] mounting_rpy_deg`, else from the travel direction of a first forward run,
     which also decides an `auto` platform; there the trial pass's residual misalignment refines it
     (a slow rover's first run holds its heading only to 8-19 deg, and the travel direction inherits
-    that). Records what was decided in info["constraints"]."""
+    that). Records what was decided in info["constraints"]; also returns the detected stops
+    ((K, 2) session seconds, unrounded: the summary's copy is rounded to 0.01 s)."""
     gps = session.gps
     odo = session.odometry
     stops = detect_stops(gps.t_s[gps.valid], gps.vel_ned_mps[gps.valid], None if odo is None else odo.t_s,
@@ -410,7 +412,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         cfg = dataclasses.replace(cfg, layout=StateLayout((*cfg.layout.blocks, odometer_block(p.odometer_scale_sigma))))
         out["odometry"] = {"samples": int(odo.t_s.size), "scale_prior_sigma": p.odometer_scale_sigma}
     parts = [m for m in parts if m is not None and len(m)]
-    return cfg, (Measurements.merge(*parts) if parts else None)
+    return cfg, (Measurements.merge(*parts) if parts else None), np.asarray(stops.intervals_s, dtype=float).reshape(-1, 2)
 
 
 def lever_arm_states(p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict) -> FilterConfig:
@@ -681,7 +683,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                                  "source": "pipeline" if p.gps_vel_latency_s is not None else
                                  ("the filter's velocity clock state" if p.gps_clock_sigma_s > 0 else "the log's positions")}
     with stage("constraints"):
-        cfg, extra = motion_constraints(imu, session, p, fixes, init, cfg, info)
+        cfg, extra, stop_intervals_s = motion_constraints(imu, session, p, fixes, init, cfg, info)
         cfg = lever_arm_states(p, fixes, init, cfg, info)
     with stage("gps_noise"):
         fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra)
@@ -734,7 +736,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     C_vb = cfg.C_vb if cfg.layout.offset(Block.MOUNTING) >= 0 else None
     return DriveResult(imu.t, out_idx, fwd, bwd, sols, flag, nis, outages, fixes, info,
                        mounting_check(sols, imu.t, p, lambda s: in_vehicle_axes(s, C_vb, fwd, attitude_only=True),
-                                      stated=session.meta.mounting_rpy_deg is not None), C_vb)
+                                      stated=session.meta.mounting_rpy_deg is not None), C_vb, stop_intervals_s)
 
 
 def _timed(stage, name: str, fn, *args):
@@ -858,7 +860,7 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     if mounting is not None and "message" in mounting:
         ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
     gi = res.innovations("forward")
-    standing = _at_stops(res.fixes.t_s, (res.info.get("constraints") or {}).get("stop_intervals_s"), t0_s)
+    standing = _at_stops(res.fixes.t_s, res.stop_intervals_s)
     mean_nis, nis_check = {}, {}
     for j, kind in enumerate(GPS_KINDS):
         used = gi.accepted[:, j]
@@ -889,12 +891,14 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     }
 
 
-def _at_stops(t_s, intervals_s, t0_s: float) -> np.ndarray | None:
-    """(M,) bool: the fixes at times t_s (session seconds) inside a detected stop (`intervals_s`,
-    [[t0, t1]] on the logger clock: summary's constraints.stop_intervals_s); None without stops."""
-    if not intervals_s:
+def _at_stops(t_s, intervals_s) -> np.ndarray | None:
+    """(M,) bool: the fixes at times t_s inside a detected stop (`intervals_s` (K, 2) on the same
+    clock: `DriveResult.stop_intervals_s`, session seconds; not the summary's copy, rounded to
+    0.01 s on the logger clock, which can move a fix near a stop's end to the other regime); None
+    without stops."""
+    if intervals_s is None or not len(intervals_s):
         return None
-    iv = np.asarray(intervals_s, dtype=float) - t0_s
+    iv = np.asarray(intervals_s, dtype=float).reshape(-1, 2)
     return np.any((t_s[:, None] >= iv[None, :, 0]) & (t_s[:, None] <= iv[None, :, 1]), axis=1)
 
 
