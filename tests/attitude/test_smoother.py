@@ -171,3 +171,27 @@ def test_smoothed_heading_sigma_with_a_drift_the_filters_do_not_model():
     nees = _heading_nees(3e-3, modelled=False)
     lo, hi = chi2.ppf([0.025, 0.975], SEEDS) / SEEDS
     assert lo < nees.mean() < hi, (nees.mean(), lo, hi)
+
+
+def test_the_runs_difference_covariance_is_formed_once_per_smoothed_solution(monkeypatch):
+    # fb_scale, heading_split and the drift's split (where the gate opens: a modelled dM) all read the runs'
+    # own difference covariance; on full arrays it is formed once (memory and time of an hour at 100 Hz)
+    from tpos_cli.attitude import master
+
+    calls = []
+    real = master.difference_cov
+
+    def counted(a, b, gyro_scale=True):
+        calls.append(gyro_scale)
+        return real(a, b, gyro_scale)
+
+    monkeypatch.setattr(master, "difference_cov", counted)
+    rng = np.random.default_rng(7)
+    g = make(_rpy, duration_s=DURATION_S, seed=7, bias_rps=rng.normal(0, 3e-5, 3), mag_dist_ut=_room_magnet)
+    st = _setup(g, rng)
+    st = replace(st, noise=replace(st.noise, gyro_scale_const_sd=3e-3))
+    gyro = g.gyro + g.gyro @ rng.normal(0.0, 3e-3, (3, 3)).T
+    s = smooth_full("lf1", g.t, gyro, g.acc, g.mag, None, _own_end(g, rng, st, 0), K.USE_ACC | K.USE_MAG,
+                    _own_end(g, rng, st, -1))
+    assert s.fb_scale is not None
+    assert calls.count(False) == 1, calls
