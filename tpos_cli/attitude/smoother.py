@@ -44,13 +44,23 @@ from tpos_cli.attitude.local import AttitudeSolution, FilterSetup, run_full
 from tpos_cli.frames.rotation import dcm_to_rotvec, rotvec_to_dcm
 
 
-def fb_scale(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10, diff_cov=None) -> tuple[float, float]:
+def own_difference_cov(fwd: AttitudeSolution, bwd: AttitudeSolution) -> np.ndarray:
+    """(N,3,3) covariance of the runs' difference from their own parts, the gyro's scale/misalignment left out
+    (`master.difference_cov(gyro_scale=False)`): what `fb_scale`, `heading_split` and `smooth_full` test the
+    difference against. Formed on full arrays, so a caller that needs it more than once forms it once and
+    passes it (`own`)."""
+    return master.difference_cov(fwd, bwd, gyro_scale=False)
+
+
+def fb_scale(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10, diff_cov=None,
+             own: np.ndarray | None = None) -> tuple[float, float]:
     """(tilt, heading) mean of d^T (P_f + P_b + D)^-1 d per dof over the samples (every `stride`-th);
     D (3,3) the covariance of a difference the runs' own covariances leave out by design (a consider
-    term, e.g. the two ends' different levelling errors from one accelerometer bias), default none."""
+    term, e.g. the two ends' different levelling errors from one accelerometer bias), default none.
+    `own`: `own_difference_cov(fwd, bwd)` if the caller has it (else formed here)."""
     sl = slice(None, None, max(1, stride))
     d = dcm_to_rotvec(fwd.C_nb[sl] @ np.swapaxes(bwd.C_nb[sl], 1, 2))
-    S = master.difference_cov(fwd, bwd, gyro_scale=False)[sl]
+    S = (own_difference_cov(fwd, bwd) if own is None else own)[sl]
     if diff_cov is not None:
         S = S + np.asarray(diff_cov, dtype=float)[None]
     St = S[:, 0:2, 0:2]
@@ -74,7 +84,8 @@ DRIFT_DRAW_MAX = float(chi2.ppf(0.95, 1))
 DRIFT_TEST_MIN = float(chi2.ppf(0.95, 1))
 
 
-def heading_split(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10, diff_cov=None) -> tuple[float, float]:
+def heading_split(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10, diff_cov=None,
+                  own: np.ndarray | None = None) -> tuple[float, float]:
     """(s, lam): the forward/backward heading test with the difference's whole modelled covariance. d, the runs'
     heading difference over the samples (every `stride`-th), is taken as N(0, s o + lam g), o its own covariance
     (`fb_scale`'s, the part s multiplies: what the model leaves out scales the noises it has) and
@@ -88,10 +99,10 @@ def heading_split(fwd: AttitudeSolution, bwd: AttitudeSolution, stride: int = 10
     difference is nearly constant where the field is refused) whose realized size may exceed its prior SD, and a
     gyro whose dM is far smaller than the prior's (a sim without it) shows none (lam -> 0). Without the
     sensitivity, or where the own parts explain the difference (`fb_scale`'s heading scale s0 <= DRIFT_TEST_MIN):
-    (s0, 0), the test of main."""
+    (s0, 0), the test of main. `own`: as `fb_scale`'s."""
     sl = slice(None, None, max(1, stride))
     d2 = dcm_to_rotvec(fwd.C_nb[sl] @ np.swapaxes(bwd.C_nb[sl], 1, 2))[:, 2] ** 2
-    o = master.difference_cov(fwd, bwd, gyro_scale=False)[sl][:, 2, 2]
+    o = (own_difference_cov(fwd, bwd) if own is None else own)[sl][:, 2, 2]
     if diff_cov is not None:
         o = o + float(np.asarray(diff_cov, dtype=float)[2, 2])
     s0 = float(np.mean(d2 / o))
@@ -190,11 +201,12 @@ def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Fil
                                                         still=still)
     bwd = run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, backward_setup, use, backward=True, still=still)
     s = master.fuse(name, [fwd, bwd])
-    lt, _ = fb_scale(fwd, bwd, diff_cov=diff_cov)
-    lh, lam = heading_split(fwd, bwd, diff_cov=diff_cov)
+    own = own_difference_cov(fwd, bwd)  # once per solution: the tests and the drift's split read it
+    lt, _ = fb_scale(fwd, bwd, diff_cov=diff_cov, own=own)
+    lh, lam = heading_split(fwd, bwd, diff_cov=diff_cov, own=own)
     drift = None  # the runs' heading difference where it shows the gyro's scale/misalignment drift (lam > 0)
     if lam > 0.0 and s.S_gm is not None and s.var_gm > 0.0:
-        o_D = master.difference_cov(fwd, bwd, gyro_scale=False)[:, 2, 2]
+        o_D = own[:, 2, 2].copy()
         if diff_cov is not None:
             o_D = o_D + float(np.asarray(diff_cov, dtype=float)[2, 2])
         drift = (fwd.S_gm[:, 2, :] - bwd.S_gm[:, 2, :], dcm_to_rotvec(fwd.C_nb @ np.swapaxes(bwd.C_nb, 1, 2))[:, 2], o_D)
@@ -203,7 +215,7 @@ def smooth_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Fil
     ba, va = _fuse_diag(fwd.acc_bias_mps2, vb[:, 3:6], bwd.acc_bias_mps2, vb[:, 9:12])
     mag_ok = None if fwd.mag_ok is None else (fwd.mag_ok & bwd.mag_ok)
     mag_any = None if fwd.mag_ok is None else (fwd.mag_ok | bwd.mag_ok)
-    del bwd, vb  # the backward run is freed before the covariance's temporaries (memory: ~0.2 GB an hour at 100 Hz)
+    del bwd, vb, own  # the backward run is freed before the covariance's temporaries (memory: ~0.2 GB an hour at 100 Hz)
     ft, fh = excess_factor(lt), heading_excess_factor(lh)
     # the excess scales the noises the model left out; the gyro's scale/misalignment share is a prior that the
     # difference does not show where the runs share it (`master.fuse`): added once, as fused
