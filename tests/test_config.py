@@ -3,6 +3,8 @@ with a one-line message naming the file, table and key, before any session data 
 
 import re
 import shutil
+import subprocess
+import sys
 
 import pytest
 from pydantic import BaseModel
@@ -149,3 +151,16 @@ def test_cli_refuses_a_bad_override_before_reading_data(tmp_path):
     # the same session with good parameters fails on its missing IMU file instead
     r = CliRunner().invoke(app, ["process", str(s), "-o", str(tmp_path / "run"), "-q"])
     assert r.exit_code == 2 and "imu" in r.output.lower()
+
+
+def test_a_run_builds_only_its_own_models():
+    """`Section`'s defer_build: a model's validator is built at its first validation; resolving the drive's
+    pipeline builds [pipeline] and [drive_smooth] only. In a fresh interpreter (this one built them all)."""
+    code = ("from tpos_cli import config\n"
+            "config.resolve_config(config.resolve_pipeline(None, 'drive'))\n"
+            "print(*(m.__name__ for m in (config.PipelineHead, config.DriveSmoothParams, config.IngestParams,\n"
+            "      config.RangingParams, config.FuzzyParams, config.TargetFkfParams, config.FaultParams)\n"
+            "      if m.__pydantic_complete__))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=REPO).stdout
+    assert out.split() == ["PipelineHead", "DriveSmoothParams"], out

@@ -46,7 +46,9 @@ def _lists_to_tuples(value: Any) -> Any:
 class Section(BaseModel):
     """Base of every pipeline table: unknown keys, wrong types, NaN/inf are errors; frozen."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+    # defer_build: a model's validator is built at its first validation, not at import; a run builds
+    # only [pipeline] and its own chain's table (a drive never builds the ranging and target models)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False, defer_build=True)
 
     @model_validator(mode="before")
     @classmethod

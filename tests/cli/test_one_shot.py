@@ -150,3 +150,41 @@ def test_main_gives_blas_one_thread_unless_the_user_sets_it(given, expected):
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True,
                          cwd=Path(__file__).resolve().parents[2]).stdout
     assert out.split()[-2:] == [expected, "False"], out
+
+
+def test_main_builds_only_the_command_it_runs():
+    """`main()` runs `tpos COMMAND` with an app of that command alone (`cli.make_app`): typer builds the
+    parameters of every command it holds when it starts. In a fresh interpreter (`tpos pipelines`)."""
+    code = ("import atexit, sys\nimport typer.main as tm\nbuilt = []\norig = tm.get_command_from_info\n"
+            "def spy(command_info, **kw):\n    built.append(command_info.name)\n    return orig(command_info=command_info, **kw)\n"
+            "tm.get_command_from_info = spy\natexit.register(lambda: print('BUILT', *built))\n"
+            "from tpos_cli import cli\nsys.argv = ['tpos', 'pipelines']\ncli.main()\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout
+    assert out.splitlines()[-1] == "BUILT pipelines" and "drive-smooth" in out, out
+
+
+@pytest.mark.parametrize("name", ["process", "report", "batch", "import", "calibrate-mag"])
+def test_a_one_command_app_parses_and_helps_as_the_whole_app(name, tmp_path):
+    from tpos_cli.cli import make_app
+
+    one = make_app((name,))
+    runner = CliRunner()
+    for args in ([name, "--help"], [name, "--no-such-option"], [name, str(tmp_path / "none")], ["--version"]):
+        a, b = runner.invoke(one, args), runner.invoke(app, args)
+        assert (a.exit_code, a.output) == (b.exit_code, b.output), args
+
+
+@pytest.mark.parametrize("given, scanned", [(None, False), ("", True)])
+def test_main_turns_pydantic_plugins_off_unless_the_user_sets_it(given, scanned):
+    """`main()` sets PYDANTIC_DISABLE_PLUGINS=1 (no search of every installed distribution's entry points for
+    plugins when the first pipeline model is validated); a value the user set is kept ("": plugins on, searched)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYDANTIC_DISABLE_PLUGINS"}
+    if given is not None:
+        env["PYDANTIC_DISABLE_PLUGINS"] = given
+    code = ("import atexit, sys\nfrom pydantic.plugin import _loader\n"
+            "atexit.register(lambda: print('SCANNED', _loader._plugins is not None))\n"
+            "from tpos_cli import cli\nsys.argv = ['tpos', 'pipelines']\ncli.main()\n")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout
+    assert out.splitlines()[-1] == f"SCANNED {scanned}", out

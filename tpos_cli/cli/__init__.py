@@ -25,17 +25,6 @@ from tpos_cli.cli import report as _report
 from tpos_cli.cli import simulate as _simulate
 from tpos_cli.cli import validate as _validate
 
-app = typer.Typer(
-    name="tpos",
-    help="Post-process navigation logs from low-cost sensors (MEMS IMU, laser rangefinders, GPS-WAAS, "
-    "ranging anchors) into attitude, trajectory and target positions with an honest accuracy report.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    rich_markup_mode=None,
-)
-
-
 
 def _print_version(value: bool) -> None:
     if value:
@@ -45,7 +34,6 @@ def _print_version(value: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
 def _root(
     version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
                                           help="Print the tpos version and exit.")] = False,
@@ -81,11 +69,34 @@ def _interruptible(name: str, fn):
     return command
 
 
-for _name, _fn in (("validate", _validate.validate), ("inspect", _inspect.inspect), ("process", _process.process),
-                   ("report", _report.report), ("export", _export.export), ("pipelines", _pipelines.pipelines),
-                   ("simulate", _simulate.simulate), ("batch", _batch.batch), ("import", _import.import_),
-                   ("noise", _noise.noise), ("calibrate-mag", _calibrate_mag.calibrate_mag)):
-    app.command(_name)(_interruptible(_name, _fn))
+COMMANDS = {"validate": _validate.validate, "inspect": _inspect.inspect, "process": _process.process,
+            "report": _report.report, "export": _export.export, "pipelines": _pipelines.pipelines,
+            "simulate": _simulate.simulate, "batch": _batch.batch, "import": _import.import_,
+            "noise": _noise.noise, "calibrate-mag": _calibrate_mag.calibrate_mag}
+
+
+def make_app(names=None) -> typer.Typer:
+    """The `tpos` app with the commands `names` (default: every command of COMMANDS, in its order).
+    One command parses, validates and helps as in the whole app: `main()` builds only the command it
+    runs (typer builds every registered command's parameters when the app starts: 0.02 s CPU of each
+    `tpos process` for the ten others)."""
+    app = typer.Typer(
+        name="tpos",
+        help="Post-process navigation logs from low-cost sensors (MEMS IMU, laser rangefinders, GPS-WAAS, "
+        "ranging anchors) into attitude, trajectory and target positions with an honest accuracy report.",
+        no_args_is_help=True,
+        add_completion=False,
+        pretty_exceptions_enable=False,
+        rich_markup_mode=None,
+    )
+    app.callback()(_root)  # `tpos --version`; with it the app stays a group of commands even with one command
+    for name, fn in COMMANDS.items():
+        if names is None or name in names:
+            app.command(name)(_interruptible(name, fn))
+    return app
+
+
+app = make_app()
 
 
 def main() -> None:
@@ -97,8 +108,14 @@ def main() -> None:
     # CPU from the run (drive hour, 2 cores at load 5: conventions stage 3.2 s instead of 0.33 s, process CPU
     # 4.3 s instead of 1.8 s). One thread also gives the same sums on every machine, as the benchmarks run.
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    # No pydantic plugins unless the user says otherwise: tpos's models are its own pipeline tables, which no
+    # plugin observes, and looking for plugins reads the entry points of every installed distribution when the
+    # first model's validator is built (typer turns them off for its own adapters the same way).
+    os.environ.setdefault("PYDANTIC_DISABLE_PLUGINS", "1")
+    # `tpos COMMAND ...`: the app of that command alone; anything else (`tpos --help`, a mistyped command) the whole app
+    name = sys.argv[1] if len(sys.argv) > 1 else None
     try:
-        app()
+        (make_app((name,)) if name in COMMANDS else app)()
     except SystemExit as exc:
         _common.end_process(exc.code)  # `tpos process`/`report`/`batch`: ends here, no teardown
         raise
