@@ -71,7 +71,7 @@ SEEDS_SPLIT = 32
 
 
 def _mean_heading_scale(drift_prior_sds: float) -> float:
-    """Mean `heading_scale` over SEEDS_SPLIT runs pairs: the drift of a dM of `drift_prior_sds` prior SDs and own errors
+    """Mean `heading_scale` over SEEDS_SPLIT pairs of runs: the drift of a dM of `drift_prior_sds` prior SDs and own errors
     as modelled (a new draw per seed)."""
     gf, gb = _ramps()
     scales = []
