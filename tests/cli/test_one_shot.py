@@ -138,6 +138,21 @@ def test_unused_numpy_modules_load_on_first_use():
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
 
 
+def test_a_one_shot_report_leaves_the_unused_numpy_modules_unloaded(tmp_path):
+    """`tpos report` defers numpy.f2py / numpy.testing as `tpos process` does (`_common.defer_unused_imports`):
+    scipy.special's import, which the report's statistics need, no longer runs numpy.f2py's crackfortran
+    (0.05 s of a report). In a fresh interpreter, as a user runs it (-X importtime lists what it imports)."""
+    assert CliRunner().invoke(app, ["process", str(SAMPLE), "-o", str(tmp_path / "run"), "-q"]).exit_code == 0
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    res = subprocess.run([sys.executable, "-X", "importtime", "-m", "tpos_cli", "report", str(tmp_path / "run")],
+                         capture_output=True, text=True, timeout=600, env=env)
+    assert res.returncode == 0, res.stderr[-2000:]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
+    assert "scipy.special._ufuncs" in imported  # scipy.special loaded: the import that used to pull them in
+    assert not {"numpy.f2py.crackfortran", "numpy.testing._private.utils"} & imported
+    assert (tmp_path / "run" / "report.pdf").is_file()
+
+
 @pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])
 def test_main_gives_blas_one_thread_unless_the_user_sets_it(given, expected):
     """`main()` sets OPENBLAS_NUM_THREADS=1 before numpy loads (threads spin-waiting after tpos's dot products took

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from tpos_cli.cli._common import exit_on_error, keep_until_exit, run_to_exit, working
+from tpos_cli.cli._common import defer_unused_imports, exit_on_error, keep_until_exit, run_to_exit, working
 
 
 def report(
@@ -27,6 +27,7 @@ def report(
     Example: tpos report runs/drive --json
     """
     run_to_exit()  # a one-shot process: no interpreter teardown at the end
+    defer_unused_imports()  # numpy's f2py, testing: imported only if something uses them (one-shot only)
     from tpos_cli.report.collector import cyclic_gc_paused
 
     try:

@@ -139,7 +139,7 @@ class ReportContext:
         inn = self.run.innovations
         if inn is None or not len(inn):
             return None
-        have = set(inn["solution"].astype(str))
+        have = set(inn["solution"].unique().astype(str))  # the few labels, not a string per row
         for s in ["forward"] + self.order if not self.static_observer else self.order:
             if s in have:
                 return s

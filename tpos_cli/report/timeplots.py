@@ -175,7 +175,7 @@ def innovations_section(ctx: ReportContext) -> Section | None:
     if sol is None:
         return None
     d_sol = inn[inn["solution"].astype(str) == sol]
-    kinds = list(dict.fromkeys(d_sol["kind"].astype(str)))[:3]
+    kinds = list(dict.fromkeys(d_sol["kind"].unique().astype(str)))[:3]  # first-appearance order
     table = nis_columns(ctx.health.nis)
     from tpos_cli.report.layout import table_height
 
