@@ -223,6 +223,19 @@ def test_fixes_at_stops_are_classified_on_the_unrounded_stop_intervals():
     assert _at_stops(t, np.zeros((0, 2))) is None and _at_stops(t, None) is None
 
 
+def test_summary_stop_intervals_come_from_the_detected_stops_on_the_logger_clock():
+    """summary.json's stops are written from `DriveResult.stop_intervals_s` (the one source): on the logger clock,
+    rounded to 0.01 s, after "stops_from" as before; constraints without stops (or none) as they are."""
+    from tpos_cli.chains.drive_smooth import _with_stop_intervals
+
+    c = {"stops": 1, "stopped_s": 8.0, "stops_from": ["gps"], "platform": "car"}
+    got = _with_stop_intervals(c, np.array([[12.004, 20.0]]), 1000.0)
+    assert list(got) == ["stops", "stopped_s", "stops_from", "stop_intervals_s", "platform"]
+    assert got["stop_intervals_s"] == [[1012.0, 1020.0]] and "stop_intervals_s" not in c
+    assert _with_stop_intervals(c, np.zeros((0, 2)), 0.0)["stop_intervals_s"] == []
+    assert _with_stop_intervals({}, np.zeros((0, 2)), 0.0) == {} and _with_stop_intervals(c, None, 0.0) is c
+
+
 def test_summary_reports_gps_noise_nis_band_and_mounting(session_dir, tmp_path):
     """A correctly mounted simulated car: estimated GPS SDs = the simulated ones, no mounting warning."""
     _, path = session_dir

@@ -6,6 +6,7 @@ import pytest
 from numpy.testing import assert_allclose
 
 from tpos_cli.frames.earth import normal_gravity_mps2
+from tpos_cli.fusion._kernels import LoopState, _copy_state
 from tpos_cli.fusion.engine import (
     ENDS_ONLY,
     FilterConfig,
@@ -33,6 +34,21 @@ def test_merge_sorts_by_time_and_shifts_the_fix_sensitivity_rows():
     assert m.sens[m.par[0], 0, 0] == 100 and m.sens[m.par[3], 0, 0] == 106
     assert m.sens[m.par[1], 0, 0] == 0 and m.sens[m.par[4], 0, 0] == 6
     assert m.R[2, 2, 2] == 1.0 and m.dim[2] == 3 and not m.gated[2]
+
+
+def test_copy_state_copies_every_array_of_the_loop_state_exactly():
+    """The re-acquisition's checkpoint and rewind (`_kernels._copy_state`, written by elements): every
+    array, of each dtype and dimension the loop holds, equal bit for bit to its source afterwards."""
+    rng = np.random.default_rng(3)
+    n, s, w = 17, 2, 5
+    shapes = [(n, n), (6,), (3, 3), (8,), (n,), (3,), (3,), (s,), (s, w), (s, w, 3), (s, w, 3, 3), (s,), (s, 3),
+              (s, 3, 3), (s,)]
+    src = LoopState(*[rng.normal(size=shape) for shape in shapes])
+    src = src._replace(consecutive=rng.integers(0, 9, s), anc_ok=np.array([True, False]))
+    dst = LoopState(*[np.zeros_like(a) for a in src])
+    _copy_state(src, dst)
+    for name, a, b in zip(LoopState._fields, src, dst):
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
 
 
 def _still(n=2001, dt=0.01):

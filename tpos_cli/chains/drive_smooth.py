@@ -325,7 +325,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
     which also decides an `auto` platform; there the trial pass's residual misalignment refines it
     (a slow rover's first run holds its heading only to 8-19 deg, and the travel direction inherits
     that). Records what was decided in info["constraints"]; also returns the detected stops
-    ((K, 2) session seconds, unrounded: the summary's copy is rounded to 0.01 s)."""
+    ((K, 2) session seconds, unrounded: `DriveResult.stop_intervals_s`, which `drive_summary` writes)."""
     gps = session.gps
     odo = session.odometry
     stops = detect_stops(gps.t_s[gps.valid], gps.vel_ned_mps[gps.valid], None if odo is None else odo.t_s,
@@ -333,9 +333,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
                          min_duration_s=p.stop_min_duration_s)
     platform, decided = p.platform, "pipeline"
     mounting = session.meta.mounting_rpy_deg
-    out: dict = {"stops": int(stops.intervals_s.shape[0]), "stopped_s": round(stops.total_s, 1), "stops_from": stops.sources,
-                 "stop_intervals_s": [[round(float(a) + session.t0_s, 2), round(float(b) + session.t0_s, 2)]
-                                      for a, b in stops.intervals_s]}  # on the logger clock, as outages_s
+    out: dict = {"stops": int(stops.intervals_s.shape[0]), "stopped_s": round(stops.total_s, 1), "stops_from": stops.sources}
     C_vb = None
     if mounting is not None:
         C_vb = euler_to_dcm(*np.radians(np.asarray(mounting, dtype=float)))
@@ -861,6 +859,7 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         ctx.warn(mounting.pop("message"))  # into summary.json warnings, once
     gi = res.innovations("forward")
     standing = _at_stops(res.fixes.t_s, res.stop_intervals_s)
+    constraints = _with_stop_intervals(res.info.get("constraints", {}), res.stop_intervals_s, t0_s)
     mean_nis, nis_check = {}, {}
     for j, kind in enumerate(GPS_KINDS):
         used = gi.accepted[:, j]
@@ -873,7 +872,8 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
             nis_check[kind]["by_regime"] = {name: nis_band(gi.nis[used & sel, j], gi.innovation[used & sel, 3 * j: 3 * j + 3])
                                             for name, sel in (("standing", standing), ("moving", ~standing))}
     return {
-        "alignment": {k: v for k, v in res.info.items() if k != "lever_arm"},  # that one: "lever_arm" below
+        "alignment": {k: constraints if k == "constraints" else v for k, v in res.info.items()
+                      if k != "lever_arm"},  # that one: "lever_arm" below
         "smoothed_method": p.smoother,
         "solutions": list(names),
         "gps_fixes": int(res.fixes.t_s.size),
@@ -886,9 +886,23 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
         "mounting_check": mounting,
         "gps_clock_offset": clock_offset(res, p),
         "lever_arm": lever_arm_report(res),
-        "constraints": {**res.info.get("constraints", {}), "forward": constraint_summary(res.forward),
+        "constraints": {**constraints, "forward": constraint_summary(res.forward),
                         "backward": constraint_summary(res.backward)},
     }
+
+
+def _with_stop_intervals(constraints: dict, intervals_s, t0_s: float) -> dict:
+    """info["constraints"] (`motion_constraints`) with the detected stops (`intervals_s`:
+    `DriveResult.stop_intervals_s`, session seconds) on the logger clock, as outages_s, rounded to
+    0.01 s, after "stops_from" (summary.json's order); as it is without stops or constraints."""
+    if intervals_s is None or "stops_from" not in constraints:
+        return constraints
+    out = {}
+    for k, v in constraints.items():
+        out[k] = v
+        if k == "stops_from":
+            out["stop_intervals_s"] = [[round(float(a) + t0_s, 2), round(float(b) + t0_s, 2)] for a, b in intervals_s]
+    return out
 
 
 def _at_stops(t_s, intervals_s) -> np.ndarray | None:

@@ -166,14 +166,12 @@ def drift_nis_from_anchor(ring_t, ring_nu, ring_R, anc_t, anc_nu, anc_R, anc_ok,
     ts = np.empty(n)
     nus = np.empty((n, m))
     Rs = np.empty((n, m, m))
-    ts[0] = anc_t[slot]
-    nus[0] = anc_nu[slot, :m]
-    Rs[0] = anc_R[slot, :m, :m]
+    # (row by row with `_put`: slice assignments compile numba's formatted shape-mismatch error, which the
+    # filter's kernel then loads at every run)
+    _put(ts, nus, Rs, 0, anc_t[slot], anc_nu[slot], anc_R[slot], m)
     for jj in range(1, n):
         j = (count - (jj - 1)) % WINDOW
-        ts[jj] = ring_t[slot, j]
-        nus[jj] = ring_nu[slot, j, :m]
-        Rs[jj] = ring_R[slot, j, :m, :m]
+        _put(ts, nus, Rs, jj, ring_t[slot, j], ring_nu[slot, j], ring_R[slot, j], m)
     return _divided_difference_nis(ts, nus, Rs, m)
 
 
