@@ -141,7 +141,9 @@ def test_unused_numpy_modules_load_on_first_use():
 def test_a_one_shot_report_leaves_the_unused_numpy_modules_unloaded(tmp_path):
     """`tpos report` defers numpy.f2py / numpy.testing as `tpos process` does (`_common.defer_unused_imports`):
     scipy.special's import, which the report's statistics need, no longer runs numpy.f2py's crackfortran
-    (0.05 s of a report). In a fresh interpreter, as a user runs it (-X importtime lists what it imports)."""
+    (0.05 s of a report); nor does matplotlib's PDF backend import fontTools.subset (0.13 s) for pages in
+    the standard PDF fonts, which are not embedded. In a fresh interpreter, as a user runs it (-X importtime
+    lists what it imports)."""
     assert CliRunner().invoke(app, ["process", str(SAMPLE), "-o", str(tmp_path / "run"), "-q"]).exit_code == 0
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
     res = subprocess.run([sys.executable, "-X", "importtime", "-m", "tpos_cli", "report", str(tmp_path / "run")],
@@ -150,7 +152,36 @@ def test_a_one_shot_report_leaves_the_unused_numpy_modules_unloaded(tmp_path):
     imported = {line.rsplit("|", 1)[-1].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
     assert "scipy.special._ufuncs" in imported  # scipy.special loaded: the import that used to pull them in
     assert not {"numpy.f2py.crackfortran", "numpy.testing._private.utils"} & imported
-    assert (tmp_path / "run" / "report.pdf").is_file()
+    assert "matplotlib.backends.backend_pdf" in imported and "fontTools.subset" not in imported
+    assert b"/BaseFont /Helvetica" in (tmp_path / "run" / "report.pdf").read_bytes()  # the standard font, as before
+
+
+def test_a_deferred_font_subsetter_still_embeds_the_fonts_a_page_needs(tmp_path):
+    """With fontTools.subset deferred (a one-shot `tpos report`), a page whose text the standard PDF fonts
+    lack (Cyrillic, a mathtext sigma) is embedded as before: as Type 3 (the report's setting, which never
+    uses the subsetter) and, with pdf.fonttype 42, as a TrueType subset, the subsetter loaded at its first
+    use. In a fresh interpreter: this one may hold fontTools.subset already."""
+    code = (
+        "import sys\n"
+        "from tpos_cli.cli import _common\n"
+        "_common.mark_one_shot()\n"
+        "_common.defer_unused_imports('fontTools.subset')\n"
+        "import matplotlib\nmatplotlib.use('Agg')\n"
+        "from matplotlib.backends.backend_pdf import PdfPages\nfrom matplotlib.figure import Figure\n"
+        "from tpos_cli.report.pdf import core_fonts_if_they_fit\n"
+        "assert 'fontTools.subset' in sys.modules and 'fontTools.subset.cff' not in sys.modules\n"
+        "for fonttype in (3, 42):\n"
+        "    fig = Figure(figsize=(4, 3))\n    fig.text(0.1, 0.8, 'session Проезд_03')\n"
+        "    fig.text(0.1, 0.5, r'$\\sigma_{yaw}$ 1.2 deg')\n"
+        f"    path = {str(tmp_path)!r} + f'/p{{fonttype}}.pdf'\n"
+        "    with matplotlib.rc_context({'pdf.fonttype': fonttype}), core_fonts_if_they_fit([fig]), PdfPages(path) as pdf:\n"
+        "        pdf.savefig(fig)\n"
+        "    assert ('fontTools.subset.cff' in sys.modules) == (fonttype == 42)\n"  # the subsetter's code ran for 42 only
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
+    type3, truetype = ((tmp_path / f"p{k}.pdf").read_bytes() for k in (3, 42))
+    assert b"/BaseFont /Helvetica" not in type3 and b"DejaVuSans" in type3 and b"/Type3" in type3
+    assert b"/BaseFont /Helvetica" not in truetype and b"DejaVuSans" in truetype and b"FontFile2" in truetype
 
 
 @pytest.mark.parametrize("given, expected", [(None, "1"), ("3", "3")])

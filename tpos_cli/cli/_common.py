@@ -47,20 +47,21 @@ def keep_until_exit() -> None:
 _UNUSED_NUMPY_MODULES = ("numpy.f2py", "numpy.testing")
 
 
-def defer_unused_imports() -> None:
-    """In a one-shot process, register `_UNUSED_NUMPY_MODULES` as lazy modules (the standard library's
-    `importlib.util.LazyLoader`): the attribute numpy hands out is the module, whose code runs at the
-    first access to one of ITS attributes, so only a caller that uses it pays for its import. Modules
-    already imported are left as they are; nothing changes in a process that goes on."""
+def defer_unused_imports(*more: str) -> None:
+    """In a one-shot process, register `_UNUSED_NUMPY_MODULES` and the submodules `more` as lazy
+    modules (the standard library's `importlib.util.LazyLoader`): the attribute their parent package
+    hands out is the module, whose code runs at the first access to one of ITS attributes, so only a
+    caller that uses it pays for its import. Modules already imported are left as they are; nothing
+    changes in a process that goes on."""
     if not _one_shot:
         return
+    import importlib
     import importlib.util
 
-    import numpy
-
-    for name in _UNUSED_NUMPY_MODULES:
+    for name in _UNUSED_NUMPY_MODULES + more:
         if name in sys.modules:
             continue
+        parent = importlib.import_module(name.rpartition(".")[0])
         spec = importlib.util.find_spec(name)
         if spec is None or spec.loader is None:
             continue
@@ -68,7 +69,7 @@ def defer_unused_imports() -> None:
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module
         spec.loader.exec_module(module)
-        setattr(numpy, name.rpartition(".")[2], module)
+        setattr(parent, name.rpartition(".")[2], module)
 
 
 def run_to_exit(pause_collector: bool = True) -> None:

@@ -27,7 +27,10 @@ def report(
     Example: tpos report runs/drive --json
     """
     run_to_exit()  # a one-shot process: no interpreter teardown at the end
-    defer_unused_imports()  # numpy's f2py, testing: imported only if something uses them (one-shot only)
+    # numpy's f2py, testing, and fontTools.subset (matplotlib's PDF backend imports it at its own import,
+    # ~0.13 s CPU, and uses it only to embed a font; the standard PDF fonts the pages mostly use are not
+    # embedded): each imported only if something uses it (one-shot only)
+    defer_unused_imports("fontTools.subset")
     from tpos_cli.report.collector import cyclic_gc_paused
 
     try:
