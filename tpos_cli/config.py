@@ -132,11 +132,16 @@ class DriveSmoothParams(Section):
     gps_noise: Literal["estimate", "given"] = "estimate"  # estimate: scale the GPS SDs by covariance
     # matching on a first decimated pass (`fusion.gps_noise`); given: the log's SDs or the defaults
     gps_noise_span_s: NonNegative = 900.0  # log time the estimation passes cover (0 = all)
-    gps_error_model: Literal["gauss_markov", "white"] = "white"  # gauss_markov: 3 GPS
-    # position-error states (time-correlated receiver errors, `fusion.gps_error`); white: independent
-    # fixes (default: error states fitted on one stretch let the solution wander off good fixes, issue 11)
+    gps_error_model: Literal["stated_split", "gauss_markov", "white"] = "stated_split"  # stated_split
+    # (default): where the receiver states its position SDs and its fixes at the detected stops scatter
+    # significantly (1 %) less than stated, the stated SD is split into a white part (that scatter) and
+    # 3 GPS position-error states (Gauss-Markov, `fusion.gps_error.stated_split`) carrying the rest of
+    # its variance, so no sigma falls under the receiver's accuracy; else white fixes as stated. white:
+    # independent fixes always; gauss_markov: error states fitted on the innovations (their SD has no
+    # budget: fitted on one stretch they let the solution wander off good fixes, issue 11)
     gps_gm_tau_s: Positive | None = None  # time constant of the GPS error states; None: fitted
-    gps_gm_sigma_h_m: NonNegative | None = None  # stationary SD of the correlated error; None: estimated
+    # (gauss_markov) or 100 s (stated_split: a prior from carrier multipath, `STATED_SPLIT_TAU_S`)
+    gps_gm_sigma_h_m: NonNegative | None = None  # gauss_markov: stationary SD of the correlated error; None: estimated
     gps_gm_sigma_v_m: NonNegative | None = None
     outage_min_s: Positive = 2.0  # a gap between fixes longer than this is an outage
     mounting_check_deg: Annotated[float, Field(ge=0.0, le=180.0)] = 20.0  # warn above this median

@@ -499,3 +499,83 @@ def test_gps_fixes_outside_the_imu_span_are_invalid_input(session_dir, tmp_path,
                                                  r"or \[time\] gps_offset_s is wrong"):
         process_session(s, "drive-smooth", tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def _stated_receiver(tmp_path, seed, white_h_m, white_v_m, correlated_m):
+    """A simulated 180 s drive (40 s static start) whose receiver has a white error plus a
+    Gauss-Markov one (tau 100 s, 1 Hz) and states their total in its sigma columns."""
+    from tpos_cli.session import load_session
+
+    sim = simulate_drive(180.0, seed=seed, outages=(), static_s=40.0, gps_sigma_h_m=white_h_m, gps_sigma_v_m=white_v_m,
+                         gps_sigma_vel_mps=0.02, gps_correlated_sigma_neu_m=(correlated_m,) * 3, gps_correlated_tau_s=100.0)
+    path = sim.write(tmp_path / f"s{seed}")
+    f = next(path.glob("gps.*"))
+    d = pd.read_parquet(f) if f.suffix == ".parquet" else pd.read_csv(f)
+    d["sigma_n"] = d["sigma_e"] = np.hypot(white_h_m, correlated_m)
+    d["sigma_u"] = np.hypot(white_v_m, correlated_m)
+    d.to_parquet(f, index=False) if f.suffix == ".parquet" else d.to_csv(f, index=False)
+    return sim, load_session(path)
+
+
+def test_a_receiver_stating_its_correlated_error_gets_error_states_and_honest_sigmas_at_stops(tmp_path):
+    """White 4 mm (h) / 6 mm (v) plus 9 mm correlated (tau 100 s), the receiver stating the total
+    (9.8 / 10.8 mm): the default pipeline splits the stated SD (`gps_error_model = "stated_split"`)
+    into the fixes' scatter at rest and error states. White fixes at the stated SD (the old default)
+    let a stop's 40 fixes average the correlated part away: smoothed position SDs of 4.3-4.7 mm at
+    the stops over a 9 mm error, NEES 4-6 (dof 3) there (4 drives)."""
+    from scipy.stats import chi2
+
+    import tpos_cli.chains.drive_smooth as ds
+    from tpos_cli.config import DriveSmoothParams
+
+    stop_nees, stop_k, move_nees, move_s = [], 0, [], 0.0
+    for seed in range(1, 5):
+        sim, session = _stated_receiver(tmp_path, seed, 0.004, 0.006, 0.009)
+        res = ds.process_drive(session, DriveSmoothParams(gps_sigma_vel_mps=0.02), None, names=("smoothed",))
+        s = res.info["gps_error_states"]
+        # the white part from ~80 differences at rest: to about 10 % (1 / sqrt(2 n_eff)); 30 % allows the
+        # correlated part's share of the differences; the budget leaves the rest to the states (~9 mm)
+        assert s["white_h_m"] == pytest.approx(0.004, rel=0.3) and s["gm_h_m"] > 0.008 and s["gm_v_m"] > 0.008, s
+        sol = res.solutions["smoothed"]
+        t = sim.truth.t_s[sol.idx]
+        e = sim.truth.navigation_errors(sol.idx, sol.nav, sol.C_nb)[:, :3]
+        P = sol.P9[:, :3, :3]
+        nees = np.einsum("ki,ki->k", e, np.linalg.solve(P, e[..., None])[..., 0])
+        k = t > 30.0  # after the yaw search
+        at_stop = np.zeros(t.size, bool)
+        for a, b in res.stop_intervals_s:
+            w = k & (t >= a) & (t <= b)
+            if w.any():
+                at_stop |= w
+                stop_nees.append(nees[w].mean())
+                stop_k += 1
+            # a stop's fixes average their white part away, never their correlated one (common over a
+            # stop shorter than tau): an SD under 9 mm there is overconfident; 10 % for the split's
+            # estimate of that part from one stop's differences
+            sd = np.sqrt(np.diagonal(P[w], axis1=1, axis2=2))
+            assert np.all(sd >= 0.9 * 0.009), (seed, a, b, sd.min(axis=0))
+        move_nees.append(nees[k & ~at_stop].mean())
+        move_s += np.sum(k & ~at_stop) * float(np.median(np.diff(t)))
+    # not overconfident: the correlated error is one draw per stop (a stop is shorter than tau), so the
+    # mean of the stops' NEES is chi-square with 3 K d.o.f. over K; moving, one draw per 2 tau (200 s:
+    # correlation e^-2) of moving time; each under its 99 % quantile
+    assert np.mean(stop_nees) < chi2.ppf(0.99, 3 * stop_k) / stop_k, (stop_nees, stop_k)
+    k_move = max(int(move_s // 200.0), 1)
+    assert np.mean(move_nees) < chi2.ppf(0.99, 3 * k_move) / k_move, (move_nees, k_move)
+
+
+def test_a_white_receiver_at_its_stated_sd_is_not_split(tmp_path):
+    """The same drives with a white receiver stating its 9.8 / 10.8 mm: the fixes' scatter at rest is
+    consistent with the stated SD (the split's chi-square test at 1 % per group), so no error states
+    are added and the run is the white model's, bit for bit."""
+    import tpos_cli.chains.drive_smooth as ds
+    from tpos_cli.config import DriveSmoothParams
+
+    for seed in range(1, 5):
+        _, session = _stated_receiver(tmp_path, seed, float(np.hypot(0.004, 0.009)), float(np.hypot(0.006, 0.009)), 0.0)
+        res = ds.process_drive(session, DriveSmoothParams(gps_sigma_vel_mps=0.02), None, names=("smoothed",))
+        assert res.info["gps_error_states"]["gm_h_m"] == 0.0 and res.info["gps_error_states"]["gm_v_m"] == 0.0
+        white = ds.process_drive(session, DriveSmoothParams(gps_sigma_vel_mps=0.02, gps_error_model="white"), None,
+                                 names=("smoothed",))
+        np.testing.assert_array_equal(res.solutions["smoothed"].nav, white.solutions["smoothed"].nav)
+        np.testing.assert_array_equal(res.solutions["smoothed"].P9, white.solutions["smoothed"].P9)

@@ -192,3 +192,33 @@ def test_unmodelled_velocity_var_is_the_gauss_markov_slope():
     assert var[0] > unmodelled_velocity_var(sigma, 2.0 * tau_min[0], T)  # slower wander: a smaller slope
     # at the matched span itself the slope variance is the white variance over the span squared
     np.testing.assert_allclose(unmodelled_velocity_var(sigma, tau_min[0], span_m), white**2 / span_m**2, rtol=1e-12)
+
+
+def test_stated_split_recovers_the_white_and_correlated_parts_at_rest():
+    """Fixes at rest with a 4 mm white and a 9 mm Gauss-Markov error (tau 100 s, 1 Hz) whose receiver
+    states the total (9.85 mm): the split finds the white SD from the fix-to-fix scatter and leaves the
+    rest of the stated variance to the error states; a white receiver at its stated SD is not split."""
+    from tpos_cli.fusion.gps_error import stated_split, white_sds
+
+    rng = np.random.default_rng(0)
+    t = np.arange(400.0)
+    a = np.exp(-1.0 / 100.0)
+    b = np.zeros((t.size, 3))
+    b[0] = rng.standard_normal(3) * 0.009
+    for k in range(1, t.size):
+        b[k] = a * b[k - 1] + np.sqrt(1 - a * a) * 0.009 * rng.standard_normal(3)
+    ned = b + 0.004 * rng.standard_normal((t.size, 3))
+    stated = np.full((t.size, 3), np.hypot(0.004, 0.009))
+    stops = np.array([[0.0, 60.0], [150.0, 200.0], [300.0, 340.0]])  # 150 fixes at rest
+    s = stated_split(t, ned, stated, stops, np.array([True, True]))
+    # the white SD from ~300 horizontal differences: to about 6 % (1 / sqrt(2 n_eff)); 20 % allows
+    # the Gauss-Markov term's share of the differences and the draw
+    np.testing.assert_allclose(s.white_m, 0.004, rtol=0.2)
+    np.testing.assert_allclose(s.white_m ** 2 + s.gm_m ** 2, stated[0, [0, 2]] ** 2)  # the budget is kept
+    np.testing.assert_allclose(white_sds(stated, s)[:, 0], s.white_m[0])
+    # a white receiver at its stated SD (no correlated part): the scatter is consistent, nothing is split
+    w = stated_split(t, 0.01 * rng.standard_normal((t.size, 3)), np.full((t.size, 3), 0.01), stops, np.array([True, True]))
+    assert np.all(w.gm_m == 0.0)
+    # SDs the receiver did not state (pipeline defaults) are no accuracy to split
+    d = stated_split(t, ned, stated, stops, np.array([False, False]))
+    assert np.all(d.gm_m == 0.0)

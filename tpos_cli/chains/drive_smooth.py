@@ -38,12 +38,15 @@ from tpos_cli.fusion.constraints import (
 )
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
 from tpos_cli.fusion.gps_error import (
+    STATED_SPLIT_TAU_S,
     TAU_GRID_S,
     fit_gps_error,
     matched_tau_bound_s,
+    stated_split,
     unmodelled_error_sd_m,
     unmodelled_velocity_var,
     velocity_span_s,
+    white_sds,
 )
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, pass_window, rows_within, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
@@ -249,11 +252,12 @@ def raise_only(gn: GpsNoise, fixes: GpsFixes) -> GpsNoise:
 
 
 def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
-             t0_s: float, extra: Measurements | None = None) -> tuple[GpsFixes, FilterConfig]:
+             t0_s: float, extra: Measurements | None = None, stop_intervals_s=None) -> tuple[GpsFixes, FilterConfig]:
     """GPS noise (covariance matching, `fusion.gps_noise`) and GPS error states (`fusion.gps_error`),
     on passes of the final filter (`cfg`, with the constraint rows `extra`); records what was
     found in `info`. Returns the fixes with their SDs scaled and the settings of the final runs
-    (`final_settings`)."""
+    (`final_settings`). `stop_intervals_s`: the detected stops (session s), where
+    gps_error_model = "stated_split" measures the fixes' white scatter."""
     after = info["yaw_search"]["t_s"][1] if "yaw_search" in info else None
     gn = None
     if p.gps_noise == "estimate":
@@ -269,6 +273,22 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
                              **{k: (None if not np.isfinite(v) else round(float(v), 4)) for k, v in zip(
                                  ("sigma_pos_h_m", "sigma_pos_v_m", "sigma_vel_h_mps", "sigma_vel_v_mps"),
                                  median_sigmas(fixes))}}
+    if p.gps_error_model == "stated_split":
+        # the receiver's SDs (before the matching's scales): the split keeps their variance; the
+        # matching then starts again from the white part, with the error states on
+        stated = scaled_fixes(fixes, 1.0 / gn.scale) if gn is not None else fixes
+        split = stated_split(stated.t_s, lla_to_ned(stated.lla, stated.lla[0]), stated.sigma_pos_ned_m,
+                             np.zeros((0, 2)) if stop_intervals_s is None else stop_intervals_s,
+                             np.asarray(stated.from_receiver[:2], dtype=bool), tau_s=p.gps_gm_tau_s or STATED_SPLIT_TAU_S)
+        info["gps_error_states"] = split.summary()
+        if not np.any(split.gm_m > 0):
+            return fixes, final_settings(cfg, gn)
+        fixes = dataclasses.replace(stated, sigma_pos_ned_m=white_sds(stated.sigma_pos_ned_m, split))
+        # a group left white gets a state of a thousandth of its stated SD (numerically white; a zero-SD
+        # state would leave the predicted covariance singular for the RTS smoother)
+        gm = np.where(split.gm_m > 0, split.gm_m, 1e-3 * np.nan_to_num(split.stated_m, nan=1.0))
+        cfg = dataclasses.replace(cfg, layout=gps_error_layout(gm[[0, 0, 1]], split.tau_s, cfg.layout))
+        return rematched_white(imu, p, fixes, init, cfg, info, gn, after, extra)
     if p.gps_error_model != "gauss_markov":
         return fixes, final_settings(cfg, gn)
     if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
@@ -287,9 +307,15 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     info["gps_error_states"].update(sigma_h_m=round(float(sd[0]), 4), sigma_v_m=round(float(sd[2]), 4))
     cfg = dataclasses.replace(cfg, layout=gps_error_layout(sd, tau, cfg.layout))
     if gn is not None and cfg.layout.offset(Block.GPS_ERROR) >= 0:
-        # the white part again, with the error states on: they now carry the share of the
-        # fix-to-fix scatter that the wander makes
         fixes = scaled_fixes(fixes, 1.0 / gn.scale)
+    return rematched_white(imu, p, fixes, init, cfg, info, gn, after, extra)
+
+
+def rematched_white(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
+                    gn: GpsNoise | None, after, extra: Measurements | None) -> tuple[GpsFixes, FilterConfig]:
+    """The white part matched again with the error states on (`fixes` with the SDs the matching
+    starts from): the states now carry the share of the fix-to-fix scatter that the wander makes."""
+    if gn is not None and cfg.layout.offset(Block.GPS_ERROR) >= 0:
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s,
                                 extra=extra)
         gn = raise_only(gn, fixes)
@@ -684,7 +710,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
         cfg, extra, stop_intervals_s = motion_constraints(imu, session, p, fixes, init, cfg, info)
         cfg = lever_arm_states(p, fixes, init, cfg, info)
     with stage("gps_noise"):
-        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra)
+        fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra, stop_intervals_s)
     out_idx = output_indices(imu.t.size, 1 if p.output_rate_hz <= 0 else max(1, int(round(imu.rate_hz / p.output_rate_hz))))
     if extra_idx is not None and len(extra_idx):
         out_idx = np.union1d(out_idx, np.asarray(extra_idx, dtype=np.int64))
