@@ -194,8 +194,16 @@ def speed(duration_s: float = 3600.0, correlated_gps_m: float = 0.0) -> None:
     print(f"peak memory (max RSS of the timed processes, each its own): {rss_mb:.0f} MB (goal <= 600, issue 16)")
     print(f"timed runs with a helper thread: {threaded} of {len(runs)}")
     ge = summ["results"]["alignment"].get("gps_error_states", {})
-    print(f"GPS error states: sigma_h {ge.get('sigma_h_m')} m, tau {ge.get('tau_s')} s "
-          f"({'18' if ge.get('sigma_h_m') else '15'}-state filter)")
+    gm_h = _gps_error_sd_h_m(ge)
+    print("GPS error states: " + (f"sigma_h {gm_h} m, tau {ge.get('tau_s')} s (18-state filter)" if gm_h else
+                                   "none (15-state filter)"))
+
+
+def _gps_error_sd_h_m(ge: dict) -> float:
+    """Horizontal SD (m) of the GPS error states a run carried, 0 without them: the record of
+    `gps_error_model = "gauss_markov"` names it sigma_h_m, that of "stated_split" gm_h_m (0 when the
+    split did not engage)."""
+    return float(ge.get("sigma_h_m") or ge.get("gm_h_m") or 0.0)
 
 
 # --------------------------------------------------------------------------- accuracy
@@ -262,7 +270,7 @@ def accuracy_case(label, outages, seeds, duration_s=600.0, overrides=None, grade
             res = process_drive(session, p, None, names=SOLUTIONS)
             g = res.info["gps_noise"]
             ge = res.info.get("gps_error_states", {})
-            sig.append([g["sigma_pos_h_m"], g["sigma_pos_v_m"], g["sigma_vel_h_mps"], ge.get("sigma_h_m", 0.0),
+            sig.append([g["sigma_pos_h_m"], g["sigma_pos_v_m"], g["sigma_vel_h_mps"], _gps_error_sd_h_m(ge),
                         ge.get("tau_s", 0.0)])
             if np.any(lever_v):
                 est, sd = _block_at_end(res.forward, Block.LEVER, 2)  # unrounded (summary.json rounds to mm)
