@@ -1111,10 +1111,14 @@ def _load_truth(c: _Collector, t0: float):
         return None
     try:
         # Truth may carry extra columns (e.g. BROAD's `movement`): keep the numeric ones.
-        import pandas as pd  # here: a drive session is read without pandas
-        import pyarrow.parquet as pq
+        if path.suffix == ".parquet":
+            import pyarrow.parquet as pq
 
-        names = pq.read_schema(path).names if path.suffix == ".parquet" else pd.read_csv(path, nrows=0).columns.tolist()
+            names = pq.read_schema(path).names
+        else:
+            import pandas as pd  # here, for a CSV truth only: a Parquet session is read (and reported) without pandas
+
+            names = pd.read_csv(path, nrows=0).columns.tolist()
     except Exception:
         names = []
     extra_cols = tuple(n for n in names if n not in schema.TRUTH_REQUIRED + schema.TRUTH_OPTIONAL)

@@ -1,5 +1,6 @@
 """`io.columns`: tables as numpy columns, written and read without pandas, equal to what pandas wrote and read."""
 
+import io
 import subprocess
 import sys
 from pathlib import Path
@@ -10,7 +11,20 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from tpos_cli.io.columns import Columns, column, concat, flags, groups, is_empty, to_arrow
+from tpos_cli.io.columns import (
+    Columns,
+    column,
+    concat,
+    first_appearance_codes,
+    flags,
+    from_arrow,
+    from_records,
+    groups,
+    is_empty,
+    records,
+    to_arrow,
+    to_arrow_as_pandas,
+)
 from tpos_cli.io.run_dir import write_parquet
 from tpos_cli.io.tables import read_table
 
@@ -128,3 +142,83 @@ def test_drive_outputs_read_back_equal_to_the_pandas_written_files(tmp_path):
         theirs = pq.read_table(tmp_path / name)
         assert ours.schema.equals(theirs.schema, check_metadata=False) and ours.equals(theirs), name
         pd.testing.assert_frame_equal(pd.read_parquet(tmp_path / "run" / name), pd.read_parquet(tmp_path / name), check_exact=True)
+
+
+def _same_cells(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal arrays of one dtype, NaN equal to NaN and a missing label (None or NaN) to a missing one."""
+    if a.dtype != b.dtype:
+        return False
+    if a.dtype.kind in "fiub":
+        return np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+    gone = lambda v: v is None or v != v  # noqa: E731
+    return all((gone(x) and gone(y)) or x == y for x, y in zip(a.tolist(), b.tolist()))
+
+
+def test_from_arrow_gives_the_values_to_pandas_gives(tmp_path):
+    """Every column kind a run table holds, with and without nulls, over several chunks and from an
+    offset (a sliced table), text also read as dictionaries (a dictionary per row group, as
+    `report.rundir` reads it): the arrays `Table.to_pandas()` holds (text: object arrays of str)."""
+    n = 40
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=n)
+    x[::5] = np.nan
+    table = pa.table({
+        "x": x,
+        "x_null": pa.array(x, mask=np.arange(n) % 7 == 0),
+        "k": pa.array(rng.integers(-5, 5, n), type=pa.int64()),
+        "k_null": pa.array(rng.integers(0, 5, n), type=pa.int64(), mask=np.arange(n) % 6 == 0),
+        "ok": pa.array(rng.random(n) > 0.5),
+        "ok_null": pa.array(rng.random(n) > 0.5, mask=np.arange(n) % 4 == 0),
+        "label": pa.array(np.array(["forward", "backward", "ü"] * n, dtype=object)[:n], type=pa.large_string()),
+        "label_null": pa.array(np.array(["a", "b", None] * n, dtype=object)[:n], type=pa.string()),
+    })
+    chunked = pa.concat_tables([table.slice(0, 13), table.slice(13)])
+    pq.write_table(table, tmp_path / "t.parquet", row_group_size=16)
+    text = ["label", "label_null"]
+    as_dictionaries = pq.ParquetFile(tmp_path / "t.parquet", read_dictionary=text).read()
+    assert pa.types.is_dictionary(as_dictionaries.schema.field("label").type) and as_dictionaries.column("label").num_chunks == 3
+    cases = [(table, table), (chunked, chunked), (chunked.slice(5, 30), chunked.slice(5, 30)), (table.slice(0, 0), table.slice(0, 0)),
+             (as_dictionaries, table), (as_dictionaries.slice(20, 15), table.slice(20, 15))]
+    for t, plain in cases:
+        ours, theirs = from_arrow(t), plain.to_pandas()
+        assert ours.columns == list(theirs.columns) and len(ours) == len(theirs)
+        for c in ours.columns:
+            assert _same_cells(ours[c], theirs[c].to_numpy()), c
+
+
+def test_from_records_infers_the_dtypes_pandas_infers_and_records_gives_its_rows():
+    rows = [{"s": "a", "i": 1, "f": 1.5, "m": 1, "b": True, "none": None, "x": np.float64(2.0)},
+            {"s": "b", "i": 2, "f": float("nan"), "m": 2.5, "b": np.bool_(False), "none": 3.0}]
+    cols = ["s", "i", "f", "m", "b", "none", "x"]
+    ours, frame = from_records(rows, cols), pd.DataFrame(rows, columns=cols)
+    for c in cols:
+        assert _same_cells(ours[c], frame[c].to_numpy()), c
+    assert repr(records(ours)) == repr(frame.to_dict(orient="records"))  # the same Python values, NaN included
+    empty = from_records([], cols)
+    assert len(empty) == 0 and all(empty[c].dtype == pd.DataFrame([], columns=cols)[c].to_numpy().dtype for c in cols)
+    assert records(empty) == []
+
+
+@pytest.mark.parametrize("n_rows", [3, 0])
+def test_a_table_written_like_pandas_is_the_file_pandas_writes(n_rows):
+    """`to_arrow_as_pandas` + pq.write_table: byte for byte the file `DataFrame.to_parquet(index=False)`
+    writes (an accuracy table: text keys, int64 counts, floats with NaN; and with no rows)."""
+    cols = ["solution", "segment", "n", "mean", "cep"]
+    rows = [{"solution": "forward", "segment": "all", "n": 3, "mean": 0.5, "cep": float("nan")},
+            {"solution": "backward", "segment": "outage_1", "n": 0, "mean": float("nan"), "cep": 1.25},
+            {"solution": "smoothed", "segment": "all", "n": 7, "mean": -2.0, "cep": 0.75}][:n_rows]
+    ours = from_records(rows, cols)
+    ours = Columns({c: ours[c].astype(np.int64) if c == "n" else ours[c] for c in cols}, len(ours))  # as the report does
+    frame = pd.DataFrame(rows, columns=cols)
+    frame["n"] = frame["n"].astype("int64")
+    a, b = io.BytesIO(), io.BytesIO()
+    pq.write_table(to_arrow_as_pandas(ours), a)
+    frame.to_parquet(b, index=False)
+    assert a.getvalue() == b.getvalue()
+
+
+def test_first_appearance_codes_are_pandas_factorize():
+    labels = np.array(["smoothed", "forward", "forward", "ü", "smoothed", "backward"] * 3, dtype=object)
+    codes, names = first_appearance_codes(labels)
+    ref_codes, ref_names = pd.factorize(labels)
+    assert codes.tolist() == ref_codes.tolist() and names == list(ref_names)

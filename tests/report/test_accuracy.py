@@ -17,6 +17,7 @@ ANG_ATOL_DEG = 1e-9  # Euler/rotation round trips in float64
 
 
 def stat(table, solution, segment, quantity, name, target=""):
+    table = table.to_pandas()  # the report's accuracy table (io.columns.Columns), as a DataFrame
     m = (table.solution == solution) & (table.segment == segment) & (table.quantity == quantity) & (table.target == target)
     assert m.sum() == 1, (solution, segment, quantity, target)
     return float(table.loc[m, name].iloc[0])
@@ -66,7 +67,7 @@ def test_outage_segments_and_paper003_table(drive_report):
     assert_allclose(stat(t, "backward", "outage_1", "pos_v_m", "rms"), np.sqrt(50 / 3), atol=GEO_ATOL_M)
     assert stat(t, "forward", "outage", "pos_h_m", "n") == 30
     assert stat(t, "backward", "gps", "pos_v_m", "n") == 18
-    p3 = drive_report.accuracy.paper_tables["paper003_outages"]
+    p3 = drive_report.accuracy.paper_tables["paper003_outages"].to_pandas()
     row = p3[p3.solution == "backward"].iloc[0]
     assert_allclose([row.rms_v_m, row.max_3d_m, row.duration_s], [np.sqrt(50 / 3), 5.0, 3.0], atol=GEO_ATOL_M)
 
@@ -77,7 +78,7 @@ def test_movement_segment(drive_report):
 
 
 def test_forward_backward_disagreement(drive_report):
-    dis = drive_report.health.disagreement.iloc[0]
+    dis = drive_report.health.disagreement.to_pandas().iloc[0]
     assert (dis.a, dis.b, dis.n) == ("forward", "backward", 201)
     # forward - backward = (3, 4, t) m with sigma 1 m each: d'd/2 > 11.34 at every epoch
     assert dis.n_flagged == 201
@@ -140,7 +141,7 @@ def test_targets_against_surveyed_truth(tmp_path):
     assert_allclose(stat(t, "fkf", "all", "pos_h_m", "cep", "all"), 0.75, atol=GEO_ATOL_M)  # median of 0.5, 1.0
     assert_allclose(stat(t, "fkf", "all", "pos_h_m", "ce90", "all"), 0.95, atol=GEO_ATOL_M)
     assert stat(t, "fkf", "all", "pos_h_m", "n", "all") == 2  # R1 is a reference point, not truth
-    p0 = res.accuracy.paper_tables["paper000_table4"]
+    p0 = res.accuracy.paper_tables["paper000_table4"].to_pandas()
     assert p0.solution.tolist() == ["lf1", "fkf"]  # paper order: gyro, lf1, lf2, fkf
     assert_allclose(p0.mean_m, [np.sqrt(0.14), 0.75], atol=GEO_ATOL_M)
     # predicted CEP of a circular 0.2 m SD: 0.2 sqrt(2 ln 2)
@@ -173,7 +174,7 @@ def test_paper002_table_for_ranging(tmp_path):
     t1 = np.arange(0.0, 21.0)
     off = np.column_stack([np.where(t1 < 10, 0.1, -0.2), np.where(t1 < 10, -0.05, 0.25), 0 * t1])
     res = make_report(synth.write_run(tmp_path / "r", s, synth.trajectory_rows("fatci", t1, off)), pdf=False)
-    row = res.accuracy.paper_tables["paper002_table1"].iloc[0]
+    row = res.accuracy.paper_tables["paper002_table1"].to_pandas().iloc[0]
     assert_allclose([row.x_min_m, row.x_max_m, row.y_min_m, row.y_max_m], [-0.05, 0.25, -0.2, 0.1], atol=GEO_ATOL_M)
     e, n = off[:, 1], off[:, 0]
     assert_allclose([row.x_var_m2, row.y_var_m2], [e.var(), n.var()], atol=GEO_ATOL_M)
@@ -184,7 +185,7 @@ def test_no_truth_is_a_quality_control_report(tmp_path):
     s = synth.write_session(tmp_path / "s", truth=False)
     r = synth.write_run(tmp_path / "r", s, synth.trajectory_rows("forward", np.arange(0.0, 21.0), [0.0, 0.0, 0.0], sigma=(0.3, 0.4, 1.0)))
     res = make_report(r, pdf=False)
-    assert res.accuracy.table.empty and res.summary["headline"] == [] and res.summary["truth"] is None
+    assert len(res.accuracy.table) == 0 and res.summary["headline"] == [] and res.summary["truth"] is None
     est = res.summary["estimated"][0]
     # circular-enough: the 95 % ellipse semi-major axis is sqrt(chi2_2(0.95)) sigma_max; vertical 1.96 sigma
     assert_allclose(est["h95_median_m"], np.sqrt(stats.chi2.ppf(0.95, 2)) * 0.4, rtol=1e-9)
@@ -203,10 +204,10 @@ def test_solutions_sharing_positions_share_nothing_else(tmp_path):
     }
     outages = [[1003.0, 1006.0]]
     together = make_report(synth.write_run(tmp_path / "all", s, pd.concat(rows.values()), gps_outages=outages), pdf=False)
-    t = together.accuracy.table.set_index(["solution", "target", "segment", "quantity"]).sort_index()
+    t = together.accuracy.table.to_pandas().set_index(["solution", "target", "segment", "quantity"]).sort_index()
     for name, df in rows.items():
         alone = make_report(synth.write_run(tmp_path / name, s, df, gps_outages=outages), pdf=False).accuracy.table
-        alone = alone.set_index(["solution", "target", "segment", "quantity"]).sort_index()
+        alone = alone.to_pandas().set_index(["solution", "target", "segment", "quantity"]).sort_index()
         pd.testing.assert_frame_equal(t.loc[[name]], alone, check_exact=False, rtol=1e-12, atol=1e-12)
     a, b = (next(se for se in together.accuracy.solutions if se.solution == n) for n in "ab")
     assert a.err_ned_m is b.err_ned_m  # shared, not recomputed

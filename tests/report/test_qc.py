@@ -43,7 +43,7 @@ def _traj(solution, t, north_m, sigma=(1.0, 2.0, 3.0), cov_ne=None):
 def test_estimated_bounds_are_the_stated_95_percent_quantities():
     t = np.arange(10.0)
     s = qc.solution_series(_traj("forward", t, t))
-    est = qc.estimated_accuracy(s, ["forward"]).iloc[0]
+    est = qc.estimated_accuracy(s, ["forward"]).to_pandas().iloc[0]
     k2 = np.sqrt(stats.chi2.ppf(0.95, 2))
     assert est.h95_median_m == pytest.approx(k2 * 2.0, rel=1e-9)  # the larger axis of a diagonal covariance
     assert est.v95_median_m == pytest.approx(stats.norm.ppf(0.975) * 3.0, rel=1e-9)

@@ -35,8 +35,9 @@ def _refused(run, match):
     from tpos_cli.errors import InvalidInputError
     from tpos_cli.report.rundir import load_run
 
-    with pytest.raises(InvalidInputError, match=match):
-        load_run(run)
+    for frames in (True, False):  # DataFrames (`tpos export`) and Columns (the report): the same refusal
+        with pytest.raises(InvalidInputError, match=match):
+            load_run(run, frames=frames)
 
 
 def test_an_inf_where_tpos_writes_numbers_is_refused_with_its_row(tmp_path):

@@ -123,6 +123,26 @@ def is_empty(t) -> bool:
     return len(t) == 0 or len(t.columns) == 0
 
 
+def as_text(values: np.ndarray) -> np.ndarray:
+    """A label column as an object array of str, as pandas' `astype(str)` gives it a run table's labels
+    (read as categoricals: a missing one "nan"); a column of str as it is (the distinct values checked)."""
+    if values.dtype == object and all(isinstance(x, str) for x in set(values.tolist())):
+        return values
+    return np.array(["nan" if x is None else str(x) for x in values.tolist()], dtype=object)
+
+
+def first_appearance_codes(values: np.ndarray) -> tuple[np.ndarray, list]:
+    """(code of each row, the distinct values in order of first appearance) of a label column with
+    no missing value (pandas' `factorize`): each distinct value found by one comparison over the
+    column (a trajectory's 'solution': 3 names in 10^5 rows), no Python step per row."""
+    masks = {u: values == u for u in set(values.tolist())}
+    names = sorted(masks, key=lambda u: int(np.argmax(masks[u])))
+    codes = np.zeros(values.size, dtype=np.int64)
+    for k, u in enumerate(names[1:], 1):
+        codes[masks[u]] = k
+    return codes, names
+
+
 def groups(a: np.ndarray, b: np.ndarray):
     """((a value, b value), row positions) of each distinct pair, in order of first appearance; pairs
     with a missing value (None, NaN) left out: pandas' `groupby([a, b], sort=False).groups`."""
@@ -131,3 +151,126 @@ def groups(a: np.ndarray, b: np.ndarray):
     for k, c in keys.items():
         if not any(v is None or v != v for v in k):
             yield k, np.flatnonzero(code == c)
+
+
+def _bits(buf, offset: int, n: int) -> np.ndarray:
+    """n booleans of an Arrow bitmap (validity or bool values: least significant bit first) from `offset`."""
+    return np.unpackbits(np.frombuffer(buf, dtype=np.uint8), bitorder="little")[offset : offset + n].astype(bool)
+
+
+def _decoded(d: pa.DictionaryArray) -> np.ndarray:
+    """The text of a dictionary array as an object array of str (None where null), each distinct value
+    decoded once."""
+    n = len(d)
+    if n == 0:
+        return np.empty(0, dtype=object)
+    idx = d.indices
+    width = idx.type.bit_width // 8
+    kind = "i" if pa.types.is_signed_integer(idx.type) else "u"
+    codes = np.frombuffer(idx.buffers()[1], dtype=f"<{kind}{width}")[idx.offset : idx.offset + n].astype(np.int64)
+    if idx.null_count:
+        codes = np.where(_bits(idx.buffers()[0], idx.offset, n), codes, -1)  # -1: the None after the values
+    return np.array([*d.dictionary.to_pylist(), None], dtype=object)[codes]
+
+
+def _is_text(t: pa.DataType) -> bool:
+    return pa.types.is_string(t) or pa.types.is_large_string(t)
+
+
+def _numpy_column(col: pa.ChunkedArray) -> np.ndarray:
+    """One Arrow column as pandas' `to_pandas` gives it for the types tpos writes, without pandas:
+    numbers through Arrow's tensor conversion (nulls NaN: an integer column with nulls becomes
+    float64), booleans from the bitmap (object with None where null, as pandas has it), text (plain,
+    or dictionary-encoded as `ParquetFile(read_dictionary=...)` reads it) as an object array of str
+    (None where null), each distinct value decoded once. Other types: pandas."""
+    if pa.types.is_dictionary(col.type) and _is_text(col.type.value_type):
+        parts = [_decoded(c) for c in col.chunks]  # each row group has its own dictionary
+        return parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.empty(0, dtype=object)
+    a = col.combine_chunks() if col.num_chunks != 1 else col.chunk(0)
+    n = len(a)
+    if (pa.types.is_floating(a.type) and not pa.types.is_float16(a.type)) or pa.types.is_integer(a.type):
+        return pa.RecordBatch.from_arrays([a], ["v"]).to_tensor(null_to_nan=a.null_count > 0, row_major=False).to_numpy()[:, 0]
+    if pa.types.is_boolean(a.type):
+        validity, values = a.buffers()
+        v = _bits(values, a.offset, n) if n else np.zeros(0, dtype=bool)
+        if not a.null_count:
+            return v
+        out = v.astype(object)
+        out[~_bits(validity, a.offset, n)] = None
+        return out
+    if _is_text(a.type):
+        import pyarrow.compute as pc  # here: text read without read_dictionary (its import: ~0.06 s)
+
+        return _decoded(pc.dictionary_encode(a))
+    return pa.table({"v": a}).to_pandas()["v"].to_numpy()  # a type tpos does not write (an altered file): pandas decides
+
+
+def from_arrow(table: pa.Table) -> Columns:
+    """The columns of an Arrow table by name as numpy arrays (`_numpy_column`), without pandas: the
+    values `table.to_pandas()` holds for the float64, int64, bool and string columns tpos writes."""
+    return Columns({name: _numpy_column(table.column(i)) for i, name in enumerate(table.column_names)}, table.num_rows)
+
+
+def _inferred(values: list) -> np.ndarray:
+    """A column of Python values with the dtype pandas' DataFrame constructor infers for the kinds a
+    report table holds: all booleans bool; all integers int64; numbers (None as NaN) float64; else object."""
+    if all(isinstance(v, (bool, np.bool_)) for v in values):
+        return np.array(values, dtype=bool)
+    if all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) for v in values):
+        return np.array(values, dtype=np.int64)
+    if all(v is None or (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))) for v in values):
+        return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+    return np.array(values, dtype=object)
+
+
+def from_records(rows: Sequence[Mapping], columns: Sequence[str]) -> Columns:
+    """`pd.DataFrame(rows, columns=columns)` as `Columns`, without pandas: one column per name in
+    that order, a key a row lacks NaN, dtypes as pandas infers them (`_inferred`); no rows: empty
+    object columns (pandas' dtype of a column with nothing in it)."""
+    if not rows:
+        return Columns({c: np.empty(0, dtype=object) for c in columns}, 0)
+    return Columns({c: _inferred([r.get(c, np.nan) for r in rows]) for c in columns}, len(rows))
+
+
+def records(t: Columns) -> list[dict]:
+    """The rows of `t` as dicts of Python values: pandas' `to_dict(orient="records")`."""
+    names = t.columns
+    return [dict(zip(names, row)) for row in zip(*(t[c].tolist() for c in names))]
+
+
+def pandas_schema_metadata(table: pa.Table) -> bytes:
+    """The 'pandas' schema key pyarrow writes for a DataFrame of `table`'s columns with a default
+    index not kept (`to_parquet(index=False)`): pandas reads the file written with it to the frame it
+    would have written itself. Column kinds: int64, float64, bool, text (pandas' str: "object" /
+    "str") and columns with no value (an empty frame's: arrow null, "empty" / "object")."""
+    import json
+    from importlib.metadata import version
+
+    kinds = {pa.int64(): ("int64", "int64"), pa.float64(): ("float64", "float64"), pa.bool_(): ("bool", "bool"),
+             pa.large_string(): ("object", "str"), pa.null(): ("empty", "object")}
+    cols = []
+    for f in table.schema:
+        pandas_type, numpy_type = kinds[f.type]
+        cols.append({"name": f.name, "field_name": f.name, "pandas_type": pandas_type, "numpy_type": numpy_type, "metadata": None})
+    meta = {"index_columns": [], "column_indexes": [], "columns": cols, "attributes": {},
+            "creator": {"library": "pyarrow", "version": pa.__version__}, "pandas_version": version("pandas")}
+    return json.dumps(meta).encode("utf8")
+
+
+def _arrow_array_as_pandas(v: np.ndarray) -> pa.Array:
+    """`_arrow_array`, but a float column's NaN null, as pyarrow converts pandas' floats (NaN is missing)."""
+    if v.dtype == np.float64 and np.isnan(v).any():
+        valid = ~np.isnan(v)
+        bits = np.packbits(valid, bitorder="little")
+        return pa.Array.from_buffers(pa.float64(), v.size, [pa.py_buffer(bits), pa.py_buffer(np.ascontiguousarray(v))],
+                                     null_count=int(v.size - np.count_nonzero(valid)))
+    return _arrow_array(v)
+
+
+def to_arrow_as_pandas(t: Columns) -> pa.Table:
+    """The Arrow table pyarrow makes of `t` as a DataFrame (`pa.Table.from_pandas(df, preserve_index=False)`),
+    its 'pandas' schema key included (`pandas_schema_metadata`), without pandas: `to_arrow`'s columns with
+    NaN null in the float ones, and an empty text column (an empty table's) Arrow null, as pandas gives them."""
+    arrays = [pa.nulls(0) if len(t) == 0 and t[k].dtype == object else _arrow_array_as_pandas(np.asarray(t[k])) for k in t.columns]
+    table = pa.Table.from_arrays(arrays, names=t.columns)
+    return table.replace_schema_metadata({b"pandas": pandas_schema_metadata(table)})

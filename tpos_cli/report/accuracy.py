@@ -11,12 +11,13 @@ and with attitude truth `roll_deg`, `pitch_deg`, `yaw_deg` (wrap-aware), `att_de
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli.frames.geodetic import ecef_to_ned_dcm, lla_to_ecef
 from tpos_cli.frames.rotation import euler_to_dcm
+from tpos_cli.io.columns import Columns, from_records
 from tpos_cli.report import metrics
 from tpos_cli.report.qc import Series, solution_series
 from tpos_cli.report.rundir import RunData, ordered_solutions
@@ -27,6 +28,9 @@ from tpos_cli.report.truth import (
     interpolate_positions,
 )
 from tpos_cli.timebase import in_intervals
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 ROW_KEYS = ("solution", "target", "segment", "quantity")
 COLUMNS = ROW_KEYS + metrics.STAT_FIELDS + ("cep", "ce90")
@@ -54,10 +58,10 @@ class SolutionErrors:
 
 @dataclass(frozen=True)
 class Accuracy:
-    table: pd.DataFrame
+    table: Columns  # `COLUMNS`, one row per statistic (accuracy.parquet); `.to_pandas()` for a DataFrame
     solutions: tuple[SolutionErrors, ...]
     targets: pd.DataFrame | None  # one row per (solution, target shot) with errors and sigmas
-    paper_tables: dict[str, pd.DataFrame]
+    paper_tables: dict[str, Columns]
 
 
 def _stat_row(solution, target, segment, quantity, err) -> dict:
@@ -181,6 +185,8 @@ def target_errors(run: RunData, truth: ReportTruth) -> pd.DataFrame | None:
     """One row per targets.parquet row whose id has surveyed truth: NEU errors, sigmas, predicted CEP."""
     if run.targets is None or truth.targets is None:
         return None
+    import pandas as pd  # here: only a run with targets has them (targets.parquet is read with pandas)
+
     lut = {i: k for k, i in enumerate(truth.targets.ids)}
     df = run.targets[run.targets["id"].isin(lut.keys())].reset_index(drop=True)
     if df.empty:
@@ -228,24 +234,30 @@ class _Lookup:
     """Cells of the accuracy table by (solution, target, segment, quantity): one pass to index it,
     then dictionary look-ups (the paper tables read a few hundred cells)."""
 
-    def __init__(self, table: pd.DataFrame) -> None:
-        keys = zip(*(table[k].astype(str) for k in ROW_KEYS))
+    def __init__(self, table: Columns) -> None:
+        keys = zip(*([str(v) for v in table[k].tolist()] for k in ROW_KEYS))
         self._row = {k: i for i, k in reversed(list(enumerate(keys)))}  # the first row of a key wins
         self._table = table
 
     def __call__(self, solution, target, segment, quantity, stat) -> float:
         i = self._row.get((solution, target, segment, quantity))
-        return float("nan") if i is None else float(self._table[stat].iat[i])
+        return float("nan") if i is None else float(self._table[stat][i])
 
 
-def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.DataFrame]:
+def _table(columns: dict[str, list]) -> Columns:
+    """A table of equally long lists by name, dtypes as pandas infers them (`io.columns.from_records`)."""
+    names = list(columns)
+    return from_records([dict(zip(names, row)) for row in zip(*columns.values())], names)
+
+
+def paper_tables(run: RunData, table: Columns, kind: str) -> dict[str, Columns]:
     """The accuracy table reshaped like the papers' tables, where the run reproduces one."""
-    out: dict[str, pd.DataFrame] = {}
+    out: dict[str, Columns] = {}
     _get = _Lookup(table)
-    tgt = table[table["target"] == "all"]
+    tgt = table.take(table["target"] == "all")
     if len(tgt):
         sols = ordered_solutions(tgt["solution"])
-        out["paper000_table4"] = pd.DataFrame(
+        out["paper000_table4"] = _table(
             {
                 "solution": sols,
                 "mean_m": [_get(s, "all", "all", "pos_3d_m", "mean") for s in sols],
@@ -253,11 +265,11 @@ def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.D
                 "n": [_get(s, "all", "all", "pos_3d_m", "n") for s in sols],
             }
         )
-    traj = table[table["target"] == ""]
+    traj = table.take(table["target"] == "")
     if len(traj) and kind == "ranging":
         sols = ordered_solutions(traj["solution"])
         g = lambda s, q, st: _get(s, "", "all", q, st)  # noqa: E731
-        out["paper002_table1"] = pd.DataFrame(
+        out["paper002_table1"] = _table(
             {
                 "solution": sols,
                 "x_min_m": [g(s, "pos_e_m", "min") for s in sols],
@@ -292,7 +304,7 @@ def paper_tables(run: RunData, table: pd.DataFrame, kind: str) -> dict[str, pd.D
                     }
                 )
         if rows:
-            out["paper003_outages"] = pd.DataFrame(rows)
+            out["paper003_outages"] = from_records(rows, list(rows[0]))
     return out
 
 
@@ -315,6 +327,6 @@ def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", se
     te = target_errors(run, truth) if truth is not None else None
     if te is not None:
         rows += _target_rows(te)
-    table = pd.DataFrame(rows, columns=list(COLUMNS))
-    table["n"] = table["n"].astype("int64")
+    table = from_records(rows, COLUMNS)
+    table = Columns({c: table[c].astype(np.int64) if c == "n" else table[c] for c in COLUMNS}, len(table))
     return Accuracy(table, tuple(sols), te, paper_tables(run, table, kind))

@@ -4,9 +4,9 @@ whose layout it follows)."""
 
 from __future__ import annotations
 
-import pandas as pd
-from pandas.api.types import is_integer_dtype, is_numeric_dtype
+import numpy as np
 
+from tpos_cli.io.columns import Columns, as_text, flags, groups
 from tpos_cli.report import layout as L
 from tpos_cli.report.context import ReportContext
 from tpos_cli.report.format import length_unit
@@ -28,11 +28,14 @@ PAPER_LAYOUTS = {
 }
 
 
-def _chunks(df: pd.DataFrame, n: int = ROWS):
+def _chunks(df, n: int = ROWS):
+    """Consecutive parts of at most `n` rows of a `Columns` (the accuracy table) or a DataFrame (the shots)."""
+    if isinstance(df, Columns):
+        return [df.take(np.arange(i, min(i + n, len(df)))) for i in range(0, len(df), n)]
     return [df.iloc[i : i + n] for i in range(0, len(df), n)]
 
 
-def _long_table(name: str, title: str, subtitle: str, df: pd.DataFrame, columns) -> list[Section]:
+def _long_table(name: str, title: str, subtitle: str, df, columns) -> list[Section]:
     """A table of many rows as consecutive sections of `ROWS` rows; the subtitle on the first."""
     out = []
     for k, part in enumerate(_chunks(df)):
@@ -47,7 +50,7 @@ def _long_table(name: str, title: str, subtitle: str, df: pd.DataFrame, columns)
 
 def segment_sections(ctx: ReportContext) -> list[Section]:
     t = ctx.acc.table
-    keep = t[t["quantity"].isin(["pos_3d_m", "pos_h_m", "pos_v_m", "roll_deg", "pitch_deg", "yaw_deg", "att_deg"]) & (t["n"] > 0)]
+    keep = t.take(np.isin(t["quantity"], ["pos_3d_m", "pos_h_m", "pos_v_m", "roll_deg", "pitch_deg", "yaw_deg", "att_deg"]) & (t["n"] > 0))
 
     def columns(part):
         cols = [
@@ -74,8 +77,9 @@ def innovation_sections(ctx: ReportContext) -> list[Section]:
     if inn is None or not len(inn):
         return []
     out = []
-    for (sol, kind), idx in inn.groupby([inn["solution"].astype(str), inn["kind"].astype(str)], sort=False).indices.items():
-        d = inn.iloc[idx]
+    labels = [as_text(inn[c]) for c in ("solution", "kind")]
+    for (sol, kind), idx in groups(*labels):
+        d = inn.take(idx)
 
         def draw(fig, top, bottom, d=d, kind=kind):
             (ax,) = panel_axes(fig, 1, top, bottom)
@@ -89,7 +93,7 @@ def innovation_sections(ctx: ReportContext) -> list[Section]:
                 f"Appendix: innovations, {sol} {kind}",
                 PANEL_H + 0.02,
                 draw,
-                f"{int((~d['accepted'].fillna(False)).sum())} of {len(d)} updates rejected (x); band: chi-square 95 %.",
+                f"{int((~flags(d, 'accepted')).sum())} of {len(d)} updates rejected (x); band: chi-square 95 %.",
             )
         )
     return out
@@ -126,9 +130,9 @@ def layout_sections(ctx: ReportContext) -> list[Section]:
         if df is None or not len(df):
             continue
         cols = [
-            L.Column(c, L.fmt_num(df[c], 0 if is_integer_dtype(df[c]) else 4))
-            if is_numeric_dtype(df[c])  # labels are strings of any dtype (object, or pandas' own str)
-            else L.Column(c, list(df[c].astype(str)), align="left")
+            L.Column(c, L.fmt_num(df[c], 0 if df[c].dtype.kind in "iu" else 4))
+            if df[c].dtype.kind in "iufb"  # pandas' is_numeric_dtype: bool counts; labels are str in object arrays
+            else L.Column(c, [str(v) for v in df[c].tolist()], align="left")
             for c in df.columns
         ]
 

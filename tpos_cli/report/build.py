@@ -12,12 +12,14 @@ import math
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+import pyarrow.parquet as pq
 
 from tpos_cli.conventions import output_on_gps_clock
 from tpos_cli.errors import InvalidInputError
+from tpos_cli.io.columns import Columns, column, is_empty, records, to_arrow_as_pandas
 from tpos_cli.report import qc
 from tpos_cli.report.accuracy import Accuracy, compute_accuracy
 from tpos_cli.report.collector import cyclic_gc_paused
@@ -29,6 +31,9 @@ from tpos_cli.report.solutions import rank_solutions
 from tpos_cli.report.stages import StageClock, timed
 from tpos_cli.report.targets import combined_targets
 from tpos_cli.report.truth import ReportTruth, choose_truth
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 OUTPUTS = ("accuracy.parquet", "accuracy.json", "report.pdf")
 REPORT_ONLY_INPUTS = ("truth",)  # session tables only reports read: changing them does not change the run
@@ -63,21 +68,31 @@ def _clean_json(x):
     return x
 
 
-def _records(df: pd.DataFrame | None) -> list[dict]:
-    return [] if df is None else df.to_dict(orient="records")
+def _records(df: Columns | pd.DataFrame | None) -> list[dict]:
+    if df is None:
+        return []
+    return records(df) if isinstance(df, Columns) else df.to_dict(orient="records")
 
 
 def headline(acc: Accuracy) -> list[dict]:
     """One line per solution: the numbers a reader looks for first (all epochs, all targets)."""
     t = acc.table
+    sols, targets, segments, quantities = (t[c].tolist() for c in ("solution", "target", "segment", "quantity"))
     out = []
-    for sol in dict.fromkeys(t["solution"]):
-        d = t[(t["solution"] == sol) & (t["segment"] == "all") & (t["target"].isin(["", "all"]))]
-        for target_kind, dd in (("trajectory", d[d["target"] == ""]), ("targets", d[d["target"] == "all"])):
-            if dd.empty:
+    for sol in dict.fromkeys(sols):
+        for target_kind, of in (("trajectory", ""), ("targets", "all")):
+            # the rows of this solution's segment `all` (one per quantity) by quantity
+            rows = [i for i in range(len(t)) if sols[i] == sol and segments[i] == "all" and targets[i] == of]
+            if not rows:
                 continue
-            q = dd.set_index("quantity")
-            row = {"solution": sol, "of": target_kind, "n": int(q.loc["pos_3d_m", "n"])}
+            q = {}
+            for i in rows:
+                q.setdefault(quantities[i], i)
+
+            def cell(name: str, stat: str, q=q) -> float:
+                return t[stat][q[name]]
+
+            row = {"solution": sol, "of": target_kind, "n": int(cell("pos_3d_m", "n"))}
             for name, stat in (
                 ("pos_3d_m", "rms"),
                 ("pos_h_m", "rms"),
@@ -87,13 +102,13 @@ def headline(acc: Accuracy) -> list[dict]:
                 ("pos_3d_m", "mean"),
                 ("pos_3d_m", "sd"),
             ):
-                row[f"{stat}_{name}"] = float(q.loc[name, stat])
+                row[f"{stat}_{name}"] = float(cell(name, stat))
             if target_kind == "targets":
-                row["cep_m"] = float(q.loc["pos_h_m", "cep"])
-                row["ce90_m"] = float(q.loc["pos_h_m", "ce90"])
+                row["cep_m"] = float(cell("pos_h_m", "cep"))
+                row["ce90_m"] = float(cell("pos_h_m", "ce90"))
             for a in ("roll_deg", "pitch_deg", "yaw_deg", "att_deg"):
-                if a in q.index:
-                    row[f"rms_{a}"] = float(q.loc[a, "rms"])
+                if a in q:
+                    row[f"rms_{a}"] = float(cell(a, "rms"))
             out.append(row)
     return out
 
@@ -250,7 +265,7 @@ def _truth_apart_in_time(truth: ReportTruth | None, series: dict) -> str | None:
             "overlap in time on the logger clock")
 
 
-def gps_clock_note(summary: dict, trajectory: pd.DataFrame | None, solution: str | None = None) -> str | None:
+def gps_clock_note(summary: dict, trajectory: Columns | pd.DataFrame | None, solution: str | None = None) -> str | None:
     """A note when the run moved its output to the GPS receiver's clock (`results.gps_clock_offset.
     output_clock` "gps": times t - d, d the estimated IMU-GPS offset) while truth.* is read on the
     session's logger clock, as the contract has it: the two then differ by about v d along the track
@@ -263,13 +278,14 @@ def gps_clock_note(summary: dict, trajectory: pd.DataFrame | None, solution: str
         d = float(clk["estimate_s"])
     except (KeyError, TypeError, ValueError):
         return None
-    if trajectory is not None and solution is not None and "solution" in trajectory.columns:
-        trajectory = trajectory[trajectory["solution"].astype(str) == solution]
-    if trajectory is not None and {"vn", "ve"} <= set(trajectory.columns) and len(trajectory):
-        v = np.hypot(trajectory["vn"].to_numpy(float), trajectory["ve"].to_numpy(float))
-        v95 = float(np.nanpercentile(v, 95)) if np.isfinite(v).any() else np.nan
-    else:
-        v95 = np.nan
+    v95 = np.nan
+    if trajectory is not None and {"vn", "ve"} <= set(trajectory.columns):
+        rows = np.ones(len(trajectory), dtype=bool)
+        if solution is not None and "solution" in trajectory.columns:
+            rows = np.array([str(s) for s in column(trajectory, "solution").tolist()], dtype=object) == solution
+        if rows.any():
+            v = np.hypot(np.asarray(column(trajectory, "vn"), dtype=float)[rows], np.asarray(column(trajectory, "ve"), dtype=float)[rows])
+            v95 = float(np.nanpercentile(v, 95)) if np.isfinite(v).any() else np.nan
     size = f": at the run's 95th-percentile speed, {v95:.1f} m/s, {abs(d) * v95:.2f} m along the track" if np.isfinite(v95) else ""
     return (
         f"the run's output is on the GPS receiver's clock (times moved by the estimated IMU-GPS offset, {d:+.3f} s) "
@@ -285,8 +301,8 @@ def build_context(
     """Everything the report draws, computed once; stages timed on `clock` (loading, accuracy
     tables, filter health, quality figures)."""
     with timed(clock, "load: run"):
-        run = load_run(Path(run_dir))
-    if (run.trajectory is None or run.trajectory.empty) and (run.targets is None or run.targets.empty):
+        run = load_run(Path(run_dir), frames=False)
+    if (run.trajectory is None or is_empty(run.trajectory)) and (run.targets is None or run.targets.empty):
         raise InvalidInputError(
             f"{run.path.name}: nothing to report: the run has no trajectory and no targets (the pipeline wrote no solutions)"
         )
@@ -398,7 +414,8 @@ def _make_report(run_dir: Path, truth_session: Path | None, *, pdf: bool, full: 
     pages: list[str] = []
     with staged([run_dir / n for n in names]) as tmp:
         with timed(clock, "accuracy files"):
-            ctx.acc.table.to_parquet(tmp[run_dir / "accuracy.parquet"], index=False)
+            # the file `DataFrame.to_parquet(index=False)` wrote, pandas' schema key included, without pandas
+            pq.write_table(to_arrow_as_pandas(ctx.acc.table), tmp[run_dir / "accuracy.parquet"])
             tmp[run_dir / "accuracy.json"].write_text(json.dumps(summary, indent=1), encoding="utf-8")
         if pdf:
             from tpos_cli.report.pdf import write_pdf

@@ -4,16 +4,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
+from tpos_cli.io.columns import Columns
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.accuracy import Accuracy, SolutionErrors
 from tpos_cli.report.health import Health
 from tpos_cli.report.rundir import RunData
 from tpos_cli.report.truth import ReportTruth
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 KIND_TITLES = {"drive": "vehicle drive", "target": "target survey (static observer)", "ranging": "ranging (anchors)"}
 
@@ -44,7 +48,7 @@ class ReportContext:
     gps: qc.GpsQuality | None
     mag: qc.MagField | None
     anchors: qc.AnchorVisibility | None
-    estimated: pd.DataFrame
+    estimated: Columns
     full: bool
     inputs_note: str
     notes: tuple[str, ...] = field(default=())
@@ -139,8 +143,8 @@ class ReportContext:
         inn = self.run.innovations
         if inn is None or not len(inn):
             return None
-        have = set(inn["solution"].unique().astype(str))  # the few labels, not a string per row
+        have = {str(s) for s in set(inn["solution"].tolist())}  # the few labels, not a string per row
         for s in ["forward"] + self.order if not self.static_observer else self.order:
             if s in have:
                 return s
-        return str(inn["solution"].iloc[0])
+        return str(inn["solution"][0])

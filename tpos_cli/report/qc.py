@@ -19,15 +19,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from scipy import special
 
 from tpos_cli.frames.geodetic import lla_to_ned
+from tpos_cli.io.columns import Columns, column, first_appearance_codes, flags, from_records, is_empty
 from tpos_cli.report.metrics import chi2_ppf
 from tpos_cli.report.targets import horizontal_ellipse
 from tpos_cli.report.truth import covered, median_gap_limit
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 Z95 = float(special.ndtri(0.975))  # two-sided 95 % of a Gaussian: 1.96 sigma
 CHI2_2_95 = float(chi2_ppf(0.95, 2))  # squared Mahalanobis radius of a 95 % ellipse
@@ -69,30 +73,37 @@ class Series:
         return bool(len(p) == 0 or np.ptp(p[:, 0]) < 1e-9 and np.ptp(p[:, 1]) < 1e-9)
 
 
-def _col(df: pd.DataFrame, name: str, fill=np.nan) -> np.ndarray:
-    return df[name].to_numpy(float) if name in df.columns else np.full(len(df), fill)
+def _col(df, name: str, fill=np.nan) -> np.ndarray:
+    return np.asarray(column(df, name), dtype=float) if name in df.columns else np.full(len(df), fill)
 
 
-def _flag(df: pd.DataFrame, name: str) -> np.ndarray:
-    return df[name].fillna(False).to_numpy(bool) if name in df.columns else np.zeros(len(df), bool)
+def _flag(df, name: str) -> np.ndarray:
+    return flags(df, name) if name in df.columns else np.zeros(len(df), bool)
 
 
-def solution_series(trajectory: pd.DataFrame | None) -> dict[str, Series]:
+def _by_solution(labels: np.ndarray) -> dict[str, np.ndarray]:
+    """Row positions of each solution, solutions in order of first appearance (pandas'
+    `groupby(sort=False).indices`)."""
+    codes, names = first_appearance_codes(labels)
+    return {str(s): np.flatnonzero(codes == k) for k, s in enumerate(names)}
+
+
+def solution_series(trajectory: Columns | pd.DataFrame | None) -> dict[str, Series]:
     """Every solution of trajectory.parquet as `Series`: each column converted once for the whole
     table, then split by solution (views of contiguous rows, as `load_run` orders them)."""
-    if trajectory is None or trajectory.empty:
+    if trajectory is None or is_empty(trajectory):
         return {}
     d = trajectory
-    t = d["t"].to_numpy(float)
-    lla = d[["lat", "lon", "h"]].to_numpy(float)
-    rpy = d[["roll", "pitch", "yaw"]].to_numpy(float)
+    t = _col(d, "t")
+    lla = np.stack([_col(d, c) for c in ("lat", "lon", "h")]).T  # column-major, as pandas' to_numpy gave it
+    rpy = np.stack([_col(d, c) for c in ("roll", "pitch", "yaw")]).T
     sig_u = _col(d, "sigma_u") if "sigma_u" in d.columns else _col(d, "sigma_d")
     sig_neu = np.column_stack([_col(d, "sigma_n"), _col(d, "sigma_e"), sig_u])
     cov_ne = np.nan_to_num(_col(d, "cov_ne_m2", 0.0))
     sig_rpy = np.column_stack([_col(d, "sigma_roll"), _col(d, "sigma_pitch"), _col(d, "sigma_yaw")])
     flag, outage = _flag(d, "flag"), _flag(d, "outage")
     out = {}
-    for name, idx in d.groupby("solution", sort=False, observed=True).indices.items():
+    for name, idx in _by_solution(np.asarray(column(d, "solution"))).items():
         rows = slice(idx[0], idx[-1] + 1) if idx[-1] - idx[0] + 1 == idx.size else idx
         out[str(name)] = Series(
             name=str(name),
@@ -117,7 +128,7 @@ def horizontal_95_m(s: Series) -> np.ndarray:
     return s.h95_m
 
 
-def estimated_accuracy(series: dict[str, Series], order) -> pd.DataFrame:
+def estimated_accuracy(series: dict[str, Series], order) -> Columns:
     """Per solution: median and 95th percentile over the run of the 95 % bounds it states."""
     rows = []
     for name in order:
@@ -145,7 +156,7 @@ def estimated_accuracy(series: dict[str, Series], order) -> pd.DataFrame:
                 "flagged_frac": float(s.flag.mean()) if s.t.size else np.nan,
             }
         )
-    return pd.DataFrame(rows)
+    return from_records(rows, list(rows[0]) if rows else [])
 
 
 @dataclass(frozen=True)

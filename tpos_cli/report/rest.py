@@ -10,22 +10,23 @@ tells them apart: at rest its speed stays below `REST_SPEED_MPS`, driving it is 
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
+
+from tpos_cli.io.columns import Columns, column
 
 REST_SPEED_MPS = 0.1  # the speed under which the chains' stop detector counts a vehicle as stopped (fusion.constraints)
 MAX_STEP_S = 1.5  # epochs further apart than this end a stretch (a gap in the solution)
 
 
-def solution_velocity(trajectory: pd.DataFrame | None, solution: str | None) -> tuple[np.ndarray, np.ndarray] | None:
+def solution_velocity(trajectory: Columns | None, solution: str | None) -> tuple[np.ndarray, np.ndarray] | None:
     """(t logger clock (N,), NED velocity m/s (N, 3)) of one solution of trajectory.parquet, or None
     when the run writes no velocity for it (attitude-only solutions, older runs)."""
     if trajectory is None or solution is None or not {"vn", "ve", "vd"} <= set(trajectory.columns):
         return None
-    d = trajectory[trajectory["solution"] == solution]
-    v = d[["vn", "ve", "vd"]].to_numpy(float)
+    rows = np.asarray(column(trajectory, "solution")) == solution
+    v = np.stack([np.asarray(column(trajectory, c), dtype=float)[rows] for c in ("vn", "ve", "vd")]).T
     if not np.isfinite(v).all(axis=1).any():
         return None
-    return d["t"].to_numpy(float), v
+    return np.asarray(column(trajectory, "t"), dtype=float)[rows], v
 
 
 def rest_stretches(t_s, vel_ned_mps, min_s: float) -> np.ndarray:

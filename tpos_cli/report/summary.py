@@ -16,6 +16,7 @@ from matplotlib.patches import FancyBboxPatch
 
 from tpos_cli.conventions import output_on_gps_clock
 from tpos_cli.frames.geodetic import lla_to_ned
+from tpos_cli.io.columns import records
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import KIND_TITLES, ReportContext
@@ -145,7 +146,7 @@ def _moving_rows(ctx: ReportContext) -> list[tuple[str, str]]:
     travelled = float(np.nansum(np.hypot(np.diff(ned[:, 0]), np.diff(ned[:, 1]))))
     rows.append(("Duration", f"{fmt_duration(dur)}, {fmt_len(travelled)} travelled"))
     rows.append(("Solution shown", f"{best.name} (best of {', '.join(ctx.order)})"))
-    est = ctx.estimated.set_index("solution").loc[best.name]
+    est = next(r for r in records(ctx.estimated) if r["solution"] == best.name)
     if np.isfinite(est["h95_median_m"]):
         rows.append(
             ("Estimated 95 %, horizontal", f"median {fmt_len(est['h95_median_m'])}, 95th percentile {fmt_len(est['h95_p95_m'])}")
@@ -216,8 +217,8 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         )
     sol = ctx.innovation_solution()
     if sol is not None:
-        nis = ctx.health.nis[ctx.health.nis["solution"] == sol]
-        rows.append((f"Updates rejected ({sol})", "; ".join(f"{r.kind} {int(r.n_rejected)} of {int(r.n)}" for r in nis.itertuples())))
+        nis = [r for r in records(ctx.health.nis) if r["solution"] == sol]
+        rows.append((f"Updates rejected ({sol})", "; ".join(f"{r['kind']} {int(r['n_rejected'])} of {int(r['n'])}" for r in nis)))
     if ctx.gps_agreement_only and ctx.best is not None:
         se = ctx.errors(ctx.best, independent_only=False)
         if se is not None and np.isfinite(se.err_ned_m).any():

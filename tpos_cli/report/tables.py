@@ -8,18 +8,22 @@ dumps: every table says what it is in its heading.
 from __future__ import annotations
 
 import textwrap
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 from matplotlib.collections import EllipseCollection
 
 from tpos_cli.frames.geodetic import lla_to_ned
+from tpos_cli.io.columns import Columns, from_records
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import ReportContext
 from tpos_cli.report.format import checked_start_utc, length_unit, utc_strings
 from tpos_cli.report.sections import Section
 from tpos_cli.report.solutions import rank_solutions
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 FONT = 7.2
 NEES3_99 = 11.345  # chi2_3(0.99): a shot outside its 99 % ellipsoid
@@ -42,7 +46,12 @@ NIS_TABLE_NOTE = (
 )
 
 
-def nis_columns(t: pd.DataFrame) -> list[L.Column]:
+def _cells(t: Columns, names) -> np.ndarray:
+    """The cells of several numeric columns row by row (a table's rows one after the other)."""
+    return np.column_stack([np.asarray(t[n], dtype=float) for n in names]).ravel()
+
+
+def nis_columns(t: Columns) -> list[L.Column]:
     return [
         L.Column("solution", list(t["solution"]), align="left"),
         L.Column("kind", list(t["kind"]), align="left"),
@@ -220,7 +229,7 @@ def target_truth_section(ctx: ReportContext) -> Section | None:
                 "in95": np.mean(nees <= NEES3_95),
             }
         )
-    r = pd.DataFrame(rows)
+    r = from_records(rows, list(rows[0]))
     unit, sc, dec = length_unit(np.r_[te["err_h_m"], te["sigma_n_m"]])
     cols = [
         L.Column("solution", list(r["solution"]), align="left"),
@@ -323,8 +332,8 @@ def _accuracy_columns(ctx: ReportContext) -> list[L.Column] | None:
         )
     if not rows:
         return None
-    r = pd.DataFrame(rows)
-    unit, sc, dec = length_unit(r[["rmsh", "p95h", "rmsv"]].to_numpy().ravel())
+    r = from_records(rows, list(rows[0]))
+    unit, sc, dec = length_unit(_cells(r, ("rmsh", "p95h", "rmsv")))
     return [
         L.Column("solution", list(r["solution"]), align="left"),
         L.Column("epochs", [str(v) for v in r["n"]]),
@@ -364,7 +373,7 @@ def _outage_columns(ctx: ReportContext) -> list[L.Column] | None:
     p3 = ctx.acc.paper_tables.get("paper003_outages")
     if p3 is None or not len(p3):
         return None
-    unit, sc, dec = length_unit(p3[["rms_h_m", "max_h_m"]].to_numpy().ravel())
+    unit, sc, dec = length_unit(_cells(p3, ("rms_h_m", "max_h_m")))
     return [
         L.Column("outage", [str(v) for v in p3["outage"]]),
         L.Column("from", L.fmt_num(p3["t0"] - ctx.t_ref, 1), "s"),
@@ -379,12 +388,12 @@ def _outage_columns(ctx: ReportContext) -> list[L.Column] | None:
 
 def _estimated_columns(ctx: ReportContext) -> list[L.Column] | None:
     t = ctx.estimated
-    t = t[[np.isfinite(a) or np.isfinite(b) for a, b in zip(t["h95_median_m"], t["yaw95_median_deg"])]]
+    t = t.take(np.array([np.isfinite(a) or np.isfinite(b) for a, b in zip(t["h95_median_m"], t["yaw95_median_deg"])], dtype=bool))
     if not len(t):
         return None
     cols = [L.Column("solution", list(t["solution"]), align="left"), L.Column("epochs", [str(v) for v in t["n"]])]
     if np.isfinite(t["h95_median_m"]).any():
-        unit, sc, dec = length_unit(t[["h95_median_m", "v95_median_m"]].to_numpy().ravel())
+        unit, sc, dec = length_unit(_cells(t, ("h95_median_m", "v95_median_m")))
 
         def pair(a, b):
             return [f"{x} / {y}" if x else "" for x, y in zip(L.fmt_num(t[a], dec, sc), L.fmt_num(t[b], dec, sc))]
@@ -401,7 +410,7 @@ def _estimated_columns(ctx: ReportContext) -> list[L.Column] | None:
             "deg, median / p95",
         ),
     ]
-    if t["flagged_frac"].fillna(0).any():
+    if np.nan_to_num(np.asarray(t["flagged_frac"], dtype=float), nan=0.0).any():
         cols.append(L.Column("flagged", L.fmt_num(100 * t["flagged_frac"], 1), "% of epochs"))
     return cols
 

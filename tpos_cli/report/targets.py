@@ -30,14 +30,17 @@ clockwise from true north in [0, 180).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.geodetic import enu_to_lla, lla_to_enu
 from tpos_cli.report.format import utc_strings
 from tpos_cli.report.projection import UtmZone, to_utm, zone_for
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 SIGMA_COLS = ("sigma_n", "sigma_e", "sigma_u")
 CROSS_COLS = {"cov_ne_m2": (0, 1), "cov_nu_m2": (0, 2), "cov_eu_m2": (1, 2)}
@@ -149,6 +152,8 @@ def combine_shots(shots: pd.DataFrame) -> pd.DataFrame:
             shot_chi2_dof=chi2_dof,
         )
         rows.append(row)
+    import pandas as pd  # here: only runs with targets combine shots (qc and export import this module for its ellipse)
+
     out = pd.DataFrame(rows, columns=["id", "lat", "lon", "h", *SIGMA_COLS, *CROSS_COLS, "n_shots", "shot_chi2_dof", "t_first", "t_last"])
     cov_ne = np.stack([np.column_stack([out.sigma_n**2, out.cov_ne_m2]), np.column_stack([out.cov_ne_m2, out.sigma_e**2])], axis=1)
     ell = horizontal_ellipse(cov_ne)

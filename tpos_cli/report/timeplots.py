@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from tpos_cli.io.columns import as_text, column, flags
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import ReportContext
@@ -57,10 +58,10 @@ def mark_time(ax, ctx: ReportContext, legend: bool = True, label_shots: bool = F
 def draw_nis(ax, ctx: ReportContext, d, color: str = L.COLORS[0], label: str = "accepted", band: bool = True) -> None:
     """NIS of one stream of updates (innovations rows) on a log axis: accepted as dots, rejected as
     x, the chi-square 95 % band of their size behind them."""
-    x = ctx.x(d["t"].to_numpy(float))
-    nis = d["nis"].to_numpy(float)
-    acc = d["accepted"].fillna(False).to_numpy(bool)
-    dof = d["dof"].to_numpy(float)
+    x = ctx.x(column(d, "t"))
+    nis = np.asarray(column(d, "nis"), dtype=float)
+    acc = flags(d, "accepted")
+    dof = np.asarray(column(d, "dof"), dtype=float)
     if band and np.isfinite(dof).any():
         lo, hi = nis_band(np.nanmedian(dof))
         ax.axhspan(lo, hi, color="0.88", zorder=0, label=f"95 % band ({np.nanmedian(dof):.0f} dof)")
@@ -174,8 +175,8 @@ def innovations_section(ctx: ReportContext) -> Section | None:
     sol = ctx.innovation_solution()
     if sol is None:
         return None
-    d_sol = inn[inn["solution"].astype(str) == sol]
-    kinds = list(dict.fromkeys(d_sol["kind"].unique().astype(str)))[:3]  # first-appearance order
+    d_sol = inn.take(as_text(inn["solution"]) == sol)
+    kinds = list(dict.fromkeys(as_text(d_sol["kind"]).tolist()))[:3]  # first-appearance order
     table = nis_columns(ctx.health.nis)
     from tpos_cli.report.layout import table_height
 
@@ -184,7 +185,7 @@ def innovations_section(ctx: ReportContext) -> Section | None:
     def draw(fig, top, bottom):
         axes = panel_axes(fig, len(kinds), top, bottom + th, legend_each=True)
         for ax, kind in zip(axes, kinds):
-            draw_nis(ax, ctx, d_sol[d_sol["kind"].astype(str) == kind])
+            draw_nis(ax, ctx, d_sol.take(as_text(d_sol["kind"]) == kind))
             L.legend_outside(ax)
         _finish(axes, ctx, [f"NIS, {k}" for k in kinds])
         L.draw_table(fig, bottom + th, table, fontsize=7.2, highlight=[i for i, c in enumerate(ctx.health.nis["consistent"]) if not c])
@@ -387,10 +388,11 @@ def anchors_section(ctx: ReportContext) -> Section | None:
         mark_time(axes[0], ctx)
         labels = ["anchor ranged"]
         if has_nis:
-            d = inn[(inn["solution"].astype(str) == sol) & inn["anchor"].notna()]
+            named = np.array([v is not None and v == v for v in inn["anchor"].tolist()], dtype=bool)  # pandas' notna
+            d = inn.take((as_text(inn["solution"]) == sol) & named)
             ax = axes[1]
             for j, name in enumerate(av.ids):  # one colour per anchor; the band once, behind them all
-                draw_nis(ax, ctx, d[d["anchor"].astype(str) == name], color=L.COLORS[j % len(L.COLORS)], label=name, band=j == 0)
+                draw_nis(ax, ctx, d.take(as_text(d["anchor"]) == name), color=L.COLORS[j % len(L.COLORS)], label=name, band=j == 0)
             L.legend_outside(ax)
             labels.append(f"NIS of ranges ({sol})")
         _finish(axes, ctx, labels)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
+from tpos_cli.io.columns import column
 
 GAP_FACTOR = 2.5  # a gap is > 2.5 median intervals: one missed sample plus clock jitter is not a gap
 
@@ -187,7 +188,7 @@ def used_fix_rows(t, lla, session, withheld) -> np.ndarray:
     tg = np.asarray(g.t_s, dtype=float)[ok] + session.t0_s
     lg = np.asarray(g.lla, dtype=float)[ok]
     if withheld is not None and len(withheld):
-        far = nearest(np.sort(withheld["t"].to_numpy(float)), tg)[1] > SAME_ROW_S
+        far = nearest(np.sort(np.asarray(column(withheld, "t"), dtype=float)), tg)[1] > SAME_ROW_S
         tg, lg = tg[far], lg[far]
     if tg.size == 0:
         return used
@@ -255,15 +256,18 @@ def _truth_from_gps(session, withheld, mask_windows) -> TrajectoryTruth | None:
         s = np.asarray(g.sigma_neu_m, dtype=float)[ok] if g.sigma_neu_m is not None else np.full((ok.sum(), 3), np.nan)
         sig_h.append(np.hypot(s[:, 0], s[:, 1]))
     if withheld is not None and len(withheld):
-        w = withheld
-        ok = np.all(np.isfinite(w[["t", "lat", "lon", "h"]].to_numpy(float)), axis=1)
-        if "fix" in w:
-            ok &= w["fix"].to_numpy(float) > 0
-        ts.append(w["t"].to_numpy(float)[ok])
-        llas.append(w[["lat", "lon", "h"]].to_numpy(float)[ok])
-        fixes.append(w["fix"].to_numpy(float)[ok].astype(int) if "fix" in w else np.ones(ok.sum(), int))
-        if {"sigma_n", "sigma_e"} <= set(w.columns):
-            sig_h.append(np.hypot(w["sigma_n"].to_numpy(float), w["sigma_e"].to_numpy(float))[ok])
+        def w(name: str) -> np.ndarray:
+            return np.asarray(column(withheld, name), dtype=float)
+
+        lla_w = np.column_stack([w("lat"), w("lon"), w("h")])
+        ok = np.isfinite(w("t")) & np.all(np.isfinite(lla_w), axis=1)
+        if "fix" in withheld.columns:
+            ok &= w("fix") > 0
+        ts.append(w("t")[ok])
+        llas.append(lla_w[ok])
+        fixes.append(w("fix")[ok].astype(int) if "fix" in withheld.columns else np.ones(ok.sum(), int))
+        if {"sigma_n", "sigma_e"} <= set(withheld.columns):
+            sig_h.append(np.hypot(w("sigma_n"), w("sigma_e"))[ok])
         else:
             sig_h.append(np.full(ok.sum(), np.nan))
     if not ts or sum(a.size for a in ts) == 0:
@@ -274,7 +278,7 @@ def _truth_from_gps(session, withheld, mask_windows) -> TrajectoryTruth | None:
     indep = np.zeros(t.size, dtype=bool)
     if withheld is not None and len(withheld):
         # exactly the fixes the run did not see: those in withheld_gps.parquet
-        indep = nearest(np.sort(withheld["t"].to_numpy(float)), t)[1] <= 1e-6
+        indep = nearest(np.sort(np.asarray(column(withheld, "t"), dtype=float)), t)[1] <= 1e-6
     else:
         for a, b in mask:  # --mask-gps T0:T1 is a closed window
             indep |= (t >= a) & (t <= b)
