@@ -426,8 +426,11 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         else:  # the SDs carry the first run's own attitude error (`travel_direction`)
             sd_deg = _mounting_sd_deg(td, p.mounting_sigma_given_deg)
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
+        # a wheeled vehicle's stops hold its attitude (its ZARU rows): there the fixes after a stop's first
+        # carry no yaw x lever-arm second-order variance (`fusion.lever_arm.second_order_shares`)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
-                                  layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
+                                  layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))),
+                                  rest_intervals_s=np.asarray(stops.intervals_s, dtype=float).reshape(-1, 2))
         after = nhc_start_s(info)
         out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
         parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))

@@ -101,7 +101,9 @@ class EventArrays(NamedTuple):
     """Measurements sorted by k (the sample at which each is processed, >= 1): lag (s, t_k minus
     the measurement time, in the run's time direction), kind (`Kind`), dim (1-3), z (E, 3),
     R (E, 3, 3), gated (E,) bool, slot (E,) int64 (counter of consecutive rejections, -1 none),
-    par (E,) int64 (per-kind parameter: anchor index, sens row)."""
+    par (E,) int64 (per-kind parameter: anchor index, sens row), second_order (E,) the share of the
+    lever arm's second-order variance a GPS row carries (`measurements._lever_second_order`; 1, or 0
+    for a row at rest after its stop's first: `fusion.lever_arm.second_order_shares`)."""
 
     k: np.ndarray
     lag: np.ndarray
@@ -112,6 +114,7 @@ class EventArrays(NamedTuple):
     gated: np.ndarray
     slot: np.ndarray
     par: np.ndarray
+    second_order: np.ndarray
 
 
 class Aiding(NamedTuple):
