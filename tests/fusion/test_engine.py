@@ -239,3 +239,28 @@ def test_fixes_at_rest_after_a_stops_first_carry_no_yaw_lever_second_order_varia
             assert lo <= v.mean() <= hi, (v.mean(), lo, hi)
         else:
             assert v.mean() < lo, (v.mean(), lo)
+
+
+def test_white_noise_inside_a_stop_is_scaled_by_its_factors_forward_and_backward():
+    """`FilterConfig.q_stops`: over a stop the velocity and attitude white PSDs are the run's times
+    the stop's factors (the kernel's `stop_process_noise`); before it the run is the plain one. A
+    stop covering the whole run equals a run with the PSDs scaled, in both directions."""
+    t, gyro, acc, init, cfg = _still()
+    none = Measurements.rows([], Kind.ZUPT, np.zeros((0, 3)), np.zeros((0, 3, 3)), dim=3, gated=False)
+    f = np.array([0.04, 0.25])
+    whole = FilterConfig(cfg.q, 0.0, 0.0, cov_step=10, q_stops=np.array([[-1.0, 30.0, *f]]))
+    scaled = FilterConfig(cfg.q * np.r_[f, 1.0, 1.0], 0.0, 0.0, cov_step=10)
+    for backward in (False, True):
+        a = run_filter(t, gyro, acc, init, whole, none, backward=backward)
+        b = run_filter(t, gyro, acc, init, scaled, none, backward=backward)
+        assert_allclose(a.ep_P.tril, b.ep_P.tril, rtol=1e-9, atol=1e-30)
+    # a stop over [10, 30] s (the run ends at 20 s): the plain run before it; over it the velocity
+    # variance grows less by the PSDs taken away, (1 - f_a) q_a T + (1 - f_g) q_g g^2 T^3 / 3 (the
+    # tilt's share), to 5 % (discrete covariance steps)
+    part = FilterConfig(cfg.q, 0.0, 0.0, cov_step=10, q_stops=np.array([[10.0, 30.0, *f]]))
+    p, o = run_filter(t, gyro, acc, init, part, none), run_filter(t, gyro, acc, init, cfg, none)
+    before = t[p.ep_idx] <= 10.0
+    assert_allclose(p.ep_P.tril[before], o.ep_P.tril[before], rtol=1e-12)
+    T, g = t[-1] - 10.0, acc[0, 2]
+    taken = (1 - f[0]) * cfg.q[0] * T + (1 - f[1]) * cfg.q[1] * g**2 * T**3 / 3
+    assert_allclose(o.ep_P[-1, 3, 3] - p.ep_P[-1, 3, 3], taken, rtol=0.05)

@@ -78,6 +78,7 @@ class FilterConfig:
     reacquire: bool = False
     stated_sd_factor: np.ndarray = field(default_factory=lambda: np.ones(4))
     rest_intervals_s: np.ndarray | None = None
+    q_stops: np.ndarray | None = None  # (K, 4) [t0, t1, acc factor, gyro factor]: white PSDs scaled inside stops
 
     @property
     def n_states(self) -> int:
@@ -362,7 +363,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
                   chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(cfg.reacquire),
                   np.asarray(cfg.stated_sd_factor, dtype=float), bool(store_rts),
-                  bool(backward))
+                  bool(backward), _q_stops(cfg.q_stops, backward))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
     # None when no row needs the ranging models: numba then compiles the kernel without them
     ranging = True if np.isin(meas.kind, [Kind.RANGE, Kind.FIX_NE, Kind.FLOOR]).any() else None
@@ -472,6 +473,16 @@ def _aiding(cfg: FilterConfig, meas: Measurements, backward: bool = False) -> Ai
                   np.ascontiguousarray(r0_e, dtype=float), np.ascontiguousarray(C_ne0, dtype=float),
                   np.ascontiguousarray(sens, dtype=float), np.ascontiguousarray(cfg.C_vb, dtype=float).reshape(3, 3),
                   -1.0 if backward else 1.0)
+
+
+def _q_stops(q_stops, backward: bool) -> np.ndarray:
+    """`FilterConfig.q_stops` in the run's own time ((0, 4) when none)."""
+    if q_stops is None or not len(q_stops):
+        return np.zeros((0, 4))
+    q = np.array(q_stops, dtype=float).reshape(-1, 4)
+    if backward:
+        q[:, :2] = -q[:, [1, 0]]
+    return q
 
 
 def backward_start(run: FilterRun, P0: np.ndarray) -> InitialState:
