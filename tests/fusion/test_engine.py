@@ -186,3 +186,81 @@ def test_wrapper_names_what_is_wrong():
         run_filter(t, gyro, acc, init, FilterConfig(np.array([1.0, -1.0, 0.0, 0.0]), 0.0, 0.0), m)
     with pytest.raises(ValueError, match="`gyro_b_rps`"):
         run_filter(t, gyro[:, :2], acc, init, cfg, m)
+
+
+def _fixes_at_rest(t_run, nav, C_true, dl_true_m, sd_h_m, sd_v_m, rng):
+    """GPS position rows at 1 Hz of an antenna at C_true (dl, 0) from a standing IMU at nav, white
+    noise of SDs sd_h_m, sd_v_m: (Measurements, n rows)."""
+    from tpos_cli.frames.earth import ned_rate_to_lla_rate
+
+    tf = np.arange(0.5, t_run[-1], 1.0)
+    ant = C_true @ np.array([dl_true_m[0], dl_true_m[1], 0.0])
+    e = rng.standard_normal((tf.size, 3)) * [sd_h_m, sd_h_m, sd_v_m]
+    lla = np.tile(nav[:3], (tf.size, 1))
+    lla += ned_rate_to_lla_rate(lla[:, 0], lla[:, 2], ant + e)
+    R = np.diag([sd_h_m**2, sd_h_m**2, sd_v_m**2])
+    return Measurements.rows(tf, Kind.GPS_POSITION, lla, np.tile(R, (tf.size, 1, 1)), dim=3, gated=False), tf.size
+
+
+def test_fixes_at_rest_after_a_stops_first_carry_no_yaw_lever_second_order_variance():
+    """A standing vehicle whose heading is known to 3 deg (nothing observes it at rest) and whose
+    lever-arm correction has its 1 m prior: the yaw x lever-arm second-order term (5 cm) is one
+    constant over the stop, absorbed by the position at the stop's first fix. With the stop stated
+    (`FilterConfig.rest_intervals_s`) the later fixes' NIS is chi-square with their dof (4 mm fixes,
+    an IMU whose noise is the filter's q); counted at every fix, the fixes read 5 cm and the mean
+    NIS falls under its band (the old behaviour, part 1's starting stop: 0.2 of 3)."""
+    from scipy.stats import chi2
+
+    from tpos_cli.frames.rotation import euler_to_dcm
+    from tpos_cli.fusion.layout import StateLayout, lever_arm_block
+
+    t, gyro, acc, init, cfg = _still(n=6001)
+    dt = t[1] - t[0]
+    P0 = init.P0.copy()
+    P0[8, 8] = np.radians(3.0) ** 2
+    lay = StateLayout((lever_arm_block(1.0),))
+    nis = {True: [], False: []}
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        g = gyro + rng.standard_normal(gyro.shape) * np.sqrt(cfg.q[1] / dt)  # the noise the filter's q states
+        a = acc + rng.standard_normal(acc.shape) * np.sqrt(cfg.q[0] / dt)
+        yaw_err = rng.standard_normal() * np.radians(3.0)  # the nominal's heading error, drawn from its prior
+        C_true = euler_to_dcm(0.0, 0.0, yaw_err)
+        meas, n = _fixes_at_rest(t, init.nav, C_true, rng.standard_normal(2) * 0.3, 0.004, 0.01, rng)
+        for stated in (True, False):
+            c = FilterConfig(cfg.q, 0.0, 0.0, cov_step=10, layout=lay,
+                             rest_intervals_s=np.array([[-1.0, t[-1] + 1.0]]) if stated else None)
+            run = run_filter(t, g, a, InitialState(init.nav, np.eye(3), init.bias, P0), c, meas)
+            nis[stated].append(run.ev_nis[3:])  # after the first fixes (the prior's 1 m)
+    for stated, rows in nis.items():
+        v = np.concatenate(rows)
+        lo, hi = chi2.ppf([0.005, 0.995], 3 * v.size) / v.size  # rows of a consistent filter: independent
+        if stated:
+            assert lo <= v.mean() <= hi, (v.mean(), lo, hi)
+        else:
+            assert v.mean() < lo, (v.mean(), lo)
+
+
+def test_white_noise_inside_a_stop_is_scaled_by_its_factors_forward_and_backward():
+    """`FilterConfig.q_stops`: over a stop the velocity and attitude white PSDs are the run's times
+    the stop's factors (the kernel's `stop_process_noise`); before it the run is the plain one. A
+    stop covering the whole run equals a run with the PSDs scaled, in both directions."""
+    t, gyro, acc, init, cfg = _still()
+    none = Measurements.rows([], Kind.ZUPT, np.zeros((0, 3)), np.zeros((0, 3, 3)), dim=3, gated=False)
+    f = np.array([0.04, 0.25])
+    whole = FilterConfig(cfg.q, 0.0, 0.0, cov_step=10, q_stops=np.array([[-1.0, 30.0, *f]]))
+    scaled = FilterConfig(cfg.q * np.r_[f, 1.0, 1.0], 0.0, 0.0, cov_step=10)
+    for backward in (False, True):
+        a = run_filter(t, gyro, acc, init, whole, none, backward=backward)
+        b = run_filter(t, gyro, acc, init, scaled, none, backward=backward)
+        assert_allclose(a.ep_P.tril, b.ep_P.tril, rtol=1e-9, atol=1e-30)
+    # a stop over [10, 30] s (the run ends at 20 s): the plain run before it; over it the velocity
+    # variance grows less by the PSDs taken away, (1 - f_a) q_a T + (1 - f_g) q_g g^2 T^3 / 3 (the
+    # tilt's share), to 5 % (discrete covariance steps)
+    part = FilterConfig(cfg.q, 0.0, 0.0, cov_step=10, q_stops=np.array([[10.0, 30.0, *f]]))
+    p, o = run_filter(t, gyro, acc, init, part, none), run_filter(t, gyro, acc, init, cfg, none)
+    before = t[p.ep_idx] <= 10.0
+    assert_allclose(p.ep_P.tril[before], o.ep_P.tril[before], rtol=1e-12)
+    T, g = t[-1] - 10.0, acc[0, 2]
+    taken = (1 - f[0]) * cfg.q[0] * T + (1 - f[1]) * cfg.q[1] * g**2 * T**3 / 3
+    assert_allclose(o.ep_P[-1, 3, 3] - p.ep_P[-1, 3, 3], taken, rtol=0.05)

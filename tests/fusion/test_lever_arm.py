@@ -68,3 +68,20 @@ def test_summary_reports_the_estimate_in_the_imu_axes():
     assert_allclose(out["estimate_m"], np.array([0.1, 0.2, -1.0]) + C_vb.T @ [0.6, -0.4, 0.0], atol=1e-3)
     off = la.lever_arm_summary(None, None, [0.0, 0.0, 0.0], C_vb, "auto: no")
     assert not off["estimated"] and "estimate_m" not in off
+
+
+def test_second_order_shares_leave_the_term_to_each_stops_first_gps_row_in_the_runs_order():
+    """Inside a rest interval only the first GPS row of each kind (in the order the run meets them:
+    a backward run from the stop's end) carries the yaw x lever second-order variance; rows outside,
+    other kinds and a run without intervals keep all of it."""
+    from tpos_cli.fusion.measurements import Kind
+
+    P, V, Z = Kind.GPS_POSITION, Kind.GPS_VELOCITY, Kind.ZUPT
+    t = np.array([1.0, 1.0, 2.0, 2.0, 2.5, 3.0, 5.0, 6.0, 7.0, 7.0])
+    kind = np.array([V, P, V, P, Z, P, P, P, V, P])
+    stops = np.array([[6.5, 8.0], [0.5, 3.0]])  # unsorted on purpose
+    fwd = la.second_order_shares(t, kind, stops)
+    assert fwd.tolist() == [1, 1, 0, 0, 1, 0, 1, 1, 1, 1]
+    bwd = la.second_order_shares(t[::-1], kind[::-1], stops)[::-1]  # the backward run's order
+    assert bwd.tolist() == [0, 0, 1, 0, 1, 1, 1, 1, 1, 1]
+    assert np.all(la.second_order_shares(t, kind, None) == 1.0)

@@ -73,7 +73,7 @@ def test_range_jacobian_matches_finite_differences():
 
 def _events(kind, z, R, dim, par=0):
     return EventArrays(np.array([1]), np.array([0.0]), np.array([int(kind)]), np.array([dim]), np.array([z], float),
-                       np.array([R], float), np.array([True]), np.array([0]), np.array([par]))
+                       np.array([R], float), np.array([True]), np.array([0]), np.array([par]), np.ones(1))
 
 
 def test_measure_adds_the_extra_states_columns():

@@ -34,6 +34,7 @@ from tpos_cli.fusion.constraints import (
     odometer_measurements,
     rotation_gyro_noise_dps,
     stop_measurements,
+    stop_noise_factors,
     travel_direction,
 )
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
@@ -426,8 +427,19 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         else:  # the SDs carry the first run's own attitude error (`travel_direction`)
             sd_deg = _mounting_sd_deg(td, p.mounting_sigma_given_deg)
         out["mounting"]["residual_prior_sigma_deg"] = round(float(sd_deg), 3)
+        # a wheeled vehicle's stops hold its attitude (its ZARU rows): there the fixes after a stop's first
+        # carry no yaw x lever-arm second-order variance (`fusion.lever_arm.second_order_shares`)
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
-                                  layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))))
+                                  layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))),
+                                  rest_intervals_s=np.asarray(stops.intervals_s, dtype=float).reshape(-1, 2))
+        # and the IMU's white noise inside each such stop as it integrates over a second (`stop_noise_factors`):
+        # the whole log's figures are the moving vehicle's vibration; the default figures are the floor
+        q_stops = stop_noise_factors(imu.t, imu.gyro, imu.acc, stops, cfg.q, imu.rate_hz, floors=(
+            DriveSmoothParams.model_fields["acc_noise_mg"].default * 1e-3 * G0_MPS2,
+            DriveSmoothParams.model_fields["gyro_noise_dps"].default * DEG)) if p.stop_noise == "measured" else ()
+        if len(q_stops):
+            cfg = dataclasses.replace(cfg, q_stops=q_stops)
+            out["stop_noise_factors"] = [[round(float(v), 3) for v in r[2:]] for r in q_stops]
         after = nhc_start_s(info)
         out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
         parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))

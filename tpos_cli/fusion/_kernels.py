@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from tpos_cli.filters.kalman import innovation_statistics, predict_trapezoid, transition_into, update
-from tpos_cli.fusion.layout import N_NAV, Block
+from tpos_cli.fusion.layout import ATT, N_NAV, VEL, Block
 from tpos_cli.fusion.measurements import Kind, measure
 from tpos_cli.fusion.nav_errors import (
     apply_feedback,
@@ -95,13 +95,33 @@ class Settings(NamedTuple):
     stated_sd_factor: np.ndarray
     store_rts: bool
     reverse_out: bool
+    q_stops: np.ndarray  # (K, 4) [t0, t1, acc factor, gyro factor] in the run's own time (`FilterConfig.q_stops`)
+
+
+@njit(cache=True)
+def stop_process_noise(q, q_stops, t_a, t_b, Qc):
+    """The white-noise PSDs of Qc over [t_a, t_b]: q's, times each stop's factors over the share of
+    the interval it covers (`FilterConfig.q_stops`)."""
+    fa, fg = 1.0, 1.0
+    span = t_b - t_a
+    if span > 0.0:
+        for j in range(q_stops.shape[0]):
+            ov = min(t_b, q_stops[j, 1]) - max(t_a, q_stops[j, 0])
+            if ov > 0.0:
+                fa += (q_stops[j, 2] - 1.0) * ov / span
+                fg += (q_stops[j, 3] - 1.0) * ov / span
+    for i in range(3):
+        Qc[VEL + i, VEL + i] = q[0] * fa
+        Qc[ATT + i, ATT + i] = q[1] * fg
 
 
 class EventArrays(NamedTuple):
     """Measurements sorted by k (the sample at which each is processed, >= 1): lag (s, t_k minus
     the measurement time, in the run's time direction), kind (`Kind`), dim (1-3), z (E, 3),
     R (E, 3, 3), gated (E,) bool, slot (E,) int64 (counter of consecutive rejections, -1 none),
-    par (E,) int64 (per-kind parameter: anchor index, sens row)."""
+    par (E,) int64 (per-kind parameter: anchor index, sens row), second_order (E,) the share of the
+    lever arm's second-order variance a GPS row carries (`measurements._lever_second_order`; 1, or 0
+    for a row at rest after its stop's first: `fusion.lever_arm.second_order_shares`)."""
 
     k: np.ndarray
     lag: np.ndarray
@@ -112,6 +132,7 @@ class EventArrays(NamedTuple):
     gated: np.ndarray
     slot: np.ndarray
     par: np.ndarray
+    second_order: np.ndarray
 
 
 class Aiding(NamedTuple):
@@ -411,6 +432,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     f_mean[i] = f_sum[i] / dt_sum  # the mean specific force over the interval
                 error_dynamics(nav, C, f_mean, st.earth_sign, st.tau_acc_s, st.tau_gyro_s, F)
                 transition_into(F, dt_sum, Phi)
+                if st.q_stops.shape[0]:
+                    stop_process_noise(st.q, st.q_stops, imu.t[k] - dt_sum, imu.t[k], Qc)
                 predict_trapezoid(x, P, Phi, Qc, dt_sum, T, Tt)  # P <- Phi P Phi^T + Qd, Qd trapezoidal
                 ep += 1
                 out.ep_idx[ep] = k

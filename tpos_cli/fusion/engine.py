@@ -32,6 +32,7 @@ from tpos_cli.fusion._kernels import (
     error_state_kernel,
 )
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, backward_sign
+from tpos_cli.fusion.lever_arm import second_order_shares
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.ins.mechanization import reverse_imu
 
@@ -58,7 +59,10 @@ class FilterConfig:
     layout: the states beyond the 15 navigation errors (`fusion.layout`); nominal_idx: the
     run-local samples whose nominal a run stores (None: every sample; the run's first and last
     samples are always stored): a smoother that needs the nominal at its output rows only keeps
-    a tenth of the largest arrays of a run (`FilterRun.rows`)."""
+    a tenth of the largest arrays of a run (`FilterRun.rows`); rest_intervals_s (K, 2) session
+    seconds: stops where the platform's attitude does not change (a wheeled vehicle's), inside which
+    GPS rows after a stop's first carry no yaw x lever-arm second-order variance
+    (`fusion.lever_arm.second_order_shares`; None: every row carries it)."""
 
     q: np.ndarray
     tau_acc_s: float
@@ -73,6 +77,8 @@ class FilterConfig:
     nominal_idx: np.ndarray | None = None
     reacquire: bool = False
     stated_sd_factor: np.ndarray = field(default_factory=lambda: np.ones(4))
+    rest_intervals_s: np.ndarray | None = None
+    q_stops: np.ndarray | None = None  # (K, 4) [t0, t1, acc factor, gyro factor]: white PSDs scaled inside stops
 
     @property
     def n_states(self) -> int:
@@ -337,7 +343,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
     ev = EventArrays(k_o, t[k_o] - t_ev[order], meas.kind[order].astype(np.int64), meas.dim[order].astype(np.int64),
                      np.ascontiguousarray(z[order]), np.ascontiguousarray(meas.R[order], dtype=float),
                      meas.gated[order].astype(np.bool_), meas.slot[order].astype(np.int64),
-                     meas.par[order].astype(np.int64))
+                     meas.par[order].astype(np.int64),
+                     second_order_shares(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.rest_intervals_s))
     aid = _aiding(cfg, meas, backward)
     k_distinct = k_o[np.flatnonzero(np.diff(k_o, prepend=-1))]  # k_o is sorted: np.unique's values without its hashing
     n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), k_distinct)
@@ -356,7 +363,7 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                   int(max(cfg.cov_step, 1)), lay.extra_tau_s(), lay.extra_q(), lay.offsets(),
                   chi2_threshold(cfg.gate_probability, 3), int(cfg.max_consecutive_rejections), bool(cfg.reacquire),
                   np.asarray(cfg.stated_sd_factor, dtype=float), bool(store_rts),
-                  bool(backward))
+                  bool(backward), _q_stops(cfg.q_stops, backward))
     start = Nominal(nav0, np.ascontiguousarray(init.C_nb, dtype=float), bias0)
     # None when no row needs the ranging models: numba then compiles the kernel without them
     ranging = True if np.isin(meas.kind, [Kind.RANGE, Kind.FIX_NE, Kind.FLOOR]).any() else None
@@ -466,6 +473,16 @@ def _aiding(cfg: FilterConfig, meas: Measurements, backward: bool = False) -> Ai
                   np.ascontiguousarray(r0_e, dtype=float), np.ascontiguousarray(C_ne0, dtype=float),
                   np.ascontiguousarray(sens, dtype=float), np.ascontiguousarray(cfg.C_vb, dtype=float).reshape(3, 3),
                   -1.0 if backward else 1.0)
+
+
+def _q_stops(q_stops, backward: bool) -> np.ndarray:
+    """`FilterConfig.q_stops` in the run's own time ((0, 4) when none)."""
+    if q_stops is None or not len(q_stops):
+        return np.zeros((0, 4))
+    q = np.array(q_stops, dtype=float).reshape(-1, 4)
+    if backward:
+        q[:, :2] = -q[:, [1, 0]]
+    return q
 
 
 def backward_start(run: FilterRun, P0: np.ndarray) -> InitialState:

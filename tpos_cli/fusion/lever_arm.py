@@ -14,6 +14,7 @@ import numpy as np
 
 from tpos_cli.frames.earth import ned_rate_to_lla_rate
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout
+from tpos_cli.fusion.measurements import Kind
 
 LEVEL_MAX_TILT_DEG = 20.0  # without vehicle axes, the IMU's own x, y serve when its z is this close to vertical
 
@@ -79,6 +80,29 @@ def at_stated_point(nav, C_nb, dl_b) -> np.ndarray:
     out = np.array(nav, copy=True)
     out[:, :3] += ned_rate_to_lla_rate(out[:, 0], out[:, 2], d_ned)  # a metre-sized NED step: the same linear map
     return out
+
+
+def second_order_shares(t_s, kind, rest_intervals_s) -> np.ndarray:
+    """(E,) share of the yaw x lever-arm second-order variance (`measurements._lever_second_order`)
+    each row carries, rows in the order a run processes them (t_s session seconds, kind `Kind`): 0
+    for a GPS row inside a rest interval ((K, 2) session seconds, sorted: the stops of a platform
+    whose attitude does not change there) after the interval's first row of its kind in that order,
+    else 1. The term is one constant over such a stop, which its first row brings in; a backward run
+    meets each stop at its other end and gives its own first row the term."""
+    t = np.asarray(t_s, dtype=float)
+    kind = np.asarray(kind)
+    share = np.ones(t.size)
+    iv = np.asarray(rest_intervals_s if rest_intervals_s is not None else np.zeros((0, 2)), dtype=float).reshape(-1, 2)
+    if not iv.shape[0] or not t.size:
+        return share
+    iv = iv[np.argsort(iv[:, 0])]
+    j = np.searchsorted(iv[:, 0], t, side="right") - 1
+    rows = np.flatnonzero((j >= 0) & (t <= iv[np.maximum(j, 0), 1]) & np.isin(kind, (Kind.GPS_POSITION, Kind.GPS_VELOCITY)))
+    _, first = np.unique(np.stack([j[rows], kind[rows]], axis=1), axis=0, return_index=True)  # first in the given order
+    later = np.ones(rows.size, dtype=bool)
+    later[first] = False
+    share[rows[later]] = 0.0
+    return share
 
 
 def lever_arm_summary(estimate, sd, stated_b_m, C_vb, decided: str) -> dict:

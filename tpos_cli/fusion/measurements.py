@@ -282,7 +282,7 @@ def antenna_velocity(nav, C, aid, bias, w_ib, lay):
 
 
 @njit(cache=True)
-def _lever_second_order(P, ol, H, R, m):
+def _lever_second_order(P, ol, H, R, m, share):
     """R[:2, :2] += the variance of the second-order term -phi x (A dl) that the linear rows
     (A = H's lever-arm columns, dl the correction's error) leave out, for the yaw error phi_D:
     its north and east parts -phi_D u_E and phi_D u_N, u = A dl, have variances P_yaw (A P_ll
@@ -290,8 +290,14 @@ def _lever_second_order(P, ol, H, R, m):
     Bar-Shalom et al. 2001 Sec. 10.3, the second-order filter's trace term). While the heading is
     still tens of degrees uncertain (a static start, the yaw search) and the lever arm a metre,
     this is decimetres against centimetre fixes: without it the filter reads the yaw's own
-    corrections as turns and takes a lever arm from them it has not seen."""
-    s_yaw = P[ATT + 2, ATT + 2]
+    corrections as turns and takes a lever arm from them it has not seen.
+
+    share (0..1) scales it: at rest the attitude does not turn, so the term is one constant over a
+    stop (A dl does not rotate; phi_D only drifts: part 1's yaw SD went 3.00 -> 3.12 deg over its 37 s
+    starting stop), which the position states take up at the stop's first fix; counted again at every
+    later fix as independent noise it made those 4 mm fixes 5 cm ones (79 % of S there, standing NIS
+    0.2 of 3). `fusion.lever_arm.second_order_shares` gives 0 to those rows."""
+    s_yaw = P[ATT + 2, ATT + 2] * share
     for i in range(min(m, 2)):
         r = 1 - i  # north's term comes from u_E, east's from u_N
         v = 0.0
@@ -349,7 +355,7 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, vib_ned, lay, P, z
                     a = C[i, 0] * aid.C_vb[j, 0] + C[i, 1] * aid.C_vb[j, 1] + C[i, 2] * aid.C_vb[j, 2]
                     H[i, ol + j] = a
                     z[i] += a * dl
-            _lever_second_order(P, ol, H, R, 3)
+            _lever_second_order(P, ol, H, R, 3, ev.second_order[e])
     elif kind == Kind.GPS_VELOCITY:
         zv = np.empty(3)
         gps_velocity_residual(nav, C, aid.lever_b, w_ib, ev.z[e], zv)
@@ -375,7 +381,7 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, vib_ned, lay, P, z
                 for i in range(m):
                     H[i, ol + j] = u[i]
                     z[i] += u[i] * dl
-            _lever_second_order(P, ol, H, R, m)
+            _lever_second_order(P, ol, H, R, m, ev.second_order[e])
     elif kind == Kind.NHC:
         nhc_residual(nav, C, aid.C_vb, z)
         nhc_jacobian(nav, C, aid.C_vb, H)
