@@ -118,6 +118,14 @@ def flags(t, name: str) -> np.ndarray:
     return np.asarray(t[name], dtype=bool) if isinstance(t, Columns) else t[name].fillna(False).to_numpy(bool)
 
 
+def no_value(v: np.ndarray) -> np.ndarray:
+    """Cells of a column with no value (None or NaN), as pandas' `isna`."""
+    v = np.asarray(v)
+    if v.dtype != object:
+        return np.isnan(v) if v.dtype.kind == "f" else np.zeros(v.size, dtype=bool)
+    return (v == None) | (v != v)  # noqa: E711 (elementwise: None, or NaN, which equals nothing)
+
+
 def is_empty(t) -> bool:
     """No rows or no columns (pandas' `DataFrame.empty`), for either kind of table."""
     return len(t) == 0 or len(t.columns) == 0

@@ -10,7 +10,7 @@ import numpy as np
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.io.bounded import read_json_bounded
-from tpos_cli.io.columns import Columns, as_text, first_appearance_codes, from_arrow
+from tpos_cli.io.columns import Columns, as_text, first_appearance_codes, from_arrow, no_value
 from tpos_cli.io.run_dir import check_summary_shape
 
 if TYPE_CHECKING:
@@ -91,13 +91,6 @@ def _read(run_dir: Path, name: str, required: tuple[str, ...], columns: tuple[st
     return df
 
 
-def _missing(v: np.ndarray) -> np.ndarray:
-    """Cells of a label column with no value (None or NaN), as pandas' `isna`."""
-    if v.dtype != object:
-        return np.isnan(v) if v.dtype.kind == "f" else np.zeros(v.size, dtype=bool)
-    return (v == None) | (v != v)  # noqa: E711 (elementwise: None, or NaN, which equals nothing)
-
-
 def _check_run_table(run_dir: Path, name: str, required: tuple[str, ...], cols: dict[str, np.ndarray]) -> None:
     """What tpos writes: the required columns, numbers in them and labels in every row; no value a
     square of overflows (InvalidInputError naming column and row otherwise: an altered file)."""
@@ -107,7 +100,7 @@ def _check_run_table(run_dir: Path, name: str, required: tuple[str, ...], cols: 
     for col in required:  # what tpos writes: numbers, labels in every row (an altered file otherwise)
         v = cols[col]
         if col in LABELS:
-            missing_label = np.flatnonzero(_missing(v))
+            missing_label = np.flatnonzero(no_value(v))
             if missing_label.size:
                 raise InvalidInputError(f"{run_dir.name}/{name}: column '{col}', row {int(missing_label[0]) + 1}: empty; "
                                         "not a file tpos wrote (reprocess the session)")

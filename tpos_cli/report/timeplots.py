@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from tpos_cli.io.columns import as_text, column, flags
+from tpos_cli.io.columns import as_text, column, flags, no_value
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import ReportContext
@@ -388,7 +388,7 @@ def anchors_section(ctx: ReportContext) -> Section | None:
         mark_time(axes[0], ctx)
         labels = ["anchor ranged"]
         if has_nis:
-            named = np.array([v is not None and v == v for v in inn["anchor"].tolist()], dtype=bool)  # pandas' notna
+            named = ~no_value(inn["anchor"])  # pandas' notna
             d = inn.take((as_text(inn["solution"]) == sol) & named)
             ax = axes[1]
             for j, name in enumerate(av.ids):  # one colour per anchor; the band once, behind them all
