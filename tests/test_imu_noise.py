@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from tpos_cli.config import DriveSmoothParams, RangingParams
-from tpos_cli.imu_noise import _row_medians, measured_white_noise, resolve_imu_noise
+from tpos_cli.fusion.constraints import detect_stops
+from tpos_cli.imu_noise import _row_medians, measured_white_noise, resolve_imu_noise, stop_noise_factors
 from tpos_cli.session import ImuNoise
 
 
@@ -43,3 +44,26 @@ def test_row_medians_are_numpys_medians():
     d = rng.normal(size=(3, 10))
     d[1, 4] = np.nan
     assert np.array_equal(_row_medians(d.copy()), np.median(d, axis=1), equal_nan=True)
+
+
+def test_stop_noise_of_an_idling_engine_is_what_integrates_over_a_second():
+    """A stop with a 20 Hz engine wobble (30 mg, 3 deg/s) over white noise (2 mg, 0.05 deg/s per
+    sample at 100 Hz): the white PSDs inside it are scaled to the white part (the wobble averages
+    out over a second), not to the per-sample scatter the wobble dominates (21 mg: factor 0.44)."""
+    rng = np.random.default_rng(1)
+    rate = 100.0
+    t = np.arange(0.0, 60.0, 1.0 / rate)
+    g0 = 9.80665
+    wob = np.sin(2 * np.pi * 20.0 * t)[:, None]
+    acc = 30e-3 * g0 * wob + 2e-3 * g0 * rng.standard_normal((t.size, 3))
+    gyro = np.radians(3.0) * wob + np.radians(0.05) * rng.standard_normal((t.size, 3))
+    q = np.array([(26e-3 * g0) ** 2 / rate, np.radians(1.6) ** 2 / rate, 0.0, 0.0])  # the moving run's figures
+    stops = detect_stops(np.arange(0.0, 60.0, 0.25), np.zeros((240, 3)))
+    f = stop_noise_factors(t, gyro, acc, stops.intervals_s, q, rate)
+    assert f.shape == (1, 4)
+    # 58 one-second blocks: the white SD to about 10 % (factor to 20 %, 0.0059 and 0.00098)
+    np.testing.assert_allclose(f[0, 2:], [(2.0 / 26.0) ** 2, (0.05 / 1.6) ** 2], rtol=0.25)
+    # the floors (the pipeline's default figures) hold a quieter stop up; a stop never gets more than the run
+    fl = stop_noise_factors(t, gyro, acc, stops.intervals_s, q, rate, floors=(4e-3 * g0, np.radians(0.1)))
+    np.testing.assert_allclose(fl[0, 2:], [(4.0 / 26.0) ** 2, (0.1 / 1.6) ** 2], rtol=1e-9)
+    assert np.all(stop_noise_factors(t, gyro, acc, stops.intervals_s, q / 1e4, rate)[0, 2:] == 1.0)

@@ -69,17 +69,49 @@ def _row_medians(d: np.ndarray) -> np.ndarray:
     return (d[:, :h].max(axis=1) + d[:, h]) / 2.0  # numpy's mean of the two middles
 
 
-def measured_white_noise(x) -> float:
-    """Per-sample white-noise SD of a sensor series (N, 3), from its first differences.
+def measured_white_noise(x, block_n: int = 1) -> float:
+    """Per-sample white-noise SD of a sensor series (N, 3), from the first differences of its means
+    over blocks of `block_n` samples (1: the samples themselves), times sqrt(block_n).
 
-    For white noise of SD s, x[k+1] - x[k] has SD s sqrt(2); the motion of a vehicle at IMU rates
-    adds little to a difference. Robust scale (1.4826 MAD) so that bumps do not dominate;
-    averaged over the three axes.
+    For white noise of SD s, consecutive block means differ with SD s sqrt(2 / block_n), so the figure
+    is s at any block size; the motion of a vehicle at IMU rates adds little to a difference. For
+    vibration, whose power sits far above 1 / (block_n dt), blocks give a much smaller figure than
+    samples: what the strapdown integration feels over a block. Robust scale (1.4826 MAD) so that
+    bumps do not dominate; averaged over the three axes.
     """
     x = np.asarray(x, dtype=float)
+    if block_n > 1:
+        k = x.shape[0] // block_n
+        x = x[: k * block_n].reshape(k, block_n, x.shape[1]).mean(axis=1)
     d = np.empty((x.shape[1], x.shape[0] - 1))  # one contiguous row per axis: the medians partition rows
     np.subtract(x[1:].T, x[:-1].T, out=d)
     # medians of temporaries partitioned in place (no copies): the order of d does not matter below
     d -= _row_medians(d)[:, None]
     mad = _row_medians(np.abs(d, out=d))
-    return float(np.mean(1.4826 * mad / np.sqrt(2.0)))
+    return float(np.mean(1.4826 * mad / np.sqrt(2.0)) * np.sqrt(block_n))
+
+
+def stop_noise_factors(t_s, gyro_b_rps, acc_b_mps2, intervals_s, q, rate_hz: float, *, floors=(0.0, 0.0),
+                       block_s: float = 1.0, min_blocks: int = 8) -> np.ndarray:
+    """(K, 4) [t0, t1, acc factor, gyro factor] per detected stop (intervals_s (K, 2), the IMU's time):
+    the white-noise PSDs q[0], q[1] (measured on the whole log: on a moving car mostly vibration)
+    scaled to the IMU's noise inside the stop at the time scale of the covariance growth between
+    fixes: `measured_white_noise` over blocks of `block_s` (at least `min_blocks` of them; a shorter
+    stop keeps the per-sample scatter, blocks of one sample, the larger), at least `floors`
+    (per-sample SDs, the pipeline's default noise figures), factor at most 1: a stop never gets
+    more noise than the run. An idling engine's vibration (part 1's first stop: 11 mg / 1.5 deg/s
+    per sample) averages out over a second (2.3 mg / 0.26 deg/s); the whole-log figure is the moving
+    car's (26 mg / 1.6 deg/s)."""
+    t = np.asarray(t_s, dtype=float)
+    n = max(1, int(round(block_s * rate_hz)))
+    out = []
+    for a, b in np.asarray(intervals_s, dtype=float).reshape(-1, 2):
+        m = (t >= a) & (t <= b)
+        count = int(m.sum())
+        if count < 20:
+            continue
+        block_n = n if count >= min_blocks * n else 1
+        sd_a = max(floors[0], measured_white_noise(acc_b_mps2[m], block_n))
+        sd_g = max(floors[1], measured_white_noise(gyro_b_rps[m], block_n))
+        out.append([a, b, min(1.0, sd_a**2 / rate_hz / q[0]), min(1.0, sd_g**2 / rate_hz / q[1])])
+    return np.array(out, dtype=float).reshape(-1, 4)

@@ -34,7 +34,6 @@ from tpos_cli.fusion.constraints import (
     odometer_measurements,
     rotation_gyro_noise_dps,
     stop_measurements,
-    stop_noise_factors,
     travel_direction,
 )
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, FilterRun, InitialState, Measurements, backward_start, epoch_of
@@ -65,7 +64,7 @@ from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_off, refined_mounting, vehicle_attitude
 from tpos_cli.fusion.nav_errors import vibration_velocity_cov_b
 from tpos_cli.fusion.screening import wild_fixes
-from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise
+from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise, stop_noise_factors
 from tpos_cli.io.columns import Columns, concat
 from tpos_cli.io.tables import table_file_name
 from tpos_cli.quality import mounting_text
@@ -434,7 +433,7 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
                                   rest_intervals_s=np.asarray(stops.intervals_s, dtype=float).reshape(-1, 2))
         # and the IMU's white noise inside each such stop as it integrates over a second (`stop_noise_factors`):
         # the whole log's figures are the moving vehicle's vibration; the default figures are the floor
-        q_stops = stop_noise_factors(imu.t, imu.gyro, imu.acc, stops, cfg.q, imu.rate_hz, floors=(
+        q_stops = stop_noise_factors(imu.t, imu.gyro, imu.acc, stops.intervals_s, cfg.q, imu.rate_hz, floors=(
             DriveSmoothParams.model_fields["acc_noise_mg"].default * 1e-3 * G0_MPS2,
             DriveSmoothParams.model_fields["gyro_noise_dps"].default * DEG)) if p.stop_noise == "measured" else ()
         if len(q_stops):
