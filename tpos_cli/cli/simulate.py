@@ -12,7 +12,7 @@ from tpos_cli.io.bounded import MAX_TABLE_ROWS
 
 _ONLY = {
     "drive": ("outage", "trajectory_seed", "gps_sigma_h", "gps_sigma_v", "gps_sigma_vel", "shots", "shot_range", "gps_clock_offset",
-              "mounting", "lever_arm", "vibration_mg", "odometry"),
+              "mounting", "lever_arm", "vibration_mg", "odometry", "gps_rtk"),
     "target": ("motion", "wall_distance", "mag_disturbance_ut", "mag_disturbance_start", "mag_disturbance_end"),
     "ranging": ("dropout", "nlos_prob"),
 }
@@ -76,6 +76,10 @@ def simulate(
     lever_arm: str = typer.Option(None, "--lever-arm", help="drive: GPS antenna x:y:z in the car's axes, m (session.toml gets it in the IMU's; default 0:0:0)."),
     vibration_mg: float = typer.Option(None, "--vibration-mg", help="drive: engine and road vibration on the accelerometers, RMS mg per axis (default 0)."),
     odometry: str = typer.Option(None, "--odometry", help="drive: an odometer table RATE_HZ:SCALE_ERROR (e.g. 20:0.02; default none)."),
+    gps_rtk: bool = typer.Option(None, "--gps-rtk", show_default=False,
+                                 help="drive: RTK-like fixes: white at a 1 cm floor, float stretches (stated SD raised 1.2-2.6x, "
+                                      "error 5-25 cm) and multipath steps at the floor SD (sim/rtk.py; the real RTK log's figures). "
+                                      "Replaces --gps-sigma-h/-v."),
     motion: str = typer.Option(None, "--motion", help="target: shots (aim at each target in turn) or sine (paper 000 sec. 6.1)."),
     wall_distance: float = typer.Option(None, "--wall-distance", help="target: distance to the wall, m (default 12)."),
     mag_disturbance_ut: float = typer.Option(None, "--mag-disturbance-ut", help="target: add a magnetic disturbance of this magnitude, uT (paper 000: 50)."),
@@ -91,6 +95,7 @@ def simulate(
     outages), `ranging` (paper 002: corridor with four anchors, range error model, calibration).
 
     Example: tpos simulate drive runs/drive_sim --seed 7 --duration 300 --outage 40:30 --outage 150:20
+    RTK-like fixes: tpos simulate drive runs/drive_rtk --gps-rtk --outage none
     """
     from tpos_cli.sim import SCENARIOS
 
@@ -116,6 +121,10 @@ def simulate(
         kw["grade"] = grade
     if outage:
         kw["outages"] = [] if outage == ["none"] else [_floats(o, 2, "--outage") for o in outage]
+    if gps_rtk:
+        if gps_sigma_h is not None or gps_sigma_v is not None:
+            raise typer.BadParameter("the RTK floor replaces --gps-sigma-h/--gps-sigma-v: give one or the other", param_hint="--gps-rtk")
+        kw["gps_rtk"] = True
     if mounting:
         kw["mounting_rpy_deg"] = _floats(mounting, 3, "--mounting")
         if max(abs(v) for v in kw["mounting_rpy_deg"]) > 180.0:

@@ -9,6 +9,8 @@ In-memory API (each returns a frozen `SimResult`; `sim.write(path)` writes a con
     sim.imu.gyro_true_b_rps, sim.imu.acc_true_b_mps2  # exact: mean rates over (t_{k-1}, t_k]
     sim.imu.errors.gyro_bias_rps ...                # the error series that were added
     sim.gps.t_s, sim.gps.lla, sim.gps.vel_ned_mps, sim.gps.sigma_neu_m, sim.gps_outages_s
+    sim = simulate_drive(300.0, seed=0, gps_rate_hz=4.0, gps_rtk=True)  # RTK-like fixes (rtk.py)
+    sim.gps.rtk.regime, sim.gps.rtk.offset_neu_m, sim.gps.rtk.float_s  # fixed/float/multipath per row, drawn offsets
     sim = simulate_target(duration_s=90.0, seed=0, motion="shots", mag_disturbance_ut=50.0)
     sim.ranges.range_m (K, 3), sim.targets, sim.shots, sim.imu.mag_b_ut
     sim = simulate_ranging(duration_s=60.0, seed=0)

@@ -31,8 +31,10 @@ from tpos_cli.sim.result import (
     SimTargets,
     SimTruth,
 )
+from tpos_cli.sim.rtk import RtkModel
 from tpos_cli.sim.sensor_errors import corrupt_imu, imu_grade
 
+RTK = RtkModel()  # the real RTK log's figures (rtk.py), the defaults of the gps_rtk_* arguments
 DEFAULT_START_LLA = (48.0496, 8.2076, 870.0)  # Furtwangen (paper 003's university), ellipsoidal h
 ROLL_PER_LAT_ACC_RAD = np.radians(0.6)  # body roll per m/s^2 of lateral acceleration
 MAX_LAT_ACC_MPS2 = 2.5
@@ -137,6 +139,16 @@ def simulate_drive(
     odometry_rate_hz: float = 0.0,
     odometry_scale_error: float = 0.0,
     odometry_sigma_mps: float = 0.02,
+    gps_rtk: bool = False,
+    gps_rtk_floor_sigma_neu_m=RTK.floor_sigma_neu_m,
+    gps_rtk_float_per_min: float = RTK.float_per_min,
+    gps_rtk_float_duration_s=RTK.float_duration_s,
+    gps_rtk_float_sd_factor=RTK.float_sd_factor,
+    gps_rtk_float_offset_m=RTK.float_offset_m,
+    gps_rtk_float_tau_s: float = RTK.float_tau_s,
+    gps_rtk_multipath_per_min: float = RTK.multipath_per_min,
+    gps_rtk_multipath_duration_s=RTK.multipath_duration_s,
+    gps_rtk_multipath_offset_m=RTK.multipath_offset_m,
 ) -> SimResult:
     """Simulate the `drive` scenario; see the module docstring.
 
@@ -157,6 +169,14 @@ def simulate_drive(
     per axis, with 0.01 deg/s per mg on the gyros); an odometer at `odometry_rate_hz` reading
     the forward speed times (1 + `odometry_scale_error`) plus `odometry_sigma_mps` noise. The
     truth is the vehicle's attitude at the IMU point.
+    `gps_rtk` (issue 11 item 7, off by default) makes the fixes RTK-like (`rtk.py`): white at a
+    centimetre floor `gps_rtk_floor_sigma_neu_m` (replacing `gps_sigma_h_m`/`gps_sigma_v_m`), float
+    stretches (`gps_rtk_float_per_min` starts per minute, lengths in `gps_rtk_float_duration_s`)
+    whose stated SD is the floor times a factor in `gps_rtk_float_sd_factor` while their error is a
+    Gauss-Markov offset (horizontal RMS in `gps_rtk_float_offset_m`, time constant
+    `gps_rtk_float_tau_s`), and multipath steps at the floor SD (`gps_rtk_multipath_*`: a constant
+    offset the receiver does not state). Defaults: the real RTK car log's figures (rtk.py cites
+    them). The `sigma_*` columns are the stated SDs; fix stays 2; `sim.gps.rtk` holds the draws.
     """
     if duration_s <= 0 or rate_hz <= 0:
         raise InvalidInputError("duration and rate must be > 0")
@@ -179,6 +199,15 @@ def simulate_drive(
     imu = SimImu(t, gyro, acc, None, gyro_s, acc_s, None, err, g, "FRD", float(rate_hz))
     lever_v = np.asarray(lever_arm_m, dtype=float)
     outages_arr = np.asarray(outages, dtype=float).reshape(-1, 2)
+    rtk = None
+    if gps_rtk:
+        floats = lambda x: tuple(float(v) for v in x)  # noqa: E731  (plain floats for the toml comment)
+        rtk = RtkModel(floor_sigma_neu_m=floats(np.broadcast_to(np.asarray(gps_rtk_floor_sigma_neu_m, dtype=float), 3)),
+                       float_per_min=float(gps_rtk_float_per_min), float_duration_s=floats(gps_rtk_float_duration_s),
+                       float_sd_factor=floats(gps_rtk_float_sd_factor), float_offset_m=floats(gps_rtk_float_offset_m),
+                       float_tau_s=float(gps_rtk_float_tau_s), multipath_per_min=float(gps_rtk_multipath_per_min),
+                       multipath_duration_s=floats(gps_rtk_multipath_duration_s),
+                       multipath_offset_m=floats(gps_rtk_multipath_offset_m))
     gps = simulate_gps(
         antenna_truth(truth, ti.gyro_b_rps, lever_v) if np.any(lever_v) else truth,
         rate_hz,
@@ -190,6 +219,7 @@ def simulate_drive(
         rng=gps_rng,
         correlated_sigma_neu_m=gps_correlated_sigma_neu_m,
         correlated_tau_s=gps_correlated_tau_s,
+        rtk=rtk,
     )
     if gps_clock_offset_s != 0.0:
         gps = dataclasses.replace(gps, t_s=gps.t_s - float(gps_clock_offset_s))
@@ -204,6 +234,9 @@ def simulate_drive(
         "gps_sigma_v_m": gps_sigma_v_m,
         "gps_sigma_vel_mps": gps_sigma_vel_mps,
     }
+    if rtk is not None:  # the floor replaces the position SDs: record what was drawn
+        del params["gps_sigma_h_m"], params["gps_sigma_v_m"]
+        params["gps_rtk"] = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(rtk).items()}
     if gps_clock_offset_s != 0.0:
         params["gps_clock_offset_s"] = float(gps_clock_offset_s)
     if np.any(np.asarray(mounting_rpy_deg, dtype=float)):

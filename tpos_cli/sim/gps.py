@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames import earth
 from tpos_cli.sim.result import SimGps, SimTruth
+from tpos_cli.sim.rtk import RtkModel, rtk_errors
 
 
 def outage_mask(t_s, outages_s) -> np.ndarray:
@@ -30,6 +33,7 @@ def simulate_gps(
     rng: np.random.Generator,
     correlated_sigma_neu_m=(0.0, 0.0, 0.0),
     correlated_tau_s: float = 30.0,
+    rtk: RtkModel | None = None,
 ) -> SimGps:
     """Sample the truth at `rate_hz` (a divisor of the IMU rate) and add white noise.
 
@@ -42,6 +46,11 @@ def simulate_gps(
     at the epochs: b_k = a b_(k-1) + sqrt(1 - a^2) sigma w_k, a = exp(-dt / tau)), drawn after
     the white noise so that the white draws of a seed do not change; the `sigma_*` columns still
     give the white SDs only (a receiver does not know its multipath).
+    `rtk` (default None: off) makes the fixes RTK-like (`rtk.py`): the white position noise is
+    drawn at `rtk.floor_sigma_neu_m` instead of the `sigma_h_m`/`sigma_v_m` figures, float stretches
+    and multipath steps add their offsets, and the `sigma_*` columns give the stated SDs (the floor,
+    raised in float stretches). Its draws come after all others, so the white draws of a seed and
+    the draws of every run without it do not change. fix stays 2: the contract has no RTK flag.
     """
     stride = imu_rate_hz / rate_hz
     if rate_hz <= 0 or abs(stride - round(stride)) > 1e-9 or round(stride) < 1:
@@ -50,7 +59,7 @@ def simulate_gps(
         raise InvalidInputError("gps sigmas must be >= 0")
     idx = np.arange(0, truth.t_s.size, int(round(stride)))
     n = idx.size
-    sig = np.array([sigma_h_m, sigma_h_m, sigma_v_m])
+    sig = np.array([sigma_h_m, sigma_h_m, sigma_v_m]) if rtk is None else np.asarray(rtk.floor_sigma_neu_m, dtype=float)
     e_neu = rng.standard_normal((n, 3)) * sig
     e_vel = rng.standard_normal((n, 3)) * sigma_vel_mps
     nsat = rng.integers(7, 13, size=n)
@@ -65,8 +74,16 @@ def simulate_gps(
         for k in range(1, n):
             b[k] = a * b[k - 1] + np.sqrt(1.0 - a * a) * w[k]
         e_neu = e_neu + b
+    sigma_neu = np.tile(sig, (n, 1))
+    rtk_err = None
+    if rtk is not None:
+        rtk_err = rtk_errors(truth.t_s[idx], rtk, rng)
+        e_neu, sigma_neu = e_neu + rtk_err.offset_neu_m, rtk_err.sigma_neu_m
     keep = ~outage_mask(truth.t_s[idx], outages_s)
-    idx, e_neu, e_vel, nsat = idx[keep], e_neu[keep], e_vel[keep], nsat[keep]
+    idx, e_neu, e_vel, nsat, sigma_neu = idx[keep], e_neu[keep], e_vel[keep], nsat[keep], sigma_neu[keep]
+    if rtk_err is not None:
+        rtk_err = dataclasses.replace(rtk_err, regime=rtk_err.regime[keep], sigma_neu_m=sigma_neu,
+                                      offset_neu_m=rtk_err.offset_neu_m[keep])
 
     lla_true = truth.lla[idx]
     lat = np.radians(lla_true[:, 0])
@@ -81,11 +98,12 @@ def simulate_gps(
         t_s=truth.t_s[idx].copy(),
         lla=lla,
         vel_ned_mps=vel_true + e_vel,
-        sigma_neu_m=np.tile(sig, (m, 1)),
+        sigma_neu_m=sigma_neu,
         fix=np.full(m, 2, dtype=np.int64),
         nsat=nsat.astype(np.int64),
-        hdop=np.full(m, max(sigma_h_m, 0.5) / 1.5),  # HDOP x ~1.5 m UERE gives the horizontal SD
+        hdop=np.full(m, max(sig[0], 0.5) / 1.5),  # HDOP x ~1.5 m UERE gives the horizontal SD
         lla_true=lla_true.copy(),
         vel_true_ned_mps=vel_true.copy(),
         sigma_vel_mps=float(sigma_vel_mps),
+        rtk=rtk_err,
     )

@@ -9,6 +9,7 @@ import numpy as np
 
 from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.frames.rotation import dcm_to_rotvec, euler_to_dcm
+from tpos_cli.sim.rtk import RtkErrors
 from tpos_cli.sim.sensor_errors import ImuErrors, ImuGrade
 from tpos_cli.sim.writer import write_session
 
@@ -64,13 +65,14 @@ class SimGps:
     t_s: np.ndarray  # (M,)
     lla: np.ndarray  # (M, 3) with noise
     vel_ned_mps: np.ndarray  # (M, 3) with noise
-    sigma_neu_m: np.ndarray  # (M, 3) the SDs the noise was drawn with
+    sigma_neu_m: np.ndarray  # (M, 3) the stated SDs: those the white noise was drawn with (raised in RTK float stretches)
     fix: np.ndarray  # (M,) int64
     nsat: np.ndarray  # (M,) int64
     hdop: np.ndarray  # (M,)
     lla_true: np.ndarray
     vel_true_ned_mps: np.ndarray
     sigma_vel_mps: float
+    rtk: RtkErrors | None = None  # the RTK regimes and offsets at these rows (rtk.py), when simulated
 
 
 @dataclass(frozen=True)

@@ -132,7 +132,7 @@ class ImuErrors:
     acc_noise_mps2: np.ndarray  # (N, 3)
 
 
-def _gauss_markov(n: int, sd: float, tau_s: float, dt_s: float, rng) -> np.ndarray:
+def gauss_markov(n: int, sd: float, tau_s: float, dt_s: float, rng) -> np.ndarray:
     """(n, 3) stationary first-order Gauss-Markov sequence: b_k = phi b_{k-1} + sqrt(1-phi^2) sd w_k."""
     if sd <= 0.0:
         return np.zeros((n, 3))
@@ -146,10 +146,10 @@ def imu_errors(grade: ImuGrade, n: int, rate_hz: float, rng) -> ImuErrors:
     """Draw the bias and noise series of `grade` for n samples at `rate_hz`."""
     dt = 1.0 / rate_hz
     sign = lambda: rng.choice([-1.0, 1.0], size=3)  # noqa: E731
-    g_bias = sign() * grade.gyro_bias_dph * DEG / 3600.0 + _gauss_markov(
+    g_bias = sign() * grade.gyro_bias_dph * DEG / 3600.0 + gauss_markov(
         n, grade.gyro_bias_gm_dph * DEG / 3600.0, grade.gyro_bias_tau_s, dt, rng
     )
-    a_bias = sign() * grade.acc_bias_mg * 1e-3 * G0_MPS2 + _gauss_markov(
+    a_bias = sign() * grade.acc_bias_mg * 1e-3 * G0_MPS2 + gauss_markov(
         n, grade.acc_bias_gm_mg * 1e-3 * G0_MPS2, grade.acc_bias_tau_s, dt, rng
     )
     g_noise = rng.standard_normal((n, 3)) * grade.gyro_noise_dps * DEG
