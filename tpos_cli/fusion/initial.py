@@ -14,6 +14,7 @@ import numpy as np
 
 from tpos_cli import alignment
 from tpos_cli.errors import ProcessingError
+from tpos_cli.filters.gating import chi2_threshold
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import dcm_to_euler, euler_to_dcm, wrap_angle_rad
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState
@@ -218,11 +219,12 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
 
     A linearized error-state filter converges only from a yaw error of some 15-20 deg; a course
     from GPS at walking speed or a magnetometer near a car can be off by far more. So the forward
-    filter is run, ungated, over the log until `motion_s` after the platform has first moved
+    filter is run, gated as `cfg`, over the log until `motion_s` after the platform has first moved
     `moved_m` from its first fix, from yaws spaced 360/n deg apart (SD half the spacing) plus
     the prior yaw of `init` (its own SD); the hypothesis whose GPS innovations have the smallest
-    summed NIS wins (a wrong yaw makes the INS velocity point the wrong way as soon as the
-    platform accelerates, so its innovations grow). Returns the winner's yaw and SD.
+    summed NIS, each capped at the gate (`robust_nis_score`; rejected rows included), wins (a
+    wrong yaw makes the INS velocity point the wrong way as soon as the platform accelerates, so
+    its innovations grow). Returns the winner's yaw and SD.
     The runs take the IMU decimated to about `rate_hz` (`ins.mechanization.decimate_to_rate`) and 1 s
     covariance steps, as the other tuning passes: a score only ranks yaws tens of degrees apart.
     """
@@ -241,9 +243,12 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     hyps = np.asarray(wrap_angle_rad(yaw0 + spacing * np.arange(n_hypotheses)))
     sigmas = np.full(hyps.size, spacing / 2.0)
     sigmas[0] = min(sig0, spacing / 2.0)
-    # ungated: every innovation counts; the NIS is all a hypothesis is scored on (no nominal history)
+    # gated as `cfg` (a row beyond the gate leaves the state alone: RTK float fixes decimetres off under a
+    # centimetre SD at a standstill no longer pull each run's state, which then decided the score) and
+    # scored with each NIS capped at the gate (`robust_nis_score`): a rejected row still counts, at the
+    # gate's edge, so a wrong yaw whose rows the gate rejects pays for each; no nominal history kept
     td, gd, ad, rate_d = decimate_to_rate(t[:i_end], gyro_b_rps[:i_end], acc_b_mps2[:i_end], rate_hz)
-    scfg = dataclasses.replace(cfg, max_consecutive_rejections=0, nominal_idx=ENDS_ONLY,
+    scfg = dataclasses.replace(cfg, nominal_idx=ENDS_ONLY,
                                cov_step=max(1, int(round(rate_d))))
     sub = fixes_before(fixes, t[i_end - 1])
     scores = np.full(hyps.size, np.inf)
@@ -252,14 +257,30 @@ def search_yaw(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
             run = run_insgps(td, gd, ad, sub, with_yaw(init, yaw, sy), scfg, store_rts=False)
         except ProcessingError:
             continue  # diverged: not this one
-        scores[h] = float(np.nansum(run.ev_nis))
+        scores[h] = robust_nis_score(run.ev_nis, run.measurements.dim, cfg.gate_probability)
     best = int(np.argmin(scores))
-    # the summed NIS is -2 log-likelihood up to terms alike for every hypothesis: the prior yields
+    # the score is -2 log-likelihood up to terms alike for every hypothesis: the prior yields
     # only to a yaw at least `min_likelihood_ratio` times more likely (weak yaw observability,
     # e.g. a slow rover, gives near-equal scores: then the course is the better information)
     if np.isfinite(scores[0]) and scores[0] - scores[best] < 2.0 * np.log(min_likelihood_ratio):
         best = 0
     return YawSearch(float(hyps[best]), float(sigmas[best]), hyps, scores, (float(t[0]), float(t[i_end - 1])), best == 0)
+
+
+def robust_nis_score(nis, dim, gate_probability: float) -> float:
+    """Sum over the events of each NIS capped at the gate's chi-square threshold for its dimension.
+
+    The truncated quadratic (the loss of a redescending M-estimator: -2 log of a Gaussian with a
+    flat outlier floor; `gps_error.innovation_loglik` caps its rows alike) counts a row the gate
+    rejects as the gate's edge, however far off. Uncapped, a few fixes far outside
+    their stated SD (RTK float fixes 10-25 cm off under a 1 cm SD at a standstill: NIS in the
+    hundreds) outweigh the hundreds of rows that tell a wrong yaw from the course.
+    `nis` (E,) with NaN where not processed, `dim` (E,) the rows' dimensions."""
+    nis = np.asarray(nis, dtype=float)
+    dim = np.asarray(dim, dtype=np.int64)
+    ok = np.isfinite(nis) & (dim > 0)
+    gate = chi2_threshold(gate_probability, int(dim.max(initial=1)))
+    return float(np.sum(np.minimum(nis[ok], gate[dim[ok]])))
 
 
 def fixes_before(fixes: GpsFixes, t_end_s: float) -> GpsFixes:
