@@ -5,6 +5,7 @@ import pytest
 
 from tpos_cli.chains.drive_smooth import decimate_times, fixes_from_session, process_drive
 from tpos_cli.config import DriveSmoothParams
+from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.frames.rotation import dcm_to_euler, wrap_angle_rad
 from tpos_cli.fusion.initial import _gps_heading, robust_nis_score, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes
@@ -62,8 +63,7 @@ def _rtk_float_fixes_at_a_standstill(seed, tmp_path):
     g = s.gps
     lla = g.lla.copy()
     off = (g.t_s >= 9.0) & (g.t_s < 11.0)
-    lla[off, 0] += np.degrees(0.2 / 6.37e6)
-    lla[off, 1] -= np.degrees(0.1 / (6.37e6 * np.cos(np.radians(lla[0, 0]))))
+    lla[off] = ned_to_lla(lla_to_ned(lla[off], lla[0]) + [0.2, -0.1, 0.0], lla[0])
     keep = ~((g.t_s >= 4.0) & (g.t_s < 6.0))
     g = dataclasses.replace(g, lla=lla)
     g = dataclasses.replace(g, **{f.name: getattr(g, f.name)[keep] for f in dataclasses.fields(g)})
