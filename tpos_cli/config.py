@@ -109,6 +109,14 @@ class DriveSmoothParams(Section):
     gps_sigma_h_m: Positive = 1.5  # used when gps has no sigma columns
     gps_sigma_floor_m: NonNegative = 0.01  # reported SDs below this are raised to it (a receiver's
     # RTK SDs are used as given: raising them to decimetres lets the solution sit off centimetre fixes)
+    gps_float_sd_factor: NonNegative = 1.5  # RTK float epochs: stretches of fixes whose stated horizontal SD reaches
+    # this x the log's centimetre median (`fusion.rtk_float.float_fixes`) keep their position rows with a float offset
+    # state (fix = truth + b_float + white); 0: off (every fix white, as stated)
+    gps_float_sigma_h_m: Positive = 0.15  # stationary SD of that offset per horizontal axis (m): an RTK float
+    # solution's decimetre class (`fusion.rtk_float.FLOAT_SIGMA_H_M`)
+    gps_float_sigma_v_m: Positive = 0.25  # ... and up (m)
+    gps_float_tau_s: Positive = 5.0  # its Gauss-Markov time constant (s): multipath and float ambiguities change
+    # over seconds on a moving receiver (`sim.rtk`'s assumed figure)
     max_consecutive_rejections: Count = 5  # then the next rejected fix goes in: as it is in the tuning passes; in the
     # final runs down-weighted to the gate's edge if beyond its stated accuracy (drifts re-acquired sooner: `fusion.reacquire`)
     gps_sigma_v_m: Positive = 2.5

@@ -613,3 +613,33 @@ def test_a_car_standing_with_an_unstated_lever_arm_has_fix_nis_in_band_at_its_st
     # white simulated fixes: the rows of a consistent filter are independent draws of chi-square(3)
     lo, hi = chi2.ppf([0.005, 0.995], 3 * rows.size) / rows.size
     assert lo <= rows.mean() <= hi, (rows.mean(), rows.size, lo, hi)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_rtk_float_stretches_kept_with_their_offset_state_leave_the_runs_agreeing(tmp_path, seed):
+    """An RTK receiver (`simulate_drive(gps_rtk=True)`, 4 Hz) falls back to float 3 times a minute: its stated
+    SD rises 1.2-2.6 x while its fixes sit 15-25 cm off (a Gauss-Markov offset, tau 5 s). The pipeline keeps
+    those fixes with the float offset state on their position rows (`fusion.rtk_float`): the forward and
+    backward runs agree through the stretches. Taken as white at their stated SD (d7e0e10, or
+    gps_float_sd_factor 0) each run follows them and the runs disagree on 2.9 / 3.3 / 13.6 % of the rows
+    (seeds 3 / 2 / 1; 0.42 / 0 / 0 % with the state)."""
+    import tpos_cli.chains.drive_smooth as ds
+    from tpos_cli.config import DriveSmoothParams
+    from tpos_cli.fusion.rtk_float import in_intervals
+    from tpos_cli.session import load_session
+
+    sim = simulate_drive(120.0, seed=seed, gps_rtk=True, gps_rate_hz=4.0, outages=(), gps_rtk_float_per_min=3.0,
+                         gps_rtk_multipath_per_min=0.0, gps_rtk_float_offset_m=(0.15, 0.25))
+    res = ds.process_drive(load_session(sim.write(tmp_path / "s")), DriveSmoothParams(), None, names=("smoothed",))
+    rtk = sim.gps.rtk
+    t_gps = sim.gps.t_s
+    # no fixed epoch classed; every stretch raised past the class's 1.5 x floor classed whole (those raised 1.2-1.5 x
+    # are within what geometry does to a fixed SD and stay white: `rtk_float.FLOAT_SD_FACTOR`)
+    assert not in_intervals(t_gps[rtk.regime == 0], res.fixes.float_intervals_s).any()
+    loud = np.zeros(t_gps.size, dtype=bool)
+    for (a, b), f in zip(rtk.float_s, rtk.float_sd_factor):
+        loud |= (t_gps >= a) & (t_gps < b) & (f > 1.5)
+    assert loud.any() and in_intervals(t_gps[loud], res.fixes.float_intervals_s).all()
+    # the disagreement flag tests at 99.9 %: a consistent pair flags ~0.1 % of rows; 1 %, ten times that, as
+    # the rows are correlated over seconds (one chance episode is a few tenths of a per cent of 120 s)
+    assert np.mean(res.flag) < 0.01, np.mean(res.flag)

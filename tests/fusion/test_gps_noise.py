@@ -157,3 +157,30 @@ def test_rows_within_keeps_the_rows_a_pass_can_process():
     cut = rows_within(rows, 2.0)
     np.testing.assert_array_equal(cut.t_s, [0.5, 1.0, 2.0])
     assert rows_within(rows, 3.0) is rows and rows_within(None, 1.0) is None
+
+
+def test_fixes_at_stops_are_matched_apart_from_the_moving_ones(tmp_path):
+    """A receiver whose fixes scatter 4x less standing than moving (as part 1 of the 0708 drive: NIS 0.47
+    at its stops under one R, 2.9 moving): the matching per regime brings the rows at stops to their
+    d.o.f.; with one R (the old matching) their mean NIS is ~1/16 of it."""
+    sim = simulate_drive(300.0, seed=11, outages=(), gps_sigma_h_m=0.5, gps_sigma_v_m=0.8, gps_sigma_vel_mps=0.05)
+    session = load_session(sim.write(tmp_path / "s"))
+    g = session.gps
+    k = np.searchsorted(sim.gps.t_s, g.t_s - g.t_s[0] + sim.gps.t_s[0] - 1e-6)  # the written rows, in order
+    assert k.size == sim.gps.t_s.size
+    standing = np.linalg.norm(sim.gps.vel_true_ned_mps[k], axis=1) < 0.01
+    lla, vel = g.lla.copy(), g.vel_ned_mps.copy()
+    lla[standing] = sim.gps.lla_true[k][standing] + (lla[standing] - sim.gps.lla_true[k][standing]) / 4.0
+    vel[standing] = sim.gps.vel_true_ned_mps[k][standing] + (vel[standing] - sim.gps.vel_true_ned_mps[k][standing]) / 4.0
+    # no SD columns: the scales are free (the receiver's own SDs would only be raised, `raise_only`)
+    gps = dataclasses.replace(g, lla=lla, vel_ned_mps=vel, sigma_neu_m=np.full_like(g.sigma_neu_m, np.nan))
+    res = process_drive(dataclasses.replace(session, gps=gps), DriveSmoothParams(), None, names=("forward",))
+    rest = res.info["gps_noise"]["at_rest"]
+    assert rest["n_used"]["pos_h"] >= 20  # the start's 15 s standing at least
+    gi = res.innovations()
+    at_stop = np.zeros(res.fixes.t_s.size, dtype=bool)
+    for a, b in res.stop_intervals_s:
+        at_stop |= (res.fixes.t_s >= a) & (res.fixes.t_s <= b)
+    a = gi.nis[gi.accepted[:, 0] & at_stop, 0]
+    assert a.size >= 10
+    assert abs(np.mean(a) - 3.0) < 3 * np.sqrt(6.0 / a.size) + 0.3  # 3 SD plus the 10% stopping rule

@@ -7,7 +7,16 @@ from numpy.testing import assert_allclose
 from tpos_cli.frames import geodetic
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.fusion._kernels import Aiding, EventArrays
-from tpos_cli.fusion.layout import Block, StateLayout, backward_sign, clock_block, gps_error_block, lever_arm_block, ranging_blocks
+from tpos_cli.fusion.layout import (
+    Block,
+    StateLayout,
+    backward_sign,
+    clock_block,
+    float_offset_block,
+    gps_error_block,
+    lever_arm_block,
+    ranging_blocks,
+)
 from tpos_cli.fusion.measurements import (
     Kind,
     gps_position_jacobian,
@@ -71,9 +80,10 @@ def test_range_jacobian_matches_finite_differences():
         assert_allclose(range_residual(p, a, 10.0, 0.3, 0.1) - range_residual(p, a, 10.0, 0.0, 0.0), 0.4, atol=1e-12)
 
 
-def _events(kind, z, R, dim, par=0):
+def _events(kind, z, R, dim, par=0, float_row=False):
     return EventArrays(np.array([1]), np.array([0.0]), np.array([int(kind)]), np.array([dim]), np.array([z], float),
-                       np.array([R], float), np.array([True]), np.array([0]), np.array([par]), np.ones(1))
+                       np.array([R], float), np.array([True]), np.array([0]), np.array([par]), np.ones(1),
+                       np.array([float_row]))
 
 
 def test_measure_adds_the_extra_states_columns():
@@ -105,6 +115,26 @@ def test_measure_adds_the_extra_states_columns():
     assert H[0, lay.offset(Block.RANGE_BIAS)] == 1.0 and H[0, lay.offset(Block.CALIBRATION) + 1] == 1.0
     assert H[0, lay.offset(Block.CALIBRATION)] == 0.0 and R[0, 0] == 0.01
 
+
+
+def test_float_offset_columns_only_on_float_rows():
+    """An RTK float epoch's fix = truth + b_float + white (`fusion.rtk_float`): its position row sees the float
+    offset state with unit weight and its estimate subtracted from the fix; a fixed epoch's row does not."""
+    nav, C = _nominal()
+    aid = Aiding(np.zeros(3), np.zeros(3), np.zeros((2, 3)), geodetic.lla_to_ecef(np.array([48.0, 8.0, 480.0])),
+                 geodetic.ecef_to_ned_dcm(48.0, 8.0), np.zeros((1, 2, 3)), np.eye(3), 1.0)
+    lay = StateLayout((float_offset_block(0.15, 0.25, 5.0),))
+    o = lay.offset(Block.FLOAT)
+    bias = np.r_[np.zeros(6), 0.12, -0.05, 0.2]
+    fix = np.array([nav[0] + 1e-6, nav[1] - 2e-6, nav[2] + 0.7])
+    z0 = np.empty(3)
+    gps_position_residual(nav, C, aid.lever_b, fix, 0.0, z0)
+    for is_float in (True, False):
+        z, H, R = np.empty(3), np.zeros((3, lay.n_states)), np.zeros((3, 3))
+        measure(0, _events(Kind.GPS_POSITION, fix, np.eye(3), 3, float_row=is_float), aid, None, nav, C, bias, np.zeros(3),
+                np.zeros(3), np.zeros(3), lay.offsets(), _no_P(H), z, H, R)
+        assert_allclose(z - z0, bias[6:9] if is_float else 0.0, atol=0)
+        assert_allclose(H[:, o:o + 3], np.eye(3) if is_float else 0.0, atol=0)
 
 
 def test_clock_offset_columns():

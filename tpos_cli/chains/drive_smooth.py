@@ -51,7 +51,16 @@ from tpos_cli.fusion.gps_error import (
 from tpos_cli.fusion.gps_noise import GpsNoise, estimate_gps_noise, median_sigmas, pass_window, rows_within, scaled_fixes
 from tpos_cli.fusion.initial import InitialSigmas, align_vehicle, initial_covariance, search_yaw, with_yaw
 from tpos_cli.fusion.insgps import GpsFixes, GpsInnovations, gps_error_layout, gps_innovations, run_insgps, velocity_latency_s
-from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, clock_block, lever_arm_block, mounting_block, odometer_block
+from tpos_cli.fusion.layout import (
+    N_NAV,
+    Block,
+    StateLayout,
+    clock_block,
+    float_offset_block,
+    lever_arm_block,
+    mounting_block,
+    odometer_block,
+)
 from tpos_cli.fusion.lever_arm import (
     at_stated_point,
     course_span_deg,
@@ -63,6 +72,7 @@ from tpos_cli.fusion.lever_arm import (
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.mounting import course_minus_yaw, mounting_off, refined_mounting, vehicle_attitude
 from tpos_cli.fusion.nav_errors import vibration_velocity_cov_b
+from tpos_cli.fusion.rtk_float import float_fixes, float_intervals
 from tpos_cli.fusion.screening import wild_fixes
 from tpos_cli.imu_noise import ImuNoiseFigures, measured_white_noise, resolve_imu_noise, stop_noise_factors
 from tpos_cli.io.columns import Columns, concat
@@ -141,6 +151,10 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
         vel[:] = np.nan
     vel[~np.isfinite(vel[:, :2]).all(axis=1)] = np.nan  # vd may be absent alone (speed/course receivers)
     t = np.array(gps.t_s[ok], dtype=float)
+    # RTK float epochs (the receiver raised its SD off its centimetre floor): kept, with the float offset
+    # state on their position rows (`float_offset_states`), from the stated SDs of every fix (4 Hz)
+    is_float = float_fixes(np.asarray(gps.sigma_neu_m[ok], dtype=float)[:, :2].max(axis=1), p.gps_float_sd_factor)
+    # (their velocity rows carry the offset's drift as variance: `fusion.rtk_float.float_velocity_var`)
     keep = decimate_times(t, p.gps_max_rate_hz)
     fixes = GpsFixes(t, np.array(gps.lla[ok], dtype=float), vel, sig, np.full((t.size, 3), p.gps_sigma_vel_mps), from_receiver)
     if p.gps_vel_latency_s is not None:
@@ -150,7 +164,17 @@ def fixes_from_session(session: Session, p: DriveSmoothParams) -> GpsFixes:
     else:
         lag, _ = velocity_latency_s(fixes)
     return GpsFixes(t[keep], fixes.lla[keep], vel[keep], sig[keep], fixes.sigma_vel_mps[keep], from_receiver, lag,
-                    int(wild.sum()))
+                    int(wild.sum()), float_intervals(t, is_float), int(is_float.sum()))
+
+
+def float_offset_states(p: DriveSmoothParams, fixes: GpsFixes, cfg: FilterConfig) -> FilterConfig:
+    """`cfg` with the RTK float offset block (`layout.float_offset_block`) and the float stretches whose
+    position rows see it (`fusion.rtk_float`), when the fixes hold any; else `cfg` unchanged."""
+    if not fixes.float_intervals_s.shape[0]:
+        return cfg
+    block = float_offset_block(p.gps_float_sigma_h_m, p.gps_float_sigma_v_m, p.gps_float_tau_s)
+    return dataclasses.replace(cfg, layout=StateLayout((*cfg.layout.blocks, block)),
+                               float_intervals_s=np.asarray(fixes.float_intervals_s, dtype=float))
 
 
 def decimate_times(t_s, max_rate_hz) -> np.ndarray:
@@ -247,8 +271,10 @@ def align(imu: _Imu, session: Session, p: DriveSmoothParams, fixes: GpsFixes, cf
 def raise_only(gn: GpsNoise, fixes: GpsFixes) -> GpsNoise:
     """The matching's scales below 1 set to 1 where the receiver logged the SDs (they are a floor:
     a quiet stretch of fixes says little about the next multipath one); SDs recomputed."""
-    scale = np.where(np.asarray(fixes.from_receiver, dtype=bool), np.maximum(gn.scale, 1.0), gn.scale)
-    return dataclasses.replace(gn, scale=scale, sigma=median_sigmas(scaled_fixes(fixes, scale)))
+    stated = np.asarray(fixes.from_receiver, dtype=bool)
+    scale = np.where(stated, np.maximum(gn.scale, 1.0), gn.scale)
+    return dataclasses.replace(gn, scale=scale, sigma=median_sigmas(scaled_fixes(fixes, scale)),
+                               scale_at_rest=np.where(stated, np.maximum(gn.scale_at_rest, 1.0), gn.scale_at_rest))
 
 
 def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
@@ -262,9 +288,9 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     gn = None
     if p.gps_noise == "estimate":
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s,
-                                extra=extra)
+                                extra=extra, rest_intervals_s=stop_intervals_s)
         gn = raise_only(gn, fixes)
-        fixes = scaled_fixes(fixes, gn.scale)
+        fixes = gn.scaled(fixes)
         info["gps_noise"] = {"method": "covariance matching on decimated filter passes; the receiver's own SDs only "
                                        "raised (fusion.gps_noise)", **gn.summary()}
         info["gps_noise"]["fixes_from_to_s"] = [round(float(v) + t0_s, 2) for v in gn.window_s]
@@ -276,7 +302,7 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     if p.gps_error_model == "stated_split":
         # the receiver's SDs (before the matching's scales): the split keeps their variance; the
         # matching then starts again from the white part, with the error states on
-        stated = scaled_fixes(fixes, 1.0 / gn.scale) if gn is not None else fixes
+        stated = gn.scaled(fixes, inverse=True) if gn is not None else fixes
         split = stated_split(stated.t_s, lla_to_ned(stated.lla, stated.lla[0]), stated.sigma_pos_ned_m,
                              np.zeros((0, 2)) if stop_intervals_s is None else stop_intervals_s,
                              np.asarray(stated.from_receiver[:2], dtype=bool), tau_s=p.gps_gm_tau_s or STATED_SPLIT_TAU_S)
@@ -288,7 +314,7 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
         # state would leave the predicted covariance singular for the RTS smoother)
         gm = np.where(split.gm_m > 0, split.gm_m, 1e-3 * np.nan_to_num(split.stated_m, nan=1.0))
         cfg = dataclasses.replace(cfg, layout=gps_error_layout(gm[[0, 0, 1]], split.tau_s, cfg.layout))
-        return rematched_white(imu, p, fixes, init, cfg, info, gn, after, extra)
+        return rematched_white(imu, p, fixes, init, cfg, info, gn, after, extra, stop_intervals_s)
     if p.gps_error_model != "gauss_markov":
         return fixes, final_settings(cfg, gn)
     if p.gps_gm_sigma_h_m is None or p.gps_gm_sigma_v_m is None:
@@ -307,19 +333,19 @@ def tune_gps(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialStat
     info["gps_error_states"].update(sigma_h_m=round(float(sd[0]), 4), sigma_v_m=round(float(sd[2]), 4))
     cfg = dataclasses.replace(cfg, layout=gps_error_layout(sd, tau, cfg.layout))
     if gn is not None and cfg.layout.offset(Block.GPS_ERROR) >= 0:
-        fixes = scaled_fixes(fixes, 1.0 / gn.scale)
-    return rematched_white(imu, p, fixes, init, cfg, info, gn, after, extra)
+        fixes = gn.scaled(fixes, inverse=True)
+    return rematched_white(imu, p, fixes, init, cfg, info, gn, after, extra, stop_intervals_s)
 
 
 def rematched_white(imu: _Imu, p: DriveSmoothParams, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, info: dict,
-                    gn: GpsNoise | None, after, extra: Measurements | None) -> tuple[GpsFixes, FilterConfig]:
+                    gn: GpsNoise | None, after, extra: Measurements | None, stop_intervals_s=None) -> tuple[GpsFixes, FilterConfig]:
     """The white part matched again with the error states on (`fixes` with the SDs the matching
     starts from): the states now carry the share of the fix-to-fix scatter that the wander makes."""
     if gn is not None and cfg.layout.offset(Block.GPS_ERROR) >= 0:
         gn = estimate_gps_noise(imu.t, imu.gyro, imu.acc, fixes, init, cfg, after_s=after, span_s=p.gps_noise_span_s,
-                                extra=extra)
+                                extra=extra, rest_intervals_s=stop_intervals_s)
         gn = raise_only(gn, fixes)
-        fixes = scaled_fixes(fixes, gn.scale)
+        fixes = gn.scaled(fixes)
         info["gps_noise"].update(gn.summary())
     return fixes, final_settings(cfg, gn)
 
@@ -711,7 +737,7 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
     nz = drive_imu_noise(p, session)
     sig = initial_sigmas(p, nz)
     fixes = fixes_from_session(session, p)
-    cfg = filter_config(p, nz, session.meta.lever_arm_b_m, imu.rate_hz)
+    cfg = float_offset_states(p, fixes, filter_config(p, nz, session.meta.lever_arm_b_m, imu.rate_hz))
     with stage("alignment"):
         init, info = align(imu, session, p, fixes, cfg, sig, nz)
     info["gps_vel_latency_s"] = {"value": fixes.vel_latency_s,
@@ -873,6 +899,9 @@ def drive_summary(res: DriveResult, p: DriveSmoothParams, names, t0_s: float, ct
     if res.fixes.n_wild:
         ctx.count("gps_fixes_wild", res.fixes.n_wild)
         ctx.warn(f"{res.fixes.n_wild} GPS fix(es) far from where their neighbours place them were left out (fusion.screening)")
+    if res.fixes.n_float:
+        ctx.count("gps_fixes_float", res.fixes.n_float)
+        ctx.count("gps_float_stretches", int(res.fixes.float_intervals_s.shape[0]))
     rejected, reacquired = {}, {}
     for run_name in ("forward", "backward"):
         gi = res.innovations(run_name)

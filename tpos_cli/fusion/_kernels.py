@@ -121,7 +121,9 @@ class EventArrays(NamedTuple):
     R (E, 3, 3), gated (E,) bool, slot (E,) int64 (counter of consecutive rejections, -1 none),
     par (E,) int64 (per-kind parameter: anchor index, sens row), second_order (E,) the share of the
     lever arm's second-order variance a GPS row carries (`measurements._lever_second_order`; 1, or 0
-    for a row at rest after its stop's first: `fusion.lever_arm.second_order_shares`)."""
+    for a row at rest after its stop's first: `fusion.lever_arm.second_order_shares`), float_row (E,)
+    bool: a GPS position row of an RTK float epoch, whose error holds the float offset state
+    (`fusion.rtk_float.float_rows`)."""
 
     k: np.ndarray
     lag: np.ndarray
@@ -133,6 +135,7 @@ class EventArrays(NamedTuple):
     slot: np.ndarray
     par: np.ndarray
     second_order: np.ndarray
+    float_row: np.ndarray
 
 
 class Aiding(NamedTuple):

@@ -34,6 +34,7 @@ from tpos_cli.fusion._kernels import (
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, backward_sign
 from tpos_cli.fusion.lever_arm import second_order_shares
 from tpos_cli.fusion.measurements import Kind
+from tpos_cli.fusion.rtk_float import float_rows
 from tpos_cli.ins.mechanization import reverse_imu
 
 # residuals odd in time (velocities, rates): their measured value and residual flip sign in reversed time
@@ -79,6 +80,8 @@ class FilterConfig:
     stated_sd_factor: np.ndarray = field(default_factory=lambda: np.ones(4))
     rest_intervals_s: np.ndarray | None = None
     q_stops: np.ndarray | None = None  # (K, 4) [t0, t1, acc factor, gyro factor]: white PSDs scaled inside stops
+    float_intervals_s: np.ndarray | None = None  # (K, 2) session s: RTK float stretches, whose position rows
+    # see the layout's float offset state (`fusion.rtk_float`; None: none)
 
     @property
     def n_states(self) -> int:
@@ -344,7 +347,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                      np.ascontiguousarray(z[order]), np.ascontiguousarray(meas.R[order], dtype=float),
                      meas.gated[order].astype(np.bool_), meas.slot[order].astype(np.int64),
                      meas.par[order].astype(np.int64),
-                     second_order_shares(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.rest_intervals_s))
+                     second_order_shares(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.rest_intervals_s),
+                     float_rows(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.float_intervals_s))
     aid = _aiding(cfg, meas, backward)
     k_distinct = k_o[np.flatnonzero(np.diff(k_o, prepend=-1))]  # k_o is sorted: np.unique's values without its hashing
     n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), k_distinct)

@@ -18,6 +18,12 @@ the innovations.
 Time-correlated GPS errors (a receiver's own filter, multipath over minutes) are seen by the
 innovations only through their change between fixes: the matched R then describes that part,
 which keeps the NIS consistent but says nothing of the slow wander common to all fixes.
+
+Fixes at a stop are matched apart from the moving ones (`rest_intervals_s`): standing, the fix-to-fix
+scatter is the receiver's alone (no multipath change with motion, no INS error growth under a ZUPT), a
+fraction of the moving scatter (part 1 of the 0708 drive: NIS 0.47 at its stops with one R for both,
+2.9 moving), so one R cannot fit both regimes and the rows at stops the moving rows' R leaves under
+the NIS band. A regime with too few components (`normalized_square`) takes the other's scales.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import numpy as np
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState, Measurements
 from tpos_cli.fusion.initial import fixes_before
 from tpos_cli.fusion.insgps import GpsFixes, gps_innovations, run_insgps
+from tpos_cli.fusion.rtk_float import in_intervals
 from tpos_cli.ins.mechanization import decimate_to_rate
 
 GROUPS = ("pos_h", "pos_v", "vel_h", "vel_v")
@@ -54,6 +61,22 @@ class GpsNoise:
     sigma: np.ndarray
     normalized_square: np.ndarray  # (4,) the last pass's mean nu^2 / (H P- H^T + R) per group
     window_s: tuple  # (first, last) time of the fixes that counted
+    # the fixes at stops (`rest_intervals_s`, session s): their own scales (4,) (= `scale` where not
+    # estimated), components and last-pass m
+    scale_at_rest: np.ndarray = dataclasses.field(default_factory=lambda: np.ones(4))
+    n_used_at_rest: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(4, dtype=np.int64))
+    normalized_square_at_rest: np.ndarray = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
+    rest_intervals_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2)))
+
+    def per_fix(self, t_s) -> np.ndarray:
+        """(M, 4) the scale of each fix at times `t_s`: `scale_at_rest` inside a stop, else `scale`."""
+        rest = in_intervals(np.asarray(t_s, dtype=float), self.rest_intervals_s)
+        return np.where(rest[:, None], self.scale_at_rest[None, :], self.scale[None, :])
+
+    def scaled(self, fixes: GpsFixes, inverse: bool = False) -> GpsFixes:
+        """`fixes` with each one's SDs multiplied (divided, `inverse`) by its regime's scales."""
+        s = self.per_fix(fixes.t_s)
+        return scaled_fixes(fixes, 1.0 / s if inverse else s)
 
     def summary(self) -> dict:
         units = ("m", "m", "mps", "mps")
@@ -65,14 +88,19 @@ class GpsNoise:
         out["fixes_from_to_s"] = [round(float(v), 2) for v in self.window_s]
         out["last_pass_normalized_square"] = {g: (None if not np.isfinite(v) else round(float(v), 3))
                                               for g, v in zip(GROUPS, self.normalized_square)}
+        out["at_rest"] = {"scale": {g: round(float(s), 4) for g, s in zip(GROUPS, self.scale_at_rest)},
+                          "n_used": {g: int(n) for g, n in zip(GROUPS, self.n_used_at_rest)},
+                          "last_pass_normalized_square": {g: (None if not np.isfinite(v) else round(float(v), 3))
+                                                          for g, v in zip(GROUPS, self.normalized_square_at_rest)}}
         return out
 
 
 def scaled_fixes(fixes: GpsFixes, scale) -> GpsFixes:
-    """`fixes` with their SDs multiplied by the group scales (pos_h, pos_v, vel_h, vel_v)."""
+    """`fixes` with their SDs multiplied by the group scales (pos_h, pos_v, vel_h, vel_v): (4,), or
+    (M, 4) one row per fix."""
     s = np.asarray(scale, dtype=float)
-    return dataclasses.replace(fixes, sigma_pos_ned_m=fixes.sigma_pos_ned_m * s[[0, 0, 1]],
-                               sigma_vel_mps=fixes.sigma_vel_mps * s[[2, 2, 3]])
+    return dataclasses.replace(fixes, sigma_pos_ned_m=fixes.sigma_pos_ned_m * s[..., [0, 0, 1]],
+                               sigma_vel_mps=fixes.sigma_vel_mps * s[..., [2, 2, 3]])
 
 
 def median_sigmas(fixes: GpsFixes) -> np.ndarray:
@@ -186,7 +214,7 @@ def last_secant(hist, lo: float, hi: float) -> float | None:
 def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState, cfg: FilterConfig, *,
                        after_s: float | None = None, span_s: float = 900.0, rate_hz: float = 25.0,
                        max_passes: int = 6, tol: float = 0.1, scale_bounds=(0.02, 50.0),
-                       extra: Measurements | None = None) -> GpsNoise:
+                       extra: Measurements | None = None, rest_intervals_s=None) -> GpsNoise:
     """Scales of the fixes' SDs per group from decimated forward passes (see the module docstring).
 
     Each pass gives, per group, the mean normalized innovation square m(s) (1 when consistent);
@@ -201,28 +229,45 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     `extra`: the motion-constraint rows of the final filter (its layout in `cfg`): matched on a
     filter without them, R would take the share of the innovations that the constraints remove
     (the final filter's GPS NIS then falls below its band).
+    `rest_intervals_s`: the stops ((K, 2), the fixes' clock): their fixes are matched as groups of
+    their own (see the module docstring), all of them, `after_s` or not (standing, a heading still
+    converging moves no position).
     """
     td, gd, ad, fixes, count, rate_d = pass_window(t_s, gyro_b_rps, acc_b_mps2, fixes, after_s, span_s, rate_hz)
+    # RTK float fixes are not white scatter at their stated SD (`fusion.rtk_float`): their offset state
+    # carries their error, and they would inflate the matched R of every fix (a few decimetre rows in a
+    # centimetre group); the matching sees the fixed epochs only
+    fixed_epoch = ~in_intervals(fixes.t_s, cfg.float_intervals_s)
+    rest_iv = np.zeros((0, 2)) if rest_intervals_s is None else np.asarray(rest_intervals_s, dtype=float).reshape(-1, 2)
+    rest = in_intervals(fixes.t_s, rest_iv)
+    counts = (count & fixed_epoch & ~rest, fixed_epoch & rest)  # per regime: moving, standing
     extra = rows_within(extra, td[-1])
-    stated = np.asarray(fixes.from_receiver, dtype=bool)
+    stated = np.tile(np.asarray(fixes.from_receiver, dtype=bool), 2)
     pcfg = dataclasses.replace(cfg, cov_step=max(1, int(round(rate_d))), nominal_idx=ENDS_ONLY)  # innovations only
     lo, hi = np.log(scale_bounds[0]), np.log(scale_bounds[1])
-    log_s = np.zeros(4)
-    hist: list[list[tuple[float, float]]] = [[] for _ in range(4)]
-    m_last = np.full(4, np.nan)
-    n_used = np.zeros(4, dtype=np.int64)
+    # groups 0-3 the moving fixes' (`GROUPS`), 4-7 the same at stops
+    log_s = np.zeros(8)
+    hist: list[list[tuple[float, float]]] = [[] for _ in range(8)]
+    m_last = np.full(8, np.nan)
+    n_used = np.zeros(8, dtype=np.int64)
+
+    def per_fix_scale(log_s):
+        return np.exp(np.where(rest[:, None], log_s[None, 4:], log_s[None, :4]))
+
     passes = 0
+    nus: list = [None, None]
     for passes in range(1, max_passes + 1):
-        fx = scaled_fixes(fixes, np.exp(log_s))
+        fx = scaled_fixes(fixes, per_fix_scale(log_s))
         run = run_insgps(td, gd, ad, fx, init, pcfg, store_rts=False, extra=extra)
-        var = np.column_stack([fx.sigma_pos_ned_m, fx.sigma_vel_mps])[count] ** 2
+        var_all = np.column_stack([fx.sigma_pos_ned_m, fx.sigma_vel_mps]) ** 2
         gi = gps_innovations(run, count.size)
-        nu, hph = gi.innovation[count], gi.pvar[count]
-        for j, cols in enumerate(_COLS):
-            c = list(cols)
-            m_last[j], n_used[j] = normalized_square(nu[:, c], hph[:, c], var[:, c])
-            if np.isfinite(m_last[j]):
-                hist[j].append((log_s[j], np.log(m_last[j])))
+        for r, sel in enumerate(counts):
+            nus[r] = (gi.innovation[sel], gi.pvar[sel], var_all[sel])
+            for k, cols in enumerate(_COLS):
+                j, c = 4 * r + k, list(cols)
+                m_last[j], n_used[j] = normalized_square(nus[r][0][:, c], nus[r][1][:, c], nus[r][2][:, c])
+                if np.isfinite(m_last[j]):
+                    hist[j].append((log_s[j], np.log(m_last[j])))
         # a group moves only when its m is off by more than `tol` and by z SDs of a mean of n
         # chi-square(1) / n values (sqrt(2 / n)): a consistent log keeps its SDs as given. z = 3
         # where the receiver stated them (its figure is evidence); the pipeline's default SDs are
@@ -232,11 +277,12 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
         off = np.isfinite(m_last) & (np.abs(m_last - 1.0) >= tol_g)
         if not off.any() or passes == max_passes:
             break
-        for j in range(4):
+        for j in range(8):
             if not hist[j] or not off[j]:
                 continue
             ls1, lm1 = hist[j][-1]
-            c = list(_COLS[j])
+            c = list(_COLS[j % 4])
+            nu, hph, var = nus[j // 4]
             s2 = solve_scale(nu[:, c], hph[:, c], var[:, c] / np.exp(2.0 * ls1))
             # first step: the scale matching this pass's innovations with its H P- H^T held fixed;
             # where H P- H^T alone exceeds them (too large an R before), m ~ 1 / s^2
@@ -246,11 +292,18 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
                 if ls1 != ls0 and (lm1 - lm0) / (ls1 - ls0) < -0.05:  # a usable decreasing secant
                     step = -lm1 * (ls1 - ls0) / (lm1 - lm0)
             log_s[j] = bracketed(float(np.clip(ls1 + np.clip(step, -np.log(10.0), np.log(10.0)), lo, hi)), hist[j])
-    for j in range(4):
+    for j in range(8):
         # the loop stops within the tolerance: a last secant step (no further pass) removes most
         # of that remainder for the groups that moved
         last = last_secant(hist[j], lo, hi)
         if last is not None:
             log_s[j] = last
-    return GpsNoise(np.exp(log_s), n_used, passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s))), m_last,
-                    (float(fixes.t_s[count][0]), float(fixes.t_s[count][-1])) if count.any() else (np.nan, np.nan))
+    for k in range(4):  # a regime never matched (too few components) takes the other's scale
+        if not hist[4 + k]:
+            log_s[4 + k] = log_s[k]
+        elif not hist[k]:
+            log_s[k] = log_s[4 + k]
+    moving = counts[0]
+    return GpsNoise(np.exp(log_s[:4]), n_used[:4], passes, median_sigmas(scaled_fixes(fixes, np.exp(log_s[:4]))),
+                    m_last[:4], (float(fixes.t_s[moving][0]), float(fixes.t_s[moving][-1])) if moving.any() else (np.nan, np.nan),
+                    np.exp(log_s[4:]), n_used[4:], m_last[4:], rest_iv)

@@ -9,13 +9,14 @@ good position). `gps_innovations` gives the per-fix view of a run's results.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, run_filter
 from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block
 from tpos_cli.fusion.measurements import Kind
+from tpos_cli.fusion.rtk_float import float_velocity_var, in_intervals
 from tpos_cli.fusion.velocity_lag import LAG_GRID_S, velocity_latency_s  # noqa: F401  (re-exported: chains and tests import it here)
 
 _SLOT_POSITION, _SLOT_VELOCITY = 0, 1
@@ -36,6 +37,9 @@ class GpsFixes:
     from_receiver: tuple = (False, False, False, False)
     vel_latency_s: float = 0.0  # the logged velocity is the platform's velocity this long before t_s
     n_wild: int = 0  # fixes left out before the filter (`fusion.screening.wild_fixes`)
+    float_intervals_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (K, 2) [first, last] time
+    # of each stretch of RTK float fixes (`fusion.rtk_float`)
+    n_float: int = 0  # fixes in those stretches (before the decimation)
 
 
 @dataclass(frozen=True)
@@ -62,12 +66,14 @@ def gps_error_layout(sigma_ned_m, tau_s: float, base: StateLayout | None = None)
     return StateLayout((*kept, gps_error_block(sigma_ned_m, tau_s)))
 
 
-def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) -> Measurements:
+def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float, float_intervals_s=None,
+                     float_vel_var=None) -> Measurements:
     """The fixes as filter rows, interleaved (velocity, position) per fix. `t_run_s` are the
     run's IMU times in its own direction (negated, reversed for a backward run): with gap_s > 0
     the first fix processed more than gap_s after the previous one (or the run's start) is not
     gated (an outage: the INS has then drifted by more than a MEMS error model predicts, and
-    refusing the returning fixes prolongs the outage)."""
+    refusing the returning fixes prolongs the outage). The velocity rows of fixes inside
+    `float_intervals_s` (RTK float stretches) carry `float_vel_var` (3,) more variance (`fusion.rtk_float`)."""
     t_fix = np.asarray(fixes.t_s, dtype=float)
     m = t_fix.size
     gated = np.ones(m, dtype=bool)
@@ -82,6 +88,8 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float) 
     var_p = np.asarray(fixes.sigma_pos_ned_m, dtype=float) ** 2
     vel = np.asarray(fixes.vel_ned_mps, dtype=float)
     var_v = np.asarray(fixes.sigma_vel_mps, dtype=float) ** 2
+    if float_vel_var is not None:
+        var_v = var_v + np.where(in_intervals(t_fix, float_intervals_s)[:, None], np.asarray(float_vel_var, dtype=float), 0.0)
     g = np.arange(m)
     rows = [Measurements.rows(t_fix, Kind.GPS_POSITION, pos, var_p[:, :, None] * np.eye(3), dim=3, gated=gated,
                               slot=_SLOT_POSITION, par=g)]
@@ -110,7 +118,8 @@ def run_insgps(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: InitialState,
     """
     t = np.asarray(t_s, dtype=float)[init.k0:]
     t_run = -t[::-1] if backward else t
-    meas = gps_measurements(fixes, t_run, backward=backward, gap_s=float(cfg.ungated_after_gap_s))
+    meas = gps_measurements(fixes, t_run, backward=backward, gap_s=float(cfg.ungated_after_gap_s),
+                            float_intervals_s=cfg.float_intervals_s, float_vel_var=float_velocity_var(cfg.layout))
     if extra is not None and len(extra):
         meas = Measurements.merge(meas, extra)
     return run_filter(t_s, gyro_b_rps, acc_b_mps2, init, cfg, meas, backward=backward, store_rts=store_rts, reuse=reuse)

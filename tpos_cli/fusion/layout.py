@@ -43,6 +43,7 @@ class Block(IntEnum):
     # stamped t holds at IMU time t + d (constants)
     LEVER = 7  # 2: correction (m) to the stated GPS lever arm along the vehicle's forward and right axes
     # (rows 0, 1 of the filter's C_vb: a level IMU's own x, y without vehicle axes) (constants)
+    FLOAT = 8  # 3: offset of the GPS fixes of RTK float epochs, NED m (Gauss-Markov; `fusion.rtk_float`)
 
 
 N_BLOCKS = len(Block)
@@ -110,6 +111,18 @@ def gps_error_block(sigma_ned_m, tau_s: float) -> ExtraBlock:
     if not tau_s > 0:
         raise ValueError(f"`gps_gm_tau_s` must be > 0 with GPS error states, got {tau_s}")
     return ExtraBlock(Block.GPS_ERROR, 3, float(tau_s), 2.0 * sd**2 / max(float(tau_s), 1e-300), np.diag(sd**2))
+
+
+def float_offset_block(sigma_h_m: float, sigma_v_m: float, tau_s: float) -> ExtraBlock:
+    """The offset b_float (NED m) of an RTK receiver's float-epoch fixes, three first-order
+    Gauss-Markov states of stationary SDs (sigma_h_m, sigma_h_m, sigma_v_m) and time constant tau_s:
+    driving PSD 2 sigma^2 / tau, prior the stationary covariance. Only the position rows of float
+    epochs see it (`fusion.rtk_float`); elsewhere it decays back to that prior, so every float stretch
+    starts from the class's own uncertainty."""
+    if not tau_s > 0:
+        raise ValueError(f"`gps_float_tau_s` must be > 0 with float offset states, got {tau_s}")
+    sd = np.array([sigma_h_m, sigma_h_m, sigma_v_m], dtype=float)
+    return ExtraBlock(Block.FLOAT, 3, float(tau_s), 2.0 * sd**2 / float(tau_s), np.diag(sd**2))
 
 
 def ranging_blocks(range_bias_sd_m: float, range_bias_q_m2ps: float, floor_sd_m: float, cal_cov_m2) -> tuple[ExtraBlock, ...]:

@@ -337,6 +337,11 @@ def measure(e, ev, aid, ranging, nav, C, bias, w_ib, acc_ned, vib_ned, lay, P, z
             for i in range(3):
                 z[i] += bias[6 + o - N_NAV + i]
                 H[i, o + i] = 1.0
+        of = lay[Block.FLOAT]
+        if of >= 0 and ev.float_row[e]:  # an RTK float epoch's fix = truth + b_float + white (`fusion.rtk_float`)
+            for i in range(3):
+                z[i] += bias[6 + of - N_NAV + i]
+                H[i, of + i] = 1.0
         oc = lay[Block.CLOCK]
         if oc >= 0:  # the fix was taken at IMU time t + d: the antenna moved on by v_ant d (`layout.clock_block`),
             # v_ant = v + C (w x l) with the lever arm l in use (a car turning at 0.3 rad/s moves a 1 m lever
