@@ -18,6 +18,7 @@ from tpos_cli.filters.kalman import (
     sandwich_into,
     transition_into,
     update,
+    update_holding,
 )
 
 
@@ -240,3 +241,33 @@ def test_predict_trapezoid_is_discretize_then_predict():
     np.testing.assert_allclose(x, x_ref, rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(P, P_ref, rtol=1e-12, atol=1e-12 * np.abs(P_ref).max())
     np.testing.assert_array_equal(P, P.T)
+
+
+def test_update_holding_a_state_is_the_joseph_form_of_the_gain_without_it():
+    """`update_holding`: each (decorrelated) row's gain has the held state's entry zeroed; x and P
+    are the dense Joseph form's, (I - k h) P (I - k h)^T + k r k^T, for that gain, row after row; the
+    held state's estimate and variance are untouched."""
+    rng = np.random.default_rng(5)
+    n, held = 21, 8
+    A = rng.standard_normal((n, n))
+    P = A @ A.T / n + 0.05 * np.eye(n)
+    for m in (1, 3):
+        H = rng.standard_normal((m, n))
+        R = np.diag(rng.uniform(0.1, 1.0, m))  # diagonal: the rows are processed as they are
+        x, z = rng.standard_normal(n), rng.standard_normal(m)
+        x_ref, P_ref = x.copy(), P.copy()
+        for i in range(m):
+            h = H[i]
+            s = h @ P_ref @ h + R[i, i]
+            k = P_ref @ h / s
+            k[held] = 0.0
+            x_ref = x_ref + k * (z[i] - h @ x_ref)
+            IKH = np.eye(n) - np.outer(k, h)
+            P_ref = IKH @ P_ref @ IKH.T + R[i, i] * np.outer(k, k)
+        xk, Pk = x.copy(), P.copy()
+        nis = update_holding(xk, Pk, z, H, R, held)
+        np.testing.assert_allclose(xk, x_ref, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(Pk, P_ref, rtol=1e-10, atol=1e-12)
+        assert xk[held] == x[held] and Pk[held, held] == P[held, held]
+        if m == 1:  # one row: its NIS is the prior's (later rows' s use the P the held gain left)
+            np.testing.assert_allclose(nis, update(x.copy(), P.copy(), z, H, R), rtol=1e-10)

@@ -241,6 +241,49 @@ def test_fixes_at_rest_after_a_stops_first_carry_no_yaw_lever_second_order_varia
             assert v.mean() < lo, (v.mean(), lo)
 
 
+def test_velocity_rows_at_a_stop_leave_yaw_alone_forward_and_backward():
+    """Heading is not observable at a standstill, but 3 mm/s GPS velocity rows (at-rest R) over a
+    20 s stop gyrocompass a MEMS-grade gyro through the INS error dynamics: the yaw SD falls 15 ->
+    ~5 deg and the nominal's 10 deg yaw error is pulled (the walk log's opening stop; notes nis20
+    job 3). With the stop stated (`FilterConfig.standstill_intervals_s`) those rows' gain leaves yaw alone
+    (`filters.kalman.update_holding`): the yaw and its SD stay the run's without the rows (to
+    0.1 %: the rows still correct tilt and gyro bias, which the yaw's propagation shares), while the
+    tilt is learned as before."""
+    from tpos_cli.frames.rotation import euler_to_dcm
+
+    t, gyro, acc, init, _ = _still()
+    dt = t[1] - t[0]
+    P0 = init.P0.copy()
+    P0[6, 6] = P0[7, 7] = np.radians(0.5) ** 2
+    P0[8, 8] = np.radians(15.0) ** 2
+    P0[9:12, 9:12] = np.eye(3) * np.radians(0.05) ** 2
+    q = np.array([1e-4, 1e-6, 1e-12, 1e-12])  # a MEMS gyro's angle random walk
+    rng = np.random.default_rng(0)
+    g = gyro + rng.standard_normal(gyro.shape) * np.sqrt(q[1] / dt)
+    a = acc + rng.standard_normal(acc.shape) * np.sqrt(q[0] / dt)
+    tv = np.arange(0.1, 19.9, 0.25)
+    sd = 0.003
+    vel = Measurements.rows(tv, Kind.GPS_VELOCITY, rng.standard_normal((tv.size, 3)) * sd,
+                            np.tile(sd**2 * np.eye(3), (tv.size, 1, 1)), dim=3, gated=False)
+    none = Measurements.rows([], Kind.ZUPT, np.zeros((0, 3)), np.zeros((0, 3, 3)), dim=3, gated=False)
+    start = InitialState(init.nav, euler_to_dcm(0.0, 0.0, np.radians(10.0)), init.bias, P0)
+
+    def run(meas, stop, backward):
+        c = FilterConfig(q, 0.0, 0.0, cov_step=10, standstill_intervals_s=np.array([[-1.0, 30.0]]) if stop else None)
+        r = run_filter(t, g, a, start, c, meas, backward=backward)
+        j = 0 if backward else -1  # the run's last epoch
+        C = r.C_nb[j]
+        return np.degrees(np.arctan2(C[1, 0], C[0, 0])), np.degrees(np.sqrt(r.ep_P[j][8, 8])), np.sqrt(r.ep_P[j][6, 6])
+
+    for backward in (False, True):
+        yaw0, sd0, tilt0 = run(none, False, backward)
+        yaw_old, sd_old, _ = run(vel, False, backward)
+        yaw_held, sd_held, tilt_held = run(vel, True, backward)
+        assert sd_old < 0.5 * sd0 and abs(yaw_old - yaw0) > 2.0, (sd_old, sd0, yaw_old, yaw0)  # the old behaviour
+        assert abs(sd_held / sd0 - 1.0) < 1e-3 and abs(yaw_held - yaw0) < 0.01, (sd_held, sd0, yaw_held, yaw0)
+        assert tilt_held < 0.5 * tilt0  # the rows still level the platform
+
+
 def test_white_noise_inside_a_stop_is_scaled_by_its_factors_forward_and_backward():
     """`FilterConfig.q_stops`: over a stop the velocity and attitude white PSDs are the run's times
     the stop's factors (the kernel's `stop_process_noise`); before it the run is the plain one. A

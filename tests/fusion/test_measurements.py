@@ -83,7 +83,7 @@ def test_range_jacobian_matches_finite_differences():
 def _events(kind, z, R, dim, par=0, float_row=False):
     return EventArrays(np.array([1]), np.array([0.0]), np.array([int(kind)]), np.array([dim]), np.array([z], float),
                        np.array([R], float), np.array([True]), np.array([0]), np.array([par]), np.ones(1),
-                       np.array([float_row]))
+                       np.array([float_row]), np.array([False]))
 
 
 def test_measure_adds_the_extra_states_columns():

@@ -745,6 +745,8 @@ def process_drive(session: Session, p: DriveSmoothParams, ctx: RunContext | None
                                  ("the filter's velocity clock state" if p.gps_clock_sigma_s > 0 else "the log's positions")}
     with stage("constraints"):
         cfg, extra, stop_intervals_s = motion_constraints(imu, session, p, fixes, init, cfg, info)
+        # at the stops velocity rows (GPS, ZUPT) do not correct yaw, unobservable there (`fusion.lever_arm.yaw_held_rows`)
+        cfg = dataclasses.replace(cfg, standstill_intervals_s=stop_intervals_s)
         cfg = lever_arm_states(p, fixes, init, cfg, info)
     with stage("gps_noise"):
         fixes, cfg = tune_gps(imu, p, fixes, init, cfg, info, session.t0_s, extra, stop_intervals_s)

@@ -339,12 +339,13 @@ def _update_scalar(x, P, z, h, r):
     (I - k h^T) P (I - k h^T)^T + k r k^T expanded exactly (for any gain k) as
     P - k p^T - p k^T + s k k^T. Returns nu^2 / s, or -1 (nothing changed) if s <= 0."""
     n = h.shape[0]
-    return _update_scalar_into(x, P, z, h, r, np.empty(n), np.empty(n))
+    return _update_scalar_into(x, P, z, h, r, np.empty(n), np.empty(n), -1)
 
 
 @njit(cache=True, error_model="numpy")
-def _update_scalar_into(x, P, z, h, r, p, g):
-    """`_update_scalar` with p, g (n,) its scratch (P h and the gain)."""
+def _update_scalar_into(x, P, z, h, r, p, g, held):
+    """`_update_scalar` with p, g (n,) its scratch (P h and the gain); held >= 0: that state's gain
+    is zero (it is not corrected; the expanded Joseph form holds for that gain too)."""
     n = h.shape[0]
     for i in range(n):
         p[i] = 0.0
@@ -364,7 +365,7 @@ def _update_scalar_into(x, P, z, h, r, p, g):
     sq = np.sqrt(s)
     w = nu / sq
     for i in range(n):  # g: the gain k, as a Cholesky solve with S = s computes it
-        g[i] = (p[i] / sq) / sq
+        g[i] = (p[i] / sq) / sq if i != held else 0.0
         x[i] += g[i] * nu
     for i in range(n):
         for j in range(i, n):
@@ -377,7 +378,14 @@ def _update_scalar_into(x, P, z, h, r, p, g):
 @njit(cache=True, error_model="numpy")
 def update(x, P, z, H, R):
     """Joseph-form update (Eq. 3-5) in place; returns NIS = nu^T S^-1 nu, or -1 (x and P
-    unchanged) if S is not PD.
+    unchanged) if S is not PD. See `update_holding`."""
+    return update_holding(x, P, z, H, R, -1)
+
+
+@njit(cache=True, error_model="numpy")
+def update_holding(x, P, z, H, R, held):
+    """Joseph-form update (Eq. 3-5) in place whose gain is zero for state `held` (-1: none, the
+    optimal gain); returns NIS = nu^T S^-1 nu, or -1 (x and P unchanged) if S is not PD.
 
     z (m,), H (m, n), R (m, m) symmetric PSD, P symmetric. The innovation is nu = z - H x,
     S = H P H^T + R. Joseph form (I - K H) P (I - K H)^T + K R K^T keeps P symmetric PD even for
@@ -385,11 +393,12 @@ def update(x, P, z, H, R):
     each instead of the O(n^3) products with I - K H), after decorrelating them by R = L D L^T
     (L unit lower-triangular, D diagonal: z' = L^-1 z, H' = L^-1 H, R' = D; a diagonal R is
     left as it is): rows with independent noise give, one after the other, the joint update's
-    x, P and NIS (the sum of the rows' nu'^2 / s').
+    x, P and NIS (the sum of the rows' nu'^2 / s'). With a held state each row's gain has that
+    entry zeroed: P is the Joseph form's for the gain used (the held state's variance unchanged).
     """
     m, n = H.shape
     if m == 1:
-        return _update_scalar(x, P, z[0], H[0], R[0, 0])
+        return _update_scalar_into(x, P, z[0], H[0], R[0, 0], np.empty(n), np.empty(n), held)
     # one allocation for the scratch (L, D, zd, Hd, the state before, the rows' p and g): the NHC
     # rows (m = 2) come at every fifth of a second of a drive
     buf = np.empty(m * m + 2 * m + m * n + n + n * n + 2 * n)
@@ -438,7 +447,7 @@ def update(x, P, z, H, R):
             P0[k, j] = P[k, j]
     nis = 0.0
     for i in range(m):
-        v = _update_scalar_into(x, P, zd[i], Hd[i], D[i], p, g)
+        v = _update_scalar_into(x, P, zd[i], Hd[i], D[i], p, g, held)
         if v < 0.0:  # S not PD: leave the state as it was
             for k in range(n):
                 x[k] = x0[k]

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from tpos_cli.filters.kalman import innovation_statistics, predict_trapezoid, transition_into, update
+from tpos_cli.filters.kalman import innovation_statistics, predict_trapezoid, transition_into, update_holding
 from tpos_cli.fusion.layout import ATT, N_NAV, VEL, Block
 from tpos_cli.fusion.measurements import Kind, measure
 from tpos_cli.fusion.nav_errors import (
@@ -123,7 +123,8 @@ class EventArrays(NamedTuple):
     lever arm's second-order variance a GPS row carries (`measurements._lever_second_order`; 1, or 0
     for a row at rest after its stop's first: `fusion.lever_arm.second_order_shares`), float_row (E,)
     bool: a GPS position row of an RTK float epoch, whose error holds the float offset state
-    (`fusion.rtk_float.float_rows`)."""
+    (`fusion.rtk_float.float_rows`), yaw_held (E,) bool: a velocity row (GPS, ZUPT) at a standstill, whose
+    gain leaves yaw alone (`fusion.lever_arm.yaw_held_rows`)."""
 
     k: np.ndarray
     lag: np.ndarray
@@ -136,6 +137,7 @@ class EventArrays(NamedTuple):
     par: np.ndarray
     second_order: np.ndarray
     float_row: np.ndarray
+    yaw_held: np.ndarray
 
 
 class Aiding(NamedTuple):
@@ -507,7 +509,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                             res.nis[e] = s
                             res.logdet[e] = logdet
                 if accept:
-                    if update(x, P, z, H, R) < 0.0:
+                    # a velocity row at a standstill does not correct yaw (`fusion.lever_arm.yaw_held_rows`)
+                    if update_holding(x, P, z, H, R, ATT + 2 if ev.yaw_held[e] else -1) < 0.0:
                         return ep + 1, 1 + k
                     apply_feedback(nav, C, bias, x, R_fb)
                     for i in range(n):

@@ -32,7 +32,7 @@ from tpos_cli.fusion._kernels import (
     error_state_kernel,
 )
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout, backward_sign
-from tpos_cli.fusion.lever_arm import second_order_shares
+from tpos_cli.fusion.lever_arm import second_order_shares, yaw_held_rows
 from tpos_cli.fusion.measurements import Kind
 from tpos_cli.fusion.rtk_float import float_rows
 from tpos_cli.ins.mechanization import reverse_imu
@@ -82,6 +82,8 @@ class FilterConfig:
     q_stops: np.ndarray | None = None  # (K, 4) [t0, t1, acc factor, gyro factor]: white PSDs scaled inside stops
     float_intervals_s: np.ndarray | None = None  # (K, 2) session s: RTK float stretches, whose position rows
     # see the layout's float offset state (`fusion.rtk_float`; None: none)
+    standstill_intervals_s: np.ndarray | None = None  # (K, 2) session s: the platform's detected stops (any
+    # platform), whose velocity rows (GPS, ZUPT) leave yaw uncorrected (`fusion.lever_arm.yaw_held_rows`; None: none)
 
     @property
     def n_states(self) -> int:
@@ -348,7 +350,8 @@ def run_filter(t_s, gyro_b_rps, acc_b_mps2, init: InitialState, cfg: FilterConfi
                      meas.gated[order].astype(np.bool_), meas.slot[order].astype(np.int64),
                      meas.par[order].astype(np.int64),
                      second_order_shares(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.rest_intervals_s),
-                     float_rows(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.float_intervals_s))
+                     float_rows(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.float_intervals_s),
+                     yaw_held_rows(np.asarray(meas.t_s, dtype=float)[order], meas.kind[order], cfg.standstill_intervals_s))
     aid = _aiding(cfg, meas, backward)
     k_distinct = k_o[np.flatnonzero(np.diff(k_o, prepend=-1))]  # k_o is sorted: np.unique's values without its hashing
     n_ep = epoch_count(n, int(max(cfg.cov_step, 1)), k_distinct)
