@@ -85,3 +85,16 @@ def test_second_order_shares_leave_the_term_to_each_stops_first_gps_row_in_the_r
     bwd = la.second_order_shares(t[::-1], kind[::-1], stops)[::-1]  # the backward run's order
     assert bwd.tolist() == [0, 0, 1, 0, 1, 1, 1, 1, 1, 1]
     assert np.all(la.second_order_shares(t, kind, None) == 1.0)
+
+
+def test_yaw_held_rows_are_the_velocity_and_zupt_rows_inside_stops():
+    """`yaw_held_rows`: GPS velocity and ZUPT rows inside a stop (ends included); position rows and
+    rows outside every stop are updated as usual; no stops: none."""
+    from tpos_cli.fusion.measurements import Kind
+
+    t = np.array([0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0])
+    kind = np.array([Kind.GPS_VELOCITY, Kind.GPS_VELOCITY, Kind.GPS_POSITION, Kind.ZUPT, Kind.GPS_VELOCITY,
+                     Kind.ZUPT, Kind.GPS_VELOCITY])
+    stops = np.array([[1.0, 2.0], [4.0, 4.5]])
+    np.testing.assert_array_equal(la.yaw_held_rows(t, kind, stops), [False, True, False, True, False, True, False])
+    assert not la.yaw_held_rows(t, kind, None).any()
