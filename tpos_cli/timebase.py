@@ -47,10 +47,14 @@ def gps_outages(t_fix: np.ndarray, t_begin: float, t_end: float, min_gap_s: floa
     return out
 
 
-def in_intervals(t: np.ndarray, intervals: np.ndarray) -> np.ndarray:
-    """Boolean mask of the times inside any of the half-open intervals [start, end)."""
+def in_intervals(t: np.ndarray, intervals: np.ndarray | None, *, closed: bool = False) -> np.ndarray:
+    """Boolean mask of the times inside any of the intervals (K, 2): half-open [start, end) (outages,
+    report windows), or closed [start, end] with `closed` (stops, RTK float stretches: a stretch's
+    last fix is in it); None or (0, 2): none."""
     t = np.asarray(t, dtype=float)
     mask = np.zeros(t.shape, dtype=bool)
+    if intervals is None:
+        return mask
     for a, b in np.asarray(intervals, dtype=float).reshape(-1, 2):
-        mask |= (t >= a) & (t < b)
+        mask |= (t >= a) & ((t <= b) if closed else (t < b))
     return mask

@@ -625,8 +625,8 @@ def test_rtk_float_stretches_kept_with_their_offset_state_leave_the_runs_agreein
     (seeds 3 / 2 / 1; 0.42 / 0 / 0 % with the state)."""
     import tpos_cli.chains.drive_smooth as ds
     from tpos_cli.config import DriveSmoothParams
-    from tpos_cli.fusion.rtk_float import in_intervals
     from tpos_cli.session import load_session
+    from tpos_cli.timebase import in_intervals
 
     sim = simulate_drive(120.0, seed=seed, gps_rtk=True, gps_rate_hz=4.0, outages=(), gps_rtk_float_per_min=3.0,
                          gps_rtk_multipath_per_min=0.0, gps_rtk_float_offset_m=(0.15, 0.25))
@@ -635,11 +635,11 @@ def test_rtk_float_stretches_kept_with_their_offset_state_leave_the_runs_agreein
     t_gps = sim.gps.t_s
     # no fixed epoch classed; every stretch raised past the class's 1.5 x floor classed whole (those raised 1.2-1.5 x
     # are within what geometry does to a fixed SD and stay white: `rtk_float.FLOAT_SD_FACTOR`)
-    assert not in_intervals(t_gps[rtk.regime == 0], res.fixes.float_intervals_s).any()
+    assert not in_intervals(t_gps[rtk.regime == 0], res.fixes.float_intervals_s, closed=True).any()
     loud = np.zeros(t_gps.size, dtype=bool)
     for (a, b), f in zip(rtk.float_s, rtk.float_sd_factor):
         loud |= (t_gps >= a) & (t_gps < b) & (f > 1.5)
-    assert loud.any() and in_intervals(t_gps[loud], res.fixes.float_intervals_s).all()
+    assert loud.any() and in_intervals(t_gps[loud], res.fixes.float_intervals_s, closed=True).all()
     # the disagreement flag tests at 99.9 %: a consistent pair flags ~0.1 % of rows; 1 %, ten times that, as
     # the rows are correlated over seconds (one chance episode is a few tenths of a per cent of 120 s)
     assert np.mean(res.flag) < 0.01, np.mean(res.flag)

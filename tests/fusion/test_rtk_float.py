@@ -4,7 +4,8 @@ import numpy as np
 
 from tpos_cli.fusion.layout import float_offset_block
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.fusion.rtk_float import float_fixes, float_intervals, float_rows, in_intervals
+from tpos_cli.fusion.rtk_float import float_fixes, float_intervals, float_rows
+from tpos_cli.timebase import in_intervals
 
 
 def _floor_sds(n=400, seed=0):
@@ -37,7 +38,8 @@ def test_only_the_position_rows_inside_a_stretch_see_the_offset():
     iv = np.array([[10.0, 12.0], [50.0, 50.0]])
     t = np.array([9.9, 10.0, 11.0, 12.0, 12.1, 50.0, 11.0])
     kind = np.array([Kind.GPS_POSITION] * 6 + [Kind.GPS_VELOCITY])
-    assert in_intervals(t, iv).tolist() == [False, True, True, True, False, True, True]
+    assert in_intervals(t, iv, closed=True).tolist() == [False, True, True, True, False, True, True]
+    assert in_intervals(t, iv).tolist() == [False, True, True, False, False, False, True]  # half-open: ends out
     assert float_rows(t, kind, iv).tolist() == [False, True, True, True, False, True, False]
     assert not float_rows(t, kind, None).any()
 

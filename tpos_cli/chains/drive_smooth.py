@@ -80,6 +80,7 @@ from tpos_cli.io.tables import table_file_name
 from tpos_cli.quality import mounting_text
 from tpos_cli.ranging.filter import output_indices
 from tpos_cli.session import Session
+from tpos_cli.timebase import in_intervals
 from tpos_cli.timeoffset import gps_velocity
 from tpos_cli.trajectory import Solution, solution_columns
 
@@ -980,8 +981,7 @@ def _at_stops(t_s, intervals_s) -> np.ndarray | None:
     without stops."""
     if intervals_s is None or not len(intervals_s):
         return None
-    iv = np.asarray(intervals_s, dtype=float).reshape(-1, 2)
-    return np.any((t_s[:, None] >= iv[None, :, 0]) & (t_s[:, None] <= iv[None, :, 1]), axis=1)
+    return in_intervals(t_s, intervals_s, closed=True)
 
 
 def gps_reacquisitions(run: FilterRun) -> dict:

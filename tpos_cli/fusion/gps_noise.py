@@ -36,8 +36,8 @@ import numpy as np
 from tpos_cli.fusion.engine import ENDS_ONLY, FilterConfig, InitialState, Measurements
 from tpos_cli.fusion.initial import fixes_before
 from tpos_cli.fusion.insgps import GpsFixes, gps_innovations, run_insgps
-from tpos_cli.fusion.rtk_float import in_intervals
 from tpos_cli.ins.mechanization import decimate_to_rate
+from tpos_cli.timebase import in_intervals
 
 GROUPS = ("pos_h", "pos_v", "vel_h", "vel_v")
 _COLS = ((0, 1), (2,), (3, 4), (5,))  # innovation columns of each group
@@ -70,7 +70,7 @@ class GpsNoise:
 
     def per_fix(self, t_s) -> np.ndarray:
         """(M, 4) the scale of each fix at times `t_s`: `scale_at_rest` inside a stop, else `scale`."""
-        rest = in_intervals(np.asarray(t_s, dtype=float), self.rest_intervals_s)
+        rest = in_intervals(np.asarray(t_s, dtype=float), self.rest_intervals_s, closed=True)
         return np.where(rest[:, None], self.scale_at_rest[None, :], self.scale[None, :])
 
     def scaled(self, fixes: GpsFixes, inverse: bool = False) -> GpsFixes:
@@ -237,9 +237,9 @@ def estimate_gps_noise(t_s, gyro_b_rps, acc_b_mps2, fixes: GpsFixes, init: Initi
     # RTK float fixes are not white scatter at their stated SD (`fusion.rtk_float`): their offset state
     # carries their error, and they would inflate the matched R of every fix (a few decimetre rows in a
     # centimetre group); the matching sees the fixed epochs only
-    fixed_epoch = ~in_intervals(fixes.t_s, cfg.float_intervals_s)
+    fixed_epoch = ~in_intervals(fixes.t_s, cfg.float_intervals_s, closed=True)
     rest_iv = np.zeros((0, 2)) if rest_intervals_s is None else np.asarray(rest_intervals_s, dtype=float).reshape(-1, 2)
-    rest = in_intervals(fixes.t_s, rest_iv)
+    rest = in_intervals(fixes.t_s, rest_iv, closed=True)
     counts = (count & fixed_epoch & ~rest, fixed_epoch & rest)  # per regime: moving, standing
     extra = rows_within(extra, td[-1])
     stated = np.tile(np.asarray(fixes.from_receiver, dtype=bool), 2)

@@ -16,8 +16,9 @@ import numpy as np
 from tpos_cli.fusion.engine import FilterConfig, FilterRun, InitialState, Measurements, run_filter
 from tpos_cli.fusion.layout import Block, StateLayout, gps_error_block
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.fusion.rtk_float import float_velocity_var, in_intervals
+from tpos_cli.fusion.rtk_float import float_velocity_var
 from tpos_cli.fusion.velocity_lag import LAG_GRID_S, velocity_latency_s  # noqa: F401  (re-exported: chains and tests import it here)
+from tpos_cli.timebase import in_intervals
 
 _SLOT_POSITION, _SLOT_VELOCITY = 0, 1
 
@@ -89,7 +90,7 @@ def gps_measurements(fixes: GpsFixes, t_run_s, *, backward: bool, gap_s: float, 
     vel = np.asarray(fixes.vel_ned_mps, dtype=float)
     var_v = np.asarray(fixes.sigma_vel_mps, dtype=float) ** 2
     if float_vel_var is not None:
-        var_v = var_v + np.where(in_intervals(t_fix, float_intervals_s)[:, None], np.asarray(float_vel_var, dtype=float), 0.0)
+        var_v = var_v + np.where(in_intervals(t_fix, float_intervals_s, closed=True)[:, None], np.asarray(float_vel_var, dtype=float), 0.0)
     g = np.arange(m)
     rows = [Measurements.rows(t_fix, Kind.GPS_POSITION, pos, var_p[:, :, None] * np.eye(3), dim=3, gated=gated,
                               slot=_SLOT_POSITION, par=g)]

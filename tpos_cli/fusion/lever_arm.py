@@ -15,7 +15,7 @@ import numpy as np
 from tpos_cli.frames.earth import ned_rate_to_lla_rate
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.fusion.rtk_float import in_intervals
+from tpos_cli.timebase import in_intervals
 
 LEVEL_MAX_TILT_DEG = 20.0  # without vehicle axes, the IMU's own x, y serve when its z is this close to vertical
 
@@ -115,7 +115,7 @@ def yaw_held_rows(t_s, kind, rest_intervals_s) -> np.ndarray:
     yaw pulled 6 deg, the next window's forward 75-190 % worse; notes nis20, jobs 3 and 5; with the
     GPS rows held but the walker's ZUPT rows not, the forward was still 28-127 % worse)."""
     t = np.asarray(t_s, dtype=float)
-    return in_intervals(t, rest_intervals_s) & np.isin(np.asarray(kind), (Kind.GPS_VELOCITY, Kind.ZUPT))
+    return in_intervals(t, rest_intervals_s, closed=True) & np.isin(np.asarray(kind), (Kind.GPS_VELOCITY, Kind.ZUPT))
 
 
 def lever_arm_summary(estimate, sd, stated_b_m, C_vb, decided: str) -> dict:

@@ -22,6 +22,7 @@ import numpy as np
 
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout
 from tpos_cli.fusion.measurements import Kind
+from tpos_cli.timebase import in_intervals
 
 # A fixed RTK solution's horizontal SD moves with the satellite geometry (HDOP) around the receiver's
 # floor; a float or degraded epoch raises it. 1.5: beyond that geometry's range (the walk's 536 stated
@@ -82,20 +83,10 @@ def float_intervals(t_s, is_float) -> np.ndarray:
     return np.column_stack([t[edges[::2]], t[edges[1::2] - 1]]) if edges.size else np.zeros((0, 2))
 
 
-def in_intervals(t_s, intervals_s) -> np.ndarray:
-    """(N,) bool: the times inside one of the closed intervals (K, 2) (sorted, disjoint; None: none)."""
-    t = np.asarray(t_s, dtype=float)
-    iv = np.asarray(intervals_s if intervals_s is not None else np.zeros((0, 2)), dtype=float).reshape(-1, 2)
-    if not iv.shape[0] or not t.size:
-        return np.zeros(t.size, dtype=bool)
-    j = np.searchsorted(iv[:, 0], t, side="right") - 1
-    return (j >= 0) & (t <= iv[np.maximum(j, 0), 1])
-
-
 def float_rows(t_s, kind, intervals_s) -> np.ndarray:
     """(E,) bool: the GPS position rows (t_s session seconds, kind `Kind`) of float epochs, whose
     error holds the float offset state (`measurements.measure`)."""
-    return in_intervals(t_s, intervals_s) & (np.asarray(kind) == Kind.GPS_POSITION)
+    return in_intervals(t_s, intervals_s, closed=True) & (np.asarray(kind) == Kind.GPS_POSITION)
 
 
 def float_velocity_var(layout: StateLayout) -> np.ndarray:
