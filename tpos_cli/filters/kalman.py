@@ -333,19 +333,13 @@ def _scalar_statistics(x, P, z, H, R):
 
 
 @njit(cache=True, error_model="numpy")
-def _update_scalar(x, P, z, h, r):
+def _update_scalar_into(x, P, z, h, r, p, g, held):
     """One scalar measurement z = h^T x + noise of variance r (h (n,)), in place, in O(n^2):
     p = P h, s = h^T p + r, k = p / s, x <- x + k nu, and the Joseph form
     (I - k h^T) P (I - k h^T)^T + k r k^T expanded exactly (for any gain k) as
-    P - k p^T - p k^T + s k k^T. Returns nu^2 / s, or -1 (nothing changed) if s <= 0."""
-    n = h.shape[0]
-    return _update_scalar_into(x, P, z, h, r, np.empty(n), np.empty(n), -1)
-
-
-@njit(cache=True, error_model="numpy")
-def _update_scalar_into(x, P, z, h, r, p, g, held):
-    """`_update_scalar` with p, g (n,) its scratch (P h and the gain); held >= 0: that state's gain
-    is zero (it is not corrected; the expanded Joseph form holds for that gain too)."""
+    P - k p^T - p k^T + s k k^T. Returns nu^2 / s, or -1 (nothing changed) if s <= 0.
+    p, g (n,) are its scratch (P h and the gain); held >= 0: that state's gain is zero (it is not
+    corrected; the expanded Joseph form holds for that gain too)."""
     n = h.shape[0]
     for i in range(n):
         p[i] = 0.0
@@ -389,7 +383,7 @@ def update_holding(x, P, z, H, R, held):
 
     z (m,), H (m, n), R (m, m) symmetric PSD, P symmetric. The innovation is nu = z - H x,
     S = H P H^T + R. Joseph form (I - K H) P (I - K H)^T + K R K^T keeps P symmetric PD even for
-    a gated or suboptimal gain. The rows are processed one at a time (`_update_scalar`, O(n^2)
+    a gated or suboptimal gain. The rows are processed one at a time (`_update_scalar_into`, O(n^2)
     each instead of the O(n^3) products with I - K H), after decorrelating them by R = L D L^T
     (L unit lower-triangular, D diagonal: z' = L^-1 z, H' = L^-1 H, R' = D; a diagonal R is
     left as it is): rows with independent noise give, one after the other, the joint update's
