@@ -58,3 +58,9 @@ def in_intervals(t: np.ndarray, intervals: np.ndarray | None, *, closed: bool = 
     for a, b in np.asarray(intervals, dtype=float).reshape(-1, 2):
         mask |= (t >= a) & ((t <= b) if closed else (t < b))
     return mask
+
+
+def true_runs(mask) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of consecutive True in a boolean array: (starts, ends) index arrays, each run [start, end)."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], np.asarray(mask, dtype=bool).astype(np.int8), [0]))))
+    return edges[::2], edges[1::2]

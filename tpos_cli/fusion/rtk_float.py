@@ -22,7 +22,7 @@ import numpy as np
 
 from tpos_cli.fusion.layout import N_NAV, Block, StateLayout
 from tpos_cli.fusion.measurements import Kind
-from tpos_cli.timebase import in_intervals
+from tpos_cli.timebase import in_intervals, true_runs
 
 # A fixed RTK solution's horizontal SD moves with the satellite geometry (HDOP) around the receiver's
 # floor; a float or degraded epoch raises it. 1.5: beyond that geometry's range (the walk's 536 stated
@@ -67,8 +67,7 @@ def float_fixes(sigma_h_m, factor: float = FLOAT_SD_FACTOR) -> np.ndarray:
         return out
     above = stated & (sig > med + FLOAT_SD_Z * 1.4826 * np.median(np.abs(sig[stated] - med)))
     seed = stated & (sig > factor * med)
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], above.astype(np.int8), [0]))))
-    for a, b in zip(edges[::2], edges[1::2]):  # runs [a, b) of fixes above the fence
+    for a, b in zip(*true_runs(above)):  # runs [a, b) of fixes above the fence
         if seed[a:b].any():
             out[a:b] = True
     return out
@@ -78,9 +77,8 @@ def float_intervals(t_s, is_float) -> np.ndarray:
     """(K, 2) [first, last] time (s) of each run of consecutive float fixes (`is_float` (M,), the
     fixes in time order): times survive the fixes' decimation and windowing, which indices do not."""
     t = np.asarray(t_s, dtype=float)
-    f = np.asarray(is_float, dtype=bool)
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], f.astype(np.int8), [0]))))
-    return np.column_stack([t[edges[::2]], t[edges[1::2] - 1]]) if edges.size else np.zeros((0, 2))
+    start, end = true_runs(is_float)
+    return np.column_stack([t[start], t[end - 1]]) if start.size else np.zeros((0, 2))
 
 
 def float_rows(t_s, kind, intervals_s) -> np.ndarray:
