@@ -67,3 +67,24 @@ def test_stop_noise_of_an_idling_engine_is_what_integrates_over_a_second():
     fl = stop_noise_factors(t, gyro, acc, stops.intervals_s, q, rate, floors=(4e-3 * g0, np.radians(0.1)))
     np.testing.assert_allclose(fl[0, 2:], [(4.0 / 26.0) ** 2, (0.1 / 1.6) ** 2], rtol=1e-9)
     assert np.all(stop_noise_factors(t, gyro, acc, stops.intervals_s, q / 1e4, rate)[0, 2:] == 1.0)
+
+
+def test_a_stop_whose_accelerometer_is_as_lively_as_the_run_is_not_still():
+    """A standing walker shifting his weight: inside the stop the accelerometer's scatter over a second
+    is the run's (factor capped at 1) while the gyro is quiet. The stop is not still in the IMU's sense:
+    both factors stay 1 (lowering the gyro's alone left the walk's filter lagging a steady 2-3 cm/s
+    velocity residual there); the same stop with a quiet accelerometer gets both lowered."""
+    rng = np.random.default_rng(2)
+    rate = 100.0
+    t = np.arange(0.0, 60.0, 1.0 / rate)
+    g0 = 9.80665
+    q = np.array([(26e-3 * g0) ** 2 / rate, np.radians(1.6) ** 2 / rate, 0.0, 0.0])  # the moving run's figures
+    gyro = np.radians(0.05) * rng.standard_normal((t.size, 3))
+    # weight shifts: a 0.05 m/s^2 random walk of 1 s steps, whose 1 s means scatter more than the run's 26 mg per sample
+    lively = np.repeat(np.cumsum(0.5 * rng.standard_normal((60, 3)), axis=0), int(rate), axis=0)
+    quiet = 2e-3 * g0 * rng.standard_normal((t.size, 3))
+    stops = detect_stops(np.arange(0.0, 60.0, 0.25), np.zeros((240, 3)))
+    f = stop_noise_factors(t, gyro, lively + quiet, stops.intervals_s, q, rate)
+    assert np.all(f[0, 2:] == 1.0), f
+    f = stop_noise_factors(t, gyro, quiet, stops.intervals_s, q, rate)
+    assert np.all(f[0, 2:] < 0.05), f

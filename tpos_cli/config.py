@@ -177,7 +177,7 @@ class DriveSmoothParams(Section):
     zupt_sigma_mps: Positive = 0.02  # velocity SD on a detected stop
     stop_max_speed_mps: Positive = 0.1  # GPS or odometer speed below this for stop_min_duration_s = a stop
     stop_min_duration_s: Positive = 2.0
-    stop_noise: Literal["measured", "run"] = "measured"  # measured: on a wheeled platform's stop the IMU's white
+    stop_noise: Literal["measured", "run"] = "measured"  # measured: on any platform's detected stop the IMU's white
     # noise is the stop's own over 1 s (`imu_noise.stop_noise_factors`); run: the whole run's
 
 

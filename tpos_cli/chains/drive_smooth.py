@@ -458,17 +458,24 @@ def motion_constraints(imu: _Imu, session: Session, p: DriveSmoothParams, fixes:
         cfg = dataclasses.replace(cfg, C_vb=np.asarray(C_vb, dtype=float),
                                   layout=StateLayout((*cfg.layout.blocks, mounting_block(np.radians(sd_deg), p.nhc_axle_sigma_m))),
                                   rest_intervals_s=np.asarray(stops.intervals_s, dtype=float).reshape(-1, 2))
-        # and the IMU's white noise inside each such stop as it integrates over a second (`stop_noise_factors`):
-        # the whole log's figures are the moving vehicle's vibration; the default figures are the floor
-        q_stops = stop_noise_factors(imu.t, imu.gyro, imu.acc, stops.intervals_s, cfg.q, imu.rate_hz, floors=(
-            DriveSmoothParams.model_fields["acc_noise_mg"].default * 1e-3 * G0_MPS2,
-            DriveSmoothParams.model_fields["gyro_noise_dps"].default * DEG)) if p.stop_noise == "measured" else ()
-        if len(q_stops):
-            cfg = dataclasses.replace(cfg, q_stops=q_stops)
-            out["stop_noise_factors"] = [[round(float(v), 3) for v in r[2:]] for r in q_stops]
         after = nhc_start_s(info)
         out["nhc_from_s"] = None if not np.isfinite(after) else round(float(after) + session.t0_s, 2)
         parts.append(nhc_measurements(imu.t, stops, rate_hz=p.nhc_rate_hz, sigma_mps=p.nhc_sigma_mps, after_s=after))
+    # every platform's stops: the IMU's white noise inside each as it integrates over a second
+    # (`stop_noise_factors`): the whole log's figures are the moving vehicle's vibration (the default
+    # figures are the floor). Without ZUPT rows (platform none) it is all that keeps the velocity
+    # variance at a stop from growing with the moving car's vibration between fixes.
+    q_stops = stop_noise_factors(imu.t, imu.gyro, imu.acc, stops.intervals_s, cfg.q, imu.rate_hz, floors=(
+        DriveSmoothParams.model_fields["acc_noise_mg"].default * 1e-3 * G0_MPS2,
+        DriveSmoothParams.model_fields["gyro_noise_dps"].default * DEG)) if p.stop_noise == "measured" else ()
+    if len(q_stops):
+        cfg = dataclasses.replace(cfg, q_stops=q_stops)
+        out["stop_noise_factors"] = [[round(float(v), 3) for v in r[2:]] for r in q_stops]
+        still = q_stops[np.all(q_stops[:, 2:] < 1.0, axis=1), :2]
+        if platform not in WHEELED and len(still):
+            # a still stop (`stop_noise_factors`: its IMU quieter than the run's on both sensors) holds the
+            # attitude as a wheeled vehicle's does: the yaw x lever-arm second-order term is one constant there
+            cfg = dataclasses.replace(cfg, rest_intervals_s=still)
     if platform in WHEELED and odo is not None and p.use_odometry and odo.t_s.size > 1:
         parts.append(odometer_measurements(odo.t_s, odo.speed_mps, rate_hz=p.odometer_rate_hz, sigma_mps=p.odometer_sigma_mps))
         cfg = dataclasses.replace(cfg, layout=StateLayout((*cfg.layout.blocks, odometer_block(p.odometer_scale_sigma))))

@@ -61,7 +61,8 @@ class FilterConfig:
     run-local samples whose nominal a run stores (None: every sample; the run's first and last
     samples are always stored): a smoother that needs the nominal at its output rows only keeps
     a tenth of the largest arrays of a run (`FilterRun.rows`); rest_intervals_s (K, 2) session
-    seconds: stops where the platform's attitude does not change (a wheeled vehicle's), inside which
+    seconds: stops where the platform's attitude does not change (a wheeled vehicle's; on another
+    platform its still stops, `drive_smooth.motion_constraints`), inside which
     GPS rows after a stop's first carry no yaw x lever-arm second-order variance
     (`fusion.lever_arm.second_order_shares`; None: every row carries it)."""
 
