@@ -15,6 +15,7 @@ import numpy as np
 from tpos_cli.errors import ProcessingError
 from tpos_cli.frames import earth
 from tpos_cli.frames.rotation import euler_to_dcm, rotvec_to_dcm
+from tpos_cli.timebase import true_runs
 
 
 @dataclass(frozen=True)
@@ -92,9 +93,7 @@ def detect_static_window(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut=None, *, min_dura
     t = np.asarray(t_s, dtype=float)
     still = static_mask(t, gyro_b_rps, acc_b_mps2, window_s=window_s, gyro_tol_rps=gyro_tol_rps,
                         acc_sd_tol_mps2=acc_sd_tol_mps2)
-    # runs of consecutive still samples
-    d = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
-    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    starts, ends = true_runs(still)  # runs of consecutive still samples
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.01
     half = max(3, int(round(window_s / dt))) // 2
     for i0, i1 in zip(starts, ends):

@@ -32,6 +32,7 @@ from tpos_cli.frames.earth import OMEGA_IE_RPS, normal_gravity_mps2
 from tpos_cli.frames.rotation import axes_to_dcm
 from tpos_cli.io.columns import column
 from tpos_cli.quality import Finding
+from tpos_cli.timebase import true_runs
 
 STILL_GYRO_MAX_RPS = 0.05  # ~3 deg/s: above any MEMS turn-on bias, far below deg/s read as rad/s
 UP_ANGLE_MAX_DEG = 45.0  # the body up axis within 45 deg of vertical at rest (vehicles, hand-held starts)
@@ -52,8 +53,7 @@ def _still(t, gyro, acc, acc_sd_tol_mps2=None):
 
 def _quietest_rest_rate(t, gyro, still, min_len_s: float = 1.0) -> float:
     """Smallest mean-gyro norm over the contiguous rest periods of at least `min_len_s`."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
-    rates = [np.linalg.norm(gyro[a:b].mean(axis=0)) for a, b in zip(edges[::2], edges[1::2]) if t[b - 1] - t[a] >= min_len_s]
+    rates = [np.linalg.norm(gyro[a:b].mean(axis=0)) for a, b in zip(*true_runs(still)) if t[b - 1] - t[a] >= min_len_s]
     if rates:
         return float(min(rates))
     return float(np.linalg.norm(gyro[still].mean(axis=0))) if still.any() else float("nan")  # NaN: no verdict

@@ -679,8 +679,7 @@ def _acc_unit_switch(t_s, acc_norm_mps2) -> tuple[int, float] | None:
     if in_g.sum() < ACC_SWITCH_MIN_S:
         return None
     # the longest run of consecutive g blocks
-    edges = np.flatnonzero(np.diff(np.r_[0, in_g.astype(np.int8), 0]))
-    runs = edges.reshape(-1, 2)
+    runs = np.column_stack(timebase.true_runs(in_g))
     first, end = runs[np.argmax(runs[:, 1] - runs[:, 0])]
     if end - first < ACC_SWITCH_MIN_S:
         return None

@@ -47,6 +47,7 @@ from tpos_cli.ranging.fuzzy import fuzzy_system
 from tpos_cli.ranging.multilateration import epoch_bounds, group_epochs, ls_fix
 from tpos_cli.ranging.stillness import stationary_intervals
 from tpos_cli.session import Session
+from tpos_cli.timebase import true_runs
 from tpos_cli.trajectory import Solution, solution_table
 
 
@@ -393,8 +394,7 @@ def few_anchor_intervals(t_s: np.ndarray, anchor: np.ndarray, window_s: float, m
     pairs = np.unique(ep * (int(np.max(anchor, initial=0)) + 1) + anchor)  # distinct (epoch, anchor)
     n_ep = np.bincount(pairs // (int(np.max(anchor, initial=0)) + 1), minlength=t_ep.size)
     out = []
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], (n_ep < 3).astype(np.int8), [0]])))
-    for a_, b in zip(edges[::2], edges[1::2]):
+    for a_, b in zip(*true_runs(n_ep < 3)):
         t_start, t_end = t_ep[a_], t_ep[b] if b < t_ep.size else t_ep[-1]
         if t_end - t_start >= min_s:
             out.append((float(t_start), float(t_end)))

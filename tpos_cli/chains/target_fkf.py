@@ -43,6 +43,7 @@ from tpos_cli.frames.rotation import dcm_to_euler, dcm_to_rotvec, euler_error_ma
 from tpos_cli.imu_noise import resolve_imu_noise
 from tpos_cli.quality import unresolved_offset_text, unsupported_heading_text
 from tpos_cli.session import Session
+from tpos_cli.timebase import true_runs
 from tpos_cli.trajectory import trajectory_table
 
 #: attitude SD (rad, each axis) of the backward run's prior when it starts from the start alignment carried
@@ -144,8 +145,7 @@ def detect_shots(t_s, gyro, range_m_on_imu, start_i, min_s, gyro_tol_rps):
     still = al.static_mask(t_s, gyro, np.zeros_like(gyro), gyro_tol_rps=gyro_tol_rps, acc_sd_tol_mps2=np.inf)
     ok = still & np.isfinite(range_m_on_imu)
     ok[:start_i] = False
-    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
-    s, e = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    s, e = true_runs(ok)
     keep = (t_s[np.maximum(e - 1, 0)] - t_s[s]) >= min_s
     return t_s[s[keep]], t_s[e[keep] - 1]
 

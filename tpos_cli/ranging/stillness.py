@@ -24,6 +24,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.special import ndtri  # not scipy.stats (theilslopes): its import costs 0.5 s of every ranging run
 
 from tpos_cli.alignment import static_mask
+from tpos_cli.timebase import true_runs
 
 _MIN_RANGES = 5  # a line through fewer ranges gives no usable rate
 _MAX_POINTS = 200  # Theil-Sen is O(n^2): thin longer pieces (the rate SD still shrinks with span)
@@ -75,9 +76,8 @@ def stationary_intervals(t_s, gyro_b_rps, acc_b_mps2, range_t_s, anchor, range_m
     nw = max(3, int(round(window_s / dt)))
     a_mean = uniform_filter1d(np.asarray(acc_b_mps2, dtype=float), nw, axis=0, mode="nearest")
     half = nw // 2  # the centred window sees a change half a window early: trim both ends
-    d = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
     pieces = []
-    for i0, i1 in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+    for i0, i1 in zip(*true_runs(still)):
         start = i0
         while start < i1:
             dev = np.linalg.norm(a_mean[start:i1] - a_mean[start], axis=1)

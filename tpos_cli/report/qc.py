@@ -29,6 +29,7 @@ from tpos_cli.io.columns import Columns, column, first_appearance_codes, flags, 
 from tpos_cli.report.metrics import chi2_ppf
 from tpos_cli.report.targets import horizontal_ellipse
 from tpos_cli.report.truth import covered, median_gap_limit
+from tpos_cli.timebase import true_runs
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -228,8 +229,8 @@ def windows_from_mask(t, mask) -> np.ndarray:
     m = np.asarray(mask, dtype=bool)
     if not m.any():
         return np.empty((0, 2))
-    d = np.diff(np.concatenate([[0], m.astype(np.int8), [0]]))
-    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1
+    starts, ends = true_runs(m)
+    ends = ends - 1
     t = np.asarray(t, dtype=float)
     return np.column_stack([t[starts], t[ends]])
 
