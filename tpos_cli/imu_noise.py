@@ -69,7 +69,7 @@ def _row_medians(d: np.ndarray) -> np.ndarray:
     return (d[:, :h].max(axis=1) + d[:, h]) / 2.0  # numpy's mean of the two middles
 
 
-def measured_white_noise(x, block_n: int = 1) -> float:
+def measured_white_noise(x, block_n: int = 1, *, robust: bool = True) -> float:
     """Per-sample white-noise SD of a sensor series (N, 3), from the first differences of its means
     over blocks of `block_n` samples (1: the samples themselves), times sqrt(block_n).
 
@@ -77,12 +77,15 @@ def measured_white_noise(x, block_n: int = 1) -> float:
     is s at any block size; the motion of a vehicle at IMU rates adds little to a difference. For
     vibration, whose power sits far above 1 / (block_n dt), blocks give a much smaller figure than
     samples: what the strapdown integration feels over a block. Robust scale (1.4826 MAD) so that
-    bumps do not dominate; averaged over the three axes.
+    bumps do not dominate; averaged over the three axes. robust=False: the RMS of the differences
+    instead, every bump counted (a walker's steps: `chains.drive_smooth.step_acc_noise`).
     """
     x = np.asarray(x, dtype=float)
     if block_n > 1:
         k = x.shape[0] // block_n
         x = x[: k * block_n].reshape(k, block_n, x.shape[1]).mean(axis=1)
+    if not robust:
+        return float(np.mean(np.std(np.diff(x, axis=0), axis=0) / np.sqrt(2.0)) * np.sqrt(block_n))
     d = np.empty((x.shape[1], x.shape[0] - 1))  # one contiguous row per axis: the medians partition rows
     np.subtract(x[1:].T, x[:-1].T, out=d)
     # medians of temporaries partitioned in place (no copies): the order of d does not matter below
