@@ -17,6 +17,7 @@ import numpy as np
 from tpos_cli.alignment import static_mask
 from tpos_cli.errors import InvalidInputError
 from tpos_cli.frames.earth import G0_MPS2
+from tpos_cli.timebase import true_runs
 
 
 @dataclass(frozen=True)
@@ -98,10 +99,9 @@ MIN_STATIC_S = 100.0  # shortest static stretch worth an Allan analysis (τ up t
 def longest_static_window(t_s, gyro_b_rps, acc_b_mps2) -> tuple[int, int]:
     """Sample indices [i0, i1) of the longest contiguous stretch at rest (`alignment.static_mask`)."""
     still = static_mask(np.asarray(t_s, float), gyro_b_rps, acc_b_mps2)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
-    if edges.size == 0:
+    a, b = true_runs(still)
+    if a.size == 0:
         return 0, 0
-    a, b = edges[::2], edges[1::2]
     k = int(np.argmax(np.asarray(t_s)[b - 1] - np.asarray(t_s)[a]))
     return int(a[k]), int(b[k])
 
