@@ -50,14 +50,19 @@ def gps_outages(t_fix: np.ndarray, t_begin: float, t_end: float, min_gap_s: floa
 def in_intervals(t: np.ndarray, intervals: np.ndarray | None, *, closed: bool = False) -> np.ndarray:
     """Boolean mask of the times inside any of the intervals (K, 2): half-open [start, end) (outages,
     report windows), or closed [start, end] with `closed` (stops, RTK float stretches: a stretch's
-    last fix is in it); None or (0, 2): none."""
+    last fix is in it); None or (0, 2): none. Intervals may overlap and come in any order; an empty
+    or NaN one holds nothing.
+
+    O((N + K) log K): a time is inside when more intervals have started at or before it than have
+    ended before it (at or before it, half-open), counted by binary search over the sorted ends."""
     t = np.asarray(t, dtype=float)
-    mask = np.zeros(t.shape, dtype=bool)
     if intervals is None:
-        return mask
-    for a, b in np.asarray(intervals, dtype=float).reshape(-1, 2):
-        mask |= (t >= a) & ((t <= b) if closed else (t < b))
-    return mask
+        return np.zeros(t.shape, dtype=bool)
+    iv = np.asarray(intervals, dtype=float).reshape(-1, 2)
+    iv = iv[(iv[:, 0] <= iv[:, 1]) if closed else (iv[:, 0] < iv[:, 1])]  # NaN rows fail both
+    started = np.searchsorted(np.sort(iv[:, 0]), t, side="right")  # start <= t
+    ended = np.searchsorted(np.sort(iv[:, 1]), t, side="left" if closed else "right")  # end < t (closed), end <= t
+    return started > ended
 
 
 def true_runs(mask) -> tuple[np.ndarray, np.ndarray]:
