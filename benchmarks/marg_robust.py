@@ -11,6 +11,9 @@ below were fixed before any run, no parameter of tpos is read from them):
   trials attach it for the motion only: on trial 33 the still windows' field magnitude is the Earth field's,
   44.4 uT, while the survey fits ~27 uT offsets in the turning windows; and BROAD's truth heading is magnetic
   north as the clean field shows it, so an offset present in the still windows would move the reference);
+- `strong_magnet`: the `magnet` plant at 200 uT, same body direction, motion only (the 1 cm trials: trial 33's
+  magnet at 2 cm gives ~27 uT, and a dipole's field grows as 1/r^3, so 1 cm is ~27 x 2^3 ~ 200 uT: the offset is
+  ~4x the Earth field, the field's direction is then mostly the magnet's);
 - `magnet_from_start` (not in the default set: a different situation from BROAD's trials, whose truth heading
   is the clean field's): the same offset on every sample, still windows included; the alignment then takes its
   heading from the offset field (see notes marg7.md);
@@ -20,6 +23,12 @@ below were fixed before any run, no parameter of tpos is read from them):
   truth's attitude (f_b += C_true^T a_n);
 - `slow_translation`: the same with displacements 1.0 sin(2 pi 0.05 t) m north and 0.7 sin(2 pi 0.08 t + 1) m east
   (accelerations ~0.1 and 0.18 m/s^2: a device carried across the room, below the hand model's band);
+- `fast_translation`: the `translation` plant with displacements 0.15 sin(2 pi 1.2 t) m north,
+  0.10 sin(2 pi 0.9 t + 1) m east and 0.08 sin(2 pi 1.5 t + 2) m down (accelerations ~8.5, 3.2 and 7.1 m/s^2:
+  BROAD's fast-translation trials, a hand shaking the device back and forth, inside the hand-motion band);
+- `room_field`: a field disturbance fixed in NED, (10, -15, 18) uT (~27 uT, the size of a desk's or a monitor's
+  field near it), present in 6 s episodes (1 s cosine tapers) starting every 15 s inside the middle window, added
+  through the truth's attitude (m_b += C_true^T d_n): BROAD's office trials, a device carried past furniture;
 - `vibration`: 2 m/s^2 sinusoids at 95 Hz and 121 Hz on each accelerometer axis and 0.5 deg/s at 95 Hz on
   each gyro axis (phases from seed 0), below the 143 Hz Nyquist limit of the 285.7 Hz logs (a linear vibration
   averages out in both estimators: its figures equal the undisturbed ones);
@@ -27,13 +36,14 @@ below were fixed before any run, no parameter of tpos is read from them):
   the log's own time tags without an anti-alias filter), which the 285.7 Hz samples show at ~5.7 Hz, inside the
   hand-motion band: the worst case of a phone motor on a sensor whose filter does not remove it.
 
-All three act on the middle of the log (30-70 % of its duration, 3 s cosine tapers), where
+The figures of `strong_magnet`, `fast_translation` and `room_field` were fixed by the lead (session 22) before any
+run of them. All plants act on the middle of the log (30-70 % of its duration, 3 s cosine tapers), where
 every trial is moving, so the still alignment windows at both ends stay still. Scoring as
 `benchmarks/marg_real.py`, on the truth moved to the IMU's time tags: total attitude RMS, tpos/VQF ratio, the
 share of motion epochs inside the 95 % band and the mean NEES per dof (3-dof, tilt 2-dof, heading 1-dof) of
 the written sigmas; and the share of samples on which neither LF1 run used the field (`target_fkf.unsupported_heading`).
 
-    pip install vqf ; python benchmarks/marg_robust.py [plants, default: all five] [trial substrings]
+    pip install vqf ; python benchmarks/marg_robust.py [plants, default: all eight] [trial substrings]
 """
 
 from __future__ import annotations
@@ -52,7 +62,17 @@ from tpos_cli.frames.rotation import axes_to_dcm, euler_to_dcm, quat_to_dcm
 from tpos_cli.pipeline import process_session
 from tpos_cli.session import load_session
 
-PLANTS = ("magnet", "translation", "slow_translation", "vibration", "aliased_vibration")
+PLANTS = ("magnet", "strong_magnet", "translation", "slow_translation", "fast_translation", "room_field", "vibration",
+          "aliased_vibration")
+MAGNET_BODY_DIR = np.array([0.6, -0.48, 0.64])  # FRD unit vector of the attached magnet's offset
+# (displacement m, frequency Hz, phase rad) per NED axis of each translation plant (module docstring)
+TRANSLATIONS = {
+    "translation": ((0.5, 0.2, 0.0), (0.5, 0.13, 1.0), (0.0, 0.0, 0.0)),
+    "slow_translation": ((1.0, 0.05, 0.0), (0.7, 0.08, 1.0), (0.0, 0.0, 0.0)),
+    "fast_translation": ((0.15, 1.2, 0.0), (0.10, 0.9, 1.0), (0.08, 1.5, 2.0)),
+}
+ROOM_FIELD_NED_UT = np.array([10.0, -15.0, 18.0])
+ROOM_EPISODE_S, ROOM_PERIOD_S, ROOM_TAPER_S = 6.0, 15.0, 1.0
 T_VQF = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # VQF's ENU-type frame -> NED
 
 
@@ -62,6 +82,18 @@ def middle_window(t_s: np.ndarray, taper_s: float = 3.0) -> np.ndarray:
     up = np.clip((t_s - t0) / taper_s, 0.0, 1.0)
     down = np.clip((t1 - t_s) / taper_s, 0.0, 1.0)
     return 0.5 - 0.5 * np.cos(np.pi * np.minimum(up, down))
+
+
+def room_episodes(t_s: np.ndarray) -> np.ndarray:
+    """(N,) weight of the `room_field` plant: 6 s episodes with 1 s cosine tapers, one starting every 15 s from the
+    start of the middle window, each ending inside it."""
+    t0, t1 = t_s[0] + 0.3 * (t_s[-1] - t_s[0]), t_s[0] + 0.7 * (t_s[-1] - t_s[0])
+    w = np.zeros_like(t_s)
+    for start in np.arange(t0, t1 - ROOM_EPISODE_S + 1e-9, ROOM_PERIOD_S):
+        up = np.clip((t_s - start) / ROOM_TAPER_S, 0.0, 1.0)
+        down = np.clip((start + ROOM_EPISODE_S - t_s) / ROOM_TAPER_S, 0.0, 1.0)
+        w = np.maximum(w, 0.5 - 0.5 * np.cos(np.pi * np.minimum(up, down)))
+    return w
 
 
 def fill_nan_attitude(C: np.ndarray) -> np.ndarray:
@@ -75,15 +107,17 @@ def fill_nan_attitude(C: np.ndarray) -> np.ndarray:
 def planted(plant: str, t_s, C_true, gyro, acc, mag):
     """(gyro, acc, mag) FRD with `plant` added (module docstring); inputs unchanged."""
     gyro, acc, mag = gyro.copy(), acc.copy(), mag.copy()
-    if plant in ("magnet", "magnet_from_start"):
-        on = middle_window(t_s)[:, None] if plant == "magnet" else 1.0
-        mag += on * 15.0 * np.array([0.6, -0.48, 0.64])
-    elif plant in ("translation", "slow_translation"):
-        (a1, f1), (a2, f2) = ((0.5, 0.2), (0.5, 0.13)) if plant == "translation" else ((1.0, 0.05), (0.7, 0.08))
-        x_n = np.stack([a1 * np.sin(2 * np.pi * f1 * t_s), a2 * np.sin(2 * np.pi * f2 * t_s + 1.0), np.zeros_like(t_s)], axis=1)
+    if plant in ("magnet", "magnet_from_start", "strong_magnet"):
+        on = 1.0 if plant == "magnet_from_start" else middle_window(t_s)[:, None]
+        mag += on * (200.0 if plant == "strong_magnet" else 15.0) * MAGNET_BODY_DIR
+    elif plant in TRANSLATIONS:
+        x_n = np.stack([a * np.sin(2 * np.pi * f * t_s + ph) for a, f, ph in TRANSLATIONS[plant]], axis=1)
         x_n *= middle_window(t_s)[:, None]  # the device leaves its place and comes back to it at rest
         a_n = np.gradient(np.gradient(x_n, t_s, axis=0), t_s, axis=0)
         acc += np.einsum("nji,nj->ni", fill_nan_attitude(C_true), a_n)
+    elif plant == "room_field":
+        d_n = room_episodes(t_s)[:, None] * ROOM_FIELD_NED_UT
+        mag += np.einsum("nji,nj->ni", fill_nan_attitude(C_true), d_n)
     elif plant in ("vibration", "aliased_vibration"):
         ph = np.random.default_rng(0).uniform(0.0, 2 * np.pi, (3, 3))
         w = middle_window(t_s)[:, None]
