@@ -137,6 +137,59 @@ def test_nis_levels(scale, verdict):
     assert set(d) == {"verdict", "reasons", "checks"} and "nis.forward.gps_pos" in d["checks"]
 
 
+def _marg(kind: str, scale: float, share: float = 1.0, n: int = 600, seed: int = 5) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    return pd.DataFrame({"t": np.arange(n, dtype=float), "solution": "lf1_forward", "kind": kind,
+                         "nis": scale * rng.chisquare(3, n), "dof": 3, "accepted": True, "share": share})
+
+
+def test_a_shared_filters_nis_is_judged_between_its_share_and_one():
+    """A federated local filter runs with its prior and process noise divided by its share beta (paper 000
+    Eq. 23-24): its innovation covariance lies between the honest one and 1/beta times it, so its mean NIS
+    between beta and 1 times the chi-square's (the band's low end scaled by beta, module docstring)."""
+    cfg = {"target_fkf": {"range_gate_probability": 0.9999}}
+    ok = quality.assess(_Sess(), chain="target_fkf", config=cfg, tables={"innovations": _marg("mag", 0.6, share=0.5)})
+    assert ok.verdict == "ok", ok.reasons
+    assert ok.checks["nis.lf1_forward.mag"]["share"] == 0.5
+    low = quality.assess(_Sess(), chain="target_fkf", config=cfg, tables={"innovations": _marg("mag", 0.6)})
+    assert low.verdict == "suspect" and any("lf1_forward mag" in r and "below its band" in r for r in low.reasons)
+    high = quality.assess(_Sess(), chain="target_fkf", config=cfg, tables={"innovations": _marg("mag", 1.6, share=0.5)})
+    assert high.verdict == "suspect" and any("lf1_forward mag" in r and "above its band" in r for r in high.reasons)
+
+
+def test_the_hand_models_nis_is_judged_on_the_high_side_only():
+    # the hand model bounds a hand's motion: a device that moves less leaves its NIS low (a cautious bound, no
+    # finding); above the band its errors exceed the bound
+    assert quality.assess(_Sess(), chain="target_fkf", tables={"innovations": _marg("hand", 0.3)}).verdict == "ok"
+    q = quality.assess(_Sess(), chain="target_fkf", tables={"innovations": _marg("hand", 1.6)})
+    assert q.verdict == "suspect" and any("lf1_forward hand" in r for r in q.reasons)
+
+
+def test_the_attitude_filters_ungated_kinds_get_the_plain_band():
+    # target_fkf's gate is the range differences'; the accelerometer and field updates pass none, so their
+    # expected mean NIS is the chi-square's d.o.f. (a gated kind's is below it: the truncated mean)
+    cfg = {"target_fkf": {"range_gate_probability": 0.99}}
+    inn = pd.concat([_marg("mag", 1.0), _marg("range", 1.0).assign(dof=3)], ignore_index=True)
+    q = quality.assess(_Sess(), chain="target_fkf", config=cfg, tables={"innovations": inn})
+    assert q.checks["nis.lf1_forward.mag"]["expected"] == pytest.approx(3.0, rel=1e-12)
+    assert q.checks["nis.lf1_forward.range"]["expected"] == pytest.approx(consistency.truncated_chi2_moments(3, 0.99)[0])
+
+
+def test_the_attitude_filters_nis_counts_its_effective_samples():
+    """A magnetometer sampled slower than the IMU repeats its sample (and innovation) at the IMU rate: each
+    chi-square draw held for 4 samples is 1/4 as many independent values, and the band of the mean widens."""
+    rng = np.random.default_rng(6)
+    held = np.repeat(rng.chisquare(3, 150), 4)
+    inn = pd.DataFrame({"t": np.arange(held.size, dtype=float), "solution": "lf1_forward", "kind": "mag", "nis": held,
+                        "dof": 3, "accepted": True})
+    serial = quality.assess(_Sess(), chain="target_fkf", tables={"innovations": inn}).checks["nis.lf1_forward.mag"]
+    plain = quality.assess(_Sess(), chain="none", tables={"innovations": inn}).checks["nis.lf1_forward.mag"]
+    # AR(1) of a series held 4 samples: rho ~ 3/4, n (1 - rho) / (1 + rho) ~ n / 7 (tolerance: rho's sampling SD)
+    assert serial["n_effective"] == pytest.approx(held.size / 7, rel=0.25)
+    assert serial["band"][1] - serial["band"][0] > 2.0 * (plain["band"][1] - plain["band"][0])
+    assert "n_effective" not in plain
+
+
 def test_rejections_beyond_outliers():
     cfg = {"drive_smooth": {"gate_probability": 0.9999}}
     inn = _innovations(1.0, reject_frac=0.6)
@@ -238,6 +291,28 @@ def test_clean_sessions_are_ok(sims, kind):
     get, root = sims
     q = _run(get(kind), root)
     assert q["verdict"] == "ok", q["reasons"]
+
+
+def test_the_target_chain_checks_each_attitude_runs_nis(sims):
+    """The MARG/target chain's summary holds the mean NIS of every local filter run and kind against its band
+    (before: no NIS check, verdict ok whatever the innovations): on a clean simulated session all in band."""
+    get, root = sims
+    q = _run(get("target"), root, M.mag_noise_stated(0.5))  # the simulated magnetometer's own 0.5 uT, stated
+    want = {f"nis.{f}_{r}.{k}" for f in ("lf1", "lf2") for r in ("forward", "backward") for k in ("hand", "mag", "range")}
+    want -= {f"nis.lf1_{r}.range" for r in ("forward", "backward")} | {f"nis.lf2_{r}.mag" for r in ("forward", "backward")}
+    assert want <= set(q["checks"]), sorted(q["checks"])
+    for k in want:
+        assert q["checks"][k].get("level", "ok") == "ok", (k, q["checks"][k])
+    assert q["verdict"] == "ok", q["reasons"]
+
+
+def test_an_understated_magnetometer_noise_is_named(sims):
+    # the session states a third of the magnetometer's noise (0.5 uT simulated): its NIS is ~9 times its
+    # expectation where the field dominates the innovation
+    get, root = sims
+    q = _run(get("target"), root, M.mag_noise_stated(0.5 / 3))
+    assert _named(q, "mean NIS above its band", "lf1_forward mag"), q["reasons"]
+    assert _named(q, "lf1_backward mag"), q["reasons"]
 
 
 def test_clean_ranging_session_is_ok(sims):

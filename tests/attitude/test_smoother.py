@@ -212,3 +212,21 @@ def test_the_runs_difference_covariance_is_formed_once_per_smoothed_solution(mon
                     _own_end(g, rng, st, -1))
     assert s.fb_scale is not None
     assert calls.count(False) == 1, calls
+
+
+def test_the_smoothed_solution_keeps_each_runs_nis():
+    # the verdict checks each run's innovations (`quality.nis_findings`): the backward run's are kept beside the
+    # forward run's (before: only the forward run's, the backward run's dropped with it)
+    from tpos_cli.attitude.local import run_full
+
+    rng = np.random.default_rng(8)
+    g = make(_rpy, duration_s=20.0, seed=8, bias_rps=rng.normal(0, 3e-5, 3))
+    st = _setup(g, rng)
+    fwd, bwd = _own_end(g, rng, st, 0), _own_end(g, rng, st, -1)
+    use = K.USE_ACC | K.USE_MAG
+    s = smooth_full("lf1", g.t, g.gyro, g.acc, g.mag, None, fwd, use, bwd)
+    back = run_full("lf1", g.t, g.gyro, g.acc, g.mag, None, bwd, use, backward=True)
+    assert s.nis_backward is not None and set(s.nis_backward) == set(back.nis)
+    for k, v in back.nis.items():
+        np.testing.assert_array_equal(s.nis_backward[k], v)  # the same run, the same samples: identical
+    assert np.isfinite(s.nis_backward["mag"]).sum() > 0.9 * g.t.size

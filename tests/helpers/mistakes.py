@@ -174,6 +174,15 @@ def mag_disturbance(ut: float = 50.0, start_frac: float = 0.5):
     return plant
 
 
+def mag_noise_stated(ut: float):
+    """`[imu] mag_noise_ut = ut` in session.toml: the magnetometer's white-noise SD as the user states it (a
+    figure below the sensor's own understates it; the session's figure wins over the still window's)."""
+    def plant(d: Path) -> None:
+        set_toml(d, "imu", "mag_noise_ut", f"{ut:g}")
+    plant.__name__ = f"mag_noise_stated_{ut:g}uT"
+    return plant
+
+
 def plant(src: Path, dst: Path, *planters) -> Path:
     """Copy session `src` to `dst` (replacing it) and apply the planters in order."""
     if dst.exists():

@@ -112,6 +112,7 @@ class AttitudeSolution:
     C_nb (N,3,3) FRD->NED; P_att (N,3,3) rad^2 NED error covariance; bias_rps (N,3) or None;
     acc_bias_mps2 (N,3) or None; var_bias (N,6) variances of [gyro bias, acc bias] or None;
     nis: {"acc"|"mag"|"range"|"obs": (N,) NaN where no update}; mag_ok (N,) bool or None.
+    nis_backward: a smoothed solution's backward run's NIS, the same keys (`nis` holds the forward run's).
     """
 
     name: str
@@ -145,6 +146,7 @@ class AttitudeSolution:
     # (`FilterNoise.gyro_scale_const_sd`; `master.fuse` adds it to the fused covariance for the fused weights)
     S_gm: np.ndarray | None = None
     var_gm: float = 0.0
+    nis_backward: dict | None = None
 
     def euler_deg(self):
         """(N,3) roll, pitch, yaw in degrees, yaw in [0, 360)."""

@@ -456,6 +456,39 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
     return sols
 
 
+#: d.o.f. of one update of each kind the local filters record (`AttitudeSolution.nis`): gravity (`acc`), the hand
+#: model's velocity check (`hand`: the kernel records it as the accelerometer's NIS when the motion model is on) and
+#: the field vector 3, the two range differences 2, paper 8's (pitch, yaw) 2
+NIS_DOF = {"acc": 3, "hand": 3, "mag": 3, "range": 2, "obs": 2}
+
+
+def innovations_table(sols: dict, range_gate_chi2: float, share: float, motion_model: bool, t0_s: float) -> pd.DataFrame:
+    """`innovations.parquet`: one row per update of every local filter run: t, solution (`<filter>_forward` |
+    `<filter>_backward`), kind (acc | hand | mag | range | obs), nis, dof, accepted, share.
+
+    Only the range differences pass a chi-square gate (`range_gate_chi2`, 2 dof; <= 0: none): the NIS recorded
+    of the other kinds are those of the updates made (a field sample the magnitude, dip or windowed-NIS tests
+    refused is no update, not a chi-square truncation: `quality.nis_findings` takes them as ungated). `share`:
+    the information share beta the runs' prior and process noise were divided by (Eq. 23-24; 1 without beams),
+    which lowers their expected NIS (`quality.nis_findings`)."""
+    parts = []
+    for name, sol in sols.items():
+        runs = [("forward", sol.nis)] + ([("backward", sol.nis_backward)] if sol.nis_backward is not None else [])
+        for run_name, nis in runs:
+            for key, v in nis.items():
+                m = np.isfinite(v)
+                if not m.any():
+                    continue
+                kind = "hand" if (key == "acc" and motion_model) else key
+                x = np.asarray(v, dtype=float)[m]
+                acc = x < range_gate_chi2 if (kind == "range" and range_gate_chi2 > 0.0) else np.ones(x.size, bool)
+                parts.append(pd.DataFrame({"t": sol.t_s[m] + t0_s, "solution": f"{name}_{run_name}", "kind": kind,
+                                           "nis": x, "dof": NIS_DOF[kind], "accepted": acc, "share": float(share)}))
+    if not parts:
+        return pd.DataFrame({c: [] for c in ("t", "solution", "kind", "nis", "dof", "accepted", "share")})
+    return pd.concat(parts, ignore_index=True)
+
+
 def _without_biases(sol: AttitudeSolution) -> AttitudeSolution:
     """`sol` without its smoothed gyro and accelerometer biases and their variance, which nothing after the
     local filters reads (34 MB an hour at 100 Hz for lf1)."""
@@ -684,6 +717,8 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
         beams = replace(beams, wall_lev_var_rad2=min(lev_var, beams.wall_var_rad2))
     setups = with_wall(setups, beams)
     sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, fb_diff_cov=D_lev)
+    innovations = innovations_table(sols, setups.forward.range_gate_chi2, 1.0 if beams.rdiff is None else p.beta,
+                                    p.model == "full" and p.motion_model, session.t0_s)
     sols = unsupported_heading(sols, field.mag_b_ut if field is not None else session.imu.mag_b_ut, decl, ctx, summary)
     sols = unresolved_offset_heading(sols, field, session, start, ctx, summary)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
@@ -700,7 +735,7 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
     targets, tables = position_targets(session, p, sols, obs_lla, start, noise, ctx, summary, base_fkf=fkf, P_lev=P_lev)
     traj = _trajectory(sols, session.imu.t_s + session.t0_s, obs_lla)
     summary["solutions"] = list(sols)
-    return ChainOutput(trajectory=traj, targets=targets, tables=tables, summary=summary)
+    return ChainOutput(trajectory=traj, targets=targets, tables={"innovations": innovations, **tables}, summary=summary)
 
 
 def _declination(session: Session, obs_lla, ctx: RunContext, summary: dict) -> float:
