@@ -71,9 +71,9 @@ _GATES = {"drive_smooth": ("gate_probability", "flag_probability"),
 _UNGATED_KINDS = {"target_fkf": ("acc", "mag", "obs")}
 # chain -> NIS kinds whose noise is a bound on a motion, not a sensor's noise: target_fkf's hand model (the velocity
 # change a hand-held device's bounded motion allows, `attitude.motion`) is tested on the high side only: a device
-# that moves less than a hand (a simulated device still between shots: mean NIS 0.4-0.7 of its expectation on the
-# paper and tactical sims, seeds 900-902, notes sig22.md) has sigmas the bound makes cautious, not wrong.
-# Chosen after seeing those sims (disclosed); on the real BROAD logs the hand model's NIS is ~1 on calm trials
+# that moves more smoothly than a hand (the simulated target sessions: mean NIS 0.3-0.7 of its expectation on the
+# paper and tactical sims, at rest and moving alike, seeds 900-902, notes sig22.md) has sigmas the bound makes
+# cautious, not wrong. Chosen after seeing those sims (disclosed)
 _ONE_SIDED_KINDS = {"target_fkf": ("hand",)}
 # chains whose NIS come at the IMU rate: a magnetometer sampled slower than the IMU repeats a sample and its
 # innovation (BROAD's logs repeat over a quarter of their field samples), so their mean counts the AR(1) effective
