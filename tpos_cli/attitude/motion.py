@@ -52,7 +52,7 @@ def oscillator_psd(f_hz, freq_hz, damping, q):
     return 2.0 * q * w**4 / ((w0**2 - w**2) ** 2 + (2.0 * damping * w0 * w) ** 2)
 
 
-def fit_oscillator(t_s, acc_ned_mps2, moving, band_hz=(0.3, 5.0), damping=None, segment_s=20.0,
+def fit_oscillator(t_s, acc_ned_mps2, moving, band_hz=(0.3, 5.0), damping=None, segment_s: float | None = None,
                    acc_noise_mps2: float = 0.0) -> OscillatorFit:
     """Least-squares fit (in log PSD) of the oscillator to the NED kinematic acceleration (N,3).
 
@@ -61,13 +61,17 @@ def fit_oscillator(t_s, acc_ned_mps2, moving, band_hz=(0.3, 5.0), damping=None, 
     while the device moves. The mean PSD over the three axes is fitted over frequency and damping
     (`damping` given: held fixed). The accelerometer's white noise (`acc_noise_mps2` per sample) is a
     floor under the hand's PSD (one-sided, 2 sigma^2 dt, reduced by the moving fraction like the rest)
-    that the filter already counts, so the fit is q shape + floor. Raises ProcessingError when the log is too short, never moves, or
+    that the filter already counts, so the fit is q shape + floor. `segment_s` (Welch segment length)
+    defaults to the longer of 20 s and four periods of the band's lowest frequency, so that a band
+    reaching low frequencies is resolved. Raises ProcessingError when the log is too short, never moves, or
     the best frequency lies at the edge of `FREQ_RANGE_HZ` (no oscillator shape in the band).
     """
     t = np.asarray(t_s, dtype=float)
     a = np.asarray(acc_ned_mps2, dtype=float)
     frac = float(np.mean(moving))
     dt = float(np.median(np.diff(t)))
+    if segment_s is None:
+        segment_s = max(20.0, 4.0 / band_hz[0])
     nper = int(min(round(segment_s / dt), t.size))
     if frac <= 0.0 or nper < int(4.0 / (band_hz[0] * dt)):
         raise ProcessingError("motion model: the log is too short or never moves; cannot fit the hand-motion model")
