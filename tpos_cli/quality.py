@@ -9,12 +9,12 @@ test, never against values seen on particular logs:
   updates and the chain's gate (`consistency.mean_nis_band`). Outside: suspect. Unreliable when the
   mean is also more than 9 times its expectation: the errors are then over 3 times the sigmas, so
   the written sigmas (and anything computed from them) are meaningless. A chain that updates at the
-  IMU rate (`_SERIAL_NIS`) counts its updates by their AR(1) effective sample size
-  (`consistency.effective_sample_size`); kinds its gate does not apply to (`_UNGATED_KINDS`) get the
+  IMU rate (`NisRules.serial`) counts its updates by their AR(1) effective sample size
+  (`consistency.effective_sample_size`); kinds its gate does not apply to (`NisRules.ungated_kinds`) get the
   plain chi-square band. A run whose prior and process noise were divided by an information share
   beta (the `share` column: a federated local filter, paper 000 Eq. 23-24) bounds its errors by
   design, so its expected mean lies between beta and 1 times the chi-square's: the band's low end
-  is scaled by beta. Kinds whose noise is a bound on a motion (`_ONE_SIDED_KINDS`) are tested on
+  is scaled by beta. Kinds whose noise is a bound on a motion (`NisRules.one_sided_kinds`) are tested on
   the high side only.
 - `rejections`: rejected updates against Binomial(n, 1 - gate). Real environments have outliers
   (multipath, NLOS ranges): suspect only when the rate is, at 99.9 % confidence (Clopper-Pearson),
@@ -66,25 +66,37 @@ KIND_DOF = {"range": 1, "fix": 2}
 _GATES = {"drive_smooth": ("gate_probability", "flag_probability"),
           "ranging_fatci": ("gate_probability", None),
           "target_fkf": ("range_gate_probability", None)}
-# chain -> NIS kinds that pass no chi-square gate: the chain's gate is another kind's (target_fkf: the range
-# differences'; its accelerometer and field updates are not gated on their NIS)
-_UNGATED_KINDS = {"target_fkf": ("acc", "mag", "obs")}
-# chain -> NIS kinds whose noise is a bound on a motion, not a sensor's noise: target_fkf's hand model (the velocity
-# change a hand-held device's bounded motion allows, `attitude.motion`) is tested on the high side only: a device
-# that moves more smoothly than a hand (the simulated target sessions: mean NIS 0.3-0.7 of its expectation on the
-# paper and tactical sims, at rest and moving alike, seeds 900-902, notes sig22.md) has sigmas the bound makes
-# cautious, not wrong. Chosen after seeing those sims (disclosed)
-_ONE_SIDED_KINDS = {"target_fkf": ("hand",)}
-NIS_HIGH_MEANING = "the filter's sigmas understate its errors"  # what a mean NIS above its band says
-# chain -> what a mean NIS above its band means, where it is not the written sigmas: target_fkf's NIS are its local
-# filter runs' (each run alone); the delivered solution's sigmas are widened by the forward/backward runs'
-# disagreement (`attitude.smoother`), which this test does not judge
-_NIS_HIGH_MEANING = {"target_fkf": "the attitude filter runs' sigmas understate their errors (each run alone; the "
-                                   "delivered solution's sigmas are widened by the runs' disagreement, not judged here)"}
-# chains whose NIS come at the IMU rate: a magnetometer sampled slower than the IMU repeats a sample and its
-# innovation (BROAD's logs repeat over a quarter of their field samples), so their mean counts the AR(1) effective
-# sample size (n when the innovations are white, as a consistent filter's are: the band is then unchanged)
-_SERIAL_NIS = ("target_fkf",)
+
+
+@dataclass(frozen=True)
+class NisRules:
+    """How a chain's mean NIS are judged (`nis_findings`; module docstring), beside its gate.
+
+    `ungated_kinds`: kinds the chain's gate does not apply to (plain chi-square band). `one_sided_kinds`:
+    kinds whose noise is a bound on a motion, not a sensor's noise, tested on the high side only.
+    `serial`: the updates come at the IMU rate, so each mean counts their AR(1) effective sample size
+    (`consistency.effective_sample_size`; n when the innovations are white, as a consistent filter's are:
+    the band is then unchanged). `high_meaning`: what a mean above its band says (the reason's end)."""
+
+    ungated_kinds: tuple[str, ...] = ()
+    one_sided_kinds: tuple[str, ...] = ()
+    serial: bool = False
+    high_meaning: str = "the filter's sigmas understate its errors"
+
+
+# chain -> its NIS rules where not the defaults. target_fkf: its gate is the range differences' (the accelerometer
+# and field updates are not gated on their NIS); its hand model (the velocity change a hand-held device's bounded
+# motion allows, `attitude.motion`) is tested on the high side only: a device that moves more smoothly than a hand
+# (the simulated target sessions: mean NIS 0.3-0.7 of its expectation on the paper and tactical sims, at rest and
+# moving alike, seeds 900-902, notes sig22.md) has sigmas the bound makes cautious, not wrong (chosen after seeing
+# those sims: disclosed); its NIS come at the IMU rate (a magnetometer sampled slower than the IMU repeats a sample
+# and its innovation: BROAD's logs repeat over a quarter of their field samples); and they are its local filter
+# runs' (each run alone): the delivered solution's sigmas are widened by the forward/backward runs' disagreement
+# (`attitude.smoother`), which this test does not judge
+_NIS_RULES = {"target_fkf": NisRules(
+    ungated_kinds=("acc", "mag", "obs"), one_sided_kinds=("hand",), serial=True,
+    high_meaning="the attitude filter runs' sigmas understate their errors (each run alone; the delivered "
+                 "solution's sigmas are widened by the runs' disagreement, not judged here)")}
 # chain -> what aiding it needs, as the innovation kinds that show it was used
 _AIDING = {"drive_smooth": ("gps", ("gps_pos", "gps_vel")), "ranging_fatci": ("anchor ranges", ("range", "fix"))}
 
@@ -146,16 +158,12 @@ def _param(config: Mapping | None, chain: str, key: str | None, default=None):
 
 
 def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: float | None,
-                 model_rel_sd: Mapping[str, float] | None = None, *, ungated_kinds: Iterable[str] = (),
-                 one_sided_kinds: Iterable[str] = (), serial: bool = False,
-                 high_meaning: str = NIS_HIGH_MEANING) -> list[Finding]:
+                 model_rel_sd: Mapping[str, float] | None = None, rules: NisRules = NisRules()) -> list[Finding]:
     """Mean NIS and rejections per solution and kind (module docstring); one reason line per kind
     of failure, naming every solution and measurement kind it concerns. `model_rel_sd`: {kind:
     relative SD of its noise variances} when the chain estimated them (`consistency.mean_chi2`).
-    `ungated_kinds`: kinds `gate_probability` does not apply to; `one_sided_kinds`: kinds tested on the
-    high side only; `serial`: count each mean's updates by their effective sample size
-    (`consistency.effective_sample_size`); `high_meaning`: what a mean above its band says (the reason's
-    end). A `share` column (information share, module docstring) scales the band's low end."""
+    `rules`: the chain's `NisRules` (the defaults: every kind gated, two-sided, independent updates).
+    A `share` column (information share, module docstring) scales the band's low end."""
     if innovations is None or is_empty(innovations) or "nis" not in innovations:
         return []
     inn = innovations
@@ -163,7 +171,6 @@ def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: f
     dof_all = column(inn, "dof").astype(float) if "dof" in inn else np.array([KIND_DOF.get(k, np.nan) for k in kinds], dtype=float)
     out = []
     high, low, rej = [], [], []
-    ungated, one_sided = set(ungated_kinds), set(one_sided_kinds)
     share_all = column(inn, "share").astype(float) if "share" in inn else np.ones(len(inn))
     nis_all = column(inn, "nis").astype(float)
     acc_all = flags(inn, "accepted") if "accepted" in inn else np.ones(len(inn), bool)
@@ -174,14 +181,13 @@ def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: f
         if n == 0:
             continue
         name = f"{sol} {kind}"
-        gate = None if kind in ungated else gate_probability
+        gate = None if kind in rules.ungated_kinds else gate_probability
         p_rej = 1.0 - gate if gate is not None else 0.0
-        n_eff = consistency.effective_sample_size(nis[a]) if serial else None
+        n_eff = consistency.effective_sample_size(nis[a]) if rules.serial else None
         m = consistency.mean_chi2(nis[a], dof[a], gate_probability=gate, n_eff=n_eff,
                                   model_rel_sd=float((model_rel_sd or {}).get(kind, 0.0)))
         share = float(np.min(share_all[i][ok]))
-        lo = m.lo * share if share < 1.0 else m.lo
-        lo = 0.0 if kind in one_sided else lo
+        lo = 0.0 if kind in rules.one_sided_kinds else m.lo * share
         inside = lo <= m.mean <= m.hi
         fig = {"n": n, "n_accepted": int(a.sum()), "dof": float(np.median(dof[ok])), "mean_nis": m.mean,
                "expected": m.expected, "band": [lo, m.hi], "ratio": m.ratio}
@@ -216,7 +222,7 @@ def nis_findings(innovations: pd.DataFrame | Columns | None, gate_probability: f
             worst = max((lv for lv, _ in items), key=LEVELS.index)
             out.append(Finding(check, worst, text.format("; ".join(x for _, x in items))))
 
-    group(high, "nis", "mean NIS above its band: {}: " + high_meaning)
+    group(high, "nis", "mean NIS above its band: {}: " + rules.high_meaning)
     group(low, "nis", "mean NIS below its band: {}: the filter's measurement or process noise is set too large "
                       "(pessimistic sigmas)")
     p_gate = 1.0 - gate_probability if gate_probability is not None else 0.0
@@ -577,9 +583,7 @@ def assess(session, *, chain: str, config: Mapping | None = None, trajectory: pd
     innovations = (tables or {}).get("innovations")
     fs = list(findings)
     fs += stated_mounting_findings(results, config, chain)  # a cause: listed before the symptoms it makes
-    fs += nis_findings(innovations, gate, (results or {}).get("noise_model_rel_sd"),
-                       ungated_kinds=_UNGATED_KINDS.get(chain, ()), one_sided_kinds=_ONE_SIDED_KINDS.get(chain, ()),
-                       serial=chain in _SERIAL_NIS, high_meaning=_NIS_HIGH_MEANING.get(chain, NIS_HIGH_MEANING))
+    fs += nis_findings(innovations, gate, (results or {}).get("noise_model_rel_sd"), _NIS_RULES.get(chain, NisRules()))
     fs += flag_findings(trajectory, flag_p)
     fs += mounting_findings(results)
     fs += fusion_findings(results)
