@@ -265,3 +265,32 @@ def test_fkf_cal_drift_takes_the_pipelines_constant_gyro_scale_figure():
     for ppm in (0.0, 1000.0):
         var = attitude_change_variance(sol, [0.0], FilterNoise(**base, gyro_scale_const_sd=ppm * 1e-6), rate_hz=1.0)
         assert np.allclose(var, (3e-4**2 + (ppm * 1e-6) ** 2) * turn**2, rtol=1e-9, atol=1e-18)
+
+
+def test_the_magnetometer_update_holds_the_surveys_field_departure(tmp_path, monkeypatch):
+    # the filters' magnetometer R (the kernel's r_mag = mag_noise_ut^2) is the white noise and the survey's
+    # field departure in quadrature, both runs, and summary.json reports the figure beside the noise figures
+    from tpos_cli.attitude import magfield
+    from tpos_cli.chains import target_fkf
+
+    survey = magfield.survey
+    monkeypatch.setattr(magfield, "survey", lambda *a, **k: dataclasses.replace(survey(*a, **k), field_sd_ut=0.4))
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def capture(session, p, setups, field, beams, ends, noise, decl, ctx, summary, fb_diff_cov=None):
+        seen.update(setups=setups, noise=noise, summary=summary)
+        raise Stop
+
+    monkeypatch.setattr(target_fkf, "local_filters", capture)
+    sim = simulate_target(40.0, seed=3)
+    d = write_session(sim, tmp_path / "s", overwrite=True)
+    with pytest.raises(Stop):
+        process_session(d, "target-fkf", tmp_path / "run")
+    white = seen["noise"].mag_noise_ut
+    for s in (seen["setups"].forward, seen["setups"].backward):
+        assert s.noise.mag_noise_ut == pytest.approx(np.hypot(white, 0.4), rel=1e-12)
+    assert seen["summary"]["imu_noise"]["mag_update_sd_ut"]["value"] == pytest.approx(np.hypot(white, 0.4), abs=1e-6)
+    assert seen["summary"]["magnetic_survey"]["field_sd_ut"] == 0.4

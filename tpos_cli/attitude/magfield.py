@@ -24,6 +24,9 @@ windows form two populations (still windows that keep an offset, turning windows
 windows move the plain median across the gap (BROAD 26 with a planted magnet: 44.68 -> 45.16 uT, and LF1's
 backward run then refused the field for most of the log). The offset carrying and the magnitude test keep
 the median over every window (their figures on the real logs are unchanged).
+
+The filters compare each sample with one fixed Earth vector; how far the log's field departs from it
+(`FieldSurvey.field_sd_ut`, `field_sd_ut`) is, beside the sensor's white noise, the rest of the update's error.
 """
 
 from __future__ import annotations
@@ -67,11 +70,14 @@ class FieldSurvey:
     norm_tol_ut: float
     disturbed: np.ndarray
     windows: tuple[FieldWindow, ...]
+    #: per-axis SD (uT) of the field's departure from the one Earth vector (`field_sd_ut`), 0 without the white noise
+    field_sd_ut: float = 0.0
 
     def summary(self) -> dict:
         body = [w for w in self.windows if w.body_fixed]
         return {"earth_field_ut": round(self.norm_ut, 3), "dip_deg": round(float(np.degrees(self.dip_rad)), 3),
-                "norm_tol_ut": round(self.norm_tol_ut, 3), "windows": len(self.windows),
+                "norm_tol_ut": round(self.norm_tol_ut, 3), "field_sd_ut": round(self.field_sd_ut, 3),
+                "windows": len(self.windows),
                 "body_fixed_windows": len(body), "disturbed_fraction": round(float(self.disturbed.mean()), 4),
                 "offsets_ut": [[round(float(x), 2) for x in w.offset_ut] for w in body[:20]]}
 
@@ -162,10 +168,46 @@ def _reference(wins, prior, cluster_ut=3.0, cluster_dip_rad=0.05236, min_share=0
     return float(np.median(nw[m])), float(np.median(dw[m])), m
 
 
+def field_sd_ut(norm_b_ut, wins, members, norm_ut: float, dip_rad: float, white_ut: float, rows_corr: float) -> float:
+    """Per-axis SD (uT) of the field's departure from the one Earth vector (`norm_ut`, `dip_rad`) the filters
+    use, as white noise beside the sensor's `white_ut`: the update's R = (white^2 + sd^2) I, with 3 sd^2 the
+    mean square departure the log shows, summed over the axes it shows it on.
+
+    - Along the field: the samples' magnitudes `norm_b_ut` (N,) (NaN where masked: the filters do not use
+      them) against the reference, mean((|m| - norm)^2) - white^2. A magnitude needs no attitude, so the
+      gyro's scale and misalignment errors, which a window fit's residual carries, do not enter.
+    - Across the field in the vertical plane: each window's dip (the adopted fit's m0 against the gravity it
+      saw) times the magnitude against the reference, mean square over the Earth field's `members` among
+      `wins` (`_reference`: a disturbance enters neither) that hold no masked sample (a window a magnet
+      passed through fits a field the filters do not see; all members if none is whole), less the white noise of a window's mean
+      (`rows_corr` rows per independent sample), plus the field's change inside a window, taken as large
+      across as along (the mean over those windows of var(|m|) - white^2).
+    - Across the field horizontally the departure turns the field's azimuth: a filter takes it as heading, no
+      innovation shows it and the log cannot measure it; it adds nothing.
+
+    Mean squares, not robust SDs: R stands for the departure's mean square, and the departures are not
+    Gaussian (a log's rest and motion windows form two populations, BROAD 02: -0.6 and +0.4 uT in magnitude,
+    where 1.4826 MAD reads 1.5x their RMS); the robustness is in the masked samples and the members.
+    0 without `white_ut`; each part is clipped at 0."""
+    nrm = np.asarray(norm_b_ut, dtype=float)
+    ref = [w for w, m in zip(wins, members) if m]
+    if white_ut <= 0.0 or not ref or not np.isfinite(nrm).any():
+        return 0.0
+    # a window's fit over samples the filters do not use (masked: a magnet passed) is not a field they see
+    ref = [w for w in ref if np.isfinite(nrm[w.i0:w.i1]).all()] or ref
+    along = float(np.nanmean((nrm - norm_ut) ** 2)) - white_ut**2
+    inside = [float(np.nanvar(nrm[w.i0:w.i1])) for w in ref if np.isfinite(nrm[w.i0:w.i1]).sum() > 1]
+    dd = norm_ut * (np.array([w.dip_rad for w in ref]) - dip_rad)
+    mean_var = white_ut**2 * rows_corr / float(np.median([w.i1 - w.i0 for w in ref]))
+    across = float(np.mean(dd**2)) - mean_var + (float(np.mean(inside)) - white_ut**2 if inside else 0.0)
+    return float(np.sqrt((max(along, 0.0) + max(across, 0.0)) / 3.0))
+
+
 def survey(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, *, window_s=4.0, var_ratio=0.5,
-           max_offset_sd_ut=1.0, lowpass_s=0.5, tol_sds=3.0, prior=None, fit_tol=3.0) -> FieldSurvey:
+           max_offset_sd_ut=1.0, lowpass_s=0.5, tol_sds=3.0, prior=None, fit_tol=3.0, white_ut=0.0) -> FieldSurvey:
     """Survey the whole log in windows of `window_s` (module docstring) and return the cleaned field;
-    `prior` (norm uT, dip rad) of the Earth field picks the reference among clusters (`_reference`)."""
+    `prior` (norm uT, dip rad) of the Earth field picks the reference among clusters (`_reference`);
+    `white_ut` the magnetometer's white noise per axis (uT), for `field_sd_ut`."""
     t = np.asarray(t_s, dtype=float)
     mag = np.asarray(mag_b_ut, dtype=float)
     n = t.size
@@ -182,7 +224,7 @@ def survey(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, *, window_s=4.0, var
     voters = np.flatnonzero(resid <= fit_tol * np.median(resid))
     if voters.size < 3:
         voters = np.arange(len(wins))
-    earth_norm, earth_dip, _ = _reference([wins[i] for i in voters], prior)
+    earth_norm, earth_dip, earth_wins = _reference([wins[i] for i in voters], prior)
     norm_ref, dip_ref, ref_wins = _reference(wins, prior)
     out = mag.copy()
     fitted = [i for i, w in enumerate(wins) if w.body_fixed]
@@ -214,7 +256,9 @@ def survey(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, *, window_s=4.0, var
     lp = (c[hi] - c[lo]) / (hi - lo)
     disturbed = np.abs(lp - norm_ref) > tol
     out[disturbed] = np.nan
-    return FieldSurvey(out, earth_norm, earth_dip, tol, disturbed, tuple(wins))
+    sd = field_sd_ut(np.where(disturbed, np.nan, nrm), [wins[i] for i in voters], earth_wins, earth_norm, earth_dip,
+                     white_ut, max(1.0, _CORR_S / dt))
+    return FieldSurvey(out, earth_norm, earth_dip, tol, disturbed, tuple(wins), sd)
 
 
 def reference_field_ned(norm_ut: float, dip_rad: float, declination_rad: float) -> np.ndarray:

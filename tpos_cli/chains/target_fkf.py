@@ -266,16 +266,26 @@ def imu_figures(session: Session, p: TargetFkfParams, start: End, summary: dict)
         acc_bias_rw_mps2_rts=p.acc_bias_rw_mg_per_rts * 1e-3 * G0_MPS2)
 
 
-def survey_field(session: Session, p: TargetFkfParams, start: End, obs_lla, ctx: RunContext, summary: dict):
-    """The log's magnetic survey (`attitude.magfield`), or None without magnetometer or with `mag_survey` off."""
+def survey_field(session: Session, p: TargetFkfParams, start: End, obs_lla, noise: FilterNoise, ctx: RunContext,
+                 summary: dict):
+    """The log's magnetic survey (`attitude.magfield`), or None without magnetometer or with `mag_survey` off;
+    `noise.mag_noise_ut` (white) is what the survey's field departure (`magfield.field_sd_ut`) is measured beyond."""
     imu = session.imu
     if imu.mag_b_ut is None or not p.mag_survey:
         return None
     with ctx.stage("magnetic survey"):
         fs = magfield.survey(imu.t_s, imu.gyro_b_rps, imu.acc_b_mps2, imu.mag_b_ut, start.align.gyro_bias_rps,
-                             prior=_igrf_norm_dip(session, obs_lla))
+                             prior=_igrf_norm_dip(session, obs_lla), white_ut=noise.mag_noise_ut)
     summary["magnetic_survey"] = fs.summary()
+    summary["imu_noise"]["mag_update_sd_ut"] = {"value": round(mag_update_sd_ut(noise, fs), 6),
+                                                "source": "hypot(mag_noise_ut, magnetic_survey.field_sd_ut)"}
     return fs
+
+
+def mag_update_sd_ut(noise: FilterNoise, field) -> float:
+    """Per-axis SD (uT) of the magnetometer update's error against the one Earth vector: the white noise and,
+    with a survey, the field's departure from that vector (`magfield.field_sd_ut`), independent, so in quadrature."""
+    return float(np.hypot(noise.mag_noise_ut, field.field_sd_ut if field is not None else 0.0))
 
 
 def _igrf_norm_dip(session: Session, obs_lla):
@@ -370,9 +380,11 @@ def filter_setups(session: Session, p: TargetFkfParams, obs_lla, decl, ends, noi
         ok = np.all(np.isfinite(mw), axis=1)
         return mw[ok].mean(axis=0) if ok.any() else np.nanmean(session.imu.mag_b_ut[e.window.i0:e.window.i1], axis=0)
 
+    # the filters' magnetometer R holds the field's departure from m_ref beside the white noise (the kernel's r_mag)
+    f_noise = replace(noise, mag_noise_ut=mag_update_sd_ut(noise, field))
     base = FilterSetup(
         lat_rad=np.radians(obs_lla[0]), h_m=float(obs_lla[2]), C0=start.align.C_nb, bias0_rps=start.align.gyro_bias_rps,
-        P0=_initial_covariance(start, noise, m_ref_n, window_mag(start)), noise=noise, declination_rad=decl,
+        P0=_initial_covariance(start, noise, m_ref_n, window_mag(start)), noise=f_noise, declination_rad=decl,
         mag_ref=mag_ref, mag_norm_tol_ut=0.0 if (field is not None or mag_ref[0] <= 0) else p.mag_norm_tol_ut,
         mag_dip_tol_rad=np.radians(p.mag_dip_tol_deg), mag_nis_tau_s=p.mag_nis_window_s, mag_nis_ratio=p.mag_nis_ratio,
         acc_static_tol_mps2=p.acc_static_tol_mps2,
@@ -700,7 +712,7 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
         noise = imu_figures(session, p, start, summary)
         start = align_end(session, p, np.radians(obs_lla[0]), decl, _white(noise), at_end=False)
         summary["alignment"] = _alignment_summary(session, start)
-    field = survey_field(session, p, start, obs_lla, ctx, summary)
+    field = survey_field(session, p, start, obs_lla, noise, ctx, summary)
     with ctx.stage("initial alignment"):
         end = _align_at_end(session, p, np.radians(obs_lla[0]), decl, noise, start, field, ctx)
     setups = filter_setups(session, p, obs_lla, decl, (start, end), noise, field)
