@@ -292,5 +292,7 @@ def test_the_magnetometer_update_holds_the_surveys_field_departure(tmp_path, mon
     white = seen["noise"].mag_noise_ut
     for s in (seen["setups"].forward, seen["setups"].backward):
         assert s.noise.mag_noise_ut == pytest.approx(np.hypot(white, 0.4), rel=1e-12)
+        # the NIS gate's threshold on the innovation's power stays the white noise's (default ratio 3)
+        assert s.mag_nis_ratio * s.noise.mag_noise_ut**2 == pytest.approx(3.0 * white**2, rel=1e-12)
     assert seen["summary"]["imu_noise"]["mag_update_sd_ut"]["value"] == pytest.approx(np.hypot(white, 0.4), abs=1e-6)
     assert seen["summary"]["magnetic_survey"]["field_sd_ut"] == 0.4

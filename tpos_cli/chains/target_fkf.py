@@ -380,13 +380,18 @@ def filter_setups(session: Session, p: TargetFkfParams, obs_lla, decl, ends, noi
         ok = np.all(np.isfinite(mw), axis=1)
         return mw[ok].mean(axis=0) if ok.any() else np.nanmean(session.imu.mag_b_ut[e.window.i0:e.window.i1], axis=0)
 
-    # the filters' magnetometer R holds the field's departure from m_ref beside the white noise (the kernel's r_mag)
+    # the filters' magnetometer R holds the field's departure from m_ref beside the white noise (the kernel's r_mag);
+    # the NIS gate (a disturbance that lasts: the 1 s mean NIS over mag_nis_ratio) keeps its threshold on the
+    # innovation's power where the white noise set it, so a wider R does not let a disturbance through (BROAD 26,
+    # phone vibration: with the ratio on the wider R the gate refused 2370 samples instead of 32047 and the
+    # heading followed the disturbance, tpos/VQF .72 -> 1.05)
     f_noise = replace(noise, mag_noise_ut=mag_update_sd_ut(noise, field))
     base = FilterSetup(
         lat_rad=np.radians(obs_lla[0]), h_m=float(obs_lla[2]), C0=start.align.C_nb, bias0_rps=start.align.gyro_bias_rps,
         P0=_initial_covariance(start, noise, m_ref_n, window_mag(start)), noise=f_noise, declination_rad=decl,
         mag_ref=mag_ref, mag_norm_tol_ut=0.0 if (field is not None or mag_ref[0] <= 0) else p.mag_norm_tol_ut,
-        mag_dip_tol_rad=np.radians(p.mag_dip_tol_deg), mag_nis_tau_s=p.mag_nis_window_s, mag_nis_ratio=p.mag_nis_ratio,
+        mag_dip_tol_rad=np.radians(p.mag_dip_tol_deg), mag_nis_tau_s=p.mag_nis_window_s,
+        mag_nis_ratio=p.mag_nis_ratio * (noise.mag_noise_ut / f_noise.mag_noise_ut) ** 2,
         acc_static_tol_mps2=p.acc_static_tol_mps2,
         baseline_12_m=rf.baseline_12_m if rf else 0.2, baseline_13_m=rf.baseline_13_m if rf else 0.2,
         range_gate_chi2=float(chi2.ppf(p.range_gate_probability, 2)), beta=p.beta,
