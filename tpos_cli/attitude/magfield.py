@@ -168,20 +168,23 @@ def _reference(wins, prior, cluster_ut=3.0, cluster_dip_rad=0.05236, min_share=0
     return float(np.median(nw[m])), float(np.median(dw[m])), m
 
 
-def field_sd_ut(norm_b_ut, wins, members, norm_ut: float, dip_rad: float, white_ut: float, rows_corr: float) -> float:
+def field_sd_ut(norm_lp_ut, rows_lp: int, wins, members, norm_ut: float, dip_rad: float, white_ut: float,
+                rows_corr: float) -> float:
     """Per-axis SD (uT) of the field's departure from the one Earth vector (`norm_ut`, `dip_rad`) the filters
     use, as white noise beside the sensor's `white_ut`: the update's R = (white^2 + sd^2) I, with 3 sd^2 the
-    mean square departure the log shows, summed over the axes it shows it on.
+    mean square departure the log shows, summed over the axes it shows it on. The departure is what is slow:
+    it is read from means (`norm_lp_ut`, (N,), the field magnitude's mean over `rows_lp` rows around each
+    sample, NaN where masked: the filters do not use those samples; the windows' fits), whose white noise
+    (`white_ut^2` over the independent samples among their rows, `rows_corr` rows each) is subtracted; what
+    is fast beyond the stated white noise is the noise figure's error, for the NIS check to name, not a field.
 
-    - Along the field: the samples' magnitudes `norm_b_ut` (N,) (NaN where masked: the filters do not use
-      them) against the reference, mean((|m| - norm)^2) - white^2. A magnitude needs no attitude, so the
-      gyro's scale and misalignment errors, which a window fit's residual carries, do not enter.
+    - Along the field: mean((|m|_lp - norm)^2) over the samples. A magnitude needs no attitude, so the gyro's
+      scale and misalignment errors, which a window fit's residual carries, do not enter.
     - Across the field in the vertical plane: each window's dip (the adopted fit's m0 against the gravity it
       saw) times the magnitude against the reference, mean square over the Earth field's `members` among
       `wins` (`_reference`: a disturbance enters neither) that hold no masked sample (a window a magnet
-      passed through fits a field the filters do not see; all members if none is whole), less the white noise of a window's mean
-      (`rows_corr` rows per independent sample), plus the field's change inside a window, taken as large
-      across as along (the mean over those windows of var(|m|) - white^2).
+      passed through fits a field the filters do not see; all members if none is whole), plus the field's
+      change inside a window, taken as large across as along (the mean over those windows of var(|m|_lp)).
     - Across the field horizontally the departure turns the field's azimuth: a filter takes it as heading, no
       innovation shows it and the log cannot measure it; it adds nothing.
 
@@ -189,17 +192,18 @@ def field_sd_ut(norm_b_ut, wins, members, norm_ut: float, dip_rad: float, white_
     Gaussian (a log's rest and motion windows form two populations, BROAD 02: -0.6 and +0.4 uT in magnitude,
     where 1.4826 MAD reads 1.5x their RMS); the robustness is in the masked samples and the members.
     0 without `white_ut`; each part is clipped at 0."""
-    nrm = np.asarray(norm_b_ut, dtype=float)
+    lp = np.asarray(norm_lp_ut, dtype=float)
     ref = [w for w, m in zip(wins, members) if m]
-    if white_ut <= 0.0 or not ref or not np.isfinite(nrm).any():
+    if white_ut <= 0.0 or not ref or not np.isfinite(lp).any():
         return 0.0
     # a window's fit over samples the filters do not use (masked: a magnet passed) is not a field they see
-    ref = [w for w in ref if np.isfinite(nrm[w.i0:w.i1]).all()] or ref
-    along = float(np.nanmean((nrm - norm_ut) ** 2)) - white_ut**2
-    inside = [float(np.nanvar(nrm[w.i0:w.i1])) for w in ref if np.isfinite(nrm[w.i0:w.i1]).sum() > 1]
+    ref = [w for w in ref if np.isfinite(lp[w.i0:w.i1]).all()] or ref
+    lp_var = white_ut**2 * min(1.0, rows_corr / max(rows_lp, 1))
+    along = float(np.nanmean((lp - norm_ut) ** 2)) - lp_var
+    inside = [float(np.nanvar(lp[w.i0:w.i1])) for w in ref if np.isfinite(lp[w.i0:w.i1]).sum() > 1]
     dd = norm_ut * (np.array([w.dip_rad for w in ref]) - dip_rad)
-    mean_var = white_ut**2 * rows_corr / float(np.median([w.i1 - w.i0 for w in ref]))
-    across = float(np.mean(dd**2)) - mean_var + (float(np.mean(inside)) - white_ut**2 if inside else 0.0)
+    mean_var = white_ut**2 * min(1.0, rows_corr / float(np.median([w.i1 - w.i0 for w in ref])))
+    across = float(np.mean(dd**2)) - mean_var + (float(np.mean(inside)) - lp_var if inside else 0.0)
     return float(np.sqrt((max(along, 0.0) + max(across, 0.0)) / 3.0))
 
 
@@ -256,7 +260,7 @@ def survey(t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, bias_rps, *, window_s=4.0, var
     lp = (c[hi] - c[lo]) / (hi - lo)
     disturbed = np.abs(lp - norm_ref) > tol
     out[disturbed] = np.nan
-    sd = field_sd_ut(np.where(disturbed, np.nan, nrm), [wins[i] for i in voters], earth_wins, earth_norm, earth_dip,
+    sd = field_sd_ut(np.where(disturbed, np.nan, lp), k, [wins[i] for i in voters], earth_wins, earth_norm, earth_dip,
                      white_ut, max(1.0, _CORR_S / dt))
     return FieldSurvey(out, earth_norm, earth_dip, tol, disturbed, tuple(wins), sd)
 
