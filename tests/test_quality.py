@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from scipy import integrate, stats
+from scipy.signal import lfilter
 
 from tests.helpers import mistakes as M
 from tpos_cli import consistency, quality
@@ -76,17 +77,36 @@ def test_rate_lower_bound_is_clopper_pearson():
     assert consistency.rate_lower_bound(0, 200) == 0.0
 
 
+def _ar1(rng, rho, n, var=1.0):
+    """A stationary AR(1) series of variance `var`."""
+    return lfilter([1.0], [1.0, -rho], rng.standard_normal(n)) * np.sqrt(var * (1.0 - rho * rho))
+
+
 def test_effective_sample_size_of_ar1():
     rng = np.random.default_rng(1)
-    rho, n = 0.8, 40000
-    e = rng.standard_normal(n)
-    x = np.empty(n)
-    x[0] = e[0]
-    for i in range(1, n):
-        x[i] = rho * x[i - 1] + e[i]
-    # lag-1 estimate SD ~ sqrt((1 - rho^2) / n) = 0.003: 5 % on (1 - rho) / (1 + rho)
-    assert consistency.effective_sample_size(x) == pytest.approx(n * (1 - rho) / (1 + rho), rel=0.05)
-    assert consistency.effective_sample_size(rng.standard_normal(5000)) == pytest.approx(5000, rel=0.1)
+    rho, n = 0.8, 200000
+    # an AR(1) has tau = (1 + rho) / (1 - rho) = 9; Sokal's window M ~ 5 tau = 45 gives a relative SD of
+    # sqrt(2 (2M + 1) / n) = 3 %: 10 % is 3.3 SDs
+    assert consistency.effective_sample_size(_ar1(rng, rho, n)) == pytest.approx(n * (1 - rho) / (1 + rho), rel=0.1)
+    # white: M ~ 5, SD sqrt(22 / 50000) = 2 %
+    assert consistency.effective_sample_size(rng.standard_normal(50000)) == pytest.approx(50000, rel=0.1)
+
+
+def test_effective_sample_size_counts_a_slow_component():
+    # a fast AR(1) (rho .5, variance 1) plus a slow one (rho .98, variance .2): the autocorrelations add with the
+    # variances as weights, so tau = (1 x 3 + .2 x 99) / 1.2 = 19, while the lag-1 correlation (.58) is the fast
+    # part's and its AR(1) reading, (1 + rho1) / (1 - rho1) = 3.8, counts 5x too many independent samples
+    rng = np.random.default_rng(2)
+    n = 200000
+    x = _ar1(rng, 0.5, n) + _ar1(rng, 0.98, n, var=0.2)
+    tau = (1.0 * 3.0 + 0.2 * 99.0) / 1.2
+    # M ~ 5 tau = 95: relative SD sqrt(2 (2M + 1) / n) = 4.4 %, and the window leaves out the slow part's lags
+    # beyond M, 2 (.2 / 1.2) .98^95 / .02 = 2.4 (13 % of tau): 30 % is the bias and 4 SDs
+    assert consistency.integrated_time(x) == pytest.approx(tau, rel=0.3)
+    d = x - x.mean()
+    rho1 = float(d[1:] @ d[:-1] / (d @ d))
+    assert (1 + rho1) / (1 - rho1) < tau / 4  # what the AR(1) reading would have used
+    assert consistency.effective_sample_size(x) == pytest.approx(n / consistency.integrated_time(x), rel=1e-12)
 
 
 def test_block_log_ratio_z_is_standard_normal_under_no_difference():

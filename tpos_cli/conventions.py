@@ -801,7 +801,7 @@ def rangefinder_baselines(t_range_s, range_m, t_att_s, roll_rad, pitch_rad, yaw_
     b12 tan(ψ - ψw) (exact at zero roll; the target paper's Eq. 10), θ0 and ψw the wall's
     normal. An attitude that does not use the ranges (the gyro-only solution) gives θ and ψ, so
     b12, b13 (and θ0, ψw) follow by robust nonlinear least squares (soft-L1 loss against beams that
-    miss the wall). SDs from the Jacobian, the residual scale and the AR(1) effective number of
+    miss the wall). SDs from the Jacobian, the residual scale and the effective number of
     epochs (`consistency.effective_sample_size`). Returns {"baseline_12_m": (b, sd, n), ...} for the
     baselines the attitude moved enough to tell (at least 2 deg of that angle)."""
     from scipy.optimize import least_squares

@@ -6,16 +6,16 @@ for a consistent filter on sound data (`consistency`), at a false-alarm probabil
 test, never against values seen on particular logs:
 
 - `nis`: the mean NIS of each solution's updates of each kind against its band for that number of
-  updates and the chain's gate (`consistency.mean_nis_band`). Outside: suspect. Unreliable when the
-  mean is also more than 9 times its expectation: the errors are then over 3 times the sigmas, so
-  the written sigmas (and anything computed from them) are meaningless. A chain that updates at the
-  IMU rate (`NisRules.serial`) counts its updates by their AR(1) effective sample size
-  (`consistency.effective_sample_size`); kinds its gate does not apply to (`NisRules.ungated_kinds`) get the
-  plain chi-square band. A run whose prior and process noise were divided by an information share
-  beta (the `share` column: a federated local filter, paper 000 Eq. 23-24) bounds its errors by
-  design, so its expected mean lies between beta and 1 times the chi-square's: the band's low end
-  is scaled by beta. Kinds whose noise is a bound on a motion (`NisRules.one_sided_kinds`) are tested on
-  the high side only.
+  updates and the chain's gate (`consistency.mean_nis_band`). Outside: suspect. Unreliable when the mean
+  is also more than 9 times its expectation: the errors are then over 3 times the sigmas, so the written
+  sigmas (and anything computed from them) are meaningless. A chain that updates at the IMU rate
+  (`NisRules.serial`) counts its updates by their effective sample size
+  (`consistency.effective_sample_size`: n / τ, τ their integrated autocorrelation time); kinds its gate
+  does not apply to (`NisRules.ungated_kinds`) get the plain chi-square band. A run whose prior and
+  process noise were divided by an information share beta (the `share` column: a federated local filter,
+  paper 000 Eq. 23-24) bounds its errors by design, so its expected mean lies between beta and 1 times
+  the chi-square's: the band's low end is scaled by beta. Kinds whose noise is a bound on a motion
+  (`NisRules.one_sided_kinds`) are tested on the high side only.
 - `rejections`: rejected updates against Binomial(n, 1 - gate). Real environments have outliers
   (multipath, NLOS ranges): suspect only when the rate is, at 99.9 % confidence (Clopper-Pearson),
   above `OUTLIER_ALLOWANCE` on top of the gate's own rate; unreliable when more than half of the
@@ -26,8 +26,8 @@ test, never against values seen on particular logs:
 - `fusion`: a local filter the federated fusion left out for more than `DISTURBED_ALLOWANCE`.
 - `bias`: bias states that settled more than 3.29 of their prior SDs from zero (`bias_findings`).
 - `flags`: epochs where the forward and backward runs disagree beyond their covariances (the
-  chain's `flag` column, tested at its `flag_probability`), counted with the AR(1) effective
-  sample size of the flag series: suspect when significantly more than the flag rate;
+  chain's `flag` column, tested at its `flag_probability`), counted with the effective
+  sample size of the flag series (`consistency.effective_sample_size`): suspect when significantly more than the flag rate;
   unreliable when more than half of the epochs are flagged.
 - `aiding`: a chain that needs GPS, anchor ranges or rangefinders but used none (e.g. a GPS clock
   1e6 s off puts every fix outside the IMU log): unreliable.
@@ -74,7 +74,7 @@ class NisRules:
 
     `ungated_kinds`: kinds the chain's gate does not apply to (plain chi-square band). `one_sided_kinds`:
     kinds whose noise is a bound on a motion, not a sensor's noise, tested on the high side only.
-    `serial`: the updates come at the IMU rate, so each mean counts their AR(1) effective sample size
+    `serial`: the updates come at the IMU rate, so each mean counts their effective sample size
     (`consistency.effective_sample_size`; n when the innovations are white, as a consistent filter's are:
     the band is then unchanged). `high_meaning`: what a mean above its band says (the reason's end)."""
 
