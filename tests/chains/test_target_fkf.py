@@ -296,3 +296,23 @@ def test_the_magnetometer_update_holds_the_surveys_field_departure(tmp_path, mon
         assert s.mag_nis_ratio * s.noise.mag_noise_ut**2 == pytest.approx(3.0 * white**2, rel=1e-12)
     assert seen["summary"]["imu_noise"]["mag_update_sd_ut"]["value"] == pytest.approx(np.hypot(white, 0.4), abs=1e-6)
     assert seen["summary"]["magnetic_survey"]["field_sd_ut"] == 0.4
+
+
+def test_the_hand_models_nis_is_split_into_still_and_moving():
+    # in a still period the oscillator's bound (q T) dwarfs what the accelerometer shows (BROAD: NIS ~0.01 per dof
+    # over ~40 % of the updates): one mean over both would read ~1 where the moving updates alone read 1.6-2.9
+    from types import SimpleNamespace
+
+    from tpos_cli.chains.target_fkf import innovations_table
+
+    t = np.arange(6, dtype=float)
+    nis = {"acc": np.array([0.03, np.nan, 6.0, 0.02, 9.0, np.nan]), "mag": np.full(6, 3.0)}
+    sol = SimpleNamespace(t_s=t, nis=nis, nis_backward=None)
+    still = np.array([True, True, False, True, False, False])
+    tab = innovations_table({"lf1": sol}, 0.0, 1.0, still, 100.0)
+    hand = tab[tab.solution.eq("lf1_forward") & tab.kind.str.startswith("hand")]
+    assert hand.kind.tolist() == ["hand_still", "hand", "hand_still", "hand"]
+    assert hand.t.tolist() == [100.0, 102.0, 103.0, 104.0] and set(hand.dof) == {3}
+    assert (tab.kind == "mag").sum() == 6
+    # without the hand model the accelerometer's updates are gravity's
+    assert set(innovations_table({"lf1": sol}, 0.0, 1.0, None, 0.0).kind) == {"acc", "mag"}
