@@ -316,3 +316,18 @@ def test_the_hand_models_nis_is_split_into_still_and_moving():
     assert (tab.kind == "mag").sum() == 6
     # without the hand model the accelerometer's updates are gravity's
     assert set(innovations_table({"lf1": sol}, 0.0, 1.0, None, 0.0).kind) == {"acc", "mag"}
+
+
+def test_a_clean_mems_sessions_hand_and_range_nis_count_the_accelerometer_bias(tmp_path):
+    # a consumer-MEMS accelerometer bias (10 mg: ~0.6 deg of levelling tilt) is carried as a sensitivity outside the
+    # filters' P (`_kernels.Init.S0`); the recorded NIS must count it (`_kernels.consider_innovation_cov`), else the
+    # hand model's and the beams' NIS read 1.2-1.5 times their expectation on a clean session and the fault detector
+    # drops LF2 for a quarter of it. Band: the quality check's own (level ok); LF2 kept >= 95 % of the log
+    sim = simulate_target(90.0, seed=31, grade="mems")
+    d = write_session(sim, tmp_path / "s", overwrite=True)
+    rs = process_session(d, "target-fkf", tmp_path / "run")
+    checks = rs.summary["quality"]["checks"]
+    for k in [f"nis.lf{i}_{r}.hand" for i in (1, 2) for r in ("forward", "backward")] + \
+             [f"nis.lf2_{r}.range" for r in ("forward", "backward")]:
+        assert checks[k].get("level", "ok") == "ok", (k, checks[k])
+    assert rs.summary["results"]["faults"]["lf2"]["excluded_fraction"] <= 0.05, rs.summary["results"]["faults"]

@@ -70,7 +70,10 @@ class Noise(NamedTuple):
     """q_att rad^2 per sample (gyro white noise); q_sf relative variance of a sample's rotation angle
     (scale factor); q_bg (rad/s)^2/s and q_ba (m/s^2)^2/s bias random walks; q_m per s (random walk of
     each element of M); q_vel (m/s)^2 per sample (accelerometer white noise in the velocity); r_mag uT^2
-    per axis; r_rng (2,2) m^2."""
+    per axis; r_rng (2,2) m^2. var_ba (m/s^2)^2 the accelerometer bias's variance per axis, var_ba_prior the
+    part of it the prior's bias state holds (var_ba / beta), var_gm the variance of each element of the gyro's
+    constant scale/misalignment dM: the errors the filter carries as sensitivities (`Init.S0`), which the
+    recorded NIS counts (`consider_innovation_cov`)."""
 
     q_att: float
     q_sf: float
@@ -80,6 +83,9 @@ class Noise(NamedTuple):
     q_vel: float
     r_mag: float
     r_rng: np.ndarray
+    var_ba: float
+    var_ba_prior: float
+    var_gm: float
 
 
 class Hand(NamedTuple):
@@ -283,6 +289,44 @@ def _tracked_update(x, P, z, H, R, Sv, Z):
 
 
 @njit(cache=True)
+def consider_innovation_cov(S, H, Sv, Z, nz):
+    """(m,m) covariance of an innovation's error with the errors the filter carries as sensitivities: the
+    state error is e = a + Sv[:, 0:3] b_a + Sv[:, S_GYRO:] vec(dM) with a independent of b_a and dM, of which
+    the filter's P holds a plus Sv[:, 3:6] b_a (its bias prior, `Init.S0`), so
+    S_e = S - var_ba_prior B B^T + var_ba A A^T + var_gm G G^T, A = H Sv[:, 0:3] + Z, B = H Sv[:, 3:6],
+    G = H Sv[:, S_GYRO:] (`local.honest_covariance` for the innovation). S = H P H^T + R the filter's own."""
+    m = H.shape[0]
+    HS = np.empty((m, Sv.shape[1]))
+    matmul_into(H, Sv, HS)
+    out = S.copy()
+    for i in range(m):
+        for j in range(m):
+            acc = 0.0
+            for c in range(3):
+                acc += nz.var_ba * (HS[i, c] + Z[i, c]) * (HS[j, c] + Z[j, c]) - nz.var_ba_prior * HS[i, 3 + c] * HS[j, 3 + c]
+            if Sv.shape[1] >= S_GYRO + 9:
+                for c in range(S_GYRO, S_GYRO + 9):
+                    acc += nz.var_gm * HS[i, c] * HS[j, c]
+            out[i, j] += acc
+    return out
+
+
+@njit(cache=True)
+def _honest_nis(P, z, H, R, Sv, Z, nz):
+    """NIS of the innovation z (error state zero) against `consider_innovation_cov`; NaN if it is not PD."""
+    S = H @ P @ H.T + R
+    Se = consider_innovation_cov(0.5 * (S + S.T), H, Sv, Z, nz)
+    Se = 0.5 * (Se + Se.T)
+    m = z.shape[0]
+    L = np.empty((m, m))
+    if not cholesky_into(Se, L):
+        return np.nan
+    y = np.empty(m)
+    cho_solve_into(L, z, y)
+    return float(z @ y)
+
+
+@njit(cache=True)
 def _consider_update(x, P, z, H, R, n_keep, keep):
     """Kalman update whose gain is zero outside the `keep` states (Schmidt consider update, Joseph
     form, valid for any gain): the others' uncertainty enters S but they are never corrected."""
@@ -443,7 +487,9 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                     H[i, i_s + i] = hf[i]
                 hf = hf + sa * hf
             z = s.acc[k] - (hf + ba)
-            out.nis_acc[k] = _tracked_update(x, P, z, H, np.eye(3) * s.grav_var[k], Sv, z3)
+            nis_e = _honest_nis(P, z, H, np.eye(3) * s.grav_var[k], Sv, z3, nz)
+            if _tracked_update(x, P, z, H, np.eye(3) * s.grav_var[k], Sv, z3) >= 0.0:
+                out.nis_acc[k] = nis_e
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         # ---- hand model: the velocity change of the interval equals the model's integrated acceleration
         if (use & USE_ACC) != 0 and use_osc and acc_k >= hand.step:
@@ -460,7 +506,9 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                 Ho[i, i_v + i] = c_v * acc_T
                 Ho[i, i_v + 3 + i] = c_p * acc_T
                 Ro[i, i] = hand.q * acc_T + nz.q_vel * acc_k
-            out.nis_acc[k] = _tracked_update(x, P, z, Ho, Ro, Sv, z3)
+            nis_e = _honest_nis(P, z, Ho, Ro, Sv, z3, nz)
+            if _tracked_update(x, P, z, Ho, Ro, Sv, z3) >= 0.0:
+                out.nis_acc[k] = nis_e
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
             acc_dv[:] = 0.0
             acc_dvf[:] = 0.0
@@ -513,7 +561,8 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                     ok = False
             out.mag_ok[k] = ok
             if ok:
-                out.nis_mag[k] = nis  # the NIS of the updates made (a rejected field is no update)
+                # the NIS of the updates made (a rejected field is no update), against the error's whole covariance
+                out.nis_mag[k] = _honest_nis(P, z, H, R, Sv, z3, nz)
                 if gates.mag_consider:
                     Km = _consider_update(x, P, z, H, R, n, keep)
                     _sens_update(Sv, Km, H, z3)
@@ -530,14 +579,14 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                 Patt = np.ascontiguousarray(P[0:3, 0:3])
                 S = Hr @ Patt @ np.ascontiguousarray(Hr.T) + nz.r_rng
                 nis = z @ np.linalg.solve(S, z)
-                out.nis_rng[k] = nis
+                # the wall's azimuth error (from the levelled alignment) biases both differences
+                # like a heading error of the device: dz = Hr[:, 2] d(azimuth)
+                Zr = np.empty((2, 3))
+                for i in range(2):
+                    for j in range(3):
+                        Zr[i, j] = Hr[i, 2] * fr.wall_sens[j]
+                out.nis_rng[k] = _honest_nis(P, z, H, nz.r_rng, Sv, Zr, nz)
                 if gates.rng_gate <= 0.0 or nis < gates.rng_gate:
-                    # the wall's azimuth error (from the levelled alignment) biases both differences
-                    # like a heading error of the device: dz = Hr[:, 2] d(azimuth)
-                    Zr = np.empty((2, 3))
-                    for i in range(2):
-                        for j in range(3):
-                            Zr[i, j] = Hr[i, 2] * fr.wall_sens[j]
                     _tracked_update(x, P, z, H, nz.r_rng, Sv, Zr)
                     C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
         C = orthonormalize(C)

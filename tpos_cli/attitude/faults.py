@@ -71,8 +71,10 @@ def _nis_alarm(t_s, nis: dict, cfg: FaultConfig) -> np.ndarray:
     return alarm
 
 
-def detect(sols: list[AttitudeSolution], cfg: FaultConfig = FaultConfig(), range_gate_chi2: float = 0.0) -> FaultReport:
-    """Run the detector over local solutions sharing one time axis; see the module docstring."""
+def detect(sols: list[AttitudeSolution], cfg: FaultConfig = FaultConfig(), range_gate_chi2: float = 0.0,
+           acc_bias_var: float = 0.0) -> FaultReport:
+    """Run the detector over local solutions sharing one time axis; see the module docstring. `acc_bias_var`
+    (m/s^2)^2: the accelerometer bias the solutions carry as a sensitivity (`master.consistency_nis`)."""
     S = len(sols)
     t = sols[0].t_s
     n = t.size
@@ -89,7 +91,7 @@ def detect(sols: list[AttitudeSolution], cfg: FaultConfig = FaultConfig(), range
     cons = np.ones((S, S, n), dtype=bool)
     for i in range(S):
         for j in range(i + 1, S):
-            c = consistency_nis(sols[i], sols[j]) < thr
+            c = consistency_nis(sols[i], sols[j], acc_bias_var) < thr
             cons[i, j] = cons[j, i] = c
     ok = np.ones((S, n), dtype=bool)
     _hold_faults(np.ascontiguousarray(t, dtype=float), alarm | bad, cons, float(cfg.recover_s), ok)

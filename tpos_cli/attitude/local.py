@@ -339,7 +339,8 @@ def run_full(name, t_s, gyro_b_rps, acc_b_mps2, mag_b_ut, rdiff_m, setup: Filter
     kn = K.Noise((noise.gyro_noise_rps * dt_mean) ** 2 / beta, noise.gyro_scale_sd**2 / beta,
                  noise.gyro_bias_rw_rps_rts**2 / beta, noise.acc_bias_rw_mps2_rts**2 / beta,
                  setup.gyro_err_rw_rts**2 / beta, (noise.acc_noise_mps2 * dt_mean) ** 2,
-                 noise.mag_noise_ut**2, r_rng)
+                 noise.mag_noise_ut**2, r_rng, noise.acc_bias_mps2**2, noise.acc_bias_mps2**2 / beta,
+                 noise.gyro_scale_const_sd**2)
     gates = K.Gates(int(use), bool(setup.gyro_err_sd > 0.0), bool(setup.acc_scale_sd > 0.0), bool(setup.mag_consider),
                     float(setup.mag_norm_tol_ut),
                     float(setup.mag_dip_tol_rad), float(setup.mag_nis_tau_s), float(setup.mag_nis_ratio),

@@ -176,8 +176,14 @@ def difference_cov(a: AttitudeSolution, b: AttitudeSolution, gyro_scale: bool = 
     return D
 
 
-def consistency_nis(a: AttitudeSolution, b: AttitudeSolution) -> np.ndarray:
-    """(N,) chi-square(3) statistic of the attitude difference of two solutions (`difference_cov`)."""
+def consistency_nis(a: AttitudeSolution, b: AttitudeSolution, acc_bias_var: float = 0.0) -> np.ndarray:
+    """(N,) chi-square(3) statistic of the attitude difference of two solutions (`difference_cov`). With
+    `acc_bias_var` > 0 and both sensitivities, the accelerometer bias b_a ~ N(0, acc_bias_var I) they carry
+    (`AttitudeSolution.S_ba`) counts as it acts on the difference: the priors' shares Q_a + Q_b out,
+    acc_bias_var (S_a - S_b)(S_a - S_b)^T in (`local.honest_covariance` for the difference)."""
     d = dcm_to_rotvec(a.C_nb @ np.swapaxes(b.C_nb, 1, 2))
     S = difference_cov(a, b)
+    if acc_bias_var > 0.0 and a.S_ba is not None and b.S_ba is not None and a.Q_ba is not None and b.Q_ba is not None:
+        E = a.S_ba - b.S_ba
+        S = S - a.Q_ba - b.Q_ba + acc_bias_var * (E @ np.swapaxes(E, 1, 2))
     return np.einsum("ni,ni->n", d, np.linalg.solve(S, d[..., None])[..., 0])

@@ -589,12 +589,14 @@ def unresolved_offset_heading(sols: dict, field, session: Session, start: End, c
     return {**sols, "lf1": add_heading_variance(lf1, var)}
 
 
-def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContext, summary: dict) -> dict:
-    """`fkf` (Eq. 27 with the fault detector's weights) and `fkf_raw` (the paper's plain fusion)."""
+def federate(sols: dict, p: TargetFkfParams, gate_chi2: float, t, ctx: RunContext, summary: dict,
+             acc_bias_var: float = 0.0) -> dict:
+    """`fkf` (Eq. 27 with the fault detector's weights) and `fkf_raw` (the paper's plain fusion); `acc_bias_var`
+    the accelerometer bias's variance the local filters carry as a sensitivity (the detector's consistency test)."""
     with ctx.stage("federated fusion"):
         locals_ = [sols[k] for k in ("lf1", "lf2") if k in sols]
         if len(locals_) == 2:
-            fr = faults.detect(locals_, p.fault, gate_chi2)
+            fr = faults.detect(locals_, p.fault, gate_chi2, acc_bias_var)
             # nothing after the federation reads the fused solutions' gyro-scale or alignment sensitivities
             # (their share is in P_att): only what `with_levelling` and targeting read is kept
             sols["fkf"] = _covariance_parts(master.fuse("fkf", locals_, fr.weights() if p.fault_tolerant else None))
@@ -757,7 +759,8 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
                                     session.t0_s)
     sols = unsupported_heading(sols, field.mag_b_ut if field is not None else session.imu.mag_b_ut, decl, ctx, summary)
     sols = unresolved_offset_heading(sols, field, session, start, ctx, summary)
-    sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary)
+    sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary,
+                    noise.acc_bias_mps2**2 if tracked else 0.0)
     summary["levelling_consider_sigma_deg"] = np.degrees(np.sqrt(np.diag(P_lev))).round(4).tolist()
     # what targeting reads of the unlevelled fkf (`_apply_offsets`); each solution then keeps its attitude and
     # levelled covariance only, the rest freed as it goes (an hour at 100 Hz: ~0.2 GB per solution)
