@@ -576,16 +576,19 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                 H = np.zeros((2, n))
                 H[:, 0:3] = Hr
                 z = s.rdiff[k] - hr
-                Patt = np.ascontiguousarray(P[0:3, 0:3])
-                S = Hr @ Patt @ np.ascontiguousarray(Hr.T) + nz.r_rng
-                nis = z @ np.linalg.solve(S, z)
                 # the wall's azimuth error (from the levelled alignment) biases both differences
                 # like a heading error of the device: dz = Hr[:, 2] d(azimuth)
                 Zr = np.empty((2, 3))
                 for i in range(2):
                     for j in range(3):
                         Zr[i, j] = Hr[i, 2] * fr.wall_sens[j]
-                out.nis_rng[k] = _honest_nis(P, z, H, nz.r_rng, Sv, Zr, nz)
+                # gated on the NIS it records (the innovation's whole covariance), so that the innovations
+                # table's `accepted` (recorded NIS below the gate) is the update's own decision
+                nis = _honest_nis(P, z, H, nz.r_rng, Sv, Zr, nz)
+                if np.isnan(nis):
+                    Patt = np.ascontiguousarray(P[0:3, 0:3])
+                    nis = z @ np.linalg.solve(Hr @ Patt @ np.ascontiguousarray(Hr.T) + nz.r_rng, z)
+                out.nis_rng[k] = nis
                 if gates.rng_gate <= 0.0 or nis < gates.rng_gate:
                     _tracked_update(x, P, z, H, nz.r_rng, Sv, Zr)
                     C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
