@@ -104,7 +104,8 @@ def effective_sample_size(x) -> float:
     beside a fast one, the windowed sum a correlation longer than a short series can show (a few long runs
     of flags in 1000 epochs: its window stops where the estimated correlations of a short series turn
     negative). Under-reading τ makes a consistent run's mean fall outside its band more often than the
-    band's probability says; over-reading it only widens the band, so the larger reading is taken."""
+    band's probability says (false alarms); over-reading it widens the band, which costs the test power
+    against a small misstatement but never calls a consistent run wrong: the larger reading is taken."""
     v = np.asarray(x, dtype=float).ravel()
     v = v[np.isfinite(v)]
     n = v.size

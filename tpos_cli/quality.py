@@ -25,9 +25,9 @@ test, never against values seen on particular logs:
   direction gives (`stated_mounting_findings`: wrong by tens of degrees, or written in radians).
 - `fusion`: a local filter the federated fusion left out for more than `DISTURBED_ALLOWANCE`.
 - `bias`: bias states that settled more than 3.29 of their prior SDs from zero (`bias_findings`).
-- `flags`: epochs where the forward and backward runs disagree beyond their covariances (the
-  chain's `flag` column, tested at its `flag_probability`), counted with the effective
-  sample size of the flag series (`consistency.effective_sample_size`): suspect when significantly more than the flag rate;
+- `flags`: epochs where the forward and backward runs disagree beyond their covariances (the chain's
+  `flag` column, tested at its `flag_probability`), counted with the effective sample size of the flag
+  series (`consistency.effective_sample_size`): suspect when significantly more than the flag rate;
   unreliable when more than half of the epochs are flagged.
 - `aiding`: a chain that needs GPS, anchor ranges or rangefinders but used none (e.g. a GPS clock
   1e6 s off puts every fix outside the IMU log): unreliable.
