@@ -280,7 +280,7 @@ def test_the_magnetometer_update_holds_the_surveys_field_departure(tmp_path, mon
     class Stop(Exception):
         pass
 
-    def capture(session, p, setups, field, beams, ends, noise, decl, ctx, summary, fb_diff_cov=None):
+    def capture(session, p, setups, field, beams, ends, noise, decl, ctx, summary, still, fb_diff_cov=None):
         seen.update(setups=setups, noise=noise, summary=summary)
         raise Stop
 

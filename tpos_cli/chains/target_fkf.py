@@ -423,9 +423,10 @@ def _fit_motion(setups: Setups, p: TargetFkfParams, t, gyro_sol: AttitudeSolutio
 
 
 def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, beams: Beams, ends, noise, decl,
-                  ctx: RunContext, summary: dict, fb_diff_cov=None) -> dict:
+                  ctx: RunContext, summary: dict, still, fb_diff_cov=None) -> dict:
     """gyro, lf1 and (with beams) lf2, each smoothed by independent forward and backward runs
-    (`fb_diff_cov`: the runs' expected difference their covariances leave out, `smoother.fb_scale`)."""
+    (`still`: the full model's still samples, `still_mask`, None for paper8; `fb_diff_cov`: the runs' expected
+    difference their covariances leave out, `smoother.fb_scale`)."""
     imu = session.imu
     t = imu.t_s
     with ctx.stage("local filters"):
@@ -436,7 +437,6 @@ def local_filters(session: Session, p: TargetFkfParams, setups: Setups, field, b
             setups = replace(setups, forward=replace(setups.forward, beta=1.0), backward=replace(setups.backward, beta=1.0))
         if p.model == "full":
             mot = K.USE_MOTION if p.motion_model else 0
-            still = still_mask(session, p)
             ctx.count("still_samples", int(still.sum()))
             if p.motion_model and p.motion_fit:
                 setups = _fit_motion(setups, p, t, sols["gyro"], imu.acc_b_mps2, still, summary, ctx)
@@ -753,10 +753,11 @@ def run(session: Session, p: TargetFkfParams, ctx: RunContext) -> ChainOutput:
         lev_var = noise.acc_bias_mps2**2 * float(maps[0][2] @ maps[0][2])
         beams = replace(beams, wall_lev_var_rad2=min(lev_var, beams.wall_var_rad2))
     setups = with_wall(setups, beams)
-    sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, fb_diff_cov=D_lev)
+    still = still_mask(session, p) if p.model == "full" else None
+    sols = local_filters(session, p, setups, field, beams, (start, end), noise, decl, ctx, summary, still,
+                         fb_diff_cov=D_lev)
     innovations = innovations_table(sols, setups.forward.range_gate_chi2, 1.0 if beams.rdiff is None else p.beta,
-                                    still_mask(session, p) if (p.model == "full" and p.motion_model) else None,
-                                    session.t0_s)
+                                    still if p.motion_model else None, session.t0_s)
     sols = unsupported_heading(sols, field.mag_b_ut if field is not None else session.imu.mag_b_ut, decl, ctx, summary)
     sols = unresolved_offset_heading(sols, field, session, start, ctx, summary)
     sols = federate(sols, p, setups.forward.range_gate_chi2, session.imu.t_s, ctx, summary,
