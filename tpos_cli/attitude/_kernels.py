@@ -312,9 +312,9 @@ def consider_innovation_cov(S, H, Sv, Z, nz):
 
 
 @njit(cache=True)
-def _honest_nis(P, z, H, R, Sv, Z, nz):
-    """NIS of the innovation z (error state zero) against `consider_innovation_cov`; NaN if it is not PD."""
-    S = H @ P @ H.T + R
+def _honest_nis(S, z, H, Sv, Z, nz):
+    """NIS of the innovation z (error state zero) against `consider_innovation_cov` of the filter's own
+    S = H P H^T + R (the caller's: the field update has it already); NaN if that is not PD."""
     Se = consider_innovation_cov(0.5 * (S + S.T), H, Sv, Z, nz)
     Se = 0.5 * (Se + Se.T)
     m = z.shape[0]
@@ -487,7 +487,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                     H[i, i_s + i] = hf[i]
                 hf = hf + sa * hf
             z = s.acc[k] - (hf + ba)
-            nis_e = _honest_nis(P, z, H, np.eye(3) * s.grav_var[k], Sv, z3, nz)
+            nis_e = _honest_nis(H @ P @ H.T + np.eye(3) * s.grav_var[k], z, H, Sv, z3, nz)
             if _tracked_update(x, P, z, H, np.eye(3) * s.grav_var[k], Sv, z3) >= 0.0:
                 out.nis_acc[k] = nis_e
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
@@ -506,7 +506,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                 Ho[i, i_v + i] = c_v * acc_T
                 Ho[i, i_v + 3 + i] = c_p * acc_T
                 Ro[i, i] = hand.q * acc_T + nz.q_vel * acc_k
-            nis_e = _honest_nis(P, z, Ho, Ro, Sv, z3, nz)
+            nis_e = _honest_nis(Ho @ P @ Ho.T + Ro, z, Ho, Sv, z3, nz)
             if _tracked_update(x, P, z, Ho, Ro, Sv, z3) >= 0.0:
                 out.nis_acc[k] = nis_e
             C = _feedback(x, C, b, ba, M, v, p, i_m, i_v, sa, i_s)
@@ -562,7 +562,7 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
             out.mag_ok[k] = ok
             if ok:
                 # the NIS of the updates made (a rejected field is no update), against the error's whole covariance
-                out.nis_mag[k] = _honest_nis(P, z, H, R, Sv, z3, nz)
+                out.nis_mag[k] = _honest_nis(S, z, H, Sv, z3, nz)
                 if gates.mag_consider:
                     Km = _consider_update(x, P, z, H, R, n, keep)
                     _sens_update(Sv, Km, H, z3)
@@ -584,10 +584,10 @@ def marg_filter(s, fr, nz, hand, gates, init, out):
                         Zr[i, j] = Hr[i, 2] * fr.wall_sens[j]
                 # gated on the NIS it records (the innovation's whole covariance), so that the innovations
                 # table's `accepted` (recorded NIS below the gate) is the update's own decision
-                nis = _honest_nis(P, z, H, nz.r_rng, Sv, Zr, nz)
+                S = H @ P @ H.T + nz.r_rng
+                nis = _honest_nis(S, z, H, Sv, Zr, nz)
                 if np.isnan(nis):
-                    Patt = np.ascontiguousarray(P[0:3, 0:3])
-                    nis = z @ np.linalg.solve(Hr @ Patt @ np.ascontiguousarray(Hr.T) + nz.r_rng, z)
+                    nis = z @ np.linalg.solve(S, z)
                 out.nis_rng[k] = nis
                 if gates.rng_gate <= 0.0 or nis < gates.rng_gate:
                     _tracked_update(x, P, z, H, nz.r_rng, Sv, Zr)
