@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
-from scipy.linalg import expm
+from scipy.linalg import expm, solve_continuous_lyapunov
 from scipy.stats import chi2
 
 from tests.attitude.gen import make
@@ -13,6 +13,7 @@ from tests.attitude.test_local import _nees, _rpy, _setup
 from tpos_cli.attitude import _kernels as K
 from tpos_cli.attitude.local import run_full
 from tpos_cli.attitude.motion import fit_oscillator, oscillator_psd
+from tpos_cli.config import TargetFkfParams
 from tpos_cli.errors import ProcessingError
 
 SEEDS = 10
@@ -22,19 +23,38 @@ def _oscillator_path(freq_hz, zeta, sd_m, duration_s, dt, seed):
     """(t, p, a) exact discrete samples of p'' = -w0^2 p - 2 zeta w0 p' + w (3 axes, stationary start);
     a is the mean acceleration over each interval (velocity difference / dt), the IMU convention."""
     w0 = 2 * np.pi * freq_hz
-    q = 4 * zeta * w0**3 * sd_m**2
     F = np.array([[0.0, 1.0], [-w0**2, -2 * zeta * w0]])
-    Phi = expm(F * dt)
-    # Van Loan discretization of the white-noise input, exact for this linear model
-    M = expm(np.block([[-F, np.diag([0.0, q])], [np.zeros((2, 2)), F.T]]) * dt)
-    Qd = Phi @ M[0:2, 2:4]
-    L = np.linalg.cholesky(0.5 * (Qd + Qd.T))
     r = np.random.default_rng(seed)
+    x0 = np.array([[sd_m], [w0 * sd_m]]) * r.normal(size=(2, 3))
+    return _linear_path(F, np.diag([0.0, 4 * zeta * w0**3 * sd_m**2]), x0, duration_s, dt, r)
+
+
+def _anchored_path(freq_hz, zeta, sd_m, anchor_sd_m, anchor_tau_s, duration_s, dt, seed):
+    """(t, p, a) exact discrete samples of a hand that swings about a slowly wandering anchor x (3 axes,
+    stationary start): p'' = -w0^2 (p - x) - 2 zeta w0 p' + w, x' = -x / tau + n (first-order Gauss-Markov,
+    SD anchor_sd_m); sd_m the oscillator's own SD (its white drive as in `_oscillator_path`)."""
+    w0 = 2 * np.pi * freq_hz
+    F = np.array([[0.0, 1.0, 0.0], [-w0**2, -2 * zeta * w0, w0**2], [0.0, 0.0, -1.0 / anchor_tau_s]])
+    Qc = np.diag([0.0, 4 * zeta * w0**3 * sd_m**2, 2 * anchor_sd_m**2 / anchor_tau_s])
+    r = np.random.default_rng(seed)
+    P = solve_continuous_lyapunov(F, -Qc)  # the stationary covariance: F P + P F^T + Qc = 0
+    return _linear_path(F, Qc, np.linalg.cholesky(P) @ r.normal(size=(3, 3)), duration_s, dt, r)
+
+
+def _linear_path(F, Qc, x0, duration_s, dt, r):
+    """(t, p, a) of x' = F x + white noise of PSD Qc from x0 ((m, 3): states by axis; rows p, v first),
+    sampled exactly (Van Loan discretization of the white-noise input); a is the mean acceleration over
+    each interval (velocity difference / dt), the IMU convention."""
+    m = F.shape[0]
+    Phi = expm(F * dt)
+    M = expm(np.block([[-F, Qc], [np.zeros((m, m)), F.T]]) * dt)
+    Qd = Phi @ M[0:m, m:2 * m]
+    L = np.linalg.cholesky(0.5 * (Qd + Qd.T))
     n = int(duration_s / dt)
-    x = np.zeros((n, 2, 3))
-    x[0] = np.array([[sd_m], [w0 * sd_m]]) * r.normal(size=(2, 3))
+    x = np.zeros((n, m, 3))
+    x[0] = x0
     for k in range(1, n):
-        x[k] = Phi @ x[k - 1] + L @ r.normal(size=(2, 3))
+        x[k] = Phi @ x[k - 1] + L @ r.normal(size=(m, 3))
     p, v = x[:, 0, :], x[:, 1, :]
     a = np.zeros_like(v)
     a[1:] = np.diff(v, axis=0) / dt
@@ -115,3 +135,31 @@ def test_fit_takes_the_accelerometer_noise_floor_out_of_the_hand_motion():
     assert loud.sd_m > 1.3 * 0.002
     assert fit.sd_m == pytest.approx(0.002, rel=0.15)
     assert fit.freq_hz == pytest.approx(0.6, rel=0.10)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known gap (issue 13): a hand that swings about a slowly wandering mean position (BROAD's truth: 2-5x the fitted "
+    "displacement, 30-95 % of its power below 0.3 Hz) is fitted by one oscillator that lacks the slow part; the filter "
+    "takes that displacement for tilt and its attitude sigmas understate the error (measured: the default fit gives "
+    "0.52 Hz, damping 0.12, 7 cm; mean NEES 19.9 for 3 dof; on the real trials the hand NIS is 1.2-2.7x). An anchored "
+    "model (session 24, branch s24-hand) is consistent here but costs accuracy on the real trials (marg_real mean "
+    ".589 -> .616): not landed"))
+def test_one_oscillator_fitted_to_a_hand_with_a_wandering_mean_is_not_over_confident():
+    # a 0.6 Hz swing (3 cm of its own) about a mean position wandering 10 cm with 1 s correlation
+    t, _, a = _anchored_path(0.6, 0.3, 0.03, 0.10, 1.0, 1200.0, 0.01, seed=11)
+    a_meas = a + np.random.default_rng(12).normal(0, 0.02, a.shape)
+    lo_hz, hi_hz = TargetFkfParams().motion_fit_band_hz  # the default fit, as `tpos process` runs it
+    fit = fit_oscillator(t, a_meas, np.ones(t.size, bool), band_hz=(lo_hz, hi_hz), acc_noise_mps2=0.02)
+    nees = []
+    for seed in range(4):
+        tp, p, _ = _anchored_path(0.6, 0.3, 0.03, 0.10, 1.0, 61.0, 0.01, seed=300 + seed)
+        spl = CubicSpline(tp, p, axis=0)
+        rng = np.random.default_rng(100 + seed)
+        g = make(_rpy, duration_s=60.0, seed=seed, bias_rps=rng.normal(0, 3e-5, 3), pos_fn=lambda s: spl(s))
+        st = replace(_setup(g, rng), motion_freq_hz=fit.freq_hz, motion_damping=fit.damping, motion_sd_m=fit.sd_m)
+        sol = run_full("lf1", g.t, g.gyro, g.acc, g.mag, None, st, K.USE_ACC | K.USE_MAG | K.USE_MOTION,
+                       still=np.zeros(g.t.size, dtype=bool))
+        nees.append(_nees(sol, g.C)[np.arange(1000, g.t.size, 500)])  # every 5 s from 10 s: nearly independent
+    nees = np.concatenate(nees)
+    # 4 runs x 10 epochs of a 3-dof NEES: below the 97.5 % point of the mean (never over-confident)
+    assert nees.mean() < chi2.ppf(0.975, 3 * nees.size) / nees.size, (nees.mean(), fit)
