@@ -24,6 +24,10 @@ inside by construction (the alignment's heading prior is .000-.003 deg on these 
 removing an offset could only lower the NEES. The per-axis NEES above rebuild a NED covariance from the three
 written Euler sigmas as if independent; the column "NEES roll pitch yaw" scores each written sigma against its
 own angle's error (`euler_nees`), the exact test of what the trajectory states.
+The second table checks the hand-motion model the accelerometer is read against (`attitude.motion`): per frequency
+band, the power of the log's own NED acceleration (the gyro-only attitude's C f + g, what the chain fits) and of
+the optical truth's kinematic acceleration (its positions differentiated twice, 0.15 s Savitzky-Golay), each over
+the fitted oscillator's power in that band (1: the model holds what the log holds).
 The last column needs no truth: LF1's forward/backward consistency scales, tilt (`smoother.fb_scale`, mean NEES per
 dof of the two runs' difference against their own covariances; 1 for honest runs) and heading (`smoother.heading_split`:
 the same test with the gyro scale/misalignment drift the difference holds taken out; 0 where that drift explains
@@ -41,10 +45,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pymap3d as pm
 from scipy.ndimage import uniform_filter1d
+from scipy.signal import savgol_filter, welch
 from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
+from tpos_cli.attitude.motion import oscillator_psd
 from tpos_cli.frames.rotation import attitude_cov_from_euler_sigmas, dcm_to_rotvec, euler_error_map, euler_to_dcm, quat_to_dcm
 from tpos_cli.pipeline import process_session
 from tpos_cli.session import load_session
@@ -148,11 +155,35 @@ def euler_nees(e_deg, C, sig_rpy_deg):
     return np.mean(d**2 / np.radians(sig_rpy_deg) ** 2, axis=0)
 
 
+#: bands (Hz) of the hand-model check: below the fit's band, then across it
+HAND_BANDS_HZ = ((0.05, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 2.0), (2.0, 5.0))
+
+
+def band_power(t_s, acc_ned_mps2, moving_fraction, bands=HAND_BANDS_HZ):
+    """((m/s^2)^2) mean per-axis power of an NED acceleration in each band while moving (Welch, 20 s segments,
+    divided by the moving fraction as `motion.fit_oscillator` does), and (f, df) of the spectrum."""
+    dt = float(np.median(np.diff(t_s)))
+    a = np.where(np.isfinite(acc_ned_mps2), acc_ned_mps2, 0.0)
+    f, S = welch(a - a.mean(axis=0), fs=1.0 / dt, nperseg=int(round(20.0 / dt)), axis=0)
+    S = S.mean(axis=1) / moving_fraction
+    return np.array([S[(f >= lo) & (f < hi)].sum() * (f[1] - f[0]) for lo, hi in bands]), f
+
+
+def truth_acc_ned(t_s, truth):
+    """(N,3) m/s^2 the optical truth's kinematic NED acceleration at the IMU times: positions (NED about the
+    first valid one) interpolated over dropouts, differentiated twice (Savitzky-Golay, cubic, 0.15 s)."""
+    ok = np.all(np.isfinite(truth.lla), axis=1)
+    p = np.stack(pm.geodetic2ned(*truth.lla.T, *truth.lla[ok][0]), axis=1)
+    p = np.stack([np.interp(t_s, truth.t_s[ok], p[ok, i]) for i in range(3)], axis=1)
+    dt = float(np.median(np.diff(t_s)))
+    return savgol_filter(p, int(round(0.15 / dt)) | 1, 3, deriv=2, delta=dt, axis=0)
+
+
 def main():
     from vqf import offlineVQF
 
     T = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # VQF's ENU-type frame -> NED
-    ratios, ratios_al = [], []
+    ratios, ratios_al, hand_rows = [], [], []
     print(f"{'trial':40s} {'tpos':>6s} {'vqf':>6s} {'ratio':>6s}  {'heading off removed':>19s}  in 95% band (NEES/dof)"
           f"   | truth tau ms  tpos   vqf  ratio  in 95% band (NEES/dof; tilt, heading), truth on the IMU's time tags"
           f"   | NEES roll pitch yaw (written sigmas)   | lf1 fwd/bwd scale tilt/heading (no truth)")
@@ -170,8 +201,17 @@ def main():
         with tempfile.TemporaryDirectory() as tmp:
             rs = process_session(d, "target-fkf", Path(tmp) / "run")
             traj = pd.read_parquet(rs.run_dir / "trajectory.parquet")
-            fb = json.loads((rs.run_dir / "summary.json").read_text())["results"].get(
-                "forward_backward_consistency", {}).get("lf1", {})
+            results = json.loads((rs.run_dir / "summary.json").read_text())["results"]
+            fb = results.get("forward_backward_consistency", {}).get("lf1", {})
+        fit = results.get("motion_fit")
+        if fit is not None:
+            g = traj[traj.solution == "gyro"]
+            C_g = euler_to_dcm(*np.radians(g[["roll", "pitch", "yaw"]].to_numpy()).T)
+            log_pw, f = band_power(t, np.einsum("nij,nj->ni", C_g, s.imu.acc_b_mps2), fit["moving_fraction"])
+            true_pw, _ = band_power(t, truth_acc_ned(t, tr), fit["moving_fraction"])
+            model = oscillator_psd(f, fit["freq_hz"], fit["damping"], fit["q_m2ps3"])
+            fit_pw = np.array([model[(f >= lo) & (f < hi)].sum() * (f[1] - f[0]) for lo, hi in HAND_BANDS_HZ])
+            hand_rows.append((d.name, log_pw / fit_pw, true_pw / fit_pw))
         q = traj[traj.solution == "fkf"]
         C_all = euler_to_dcm(*np.radians(q[["roll", "pitch", "yaw"]].to_numpy()).T)
         sig_all = q[["sigma_roll", "sigma_pitch", "sigma_yaw"]].to_numpy()
@@ -197,6 +237,11 @@ def main():
               f"   | {fb.get('tilt', np.nan):7.1f}/{fb.get('heading', np.nan):.1f}")
     print(f"mean ratio {np.mean(ratios):.3f}, max {np.max(ratios):.3f} (tpos below VQF where < 1); on the IMU's time tags: "
           f"mean {np.mean(ratios_al):.3f}, max {np.max(ratios_al):.3f}")
+    print("\nhand model: acceleration power per band over the fitted oscillator's (log: the gyro-only attitude's C f + g, "
+          "what the chain fits; truth: the optical positions twice differentiated)")
+    print(f"{'trial':40s} " + " ".join(f"{f'{lo:g}-{hi:g} Hz':>15s}" for lo, hi in HAND_BANDS_HZ))
+    for name, log_r, true_r in hand_rows:
+        print(f"{name:40s} " + " ".join(f"{a:6.2f} / {b:6.2f}" for a, b in zip(log_r, true_r)) + "   (log / truth)")
     return 0
 
 

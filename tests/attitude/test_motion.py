@@ -142,8 +142,10 @@ def test_fit_takes_the_accelerometer_noise_floor_out_of_the_hand_motion():
     "displacement, 30-95 % of its power below 0.3 Hz) is fitted by one oscillator that lacks the slow part; the filter "
     "takes that displacement for tilt and its attitude sigmas understate the error (measured: the default fit gives "
     "0.52 Hz, damping 0.12, 7 cm; mean NEES 19.9 for 3 dof; on the real trials the hand NIS is 1.2-2.7x). An anchored "
-    "model (the oscillator about a Gauss-Markov mean, tried in session 24) is consistent on this hand (NEES 1.03 per "
-    "dof) but costs accuracy on the real trials (marg_real mean .589 -> .616): not landed"))
+    "model (the oscillator about a Gauss-Markov mean, sessions 24-25) is consistent with this hand's true parameters "
+    "(NEES 1.03 per dof), but fitted in the default band it cannot see the 1 s wander (its correlation time stops at "
+    "the band's 0.53 s: mean NEES 4.05 for 3 dof), and it costs accuracy on the real trials (marg_real mean .589 -> "
+    ".616): not landed"))
 def test_one_oscillator_fitted_to_a_hand_with_a_wandering_mean_is_not_over_confident():
     # a 0.6 Hz swing (3 cm of its own) about a mean position wandering 10 cm with 1 s correlation
     t, _, a = _anchored_path(0.6, 0.3, 0.03, 0.10, 1.0, 1200.0, 0.01, seed=11)
