@@ -126,3 +126,22 @@ def test_samples_that_do_not_surround_the_centre_are_refused():
     m = np.column_stack([np.linspace(0.0, 50.0, 3000), np.zeros(3000), np.full(3000, 45.0)])
     with pytest.raises(ProcessingError, match="do not surround the fitted centre"):
         fit_ellipsoid(m)
+
+
+def test_a_window_off_the_log_is_invalid_input_naming_the_log_span(tmp_path):
+    """`--window` beyond the log selects no sample: a usage mistake (exit 2 with the log's span, like `tpos noise
+    --static`), not a failed fit (exit 1 with an empty field profile)."""
+    import pandas as pd
+    import pytest
+
+    from tests.helpers.sessions import write_minimal_session
+    from tpos_cli.errors import InvalidInputError
+    from tpos_cli.magcal import calibrate_session
+
+    s = write_minimal_session(tmp_path / "s", seconds=30.0, with_gps=False)
+    imu = pd.read_csv(s / "imu.csv")
+    imu["mag_x"], imu["mag_y"], imu["mag_z"] = 20.0, 0.0, 45.0
+    imu.to_csv(s / "imu.csv", index=False)
+    with pytest.raises(InvalidInputError, match=r"--window 500:600: no magnetometer samples in that window \(log spans "
+                                                r"1000\.00-1029\.99\)"):
+        calibrate_session(s, (500.0, 600.0))

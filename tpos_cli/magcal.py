@@ -107,6 +107,9 @@ def calibrate_session(session_dir, window=None):
         raise InvalidInputError(f"{session_dir}: the session has no magnetometer columns")
     t = s.imu.t_s + s.t0_s
     sel = np.ones(t.size, bool) if window is None else (t >= window[0]) & (t <= window[1])
+    if not sel.any():  # a window off the log is a usage mistake, not a failed fit
+        raise InvalidInputError(f"--window {window[0]:g}:{window[1]:g}: no magnetometer samples in that window "
+                                f"(log spans {t[0]:.2f}-{t[-1]:.2f})")
     m_s = s.imu.mag_b_ut[sel] @ axes_to_dcm(s.meta.axes)  # FRD -> logged axes (C_bs^T per row)
     if s.meta.hard_iron_ut is not None or s.meta.soft_iron is not None:  # back to raw: m = S⁻¹ m_cal + b
         hi = s.meta.hard_iron_ut if s.meta.hard_iron_ut is not None else np.zeros(3)
