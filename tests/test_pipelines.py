@@ -80,3 +80,22 @@ def test_beside_returns_both_results_and_raises_either_failure(monkeypatch, spar
         pl._beside(lambda: "chain", fails, 0)
     with pytest.raises(KeyError):
         pl._beside(lambda: {}["nope"], lambda x: x, 0)
+
+
+def test_a_pipeline_made_for_another_kind_runs_with_a_warning_naming_both(tmp_path):
+    """`-p` with a pipeline of another kind (target-fkf on a drive log, say) is allowed, but the run says so: its
+    verdict would otherwise read the mismatch as a bad log. A pipeline for every kind (`kinds = []`) never warns."""
+    import json
+
+    from tests.helpers.sessions import write_minimal_session
+    from tpos_cli.pipeline import process_session
+
+    s = write_minimal_session(tmp_path / "s")  # kind "drive"
+    text = (pipelines_dir() / "ingest.toml").read_text()
+    assert "kinds = []" in text
+    f = tmp_path / "target-ingest.toml"
+    f.write_text(text.replace('name = "ingest"', 'name = "target-ingest"').replace("kinds = []", 'kinds = ["target"]'))
+    warned = json.loads((process_session(s, f, tmp_path / "r1").run_dir / "summary.json").read_text())["warnings"]
+    assert any("made for sessions of kind target; this session is of kind 'drive'" in w for w in warned), warned
+    plain = json.loads((process_session(s, "ingest", tmp_path / "r2").run_dir / "summary.json").read_text())["warnings"]
+    assert not any("made for sessions of kind" in w for w in plain), plain

@@ -196,6 +196,10 @@ def _process(ctx: RunContext, session_dir, pipeline, run_dir, mask_gps_windows, 
     if cfg is None:
         cfg = resolve_config(resolve_pipeline(pipeline, session.meta.kind), overrides)
     pipe = cfg.pipeline
+    if pipe.kinds and session.meta.kind not in pipe.kinds:
+        # allowed (a drive log's attitude alone, say), but a mistaken -p reads as a bad log otherwise
+        ctx.warn(f"pipeline {pipe.name} is made for sessions of kind {' or '.join(pipe.kinds)}; this session is of kind "
+                 f"{session.meta.kind!r}: its figures and verdict read it as one (leave out -p for its default)")
     check_imu_gaps(session, pipe.chain, getattr(cfg.params, "imu_gap_max_s", None))
     out_dir = check_run_dir(Path(run_dir) if run_dir is not None else default_run_dir(session.path.name, pipe.name), session.path)
     claim_run_dir(out_dir)  # lock it and try a write now, not after the work (io.run_dir)
