@@ -579,9 +579,10 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     gyro_norm = np.linalg.norm(gyro_k, axis=1)
     p999 = float(np.quantile(gyro_norm, 0.999))
     if p999 > GYRO_MAX_PLAUSIBLE_RPS:
-        row = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)]) + 1
+        i = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)])
+        axis = "xyz"[int(np.argmax(np.abs(gyro[i])))]  # the column that reads deg/s there (often one axis only)
         c.problem(fname, f"angular rates up to {p999:.1f} (99.9th percentile of |gyro|) only make sense in deg/s; "
-                  "the contract requires rad/s", "gyro_x", row)
+                  "the contract requires rad/s", f"gyro_{axis}", i + 1)
     acc_norms = np.linalg.norm(acc_k, axis=1)
     acc_norm = float(np.median(acc_norms))
     if ACC_G_BAND[0] <= acc_norm <= ACC_G_BAND[1]:
