@@ -294,3 +294,21 @@ def test_gps_on_another_clock_gets_one_answer_from_validate_and_process(tmp_path
     s = load_session(r)
     assert s.meta.kind == "ranging" and s.counts["gps_outside_imu_span"] == 1
     assert any("no GPS fix falls within the IMU's time span" in w for w in s.warnings)
+
+
+@pytest.mark.parametrize("rows,lat,lon,hint", [(slice(None), -105.1, 40.1, True),  # the columns exchanged
+                                                (slice(3, 4), 95.0, -73.0, False),   # one glitch, lon far from a latitude
+                                                (slice(3, 4), 95.0, 40.1, False),    # one glitch
+                                                (slice(None), 95.0, 120.0, False)])  # exchanged would not be in range
+def test_latitude_out_of_range_says_when_lat_and_lon_are_exchanged(tmp_path, rows, lat, lon, hint):
+    # audit (session 25): the RTK drive with its lat and lon columns exchanged read "-105.1474483 is outside
+    # ±90 degrees" and no more; when every lat is a longitude and every lon a latitude, the exchange is the
+    # likely mistake.
+    d = write_minimal_session(tmp_path / "s")
+    gps = pd.read_csv(d / "gps.csv")
+    gps.loc[gps.index[rows], "lat"] = lat
+    gps["lon"] = lon
+    gps.to_csv(d / "gps.csv", index=False)
+    with pytest.raises(InvalidInputError, match="outside ±90 degrees") as exc:
+        load_session(d)
+    assert ("lat and lon look exchanged" in str(exc.value)) == hint

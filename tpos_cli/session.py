@@ -510,11 +510,20 @@ def _check_time(c: _Collector, fname: str, t: np.ndarray, key: str) -> np.ndarra
     return ~dup
 
 
+def _swap_hint(col: str, lat: np.ndarray, lon: np.ndarray) -> str:
+    """For a latitude out of range: the exchange of lat and lon, when every latitude is out of range (a
+    longitude column, not one glitch) and every value would be in range exchanged."""
+    lat, lon = lat[np.isfinite(lat)], lon[np.isfinite(lon)]
+    exchanged = (col == "lat" and bool(np.all((np.abs(lat) > 90.0) & (np.abs(lat) <= 180.0)))
+                 and bool(np.all(np.abs(lon) <= 90.0)))
+    return "; lat and lon look exchanged (every lon is within ±90): swap the two columns" if exchanged else ""
+
+
 def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray, h: np.ndarray | None = None):
     for col, v, lim in (("lat", lat, 90.0), ("lon", lon, 180.0)):
         bad = np.flatnonzero(np.abs(v) > lim)
         if bad.size:
-            c.problem(fname, f"{_v(v[bad[0]])} is outside ±{lim:g} degrees", col, int(bad[0]) + 1)
+            c.problem(fname, f"{_v(v[bad[0]])} is outside ±{lim:g} degrees{_swap_hint(col, lat, lon)}", col, int(bad[0]) + 1)
     i = None if h is None else plausibility.first_bad_height(h)
     if i is not None:
         c.problem(fname, f"{_v(h[i])} m is not an ellipsoidal height on Earth ({plausibility.H_MIN_M:g} to "
