@@ -201,6 +201,8 @@ def test_a_truth_that_is_the_fixes_the_run_used_is_no_truth_there(tmp_path):
     rows = dict(headline_rows(ctx))
     assert not ctx.has_truth and "Against the GPS fixes used" in rows and "Inside the stated 95 % bound" not in rows
     assert "are the GPS fixes the run used" in ctx.truth.trajectory.description
+    # audit (session 25): with every row a fix the run used, it said "only the 0 others are independent truth"
+    assert "none is independent truth; withhold fixes with `tpos process --mask-gps" in ctx.truth.trajectory.description
     # fixes withheld with --mask-gps: the truth rows there are independent, the others not
     fixes = pd.read_csv(s / "gps.csv")
     withheld = fixes[(fixes["t"] >= 1010.0) & (fixes["t"] <= 1013.0)]
