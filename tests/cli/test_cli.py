@@ -300,3 +300,13 @@ def test_each_help_example_is_one_runnable_command_line(cmd):
         line = ex[ex.index(f"tpos {cmd}"):].split()
         unknown = [w for w in line if w.startswith("-") and w.split("=")[0] not in known]
         assert not unknown, (ex, unknown)
+
+
+def test_calibrate_mag_never_writes_its_copy_into_the_input_session(tmp_path):
+    # audit (session 25): `tpos calibrate-mag broad_02 -o broad_02/cal` wrote the calibrated copy inside the
+    # session it read (exit 0), the session directory changed; `tpos process -o` refuses the same.
+    s = write_minimal_session(tmp_path / "s")
+    before = sorted(p.name for p in s.iterdir())
+    res = CliRunner().invoke(app, ["calibrate-mag", str(s), "-o", str(s / "cal")])
+    assert res.exit_code == 2 and "inside the input session" in res.output, res.output
+    assert sorted(p.name for p in s.iterdir()) == before
