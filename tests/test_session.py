@@ -312,3 +312,16 @@ def test_latitude_out_of_range_says_when_lat_and_lon_are_exchanged(tmp_path, row
     with pytest.raises(InvalidInputError, match="outside ±90 degrees") as exc:
         load_session(d)
     assert ("lat and lon look exchanged" in str(exc.value)) == hint
+
+
+def test_dropped_and_duplicate_samples_name_their_first_row(tmp_path):
+    # audit (session 25): "imu.csv: 1 samples with empty/NaN gyro or acc values dropped" named no row, so a user
+    # could not find the sample in a 60 000-line file; rows count from 1 over the data rows, as in the refusals.
+    d = write_minimal_session(tmp_path / "s")
+    imu = pd.read_csv(d / "imu.csv")
+    imu.loc[[5, 7], "acc_y"] = np.nan
+    imu.loc[12, "t"] = imu.loc[11, "t"]
+    imu.to_csv(d / "imu.csv", index=False)
+    w = load_session(d).warnings
+    assert "imu.csv: 2 samples with empty/NaN gyro or acc values dropped (the first at row 6)" in w, w
+    assert "imu.csv: 1 duplicate time stamps (the first at row 13); the first sample of each kept" in w, w

@@ -506,7 +506,8 @@ def _check_time(c: _Collector, fname: str, t: np.ndarray, key: str) -> np.ndarra
     dup = timebase.duplicate_mask(t)
     if dup.any():
         c.count(f"duplicate_stamps_{key}", int(dup.sum()))
-        c.warnings.append(f"{fname}: {int(dup.sum())} duplicate time stamps; the first sample of each kept")
+        c.warnings.append(f"{fname}: {int(dup.sum())} duplicate time stamps (the first at row {int(np.argmax(dup)) + 1}); "
+                          "the first sample of each kept")
     return ~dup
 
 
@@ -570,7 +571,9 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     nan_rows = ~finite & keep
     if nan_rows.any():
         c.count("imu_nan_samples", int(nan_rows.sum()))
-        c.warnings.append(f"{fname}: {int(nan_rows.sum())} samples with empty/NaN gyro or acc values dropped")
+        n = int(nan_rows.sum())
+        c.warnings.append(f"{fname}: {n} sample{'s' if n != 1 else ''} with empty/NaN gyro or acc values dropped "
+                          f"(the first at row {int(np.argmax(nan_rows)) + 1})")
     keep = keep & finite
     every_row = bool(keep.all())  # the usual log: no row dropped, so no copies of the kept rows
     gyro_k = gyro if every_row else gyro[keep]
