@@ -294,3 +294,34 @@ def test_gps_on_another_clock_gets_one_answer_from_validate_and_process(tmp_path
     s = load_session(r)
     assert s.meta.kind == "ranging" and s.counts["gps_outside_imu_span"] == 1
     assert any("no GPS fix falls within the IMU's time span" in w for w in s.warnings)
+
+
+@pytest.mark.parametrize("rows,lat,lon,hint", [(slice(None), -105.1, 40.1, True),  # the columns exchanged
+                                                (slice(3, 4), 95.0, -73.0, False),   # one glitch, lon far from a latitude
+                                                (slice(3, 4), 95.0, 40.1, False),    # one glitch
+                                                (slice(None), 95.0, 120.0, False)])  # exchanged would not be in range
+def test_latitude_out_of_range_says_when_lat_and_lon_are_exchanged(tmp_path, rows, lat, lon, hint):
+    # audit (session 25): the RTK drive with its lat and lon columns exchanged read "-105.1474483 is outside
+    # ±90 degrees" and no more; when every lat is a longitude and every lon a latitude, the exchange is the
+    # likely mistake.
+    d = write_minimal_session(tmp_path / "s")
+    gps = pd.read_csv(d / "gps.csv")
+    gps.loc[gps.index[rows], "lat"] = lat
+    gps["lon"] = lon
+    gps.to_csv(d / "gps.csv", index=False)
+    with pytest.raises(InvalidInputError, match="outside ±90 degrees") as exc:
+        load_session(d)
+    assert ("lat and lon look exchanged" in str(exc.value)) == hint
+
+
+def test_dropped_and_duplicate_samples_name_their_first_row(tmp_path):
+    # audit (session 25): "imu.csv: 1 samples with empty/NaN gyro or acc values dropped" named no row, so a user
+    # could not find the sample in a 60 000-line file; rows count from 1 over the data rows, as in the refusals.
+    d = write_minimal_session(tmp_path / "s")
+    imu = pd.read_csv(d / "imu.csv")
+    imu.loc[[5, 7], "acc_y"] = np.nan
+    imu.loc[12, "t"] = imu.loc[11, "t"]
+    imu.to_csv(d / "imu.csv", index=False)
+    w = load_session(d).warnings
+    assert "imu.csv: 2 samples with empty/NaN gyro or acc values dropped (the first at row 6)" in w, w
+    assert "imu.csv: 1 duplicate time stamps (the first at row 13); the first sample of each kept" in w, w

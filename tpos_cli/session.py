@@ -506,15 +506,25 @@ def _check_time(c: _Collector, fname: str, t: np.ndarray, key: str) -> np.ndarra
     dup = timebase.duplicate_mask(t)
     if dup.any():
         c.count(f"duplicate_stamps_{key}", int(dup.sum()))
-        c.warnings.append(f"{fname}: {int(dup.sum())} duplicate time stamps; the first sample of each kept")
+        c.warnings.append(f"{fname}: {int(dup.sum())} duplicate time stamps (the first at row {int(np.argmax(dup)) + 1}); "
+                          "the first sample of each kept")
     return ~dup
+
+
+def _swap_hint(col: str, lat: np.ndarray, lon: np.ndarray) -> str:
+    """For a latitude out of range: the exchange of lat and lon, when every latitude is out of range (a
+    longitude column, not one glitch) and every value would be in range exchanged."""
+    lat, lon = lat[np.isfinite(lat)], lon[np.isfinite(lon)]
+    exchanged = (col == "lat" and bool(np.all((np.abs(lat) > 90.0) & (np.abs(lat) <= 180.0)))
+                 and bool(np.all(np.abs(lon) <= 90.0)))
+    return "; lat and lon look exchanged (every lon is within ±90): swap the two columns" if exchanged else ""
 
 
 def _check_latlon(c: _Collector, fname: str, lat: np.ndarray, lon: np.ndarray, h: np.ndarray | None = None):
     for col, v, lim in (("lat", lat, 90.0), ("lon", lon, 180.0)):
         bad = np.flatnonzero(np.abs(v) > lim)
         if bad.size:
-            c.problem(fname, f"{_v(v[bad[0]])} is outside ±{lim:g} degrees", col, int(bad[0]) + 1)
+            c.problem(fname, f"{_v(v[bad[0]])} is outside ±{lim:g} degrees{_swap_hint(col, lat, lon)}", col, int(bad[0]) + 1)
     i = None if h is None else plausibility.first_bad_height(h)
     if i is not None:
         c.problem(fname, f"{_v(h[i])} m is not an ellipsoidal height on Earth ({plausibility.H_MIN_M:g} to "
@@ -561,7 +571,9 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     nan_rows = ~finite & keep
     if nan_rows.any():
         c.count("imu_nan_samples", int(nan_rows.sum()))
-        c.warnings.append(f"{fname}: {int(nan_rows.sum())} samples with empty/NaN gyro or acc values dropped")
+        n = int(nan_rows.sum())
+        c.warnings.append(f"{fname}: {n} sample{'s' if n != 1 else ''} with empty/NaN gyro or acc values dropped "
+                          f"(the first at row {int(np.argmax(nan_rows)) + 1})")
     keep = keep & finite
     every_row = bool(keep.all())  # the usual log: no row dropped, so no copies of the kept rows
     gyro_k = gyro if every_row else gyro[keep]
@@ -579,9 +591,10 @@ def _load_imu(c: _Collector, meta: SessionMeta):
     gyro_norm = np.linalg.norm(gyro_k, axis=1)
     p999 = float(np.quantile(gyro_norm, 0.999))
     if p999 > GYRO_MAX_PLAUSIBLE_RPS:
-        row = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)]) + 1
+        i = int(np.flatnonzero(keep)[np.argmax(gyro_norm > GYRO_MAX_PLAUSIBLE_RPS)])
+        axis = "xyz"[int(np.argmax(np.abs(gyro[i])))]  # the column that reads deg/s there (often one axis only)
         c.problem(fname, f"angular rates up to {p999:.1f} (99.9th percentile of |gyro|) only make sense in deg/s; "
-                  "the contract requires rad/s", "gyro_x", row)
+                  "the contract requires rad/s", f"gyro_{axis}", i + 1)
     acc_norms = np.linalg.norm(acc_k, axis=1)
     acc_norm = float(np.median(acc_norms))
     if ACC_G_BAND[0] <= acc_norm <= ACC_G_BAND[1]:

@@ -275,3 +275,38 @@ def test_kill_pid_is_an_interrupt_that_leaves_nothing(tmp_path, cmd):
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert res.returncode == 130 and len(lines) == 1 and lines[0].startswith(f"tpos {cmd}: interrupted"), (res.returncode, lines)
     assert sorted(p.name for p in out.iterdir()) == []  # no run, lock, temporary directory or file
+
+
+def _commands():
+    import typer
+
+    return typer.main.get_command(app).commands
+
+
+@pytest.mark.parametrize("cmd", sorted(_commands()))
+def test_each_help_example_is_one_runnable_command_line(cmd):
+    # audit (session 25): `tpos simulate --help` ran its two examples into one paragraph ("... --outage 150:20
+    # RTK-like fixes: tpos simulate drive ..."), which no shell runs as printed. Each example paragraph holds one
+    # `tpos CMD` line whose options the command has.
+    command = _commands()[cmd]
+    known = {o for p in command.params for o in (*p.opts, *p.secondary_opts)}
+    res = runner.invoke(app, [cmd, "--help"], terminal_width=200)
+    assert res.exit_code == 0
+    paragraphs = [" ".join(p.split()) for p in res.output.split("\n\n")]
+    examples = [p for p in paragraphs if p.startswith("Example")]
+    assert examples, res.output
+    for ex in examples:
+        assert ex.count("tpos ") == 1, ex
+        line = ex[ex.index(f"tpos {cmd}"):].split()
+        unknown = [w for w in line if w.startswith("-") and w.split("=")[0] not in known]
+        assert not unknown, (ex, unknown)
+
+
+def test_calibrate_mag_never_writes_its_copy_into_the_input_session(tmp_path):
+    # audit (session 25): `tpos calibrate-mag broad_02 -o broad_02/cal` wrote the calibrated copy inside the
+    # session it read (exit 0), the session directory changed; `tpos process -o` refuses the same.
+    s = write_minimal_session(tmp_path / "s")
+    before = sorted(p.name for p in s.iterdir())
+    res = CliRunner().invoke(app, ["calibrate-mag", str(s), "-o", str(s / "cal")])
+    assert res.exit_code == 2 and "inside the input session" in res.output, res.output
+    assert sorted(p.name for p in s.iterdir()) == before

@@ -210,7 +210,7 @@ CASES = [
     (nan_time, {}, "imu.csv", "t"),
     (reversed_time, {}, "imu.csv", "t"),
     (duplicated_rows, {}, "imu.csv", "t"),
-    (degrees_for_radians, {}, "imu.csv", "gyro_x"),
+    (degrees_for_radians, {}, "imu.csv", "gyro_z"),  # audit (session 25): named gyro_x, the column in deg/s is gyro_z
     (acc_in_g, {}, "imu.csv", "acc_x"),
     (empty_parquet, {}, "imu.parquet", None),
     (corrupt_parquet, {}, "imu.parquet", None),

@@ -231,3 +231,45 @@ def test_a_value_beyond_the_headers_columns_is_refused_on_its_row(tmp_path):
     with pytest.raises(InvalidInputError) as e:
         load_session(s)
     assert str(e.value).startswith("s/imu.csv, row 1: has more fields than the ")
+
+
+IMU_COLS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+
+
+def _plain_imu_lines(n: int) -> list[str]:
+    return ["t,gyro_x,gyro_y,gyro_z,acc_x,acc_y,acc_z"] + [f"{i / 100:.2f},0.001,0.002,0.003,0.1,0.2,-9.8" for i in range(n)]
+
+
+@pytest.mark.parametrize("damaged", ["0.50,0.001,0.002", "0.50,0.001,0.003,0.1,0.2,-9.8", "garbage"])
+def test_a_damaged_line_inside_a_csv_is_refused_with_its_row(tmp_path, damaged):
+    # audit (session 25): a line cut short inside imu.csv (or one that lost a field) was read with NaN in its
+    # missing fields and its other values in the wrong columns, then dropped as "1 samples with empty/NaN gyro or
+    # acc values" with no row named; in a GPS table a line without `h` would have been kept with lon's neighbours
+    # shifted into h and fix. Only a cut LAST line was refused.
+    from tpos_cli.io.tables import read_table
+
+    lines = _plain_imu_lines(100)
+    lines[51] = damaged  # data row 51
+    p = tmp_path / "imu.csv"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InvalidInputError, match="fields where the header has 7: a damaged line") as exc:
+        read_table(p, IMU_COLS)
+    assert str(exc.value).startswith("imu.csv, row 51: ")
+
+
+@pytest.mark.parametrize("chunk_bytes", [5, 37, 1 << 20])
+def test_the_damaged_line_scan_matches_per_line_counts_across_chunks(tmp_path, chunk_bytes):
+    # The scan carries a line's commas across its read chunks; blank lines (pandas skips them) and CRLF endings
+    # are no damage. Reference: the fields of each line counted in Python.
+    from tpos_cli.io.tables import _scan_csv
+
+    lines = _plain_imu_lines(40)
+    lines[7] = ""
+    lines[12] = "   \r"
+    lines = [ln + "\r" if i % 2 else ln for i, ln in enumerate(lines)]
+    p = tmp_path / "imu.csv"
+    p.write_text("\n".join(lines) + "\n")
+    assert _scan_csv(p, 6, chunk_bytes=chunk_bytes) is None
+    lines[23] = "0.22,1,2,3,4\r"
+    p.write_text("\n".join(lines) + "\n")
+    assert _scan_csv(p, 6, chunk_bytes=chunk_bytes) == (23, 5)

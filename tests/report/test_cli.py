@@ -58,6 +58,9 @@ def test_report_writes_files_and_pdf_pages(tmp_path):
     res = runner.invoke(app, ["report", str(r)])
     assert res.exit_code == 0, res.output
     assert "forward" in res.output and "truth.*" in res.output and "verdict: no verdict recorded" in res.output
+    # audit (session 25): a drive's line gave yaw only; the forward solution's errors are 0.5/-0.3/2 deg (+- 1e-3)
+    line = next(ln for ln in res.stdout.splitlines() if ln.strip().startswith("forward ("))
+    assert line.endswith("attitude RMS roll 0.5, pitch 0.3, yaw 2 deg"), line
     acc = pd.read_parquet(r / "accuracy.parquet")
     assert {"solution", "segment", "quantity", "rms", "p95", "cep"} <= set(acc.columns)
     js = json.loads((r / "accuracy.json").read_text())

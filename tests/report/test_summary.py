@@ -10,7 +10,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from tests.report import synth
-from tpos_cli.report.build import build_context
+from tpos_cli.report.build import build_context, headline
 from tpos_cli.report.summary import _verdict_box, headline_rows
 from tpos_cli.report.tables import reason_lines, verdict_checks_section
 
@@ -201,6 +201,11 @@ def test_a_truth_that_is_the_fixes_the_run_used_is_no_truth_there(tmp_path):
     rows = dict(headline_rows(ctx))
     assert not ctx.has_truth and "Against the GPS fixes used" in rows and "Inside the stated 95 % bound" not in rows
     assert "are the GPS fixes the run used" in ctx.truth.trajectory.description
+    # audit (session 25): with every row a fix the run used, it said "only the 0 others are independent truth"
+    assert "none is independent truth; withhold fixes with `tpos process --mask-gps" in ctx.truth.trajectory.description
+    # ... and the headline (accuracy.json, the console, `tpos batch`'s "pos m") gave the residuals to those fixes
+    # as errors against truth (the RTK walk: 0.0537 m); page 1 gives none
+    assert headline(ctx.acc) == []
     # fixes withheld with --mask-gps: the truth rows there are independent, the others not
     fixes = pd.read_csv(s / "gps.csv")
     withheld = fixes[(fixes["t"] >= 1010.0) & (fixes["t"] <= 1013.0)]
@@ -210,6 +215,10 @@ def test_a_truth_that_is_the_fixes_the_run_used_is_no_truth_there(tmp_path):
     se = ctx.errors("smoothed")
     assert np.isfinite(se.err_ned_m[:, 0]).sum() == ((se.t > 1010.0) & (se.t < 1013.0)).sum() + 2  # both ends: truth rows
     assert "Error against truth the run did not use" in dict(headline_rows(ctx))
+    # the headline over the withheld epochs only, as page 1 (the RTK drive masked: 0.095 m over all, 0.20 m withheld)
+    (h,) = headline(ctx.acc)
+    assert h["n"] == np.isfinite(se.err_ned_m[:, 0]).sum()
+    np.testing.assert_allclose(h["rms_pos_h_m"], np.sqrt(np.nanmean(se.err_ned_m[:, 0] ** 2 + se.err_ned_m[:, 1] ** 2)), rtol=1e-9)
     # a receiver's fixes a few decimetres off the truth: the truth is independent everywhere
     s3 = synth.write_session(tmp_path / "s3", movement=True, gps=True, gps_error_ned_m=(0.4, -0.3, 0.5))
     ctx = build_context(synth.write_run(tmp_path / "r3", s3, traj))

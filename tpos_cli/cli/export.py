@@ -32,7 +32,9 @@ def export(
     Target runs: id, lat, lon, h, sigma_n/e/u, the 95 % horizontal ellipse, number of shots and UTM
     coordinates. Other runs: the chosen solution's track with sigmas. WGS-84, ellipsoidal heights.
 
-    Examples: tpos export runs/wall (CSV into the run); tpos export runs/drive -o drive.kml
+    Example (CSV into the run): tpos export runs/wall
+
+    Example: tpos export runs/drive -o drive.kml
     """
     from tpos_cli.export.build import FORMATS, export_run
 

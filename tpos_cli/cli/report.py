@@ -71,9 +71,12 @@ def report(
                     f"{f(h.get('rms_pitch_deg'))}, yaw {f(h['rms_yaw_deg'])} deg"
                 )
             continue
-        yaw = f", yaw {f(h['rms_yaw_deg'])} deg" if "rms_yaw_deg" in h else ""
+        # all three angles: the comma drive's yaw alone (0.9 deg) hid its pitch error (3.7 deg), which `tpos batch`
+        # shows in its total attitude error
+        att = (f"; attitude RMS roll {f(h.get('rms_roll_deg'))}, pitch {f(h.get('rms_pitch_deg'))}, yaw "
+               f"{f(h['rms_yaw_deg'])} deg" if "rms_yaw_deg" in h else "")
         typer.echo(
             f"{h['solution']:>10} ({h['of']}, n={h['n']}): RMS 3-D {f(h['rms_pos_3d_m'])} m, "
-            f"horizontal {f(h['rms_pos_h_m'])} m, vertical {f(h['rms_pos_v_m'])} m{yaw}"
+            f"horizontal {f(h['rms_pos_h_m'])} m, vertical {f(h['rms_pos_v_m'])} m{att}"
         )
     typer.echo(f"-> {res.run_dir} ({', '.join(res.outputs)}, {len(res.pages)} PDF pages)")

@@ -95,7 +95,8 @@ def simulate(
     outages), `ranging` (paper 002: corridor with four anchors, range error model, calibration).
 
     Example: tpos simulate drive runs/drive_sim --seed 7 --duration 300 --outage 40:30 --outage 150:20
-    RTK-like fixes: tpos simulate drive runs/drive_rtk --gps-rtk --outage none
+
+    Example with RTK-like fixes: tpos simulate drive runs/drive_rtk --gps-rtk --outage none
     """
     from tpos_cli.sim import SCENARIOS
 

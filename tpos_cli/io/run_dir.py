@@ -68,8 +68,12 @@ def check_session_out(out: Path, *, force: bool, src: Path | None = None) -> Non
     OUT`): absent or empty, or with `force` an existing session (a directory holding session.toml)
     that holds neither the current directory nor the input session `src`. InvalidInputError
     otherwise: --force replaces a session, never a directory of other files (`tpos simulate drive .
-    --force` deleted everything in the current directory)."""
+    --force` deleted everything in the current directory). Never inside `src`: outputs never go into
+    their input (`tpos calibrate-mag s -o s/cal` wrote a session into the session)."""
     out = Path(out)
+    if src is not None and out.resolve().is_relative_to(Path(src).resolve()):
+        raise InvalidInputError(f"{out}: inside the input session {src}; outputs never go into their input: "
+                                "choose a directory outside it")
     if not os.path.lexists(out):
         return
     if not out.is_dir():

@@ -292,7 +292,7 @@ def _read_csv(path: Path, wanted: set[str] = frozenset()) -> pd.DataFrame:
         _fail(path, "the header line is longer than 64 KiB: not a contract table")
     if head.split(b"\n", 1)[0].count(b",") + 1 > MAX_TABLE_COLUMNS:
         _fail(path, f"the header has more than {MAX_TABLE_COLUMNS} columns: not a contract table")
-    _scan_csv(path)
+    short_row = _scan_csv(path, head.split(b"\n", 1)[0].count(b","))
     header = head.split(b"\n", 1)[0].decode("utf-8", "replace").strip().lstrip("\ufeff")
     if "," not in header:
         for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "pipes")):
@@ -327,31 +327,49 @@ def _read_csv(path: Path, wanted: set[str] = frozenset()) -> pd.DataFrame:
         _fail(path, f"cannot be parsed as CSV ({str(exc).splitlines()[0][:160]})")
     df.columns = [str(c).strip() for c in df.columns]
     _check_last_line(path, n_header, len(df))
+    if short_row is not None:  # after the last line's check: a cut last line is said as such
+        _fail(path, f"has {short_row[1]} fields where the header has {n_header}: a damaged line (its values cannot be "
+              "matched to their columns); repair or delete it", row=short_row[0])
     return df
 
 
-def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
+def _scan_csv(path: Path, header_commas: int, chunk_bytes: int = 16 << 20) -> tuple[int, int] | None:
     """One pass over the bytes before pandas decodes them: the line count against MAX_TABLE_ROWS (a
     2 GB file of short lines decodes to many GB of float64), NUL bytes anywhere (a sparse hole after a
     valid start) and lines longer than MAX_LINE_BYTES (a 300 MB line took pandas 1.7 GB to decode),
-    each refused with the row where it is."""
+    each refused with the row where it is. Returns (row, fields) of the first newline-ended data line
+    with fewer fields than the header's `header_commas` + 1 (blank lines aside), or None: pandas fills
+    the missing fields of such a line with NaN and takes the others for the columns they are not in."""
     import numpy as np
 
     lines = 0
     since_newline = 0  # bytes of the line still open at the end of the chunks read so far
+    open_commas = 0  # commas of that line
+    open_text = False  # whether that line has more than blanks
+    short: tuple[int, int] | None = None
     try:
         with open(path, "rb") as fh:
             while chunk := fh.read(chunk_bytes):
                 nul = chunk.find(b"\x00")
                 if nul >= 0:
                     _fail(path, "contains NUL bytes: a binary or sparse file, not CSV text", row=max(lines + chunk.count(b"\n", 0, nul), 1))
-                ends = np.flatnonzero(np.frombuffer(chunk, dtype=np.uint8) == 10)
+                data = np.frombuffer(chunk, dtype=np.uint8)
+                ends = np.flatnonzero(data == 10)
                 lengths = np.diff(ends, prepend=-1) - 1  # bytes before each newline since the previous one
+                commas = np.diff(np.searchsorted(np.flatnonzero(data == 44), ends), prepend=0)  # per line ended here
+                if ends.size:
+                    commas[0] += open_commas
+                if short is None:
+                    short = _first_short_line(chunk, ends, commas, header_commas, lines, open_text)
                 if ends.size:
                     lengths[0] += since_newline
+                    open_commas = int(np.count_nonzero(data[ends[-1] + 1:] == 44))
+                    open_text = bool(chunk[int(ends[-1]) + 1:].strip())
                     since_newline = len(chunk) - 1 - int(ends[-1])
                 else:
                     since_newline += len(chunk)
+                    open_commas += int(np.count_nonzero(data == 44))
+                    open_text = open_text or bool(chunk.strip())
                 long = np.flatnonzero(lengths > MAX_LINE_BYTES)
                 if long.size or since_newline > MAX_LINE_BYTES:
                     row = lines + (int(long[0]) if long.size else ends.size)
@@ -361,6 +379,21 @@ def _scan_csv(path: Path, chunk_bytes: int = 16 << 20) -> None:
                     _fail(path, f"more than {MAX_TABLE_ROWS} rows, the row limit for a table")
     except OSError as exc:
         _fail(path, f"cannot be read ({exc.strerror})")
+    return short
+
+
+def _first_short_line(chunk: bytes, ends, commas, header_commas: int, lines_before: int,
+                      open_text: bool) -> tuple[int, int] | None:
+    """(row, fields) of the first data line among those ending at `ends` of `chunk` with fewer commas
+    than the header, skipping blank ones (which pandas skips too); rows count from the header's line 0.
+    `open_text`: the part of the first line read in earlier chunks has more than blanks."""
+    for k in np.flatnonzero(commas < header_commas):
+        row = lines_before + int(k)
+        start = int(ends[k - 1]) + 1 if k > 0 else 0
+        if row == 0 or not (chunk[start:int(ends[k])].strip() or (k == 0 and open_text)):
+            continue  # the header itself, or a blank line
+        return row, int(commas[k]) + 1
+    return None
 
 
 def _check_last_line(path: Path, n_header: int, n_rows: int) -> None:

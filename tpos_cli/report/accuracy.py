@@ -62,6 +62,9 @@ class Accuracy:
     solutions: tuple[SolutionErrors, ...]
     targets: pd.DataFrame | None  # one row per (solution, target shot) with errors and sigmas
     paper_tables: dict[str, Columns]
+    # the trajectory segment whose truth is independent of the run: `all`, `withheld` (a truth that holds
+    # the GPS fixes the run used: only the fixes withheld by --mask-gps), or None (none is independent)
+    independent_segment: str | None = "all"
 
 
 def _stat_row(solution, target, segment, quantity, err) -> dict:
@@ -312,9 +315,12 @@ def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", se
     """All error statistics of a run against `truth` (see module docstring); empty without truth."""
     rows: list[dict] = []
     sols: list[SolutionErrors] = []
+    independent_segment: str | None = "all"
     if truth is not None and run.trajectory is not None and truth.trajectory is not None:
         series = series if series is not None else solution_series(run.trajectory)
         gps_truth = not truth.trajectory.independent.all()  # GPS fixes, or a truth that holds the fixes the run used
+        if gps_truth:
+            independent_segment = "withheld" if len(run.mask_windows) and truth.trajectory.independent.any() else None
         truth_at = None
         memo = _StatsMemo()
         for s in ordered_solutions(series):
@@ -329,4 +335,4 @@ def compute_accuracy(run: RunData, truth: ReportTruth | None, kind: str = "", se
         rows += _target_rows(te)
     table = from_records(rows, COLUMNS)
     table = Columns({c: table[c].astype(np.int64) if c == "n" else table[c] for c in COLUMNS}, len(table))
-    return Accuracy(table, tuple(sols), te, paper_tables(run, table, kind))
+    return Accuracy(table, tuple(sols), te, paper_tables(run, table, kind), independent_segment)

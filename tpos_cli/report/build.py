@@ -75,14 +75,16 @@ def _records(df: Columns | pd.DataFrame | None) -> list[dict]:
 
 
 def headline(acc: Accuracy) -> list[dict]:
-    """One line per solution: the numbers a reader looks for first (all epochs, all targets)."""
+    """One line per solution: the numbers a reader looks for first (all targets; all epochs, or where the
+    truth holds the GPS fixes the run used only the withheld ones, and no trajectory line when none was
+    withheld: agreement with the fixes a run used is not its accuracy, as on page 1)."""
     t = acc.table
     sols, targets, segments, quantities = (t[c].tolist() for c in ("solution", "target", "segment", "quantity"))
     out = []
     for sol in dict.fromkeys(sols):
-        for target_kind, of in (("trajectory", ""), ("targets", "all")):
-            # the rows of this solution's segment `all` (one per quantity) by quantity
-            rows = [i for i in range(len(t)) if sols[i] == sol and segments[i] == "all" and targets[i] == of]
+        for target_kind, of, segment in (("trajectory", "", acc.independent_segment), ("targets", "all", "all")):
+            # the rows of this solution's segment (one per quantity) by quantity
+            rows = [i for i in range(len(t)) if sols[i] == sol and segments[i] == segment and targets[i] == of]
             if not rows:
                 continue
             q = {}

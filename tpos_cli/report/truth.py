@@ -228,9 +228,13 @@ def _truth_from_reference(session, withheld=None) -> TrajectoryTruth | None:
         "its own accuracy is what the data set's publisher states"
     )
     used = used_fix_rows(t, lla, session, withheld)
-    if used.any():
+    n_independent = int((ok & ~used).sum())
+    if used.any() and n_independent:
         desc += (f"; {int(used.sum())} of its rows are the GPS fixes the run used (same times and points): only the "
-                 f"{int((ok & ~used).sum())} others are independent truth")
+                 f"{n_independent} others are independent truth")
+    elif used.any():  # e.g. an RTK log whose truth is its own fixed epochs
+        desc += (f"; all {int(used.sum())} of its valid rows are the GPS fixes the run used (same times and points): none is "
+                 "independent truth; withhold fixes with `tpos process --mask-gps T0:T1` to score inside the windows")
     return TrajectoryTruth(
         source="truth",
         description=desc,
