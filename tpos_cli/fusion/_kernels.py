@@ -41,6 +41,7 @@ from tpos_cli.fusion.reacquire import (
     inflate_to_fit,
     nis_at_stated,
     remember,
+    revision_favoured,
     ring,
     stated_factors,
     stated_R,
@@ -307,6 +308,16 @@ def _copy_state(src, dst):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def _blank_state(like, n_slots):
+    """A LoopState of the shapes of `like` (uninitialized): a checkpoint's storage."""
+    ring_t, ring_nu, ring_R = ring(n_slots)
+    anc_t, anc_nu, anc_R, anc_ok = anchors(n_slots)
+    return LoopState(np.empty_like(like.P), np.empty_like(like.nav), np.empty_like(like.C), np.empty_like(like.bias),
+                     np.empty_like(like.dx_sum), np.empty(3), np.empty(3), np.empty(n_slots, np.int64), ring_t, ring_nu, ring_R,
+                     anc_t, anc_nu, anc_R, anc_ok)
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
@@ -323,7 +334,9 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     position/velocity covariance grown until the row passes the gate, under the reading of the
     error the next rows favour: `fusion.reacquire`, the trial); after `max_reject`
     rejections a row beyond its stated accuracy goes in down-weighted to the gate's edge, one within
-    it as it is), Joseph update and feedback into
+    it as it is; with reacquire, a GPS row that fails the gate right after its slot's previous row
+    was accepted first has the stretch from before that row run again without it, and the likelier
+    reading stands: `fusion.reacquire`, the revision), Joseph update and feedback into
     the nominal (the error state is reset to 0 after each, so each measurement is linearized
     about the latest nominal). ep_dx of the epoch is the sum of the corrections fed back.
 
@@ -377,11 +390,19 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     # the re-acquisition's trial of its two readings (`fusion.reacquire`: the trial): the loop's state at the re-acquired row
     live = LoopState(P, nav, C, bias, dx_sum, dth_prev, dv_prev, consecutive, ring_t, ring_nu, ring_R, anc_t, anc_nu,
                      anc_R, anc_ok)
-    ck_ring_t, ck_ring_nu, ck_ring_R = ring(n_slots)
-    ck_anc_t, ck_anc_nu, ck_anc_R, ck_anc_ok = anchors(n_slots)
-    ck = LoopState(np.empty_like(P), np.empty_like(nav), np.empty_like(C), np.empty_like(bias), np.empty(n), np.empty(3),
-                   np.empty(3), np.empty(n_slots, np.int64), ck_ring_t, ck_ring_nu, ck_ring_R, ck_anc_t, ck_anc_nu,
-                   ck_anc_R, ck_anc_ok)
+    ck = _blank_state(live, n_slots)
+    # the revision (`fusion.reacquire`): the loop's state before the last accepted row of each GPS slot
+    # (positions, velocities: `fusion.insgps` slots 0, 1), where it was, and the cost of the rows since
+    rv0, rv1 = _blank_state(live, n_slots), _blank_state(live, n_slots)
+    rv_at = np.zeros((2, 5), np.int64)  # per GPS slot: k, e, ep, r, last of its checkpoint
+    rv_ok = np.zeros(2, np.bool_)
+    rv_cost = np.zeros(2)  # sum of min(NIS, gate) + log det S over the rows since (its own included)
+    revising = -1  # the row whose rejection is under revision: the replay skips its slot's previous row
+    rv_skip = -1  # that previous row
+    cost_kept = 0.0  # the stretch's cost as it went (the rejected row at the gate's edge)
+    cost_revised = 0.0  # the replay's (the skipped row at the gate's edge)
+    no_revision = -1  # the last row whose revision lost: the replay rejects it, and the rows before it, as before
+    rewind_slot = -1  # set in the row loop: rewind to that slot's checkpoint
     ck_k, ck_e, ck_ep, ck_r, ck_last = 0, 0, 0, 0, 0
     trial = _NO_TRIAL  # _NO_TRIAL, _FIRST (JUMP tried), _SECOND (DRIFT tried), _REPLAY (JUMP chosen, re-run)
     reading = DRIFT
@@ -480,7 +501,31 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     if slot == trial_slot:
                         trial_seen += 1
                 accept = (not ev.gated[e]) or s <= st.gate[m] or (slot >= 0 and st.max_reject <= 0)
-                if not accept and slot >= 0:
+                term = min(s, st.gate[m]) + logdet  # the row's cost (`fusion.reacquire`: the revision)
+                revisable = st.reacquire and is_gps and m > 1 and ev.gated[e] and 0 <= slot < 2
+                passed = s <= st.gate[m]  # (before any re-acquisition or down-weighting changes s)
+                for i in range(2):
+                    if rv_ok[i]:
+                        rv_cost[i] += term
+                if revising >= 0:  # the replay without the skipped row
+                    if e == rv_skip:  # rejected: a rejection of its slot's run like any other
+                        accept = False
+                        cost_revised += st.gate[m] + logdet
+                        remember(ring_t, ring_nu, ring_R, slot, consecutive[slot], imu.t[k] - ev.lag[e], z, R, m)
+                    else:
+                        cost_revised += term
+                    if e == revising:
+                        revising, rv_skip = -1, -1
+                        if not revision_favoured(cost_revised, cost_kept):  # the row was the outlier: as it went
+                            no_revision, rewind_slot = e, slot
+                            break
+                elif (revisable and not accept and consecutive[slot] == 0 and rv_ok[slot] and trial == _NO_TRIAL
+                      and e > no_revision):  # this row or the slot's previous one wrong? (`fusion.reacquire`: the revision)
+                    cost_kept = rv_cost[slot] - term + st.gate[m] + logdet
+                    cost_revised = 0.0
+                    revising, rv_skip, rewind_slot = e, rv_at[slot, 1], slot
+                    break
+                if not accept and slot >= 0 and e != rv_skip:
                     last_chance = consecutive[slot] >= st.max_reject
                     if not st.reacquire:  # the old rule: the row after max_reject rejections goes in as it is
                         accept = last_chance
@@ -492,7 +537,8 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                                                   consecutive[slot], drift_degree(ev.kind[e] == Kind.GPS_VELOCITY), m)
                         if beyond and 0.0 <= a <= st.gate[m]:  # a drift from the last accepted row, beyond the
                             stated_R(R, f_stated, m)  # stated accuracy: the filter drifted; the row at that accuracy,
-                            if trial == _NO_TRIAL:  # the loop's state here, to try each reading from (`fusion.reacquire`: the trial)
+                            if trial == _NO_TRIAL and revising < 0:  # the loop's state here, to try each reading
+                                # from (`fusion.reacquire`: the trial; none in a revision's replay)
                                 trial, reading, trial_slot, trial_seen, score = _FIRST, JUMP, slot, 0, 0.0
                                 ck_k, ck_e, ck_ep, ck_r, ck_last = k, e, ep, r, last
                                 _copy_state(live, ck)
@@ -508,6 +554,12 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                             s, logdet = innovation_statistics(x, P, z, H, R, res.pvar[e])
                             res.nis[e] = s
                             res.logdet[e] = logdet
+                if accept and revisable:  # the revision's checkpoint, or none for a row taken beyond the gate
+                    rv_ok[slot] = passed and trial == _NO_TRIAL
+                    if rv_ok[slot]:
+                        _copy_state(live, rv0 if slot == 0 else rv1)
+                        rv_at[slot, 0], rv_at[slot, 1], rv_at[slot, 2], rv_at[slot, 3], rv_at[slot, 4] = k, e, ep, r, last
+                        rv_cost[slot] = term
                 if accept:
                     # a velocity row at a standstill does not correct yaw (`fusion.lever_arm.yaw_held_rows`)
                     if update_holding(x, P, z, H, R, ATT + 2 if ev.yaw_held[e] else -1) < 0.0:
@@ -524,6 +576,22 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     consecutive[slot] = 0 if accept else consecutive[slot] + 1
                 res.accepted[e] = accept
                 e += 1
+            if rewind_slot >= 0:  # to the slot's checkpoint, the stretch run again (`fusion.reacquire`: the revision)
+                for i in range(rv_at[rewind_slot, 1], e + 1):
+                    res.inflation[i, 0] = 1.0
+                    res.inflation[i, 1] = 1.0
+                    res.jump[i] = False
+                _copy_state(rv0 if rewind_slot == 0 else rv1, live)
+                at = rv_at[rewind_slot]
+                k, e, ep, r, last = at[0], at[1], at[2], at[3], at[4]
+                rv_ok[:] = False  # (the replay takes them again)
+                rewind_slot = -1
+                for i in range(3):
+                    w_ib[i] = dth_prev[i] / (imu.t[k] - imu.t[k - 1])  # (the rows' body rate at sample k)
+                f_sum[:] = 0.0
+                dt_sum = 0.0
+                resume = True
+                continue
             _store(out.ep_dx, ep, dx_sum)  # x stays 0 between epochs (closed loop: Phi 0 = 0)
             dx_sum[:] = 0.0
             store_tril(out.ep_P, ep, P)
@@ -551,6 +619,7 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                     res.jump[i] = False
                 _copy_state(ck, live)
                 k, e, ep, r, last = ck_k, ck_e, ck_ep, ck_r, ck_last
+                rv_ok[:] = False  # checkpoints of the stretch run again: taken again
                 for i in range(3):
                     w_ib[i] = dth_prev[i] / (imu.t[k] - imu.t[k - 1])  # (the rows' body rate at sample k)
                 f_sum[:] = 0.0

@@ -52,7 +52,8 @@ class FilterConfig:
     chi-square gate; max_consecutive_rejections: 0 = no gating of rows with a slot, else after
     this many rejections in a row the next rejected one goes in (as it is, without `reacquire`);
     reacquire: `fusion.reacquire`'s rule instead (a drift of the filter re-acquired, the covariance
-    grown; wrong fixes down-weighted), judged against stated_sd_factor (4,): the GPS fixes' stated
+    grown; wrong fixes down-weighted; a GPS row that slipped under the gate revised when the next
+    one fails it), judged against stated_sd_factor (4,): the GPS fixes' stated
     accuracy over their SDs here per group (pos_h, pos_v, vel_h, vel_v; > 1 where matching made
     them smaller); lever_arm_b_m
     (3,): GPS antenna in the body frame; ungated_after_gap_s > 0:
