@@ -274,3 +274,17 @@ def test_truth_that_does_not_overlap_the_run_in_time(tmp_path):
     res = runner.invoke(app, ["report", str(r)])
     assert res.exit_code == 0 and "do not overlap in time on the logger clock: no errors against it" in res.stderr
     assert "truth: none (quality-control report)" in res.output and "Warning" not in res.stderr
+
+
+def test_an_attitude_logs_line_leads_with_the_total_angle(tmp_path):
+    # a fixed observer's solutions are attitudes: the total angle first (near pitch +-90 deg the Euler roll and yaw
+    # errors are large and cancel; BROAD 02: roll 1.14, yaw 1.19, total 0.51 deg), then the Euler angles
+    s = synth.write_session(tmp_path / "s", kind="target")
+    traj = synth.trajectory_rows("fkf", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.0, 0.0, 0.0], rpy_err_deg=(0.5, -0.3, 2.0))
+    res = runner.invoke(app, ["report", str(synth.write_run(tmp_path / "r", s, traj))])
+    assert res.exit_code == 0, res.output
+    line = next(ln for ln in res.stdout.splitlines() if ln.strip().startswith("fkf (attitude"))
+    # the three Euler errors compose to about their root sum of squares (2.08 deg) at the synthetic track's angles
+    total = float(line.split("RMS total angle ")[1].split(" deg")[0])
+    assert abs(total - np.sqrt(0.5**2 + 0.3**2 + 2.0**2)) < 0.02, line
+    assert line.endswith(" deg (roll 0.5, pitch 0.3, yaw 2)"), line

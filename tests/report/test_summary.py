@@ -223,3 +223,17 @@ def test_a_truth_that_is_the_fixes_the_run_used_is_no_truth_there(tmp_path):
     s3 = synth.write_session(tmp_path / "s3", movement=True, gps=True, gps_error_ned_m=(0.4, -0.3, 0.5))
     ctx = build_context(synth.write_run(tmp_path / "r3", s3, traj))
     assert ctx.has_truth and ctx.truth.trajectory.independent.all()
+
+
+def test_page_1_attitude_error_leads_with_the_total_angle(tmp_path):
+    # near pitch +-90 deg the Euler roll and yaw errors are large and cancel (BROAD 02: roll 1.14, yaw 1.19, total
+    # angle 0.52 deg): the row gives the total angle page 1 plots first, the Euler angles after it
+    s = synth.write_session(tmp_path / "s", movement=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], rpy_err_deg=(0.5, -0.3, 2.0),
+                                 sigma=(0.5, 0.5, 0.5))
+    rows = dict(headline_rows(build_context(synth.write_run(tmp_path / "r", s, traj))))
+    value = rows["Attitude error (smoothed)"]
+    # the three Euler errors compose to about their root sum of squares at the synthetic track's small angles
+    total = float(value.split("RMS total angle ")[1].split(" deg")[0])
+    assert abs(total - np.sqrt(0.5**2 + 0.3**2 + 2.0**2)) < 0.02, value
+    assert value.endswith("(roll 0.500, pitch 0.300, yaw 2.000)"), value

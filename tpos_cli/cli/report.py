@@ -66,9 +66,10 @@ def report(
     for h in res.summary["headline"]:
         if static and h["of"] == "trajectory":  # a fixed observer: its solutions are attitudes
             if "rms_yaw_deg" in h:
+                # the total angle first: near pitch +-90 deg roll and yaw errors are large and cancel
                 typer.echo(
-                    f"{h['solution']:>10} (attitude, n={h['n']}): RMS roll {f(h.get('rms_roll_deg'))}, pitch "
-                    f"{f(h.get('rms_pitch_deg'))}, yaw {f(h['rms_yaw_deg'])} deg"
+                    f"{h['solution']:>10} (attitude, n={h['n']}): RMS total angle {f(h.get('rms_att_deg'))} deg (roll "
+                    f"{f(h.get('rms_roll_deg'))}, pitch {f(h.get('rms_pitch_deg'))}, yaw {f(h['rms_yaw_deg'])})"
                 )
             continue
         # all three angles: the comma drive's yaw alone (0.9 deg) hid its pitch error (3.7 deg), which `tpos batch`
