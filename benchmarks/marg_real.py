@@ -45,13 +45,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pymap3d as pm
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import savgol_filter, welch
 from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import chi2
 
 from tpos_cli.attitude.motion import oscillator_psd
+from tpos_cli.frames.geodetic import lla_to_ned
 from tpos_cli.frames.rotation import attitude_cov_from_euler_sigmas, dcm_to_rotvec, euler_error_map, euler_to_dcm, quat_to_dcm
 from tpos_cli.pipeline import process_session
 from tpos_cli.session import load_session
@@ -159,21 +159,25 @@ def euler_nees(e_deg, C, sig_rpy_deg):
 HAND_BANDS_HZ = ((0.05, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 2.0), (2.0, 5.0))
 
 
-def band_power(t_s, acc_ned_mps2, moving_fraction, bands=HAND_BANDS_HZ):
+def band_sums(f_hz, psd, bands=HAND_BANDS_HZ):
+    """(len(bands),) the power of a one-sided PSD on the uniform frequency grid f_hz in each band [lo, hi)."""
+    return np.array([psd[(f_hz >= lo) & (f_hz < hi)].sum() * (f_hz[1] - f_hz[0]) for lo, hi in bands])
+
+
+def band_power(t_s, acc_ned_mps2, moving_fraction):
     """((m/s^2)^2) mean per-axis power of an NED acceleration in each band while moving (Welch, 20 s segments,
-    divided by the moving fraction as `motion.fit_oscillator` does), and (f, df) of the spectrum."""
+    divided by the moving fraction as `motion.fit_oscillator` does), and the spectrum's frequencies f (Hz)."""
     dt = float(np.median(np.diff(t_s)))
     a = np.where(np.isfinite(acc_ned_mps2), acc_ned_mps2, 0.0)
     f, S = welch(a - a.mean(axis=0), fs=1.0 / dt, nperseg=int(round(20.0 / dt)), axis=0)
-    S = S.mean(axis=1) / moving_fraction
-    return np.array([S[(f >= lo) & (f < hi)].sum() * (f[1] - f[0]) for lo, hi in bands]), f
+    return band_sums(f, S.mean(axis=1) / moving_fraction), f
 
 
 def truth_acc_ned(t_s, truth):
     """(N,3) m/s^2 the optical truth's kinematic NED acceleration at the IMU times: positions (NED about the
     first valid one) interpolated over dropouts, differentiated twice (Savitzky-Golay, cubic, 0.15 s)."""
     ok = np.all(np.isfinite(truth.lla), axis=1)
-    p = np.stack(pm.geodetic2ned(*truth.lla.T, *truth.lla[ok][0]), axis=1)
+    p = lla_to_ned(truth.lla, truth.lla[ok][0])
     p = np.stack([np.interp(t_s, truth.t_s[ok], p[ok, i]) for i in range(3)], axis=1)
     dt = float(np.median(np.diff(t_s)))
     return savgol_filter(p, int(round(0.15 / dt)) | 1, 3, deriv=2, delta=dt, axis=0)
@@ -209,8 +213,7 @@ def main():
             C_g = euler_to_dcm(*np.radians(g[["roll", "pitch", "yaw"]].to_numpy()).T)
             log_pw, f = band_power(t, np.einsum("nij,nj->ni", C_g, s.imu.acc_b_mps2), fit["moving_fraction"])
             true_pw, _ = band_power(t, truth_acc_ned(t, tr), fit["moving_fraction"])
-            model = oscillator_psd(f, fit["freq_hz"], fit["damping"], fit["q_m2ps3"])
-            fit_pw = np.array([model[(f >= lo) & (f < hi)].sum() * (f[1] - f[0]) for lo, hi in HAND_BANDS_HZ])
+            fit_pw = band_sums(f, oscillator_psd(f, fit["freq_hz"], fit["damping"], fit["q_m2ps3"]))
             hand_rows.append((d.name, log_pw / fit_pw, true_pw / fit_pw))
         q = traj[traj.solution == "fkf"]
         C_all = euler_to_dcm(*np.radians(q[["roll", "pitch", "yaw"]].to_numpy()).T)
