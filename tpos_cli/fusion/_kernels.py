@@ -318,6 +318,21 @@ def _blank_state(like, n_slots):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def _rewind(saved, live, res, e_from, e_to, t, k, w_ib, f_sum):
+    """Back to a checkpoint (`fusion.reacquire`: the trial and the revision run a stretch again): rows
+    e_from..e_to-1 lose the marks their first run gave them (inflation, jump), `live` takes `saved`, and
+    the rows' body rate and the epoch's specific-force sum restart at its sample k."""
+    for i in range(e_from, e_to):
+        res.inflation[i, 0] = 1.0
+        res.inflation[i, 1] = 1.0
+        res.jump[i] = False
+    _copy_state(saved, live)
+    for i in range(3):
+        w_ib[i] = live.dth_prev[i] / (t[k] - t[k - 1])  # (the rows' body rate at sample k)
+    f_sum[:] = 0.0
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
     """Closed-loop error-state filter over the whole (possibly reversed) arrays, from sample 0.
 
@@ -577,18 +592,11 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
                 res.accepted[e] = accept
                 e += 1
             if rewind_slot >= 0:  # to the slot's checkpoint, the stretch run again (`fusion.reacquire`: the revision)
-                for i in range(rv_at[rewind_slot, 1], e + 1):
-                    res.inflation[i, 0] = 1.0
-                    res.inflation[i, 1] = 1.0
-                    res.jump[i] = False
-                _copy_state(rv0 if rewind_slot == 0 else rv1, live)
                 at = rv_at[rewind_slot]
+                _rewind(rv0 if rewind_slot == 0 else rv1, live, res, at[1], e + 1, imu.t, at[0], w_ib, f_sum)
                 k, e, ep, r, last = at[0], at[1], at[2], at[3], at[4]
                 rv_ok[:] = False  # (the replay takes them again)
                 rewind_slot = -1
-                for i in range(3):
-                    w_ib[i] = dth_prev[i] / (imu.t[k] - imu.t[k - 1])  # (the rows' body rate at sample k)
-                f_sum[:] = 0.0
                 dt_sum = 0.0
                 resume = True
                 continue
@@ -613,16 +621,9 @@ def error_state_kernel(imu, start, P0, st, ev, aid, ranging, out, res):
             else:
                 trial, reading = _NO_TRIAL, DRIFT
             if rewind:
-                for i in range(ck_e, e):
-                    res.inflation[i, 0] = 1.0
-                    res.inflation[i, 1] = 1.0
-                    res.jump[i] = False
-                _copy_state(ck, live)
+                _rewind(ck, live, res, ck_e, e, imu.t, ck_k, w_ib, f_sum)
                 k, e, ep, r, last = ck_k, ck_e, ck_ep, ck_r, ck_last
                 rv_ok[:] = False  # checkpoints of the stretch run again: taken again
-                for i in range(3):
-                    w_ib[i] = dth_prev[i] / (imu.t[k] - imu.t[k - 1])  # (the rows' body rate at sample k)
-                f_sum[:] = 0.0
                 dt_sum = 0.0
                 trial_seen, score, resume = 0, 0.0, True
                 continue
