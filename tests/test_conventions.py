@@ -415,3 +415,40 @@ def test_the_walk_gets_no_log_only_clock_claim_and_comma2k19_keeps_its_own():
     assert check_gps_clock(walk) == [] and check_gps_clock(_gps_stamped_late(walk, 0.3)) == []
     (msg,) = check_gps_clock(load_session(SHARED / "comma2k19_seg40", with_truth=False))
     assert "0.191 ± 0.024 s late against the IMU's forward specific force" in msg
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_one_gyro_axis_in_deg_per_s_is_refused_naming_file_and_column(tmp_path, axis):
+    # audit (session 25): gyro_x x 57.3 in the sample drive passed `tpos validate` and `tpos process` blamed the GPS
+    # clock and the mounting: the axis's scatter at rest is 57.3x the others' (MEMS axes here within 1.1x), named now
+    from typer.testing import CliRunner
+
+    from tpos_cli.cli import app
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    s = write_session(SCENARIOS["drive"](seed=1, duration_s=120.0), tmp_path / "s", fmt="csv")
+    imu = pd.read_csv(s / "imu.csv")
+    imu[f"gyro_{axis}"] = np.degrees(imu[f"gyro_{axis}"])
+    imu.to_csv(s / "imu.csv", index=False)
+    runner = CliRunner()
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and f"{s}/imu.csv: column 'gyro_{axis}': gyro_{axis} looks like deg/s" in res.output, res.output
+    assert "multiply it by pi/180" in res.output
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and f"error: s/imu.csv: column 'gyro_{axis}'" in res.output and not (tmp_path / "run").exists()
+
+
+def test_axes_that_differ_at_rest_like_an_idling_car_name_no_axis():
+    # the rtklibexplorer drive idles with [0.007, 0.044, 0.0017] rad/s scatter: no axis is 19x both others
+    from tpos_cli.conventions import rest_noise_findings
+
+    rng = np.random.default_rng(0)
+    gyro = rng.normal(size=(2000, 3)) * np.array([0.007, 0.044, 0.0017])  # white: the same scatter per sample
+    still = np.ones(2000, bool)
+    assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
+    gyro[:, 0] *= 180 / np.pi  # x now 57x its own scale: 57 / 6.3 = 9x y, below the 19x a deg/s axis needs
+    assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
+    gyro[:, 0] /= 180 / np.pi
+    gyro[:, 2] *= 1000.0  # 243x x's scatter: beyond the 172x (57.3 x 3) a deg/s axis reaches, another unit
+    assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
