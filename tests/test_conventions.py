@@ -452,3 +452,43 @@ def test_axes_that_differ_at_rest_like_an_idling_car_name_no_axis():
     gyro[:, 0] /= 180 / np.pi
     gyro[:, 2] *= 1000.0  # 243x x's scatter: beyond the 172x (57.3 x 3) a deg/s axis reaches, another unit
     assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
+
+
+def _exchange_latlon(d, fname):
+    gps = pd.read_csv(d / fname) if fname.endswith(".csv") else pd.read_parquet(d / fname)
+    gps["lat"], gps["lon"] = gps["lon"].to_numpy().copy(), gps["lat"].to_numpy().copy()
+    gps.to_csv(d / fname, index=False) if fname.endswith(".csv") else gps.to_parquet(d / fname, index=False)
+
+
+def test_latlon_exchanged_without_velocities_is_named_from_the_tracks_turns(tmp_path):
+    # audit (session 25): a log without vn/ve whose lat and lon were exchanged (both within +-90) read "unreliable"
+    # with no cause; the exchange mirrors the track, which then turns against the gyro and with it exchanged back
+    from tpos_cli.conventions import latlon_exchange_findings
+    from tpos_cli.session import load_session
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    s = write_session(SCENARIOS["drive"](seed=1, duration_s=120.0), tmp_path / "s", fmt="parquet")
+    gps = pd.read_parquet(s / "gps.parquet").drop(columns=["vn", "ve", "vd"])
+    gps.to_parquet(s / "gps.parquet", index=False)
+    assert [f.level for f in latlon_exchange_findings(load_session(s))] == ["ok"]
+    _exchange_latlon(s, "gps.parquet")
+    (f,) = latlon_exchange_findings(load_session(s))
+    assert f.level == "unreliable" and f.reason.startswith("gps: lat and lon look exchanged") and "swap the lat and lon" in f.reason
+    _exchange_latlon(s, "gps.parquet")  # back as logged; a flipped vertical gyro turns against the track too, but
+    imu = pd.read_parquet(s / "imu.parquet")  # exchanging lat and lon does not undo it: not named an exchange
+    imu["gyro_z"] = -imu["gyro_z"]
+    imu.to_parquet(s / "imu.parquet", index=False)
+    assert [f.level for f in latlon_exchange_findings(load_session(s))] == ["ok"]
+
+
+@pytest.mark.skipif(not SHARED.exists(), reason="needs ../shared real sessions")
+def test_navego_with_lat_and_lon_exchanged_is_named_and_as_logged_is_not(tmp_path):
+    from tpos_cli.conventions import latlon_exchange_findings
+    from tpos_cli.session import load_session
+
+    d = tmp_path / "s"
+    shutil.copytree(SHARED / "navego_canada_enav", d)
+    assert [f.level for f in latlon_exchange_findings(load_session(d))] == ["ok"]
+    _exchange_latlon(d, "gps.csv")
+    assert [f.level for f in latlon_exchange_findings(load_session(d))] == ["unreliable"]

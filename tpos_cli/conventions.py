@@ -334,6 +334,58 @@ def course_findings(session) -> list[Finding]:
     return [Finding("conventions.course_gain", "ok", None, fig)]
 
 
+# lat and lon exchanged (possible where |lon| <= 90) in a log without GPS velocities (with vn/ve the loader
+# finds it: `io.plausibility.latlon_swap_evidence`): the exchange mirrors the ground track (and stretches it by
+# cos(lat) / cos(lon)), so the track of the positions turns against the gyro, and turns with it once the
+# columns are exchanged back: the cause is named only when that undoes the misfit. Positions differenced over
+# +-EXCHANGE_HALF_WINDOW_S (a slow rover's 20 Hz fixes are noise sample to sample), course changes over
+# EXCHANGE_TURN_WINDOW_S while above EXCHANGE_MIN_SPEED_MPS: navego (a rover at 0.3-2.6 m/s) fits gain
+# 0.95 ± 0.11 (r2 0.71) as logged, -0.21 ± 0.04 (r2 0.60) exchanged; the sample drive 1.01 ± 0.01 and -0.76 ± 0.03.
+EXCHANGE_HALF_WINDOW_S = 2.5
+EXCHANGE_TURN_WINDOW_S = 10.0
+EXCHANGE_MIN_SPEED_MPS = 0.3
+EXCHANGE_MIN_R2 = 0.3  # a fit that explains less is no turn measurement
+
+
+def _track_turn_gain(session, lla):
+    """`timeoffset.course_gain` of the ground track of positions `lla` (valid fixes) against the gyro, or
+    None when it measures no turning (too few windows, r2 <= EXCHANGE_MIN_R2)."""
+    from tpos_cli.timeoffset import course_gain, gps_velocity
+
+    g = session.gps
+    t = g.t_s[g.valid]
+    vel = gps_velocity(t, lla, None, half_window_s=EXCHANGE_HALF_WINDOW_S)
+    cg = course_gain(session.imu.t_s, session.imu.gyro_b_rps, session.imu.acc_b_mps2, t, vel,
+                     min_speed_mps=EXCHANGE_MIN_SPEED_MPS, window_s=EXCHANGE_TURN_WINDOW_S)
+    return cg if cg is not None and cg.r2 > EXCHANGE_MIN_R2 and np.isfinite(cg.sigma) else None
+
+
+def latlon_exchange_findings(session) -> list[Finding]:
+    """lat and lon exchanged in the GPS table, from the track's turns against the gyro as logged and with
+    the columns exchanged back (see above)."""
+    g = session.gps
+    if g is None or g.valid.sum() < 20:
+        return []
+    lla = g.lla[g.valid]
+    if np.abs(lla[:, 1]).max() > 90.0:
+        return []  # a longitude beyond 90 deg cannot have been a latitude
+    logged = _track_turn_gain(session, lla)
+    if logged is None:
+        return []
+    fig = {"turn_gain": logged.gain, "turn_gain_sd": logged.sigma}
+    if logged.gain < -5 * logged.sigma:  # turns against the gyro: would the exchange undo it?
+        back = _track_turn_gain(session, lla[:, [1, 0, 2]])
+        if back is not None:
+            fig.update(turn_gain_exchanged=back.gain, turn_gain_exchanged_sd=back.sigma)
+            if back.gain > 5 * back.sigma and abs(back.gain - 1.0) < abs(logged.gain + 1.0):
+                return [Finding("conventions.latlon_exchange", "unreliable",
+                                f"gps: lat and lon look exchanged: the track of the positions turns against the gyro "
+                                f"(gain {logged.gain:.2f} ± {logged.sigma:.2f}, {logged.n_windows} windows) and with lat and "
+                                f"lon exchanged turns with it (gain {back.gain:.2f} ± {back.sigma:.2f}); swap the lat and lon "
+                                "columns", fig)]
+    return [Finding("conventions.latlon_exchange", "ok", None, fig)]
+
+
 # Odometry against GPS speed: samples while the GPS speed is above ODO_MIN_SPEED_MPS (wheel speed and
 # ground speed agree there to the odometer's scale error, a few %); at least ODO_MIN_SAMPLES of them.
 ODO_MIN_SPEED_MPS = 2.0
@@ -686,6 +738,7 @@ def session_findings(session) -> list[Finding]:
     # the noise needs the full rate: every sample of a block at rest is at rest
     out += rest_noise_findings(imu.gyro_b_rps[:len(still_strict) * k], np.repeat(still_strict, k), axes)
     out += course_findings(session)
+    out += latlon_exchange_findings(session)
     pos = None
     if session.gps is not None and session.gps.valid.any():
         pos = session.gps.lla[session.gps.valid][0]
