@@ -16,7 +16,7 @@ from tpos_cli.report.projection import UtmZone
 COLUMN_DOC = {
     "id": "target name",
     "t": "logger clock, s",
-    "time_utc": "UTC (session start_utc + t)",
+    "time_utc": "UTC (session start_utc + t; 1970-01-01 + t for a clock in Unix seconds)",
     "lat": "WGS-84 latitude, deg",
     "lon": "WGS-84 longitude, deg",
     "h": "WGS-84 ellipsoidal height, m",
@@ -103,10 +103,12 @@ class ExportMeta:
 
     @property
     def description(self) -> str:
+        from tpos_cli.report.format import UNIX_EPOCH
+
         time = (
-            "UTC from the session's start_utc"
-            if self.start_utc
-            else "no UTC (the session gives no usable start_utc): times are the logger clock t"
+            "no UTC (the session gives no usable start_utc): times are the logger clock t" if not self.start_utc
+            else "UTC as 1970-01-01 + t (t counts Unix seconds; the session's start_utc names the first epoch)"
+            if self.start_utc == UNIX_EPOCH else "UTC from the session's start_utc"
         )
         return (
             f"tpos {self.tpos_version} export of run {self.run_dir} (pipeline {self.pipeline}, config sha256 "
