@@ -199,7 +199,7 @@ def separation(a: Series, b: Series) -> Separation:
 @dataclass(frozen=True)
 class GpsQuality:
     t: np.ndarray  # logger clock
-    fix: np.ndarray  # 0 none, 1 autonomous, 2 SBAS/WAAS
+    fix: np.ndarray  # 0 none, 1 autonomous, 2 differential (`report.fixes.differential_name`)
     nsat: np.ndarray | None
     hdop: np.ndarray | None
     sigma_h_m: np.ndarray | None  # reported horizontal SD, sqrt(s_n^2 + s_e^2)

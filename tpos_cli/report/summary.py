@@ -20,6 +20,7 @@ from tpos_cli.io.columns import records
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import KIND_TITLES, ReportContext
+from tpos_cli.report.fixes import differential_name
 from tpos_cli.report.format import fmt_duration, fmt_len, pct
 from tpos_cli.report.planview import plan_aspect, plan_view
 from tpos_cli.report.sections import PAGE_BOTTOM, PAGE_TOP, Section
@@ -189,10 +190,11 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         # a run that thins the fixes (drive-smooth: [drive_smooth] gps_max_rate_hz) says how many it used,
         # so that "14 of 290 rejected" below does not read as 290 of the log's 1174
         used_text = f" ({used} used)" if isinstance(used, int) and 0 < used < n_fix else ""
+        differential = differential_name(g.fix, g.sigma_h_m)
         rows.append(
             (
                 "GPS",
-                f"{n_fix} fixes{used_text}, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} SBAS/WAAS; "
+                f"{n_fix} fixes{used_text}, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} {differential}; "
                 f"{len(w)} outage{'s' if len(w) != 1 else ''}" + (f", longest {fmt_duration(longest)}" if len(w) else ""),
             )
         )
