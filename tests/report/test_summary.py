@@ -237,3 +237,20 @@ def test_page_1_attitude_error_leads_with_the_total_angle(tmp_path):
     total = float(value.split("RMS total angle ")[1].split(" deg")[0])
     assert abs(total - np.sqrt(0.5**2 + 0.3**2 + 2.0**2)) < 0.02, value
     assert value.endswith("(roll 0.500, pitch 0.300, yaw 2.000)"), value
+
+
+def test_attitude_page_1_draws_the_total_angle_bound_not_the_euler_yaw_sd(tmp_path):
+    # audit (session 25): BROAD 02's page 1 drew "stated 95 % heading bound" from sigma_yaw, an Euler SD of 204 deg
+    # near pitch -90 deg beside a total attitude error of ~0.5 deg; the run's att95_deg bounds the angle page 1 plots
+    from tpos_cli.report.summary import _attitude_strip
+
+    s = synth.write_session(tmp_path / "s", kind="target", truth=False)
+    traj = synth.trajectory_rows("fkf", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.0, 0.0, 0.0], sigma=(0.5, 0.5, 0.5))
+    traj["sigma_yaw"] = np.where(np.arange(len(traj)) == 100, 204.0, 0.7)
+    traj["att95_deg"] = 1.9
+    ctx = build_context(synth.write_run(tmp_path / "r", s, traj))
+    fig = Figure()
+    _attitude_strip(fig, ctx, 0.9, 0.5)
+    (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "--"]
+    assert "total angle" in line.get_label() and "heading" not in line.get_label()
+    np.testing.assert_allclose(line.get_ydata(), 1.9)

@@ -34,7 +34,12 @@ COLUMN_DOC = {
     "sigma_vd": "down velocity SD, m/s",
     "sigma_roll": "roll SD, deg",
     "sigma_pitch": "pitch SD, deg",
-    "sigma_yaw": "yaw SD, deg",
+    "sigma_yaw": "yaw SD, deg (Euler angle: large near pitch +-90 deg however good the attitude)",
+    "sigma_tilt_n": "SD of the attitude error about north, deg",
+    "sigma_tilt_e": "SD of the attitude error about east, deg",
+    "sigma_heading": "heading SD: SD of the attitude error about down, deg (defined at any pitch)",
+    "att95_deg": "95 % bound of the total attitude error angle, deg (at least 95 %: sqrt(chi2_3(0.95) x the "
+    "largest eigenvalue of the attitude-error covariance))",
     "cov_ne_m2": "north-east covariance, m^2",
     "cov_nu_m2": "north-up covariance, m^2",
     "cov_eu_m2": "east-up covariance, m^2",

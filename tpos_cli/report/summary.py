@@ -67,8 +67,11 @@ def _static_rows(ctx: ReportContext) -> list[tuple[str, str]]:
                 f"{abs(p[0]):.6f} {'N' if p[0] >= 0 else 'S'}, {abs(p[1]):.6f} {'E' if p[1] >= 0 else 'W'}, h {p[2]:.3f} m (ellipsoid)",
             )
         )
-    if best is not None and np.isfinite(best.sigma_rpy_deg[:, 2]).any():
-        rows.append((f"Heading, 95 % ({best.name})", f"median {qc.Z95 * np.nanmedian(best.sigma_rpy_deg[:, 2]):.3f} deg over the session"))
+    # the heading's SD is the attitude error's about down; the Euler yaw SD of a run written before that column
+    heading_sd = best.sigma_heading_deg if best is not None and np.isfinite(best.sigma_heading_deg).any() else (
+        None if best is None else best.sigma_rpy_deg[:, 2])
+    if heading_sd is not None and np.isfinite(heading_sd).any():
+        rows.append((f"Heading, 95 % ({best.name})", f"median {qc.Z95 * np.nanmedian(heading_sd):.3f} deg over the session"))
     if ctx.mag is not None:
         m = ctx.mag
         dist = float(np.sum(np.diff(m.disturbed, axis=1))) if len(m.disturbed) else 0.0
@@ -319,8 +322,13 @@ def _verdict_box(fig: Figure, ctx: ReportContext, top: float) -> float:
         n_more = sum(1 for ln in wrapped[5:] if ln.startswith("- "))
         more = f"{n_more} more reason{'s' if n_more != 1 else ''} and " if n_more else ""
         wrapped = wrapped[:5] + [f"  ... ({more}every reason in full under \"The verdict's checks\")"]
-    fig.text(0.285, top - 0.002, "\n".join(wrapped), ha="left", va="top", fontsize=7.6, linespacing=1.35)
-    return top - max(0.068, 0.004 + len(wrapped) * 7.6 * 1.35 / 72 / L.A4_IN[1])
+    # one text per line, baselines on a fixed pitch: a multi-line or top-aligned text places each line by its own
+    # glyphs' extent, and a line of the rtklibexplorer drive's reasons sat on the next reason (session 26)
+    pitch = 7.6 * 1.35 / 72 / L.A4_IN[1]
+    ascent = 7.6 * 0.8 / 72 / L.A4_IN[1]  # the first baseline below the top: a capital's height
+    for i, ln in enumerate(wrapped):
+        fig.text(0.285, top - 0.002 - ascent - i * pitch, ln, ha="left", va="baseline", fontsize=7.6)
+    return top - max(0.068, 0.004 + len(wrapped) * pitch)
 
 
 def provenance_lines(ctx: ReportContext, summary: dict) -> list[str]:
