@@ -49,6 +49,25 @@ def test_without_the_flags_check_there_is_no_flag_row(tmp_path):
     assert not any("flagged" in v for _, v in headline_rows(build_context(r)))
 
 
+def _box_lines(fig):
+    """The verdict box's lines, top to bottom (the texts right of the verdict badge)."""
+    texts = sorted((t for t in fig.texts if abs(t.get_position()[0] - 0.285) < 1e-9), key=lambda t: -t.get_position()[1])
+    return [t.get_text() for t in texts]
+
+
+def test_verdict_reasons_sit_on_a_fixed_line_pitch(tmp_path):
+    # session 26: on the rtklibexplorer drive's page 1 the third line of a reason (after "[time]" and "±" in the
+    # line above) sat on the next reason: one multi-line text spaced the lines by their glyphs
+    reasons = ["gps/imu: the GPS positions are time-stamped 0.115 ± 0.006 s early against the IMU (estimated by the filter, "
+               "whose output is on the GPS clock), their velocities 0.013 ± 0.006 s late: one [time] gps_offset_s cannot "
+               "put both right", "forward and backward runs disagree"]
+    fig = Figure()
+    _verdict_box(fig, build_context(_drive_run(tmp_path, {"verdict": "suspect", "reasons": reasons, "checks": {}})), 0.95)
+    ys = sorted((t.get_position()[1] for t in fig.texts if abs(t.get_position()[0] - 0.285) < 1e-9), reverse=True)
+    assert len(ys) == 4 and all(t.get_va() == "baseline" for t in fig.texts if abs(t.get_position()[0] - 0.285) < 1e-9)
+    np.testing.assert_allclose(-np.diff(ys), -np.diff(ys)[0], rtol=1e-12)  # every line one pitch below the last
+
+
 def test_every_reason_is_in_full_in_the_verdict_checks_when_page_1_cuts_them(tmp_path):
     words = "the filter's sigmas are too small for this log so positions may be off by more than their sigmas"
     reasons = [f"reason {i}: {words}; {words}" for i in range(4)]  # ~200 characters each, 2 lines each on page 1
@@ -56,7 +75,8 @@ def test_every_reason_is_in_full_in_the_verdict_checks_when_page_1_cuts_them(tmp
     ctx = build_context(_drive_run(tmp_path, q))
     fig = Figure()
     _verdict_box(fig, ctx, 0.95)
-    box = next(t.get_text() for t in fig.texts if t.get_text().startswith("- reason 0"))
+    box = "\n".join(_box_lines(fig))
+    assert box.startswith("- reason 0")
     assert "reason 3" not in box  # page 1 has room for six lines: reasons 3 and 4 do not fit
     assert box.splitlines()[-1].strip().startswith("... (2 more reasons and every reason in full")
     sec = verdict_checks_section(ctx, only_failed=True)

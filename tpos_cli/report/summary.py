@@ -381,7 +381,11 @@ def _attitude_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
     s = ctx.series[ctx.best]
     se = ctx.errors(s.name)
     x = ctx.x(s.t)
-    drawn = [qc.Z95 * s.sigma_rpy_deg[:, 2]]
+    # the bound of the total angle the error is (att95_deg); a run written before it has only the Euler yaw SD,
+    # singular at pitch +-90 deg (BROAD 02: 204 deg there for a 0.5 deg error), named as what it is
+    total = np.isfinite(s.att95_deg).any()
+    drawn = [s.att95_deg if total else qc.Z95 * s.sigma_rpy_deg[:, 2]]
+    what = "stated 95 % bound, total angle" if total else "stated 95 % bound, Euler yaw"
     if se is not None and se.att_err_deg is not None:
         L.plot_series(
             ax, ctx.x(se.t), se.att_err_deg["att_deg"], color=L.COLORS[0], lw=0.8, label=f"{s.name}: attitude error (total angle)"
@@ -389,8 +393,8 @@ def _attitude_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
         drawn.append(se.att_err_deg["att_deg"])
         ylabel = "attitude error, deg"
     else:
-        ylabel = "heading 95 % bound, deg"
-    L.plot_series(ax, x, drawn[0], color="k", lw=1.0, ls="--", label=f"{s.name}: stated 95 % heading bound")
+        ylabel = f"attitude 95 % bound ({'total angle' if total else 'Euler yaw'}), deg"
+    L.plot_series(ax, x, drawn[0], color="k", lw=1.0, ls="--", label=f"{s.name}: {what}")
     if ctx.mag is not None and len(ctx.mag.disturbed):
         L.shade(ax, ctx.mag.disturbed, ctx.t_ref, ctx.time_scale, L.DISTURB_COLOR, "magnetic disturbance", alpha=0.55)
     ax.set_xlim(*ctx.time_limits)
