@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pandas as pd
+import pytest
 from matplotlib.figure import Figure
 
 from tests.report import synth
@@ -274,3 +275,22 @@ def test_attitude_page_1_draws_the_total_angle_bound_not_the_euler_yaw_sd(tmp_pa
     (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "--"]
     assert "total angle" in line.get_label() and "heading" not in line.get_label()
     np.testing.assert_allclose(line.get_ydata(), 1.9)
+
+
+def test_the_total_angle_panel_gets_the_total_angle_bound(tmp_path):
+    # session 26: the attitude page's total-angle panel had no band (the Euler SDs bound no total angle); its band
+    # is the run's att95_deg, from 0 (an angle is not negative)
+    from matplotlib.collections import PolyCollection
+
+    from tpos_cli.report.timeplots import attitude_section
+
+    s = synth.write_session(tmp_path / "s", movement=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], rpy_err_deg=(0.5, -0.3, 2.0),
+                                 sigma=(0.5, 0.5, 0.5))
+    traj["sigma_roll"], traj["sigma_pitch"], traj["sigma_yaw"], traj["att95_deg"] = 0.4, 0.4, 0.9, 2.5
+    sec = attitude_section(build_context(synth.write_run(tmp_path / "r", s, traj)))
+    fig = Figure()
+    sec.draw(fig, 0.9, 0.1)
+    (band,) = [c for c in fig.axes[3].collections if isinstance(c, PolyCollection)]
+    y = np.concatenate([p.vertices[:, 1] for p in band.get_paths()])
+    assert y.min() == 0.0 and y.max() == pytest.approx(2.5)

@@ -278,7 +278,7 @@ def attitude_section(ctx: ReportContext) -> Section | None:
     title = "Attitude error against truth" if truth else f"Attitude: the solutions against {best}"
     sub = (
         "Solution minus truth, wrap-aware, and the total angle of the error rotation (free of the Euler convention near "
-        "pitch +/-90 deg); band: the 95 % bound (1.96 sigma) " + best + " states."
+        "pitch +/-90 deg); band: the 95 % bound " + best + " states (1.96 Euler sigma; the total angle's: att95_deg)."
         if truth
         else f"Each solution minus {best}, wrap-aware (no truth); band: the 95 % bound (1.96 sigma) {best} states."
     )
@@ -293,10 +293,11 @@ def attitude_section(ctx: ReportContext) -> Section | None:
         axes = panel_axes(fig, len(names), top, bottom)
         x = ctx.x(ref.t)
         for k, (ax, name) in enumerate(zip(axes, names)):
-            band = qc.Z95 * ref.sigma_rpy_deg[:, k] if k < 3 else np.full(ref.t.size, np.nan)
+            band = qc.Z95 * ref.sigma_rpy_deg[:, k] if k < 3 else ref.att95_deg  # the total angle's: one-sided
             if np.isfinite(band).any():
                 i = L.decimate(band)
-                ax.fill_between(x[i], -band[i], band[i], color="0.87", lw=0, label=f"{best}: 95 % bound")
+                ax.fill_between(x[i], -band[i] if k < 3 else 0.0 * band[i], band[i], color="0.87", lw=0,
+                                label=f"{best}: 95 % bound")
             drawn = [band]
             for s in _draw_order(ctx, shown):
                 if truth:
