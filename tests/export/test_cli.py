@@ -190,19 +190,24 @@ def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
     assert res.exit_code == 0 and json.loads((tmp_path / "x.json").read_text())["type"] == "FeatureCollection"
 
 
+def _run_with_start_utc(run, tmp_path, start_utc: str):
+    """A copy of `run` whose session copy states `start_utc`: (run copy, session copy, the session.toml as it was)."""
+    summary = json.loads((run / "summary.json").read_text())
+    s = shutil.copytree(summary["session"]["path"], tmp_path / "s")
+    toml = (s / "session.toml").read_text()
+    (s / "session.toml").write_text(toml.replace("[session]\n", f'[session]\nstart_utc = "{start_utc}"\n', 1))
+    r = shutil.copytree(run, tmp_path / "r", ignore=shutil.ignore_patterns("*.csv", "*.kml", "*.gpx", "*.geojson"))
+    summary["session"]["path"] = str(s)
+    (r / "summary.json").write_text(json.dumps(summary))
+    return r, s, toml
+
+
 def test_a_log_stamped_in_unix_seconds_is_dated_from_1970_with_a_note(drive_run, tmp_path):
     """navego_canada_enav (audit, session 25): t in Unix seconds and start_utc the first sample's UTC gave "after
     today" and no UTC; the contract's t may have any origin, so 1970-01-01 + t dates it, and the export says so."""
     import pyarrow.parquet as pq
 
-    run, _ = drive_run
-    summary = json.loads((run / "summary.json").read_text())
-    s = shutil.copytree(summary["session"]["path"], tmp_path / "s")
-    toml = (s / "session.toml").read_text()
-    (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2018-09-04T21:43:26Z"\n', 1))
-    r = shutil.copytree(run, tmp_path / "r", ignore=shutil.ignore_patterns("*.csv", "*.kml", "*.gpx", "*.geojson"))
-    summary["session"]["path"] = str(s)
-    (r / "summary.json").write_text(json.dumps(summary))
+    r, _, _ = _run_with_start_utc(drive_run[0], tmp_path, "2018-09-04T21:43:26Z")
     tr = pq.read_table(r / "trajectory.parquet").to_pandas()
     t0 = 1536097406.0 - float(tr["t"].min())  # the first epoch at 2018-09-04T21:43:26Z read as Unix seconds
     tr["t"] += t0
@@ -223,16 +228,7 @@ def test_a_log_stamped_in_unix_seconds_is_dated_from_1970_with_a_note(drive_run,
 def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):
     """A session whose start_utc names its first sample while t counts Unix seconds (as
     navego_canada_enav) would date every epoch decades ahead: no times, and a note why."""
-    import shutil
-
-    run, _ = drive_run
-    summary = json.loads((run / "summary.json").read_text())
-    s = shutil.copytree(summary["session"]["path"], tmp_path / "s")
-    toml = (s / "session.toml").read_text()
-    (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2099-12-31T23:59:00Z"\n', 1))
-    r = shutil.copytree(run, tmp_path / "r", ignore=shutil.ignore_patterns("*.csv", "*.kml", "*.gpx", "*.geojson"))
-    summary["session"]["path"] = str(s)
-    (r / "summary.json").write_text(json.dumps(summary))
+    r, s, toml = _run_with_start_utc(drive_run[0], tmp_path, "2099-12-31T23:59:00Z")
     res = _export(r, "-f", "gpx", "--trajectory")
     assert "start_utc 2099-12-31T23:59:00Z + t" in res.stderr and "after today" in res.stderr
     g = gpxpy.parse((r / "trajectory_smoothed.gpx").read_text())
