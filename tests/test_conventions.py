@@ -415,3 +415,80 @@ def test_the_walk_gets_no_log_only_clock_claim_and_comma2k19_keeps_its_own():
     assert check_gps_clock(walk) == [] and check_gps_clock(_gps_stamped_late(walk, 0.3)) == []
     (msg,) = check_gps_clock(load_session(SHARED / "comma2k19_seg40", with_truth=False))
     assert "0.191 ± 0.024 s late against the IMU's forward specific force" in msg
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_one_gyro_axis_in_deg_per_s_is_refused_naming_file_and_column(tmp_path, axis):
+    # audit (session 25): gyro_x x 57.3 in the sample drive passed `tpos validate` and `tpos process` blamed the GPS
+    # clock and the mounting: the axis's scatter at rest is 57.3x the others' (MEMS axes here within 1.1x), named now
+    from typer.testing import CliRunner
+
+    from tpos_cli.cli import app
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    s = write_session(SCENARIOS["drive"](seed=1, duration_s=120.0), tmp_path / "s", fmt="csv")
+    imu = pd.read_csv(s / "imu.csv")
+    imu[f"gyro_{axis}"] = np.degrees(imu[f"gyro_{axis}"])
+    imu.to_csv(s / "imu.csv", index=False)
+    runner = CliRunner()
+    res = runner.invoke(app, ["validate", str(s)])
+    assert res.exit_code == 2 and f"{s}/imu.csv: column 'gyro_{axis}': gyro_{axis} looks like deg/s" in res.output, res.output
+    assert "multiply it by pi/180" in res.output
+    res = runner.invoke(app, ["process", str(s), "-o", str(tmp_path / "run")])
+    assert res.exit_code == 2 and f"error: s/imu.csv: column 'gyro_{axis}'" in res.output and not (tmp_path / "run").exists()
+
+
+def test_axes_that_differ_at_rest_like_an_idling_car_name_no_axis():
+    # the rtklibexplorer drive idles with [0.007, 0.044, 0.0017] rad/s scatter: no axis is 19x both others
+    from tpos_cli.conventions import rest_noise_findings
+
+    rng = np.random.default_rng(0)
+    gyro = rng.normal(size=(2000, 3)) * np.array([0.007, 0.044, 0.0017])  # white: the same scatter per sample
+    still = np.ones(2000, bool)
+    assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
+    gyro[:, 0] *= 180 / np.pi  # x now 57x its own scale: 57 / 6.3 = 9x y, below the 19x a deg/s axis needs
+    assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
+    gyro[:, 0] /= 180 / np.pi
+    gyro[:, 2] *= 1000.0  # 243x x's scatter: beyond the 172x (57.3 x 3) a deg/s axis reaches, another unit
+    assert [f.level for f in rest_noise_findings(gyro, still, "FRD")] == ["ok"]
+
+
+def _exchange_latlon(d, fname):
+    gps = pd.read_csv(d / fname) if fname.endswith(".csv") else pd.read_parquet(d / fname)
+    gps["lat"], gps["lon"] = gps["lon"].to_numpy().copy(), gps["lat"].to_numpy().copy()
+    gps.to_csv(d / fname, index=False) if fname.endswith(".csv") else gps.to_parquet(d / fname, index=False)
+
+
+def test_latlon_exchanged_without_velocities_is_named_from_the_tracks_turns(tmp_path):
+    # audit (session 25): a log without vn/ve whose lat and lon were exchanged (both within +-90) read "unreliable"
+    # with no cause; the exchange mirrors the track, which then turns against the gyro and with it exchanged back
+    from tpos_cli.conventions import latlon_exchange_findings
+    from tpos_cli.session import load_session
+    from tpos_cli.sim import SCENARIOS
+    from tpos_cli.sim.writer import write_session
+
+    s = write_session(SCENARIOS["drive"](seed=1, duration_s=120.0), tmp_path / "s", fmt="parquet")
+    gps = pd.read_parquet(s / "gps.parquet").drop(columns=["vn", "ve", "vd"])
+    gps.to_parquet(s / "gps.parquet", index=False)
+    assert [f.level for f in latlon_exchange_findings(load_session(s))] == ["ok"]
+    _exchange_latlon(s, "gps.parquet")
+    (f,) = latlon_exchange_findings(load_session(s))
+    assert f.level == "unreliable" and f.reason.startswith("gps: lat and lon look exchanged") and "swap the lat and lon" in f.reason
+    _exchange_latlon(s, "gps.parquet")  # back as logged; a flipped vertical gyro turns against the track too, but
+    imu = pd.read_parquet(s / "imu.parquet")  # exchanging lat and lon does not undo it: not named an exchange
+    imu["gyro_z"] = -imu["gyro_z"]
+    imu.to_parquet(s / "imu.parquet", index=False)
+    assert [f.level for f in latlon_exchange_findings(load_session(s))] == ["ok"]
+
+
+@pytest.mark.skipif(not SHARED.exists(), reason="needs ../shared real sessions")
+def test_navego_with_lat_and_lon_exchanged_is_named_and_as_logged_is_not(tmp_path):
+    from tpos_cli.conventions import latlon_exchange_findings
+    from tpos_cli.session import load_session
+
+    d = tmp_path / "s"
+    shutil.copytree(SHARED / "navego_canada_enav", d)
+    assert [f.level for f in latlon_exchange_findings(load_session(d))] == ["ok"]
+    _exchange_latlon(d, "gps.csv")
+    assert [f.level for f in latlon_exchange_findings(load_session(d))] == ["unreliable"]

@@ -25,7 +25,8 @@ def test_solution_rows_have_the_contract_columns_in_order():
     df = solution_table(sol, np.arange(k) * 0.1, 1000.0, vertical_sigma="sigma_u", extra={"flag": np.zeros(k, bool)})
     assert list(df.columns) == ["t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw", "solution",
                                 "sigma_n", "sigma_e", "sigma_u", "sigma_vn", "sigma_ve", "sigma_vd",
-                                "sigma_roll", "sigma_pitch", "sigma_yaw", "flag"]
+                                "sigma_roll", "sigma_pitch", "sigma_yaw",
+                                "sigma_tilt_n", "sigma_tilt_e", "sigma_heading", "att95_deg", "flag"]
     assert_allclose(df["t"], [1000.0, 1000.1, 1000.2])
     assert_allclose(df[["sigma_n", "sigma_e", "sigma_u"]].to_numpy()[0], [1.0, 2.0, 3.0])
     assert_allclose(df["lat"], 45.0, atol=1e-12)
@@ -52,3 +53,25 @@ def test_solution_table_takes_an_attitude_covariance_in_place_of_p9s():
 def test_solution_column_of_an_empty_table():
     df = trajectory_table("x", np.zeros(0), np.zeros((0, 3)), None, np.zeros((0, 3, 3)))
     assert len(df) == 0 and "solution" in df
+
+
+def test_navigation_frame_attitude_sigmas_stay_finite_where_euler_yaw_is_singular():
+    # audit (session 25): BROAD 02's page 1 drew a 95 % heading bound from the Euler yaw SD, 204 deg near pitch
+    # -90 deg for a total attitude error of ~0.5 deg; the SDs about north/east/down and the total-angle bound
+    # come from the same covariance and do not depend on the attitude
+    from tpos_cli.trajectory import CHI2_3DOF_95, attitude_error_sigmas
+
+    P = np.diag(np.radians([0.2, 0.3, 0.5]) ** 2)
+    C = euler_to_dcm(np.array([0.3, 0.3]), np.radians([0.0, -89.9]), np.array([1.0, 1.0]))
+    df = trajectory_table("x", [0.0, 1.0], [45.0, 7.0, 100.0], None, C, P_att_rad2=np.stack([P, P]))
+    assert df["sigma_yaw"].iloc[1] > 50 * df["sigma_yaw"].iloc[0]  # the Euler SD blows up near pitch -90
+    assert_allclose(df[["sigma_tilt_n", "sigma_tilt_e", "sigma_heading"]].to_numpy(), [[0.2, 0.3, 0.5]] * 2, rtol=1e-12)
+    assert_allclose(df["att95_deg"], np.sqrt(CHI2_3DOF_95) * 0.5, rtol=1e-12)
+    # the total-angle bound holds with at least 95 % (exactly for an isotropic P): 2e5 draws, 3 binomial SDs ~0.15 %
+    rng = np.random.default_rng(0)
+    for P_test in (P, np.diag(np.radians([0.4, 0.4, 0.4]) ** 2)):
+        phi = rng.multivariate_normal(np.zeros(3), P_test, 200_000)
+        _, b = attitude_error_sigmas(P_test[None])
+        assert np.mean(np.degrees(np.linalg.norm(phi, axis=1)) <= b[0]) > 0.95 - 0.0015
+    _, b = attitude_error_sigmas(np.full((1, 3, 3), np.nan))
+    assert np.isnan(b).all()

@@ -3,8 +3,11 @@
 `Solution` is what every filter run and smoother yields at a set of IMU samples; `trajectory_table`
 turns any solution (also an attitude-only one) into contract rows: `t, lat, lon, h, vn, ve, vd,
 roll, pitch, yaw, solution`, the sigma columns it knows, then a chain's own columns. Attitude
-sigmas are Euler-angle SDs (`frames.rotation.euler_sigmas_deg`), never the SDs of the NED
-attitude error. `trajectory_columns`/`solution_columns` give the same rows as `io.columns.Columns`
+sigmas come twice: `sigma_roll/pitch/yaw` are Euler-angle SDs (`frames.rotation.euler_sigmas_deg`),
+singular at pitch +-90 deg (204 deg of yaw SD near it on a hand-held log whose attitude is good to
+0.5 deg); `sigma_tilt_n`, `sigma_tilt_e`, `sigma_heading` are the SDs of the NED attitude error (the
+rotation about north, east and down), and `att95_deg` bounds its total angle (`attitude_error_sigmas`),
+defined at any attitude. `trajectory_columns`/`solution_columns` give the same rows as `io.columns.Columns`
 (the drive chain: no pandas), `trajectory_table`/`solution_table` as a DataFrame.
 """
 
@@ -49,6 +52,25 @@ def _sd(P: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(np.diagonal(P, axis1=1, axis2=2), 0.0, None))
 
 
+# chi2_3(0.95) (scipy.stats.chi2.ppf(0.95, 3)): the 95 % quantile of phi^T P^-1 phi for a Gaussian 3-vector
+CHI2_3DOF_95 = 7.814727903251178
+
+
+def attitude_error_sigmas(P_att_rad2) -> tuple[np.ndarray, np.ndarray]:
+    """SDs (K, 3) in deg of the NED attitude error phi (rotation about north, east, down: the last is the
+    heading's) and the 95 % bound (K,) in deg of its total angle |phi|: sqrt(CHI2_3DOF_95 lambda_max(P)).
+    The bound holds with at least 95 %: phi^T phi <= lambda_max phi^T P^-1 phi, and
+    P(phi^T P^-1 phi <= CHI2_3DOF_95) = 0.95; exactly 95 % when P is isotropic, more when one axis dominates
+    (it is then that axis's 2.8-sigma). NaN where P is not finite."""
+    P = np.asarray(P_att_rad2, dtype=float).reshape(-1, 3, 3)
+    sd = np.degrees(_sd(P))
+    ok = np.isfinite(P).all(axis=(1, 2))
+    lam = np.full(P.shape[0], np.nan)
+    if ok.any():
+        lam[ok] = np.linalg.eigvalsh(0.5 * (P[ok] + np.swapaxes(P[ok], 1, 2)))[:, -1]
+    return sd, np.degrees(np.sqrt(CHI2_3DOF_95 * np.clip(lam, 0.0, None)))
+
+
 def trajectory_table(name: str, t, lla_deg, vel_ned_mps, C_nb, **kw) -> pd.DataFrame:
     """`trajectory_columns` as a DataFrame (the solution's name as a scalar: pandas repeats it)."""
     import pandas as pd
@@ -74,7 +96,8 @@ def _trajectory_cols(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=N
     t (K,) logger-clock s; lla_deg (K, 3) or (3,) (a static observer); vel_ned_mps (K, 3) or None
     (zeros); C_nb (K, 3, 3); optional covariances (K, 3, 3) of the NED position (m^2), velocity
     ((m/s)^2) and attitude error phi (rad^2) give `sigma_n, sigma_e, <vertical_sigma>`,
-    `sigma_vn, sigma_ve, sigma_vd`, `sigma_roll, sigma_pitch, sigma_yaw` (deg); `extra` columns follow.
+    `sigma_vn, sigma_ve, sigma_vd`, `sigma_roll, sigma_pitch, sigma_yaw` and `sigma_tilt_n,
+    sigma_tilt_e, sigma_heading, att95_deg` (deg, `attitude_error_sigmas`); `extra` columns follow.
     """
     t = np.asarray(t, dtype=float)
     k = t.size
@@ -94,6 +117,8 @@ def _trajectory_cols(name: str, t, lla_deg, vel_ned_mps, C_nb, *, P_pos_ned_m2=N
     if P_att_rad2 is not None:
         se = euler_sigmas_deg(C_nb, P_att_rad2)
         cols.update({"sigma_roll": se[:, 0], "sigma_pitch": se[:, 1], "sigma_yaw": se[:, 2]})
+        sd, att95 = attitude_error_sigmas(P_att_rad2)
+        cols.update({"sigma_tilt_n": sd[:, 0], "sigma_tilt_e": sd[:, 1], "sigma_heading": sd[:, 2], "att95_deg": att95})
     cols.update(extra or {})
     return cols
 

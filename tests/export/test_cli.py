@@ -190,19 +190,45 @@ def test_outputs_stdout_modes_and_errors(drive_run, tmp_path):
     assert res.exit_code == 0 and json.loads((tmp_path / "x.json").read_text())["type"] == "FeatureCollection"
 
 
-def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):
-    """A session whose start_utc names its first sample while t counts Unix seconds (as
-    navego_canada_enav) would date every epoch decades ahead: no times, and a note why."""
-    import shutil
-
-    run, _ = drive_run
+def _run_with_start_utc(run, tmp_path, start_utc: str):
+    """A copy of `run` whose session copy states `start_utc`: (run copy, session copy, the session.toml as it was)."""
     summary = json.loads((run / "summary.json").read_text())
     s = shutil.copytree(summary["session"]["path"], tmp_path / "s")
     toml = (s / "session.toml").read_text()
-    (s / "session.toml").write_text(toml.replace("[session]\n", '[session]\nstart_utc = "2099-12-31T23:59:00Z"\n', 1))
+    (s / "session.toml").write_text(toml.replace("[session]\n", f'[session]\nstart_utc = "{start_utc}"\n', 1))
     r = shutil.copytree(run, tmp_path / "r", ignore=shutil.ignore_patterns("*.csv", "*.kml", "*.gpx", "*.geojson"))
     summary["session"]["path"] = str(s)
     (r / "summary.json").write_text(json.dumps(summary))
+    return r, s, toml
+
+
+def test_a_log_stamped_in_unix_seconds_is_dated_from_1970_with_a_note(drive_run, tmp_path):
+    """navego_canada_enav (audit, session 25): t in Unix seconds and start_utc the first sample's UTC gave "after
+    today" and no UTC; the contract's t may have any origin, so 1970-01-01 + t dates it, and the export says so."""
+    import pyarrow.parquet as pq
+
+    r, _, _ = _run_with_start_utc(drive_run[0], tmp_path, "2018-09-04T21:43:26Z")
+    tr = pq.read_table(r / "trajectory.parquet").to_pandas()
+    t0 = 1536097406.0 - float(tr["t"].min())  # the first epoch at 2018-09-04T21:43:26Z read as Unix seconds
+    tr["t"] += t0
+    tr.to_parquet(r / "trajectory.parquet", index=False)
+    if (r / "targets.parquet").exists():
+        tg = pq.read_table(r / "targets.parquet").to_pandas()
+        tg[["t_start", "t_end"]] += t0
+        tg.to_parquet(r / "targets.parquet", index=False)
+    res = _export(r, "-f", "csv", "--trajectory")
+    assert "t counts Unix seconds" in res.stderr and "after today" not in res.stderr
+    row = _rows_csv(r / "trajectory_smoothed.csv")[0]
+    assert row["time_utc"].startswith("2018-09-04T21:43:26"), row["time_utc"]
+    _export(r, "-f", "kml", "--trajectory", "-o", str(tmp_path / "d.kml"))
+    desc = ET.parse(tmp_path / "d.kml").getroot().find(f"{KML}Document/{KML}description").text
+    assert "UTC as 1970-01-01 + t (t counts Unix seconds" in desc
+
+
+def test_no_utc_when_start_utc_plus_t_is_after_today(drive_run, tmp_path):
+    """A session whose start_utc names its first sample while t counts Unix seconds (as
+    navego_canada_enav) would date every epoch decades ahead: no times, and a note why."""
+    r, s, toml = _run_with_start_utc(drive_run[0], tmp_path, "2099-12-31T23:59:00Z")
     res = _export(r, "-f", "gpx", "--trajectory")
     assert "start_utc 2099-12-31T23:59:00Z + t" in res.stderr and "after today" in res.stderr
     g = gpxpy.parse((r / "trajectory_smoothed.gpx").read_text())

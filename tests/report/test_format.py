@@ -16,11 +16,18 @@ def test_start_utc_dates_a_log_stamped_from_zero():
     assert checked_start_utc(None, [0.0], NOW) == (None, "")
 
 
-def test_start_utc_of_the_first_sample_of_a_unix_time_log_is_refused():
-    # navego_canada_enav: t in Unix seconds, start_utc the first sample's UTC: start_utc + t is 2067
+def test_a_unix_time_log_whose_start_utc_names_its_first_sample_is_dated_from_1970():
+    # navego_canada_enav: t in Unix seconds, start_utc the first sample's UTC: start_utc + t is 2067, a false
+    # "after today" (audit, session 25); the contract's t may have any origin, and 1970 + t is the log's UTC
+    from tpos_cli.report.format import UNIX_EPOCH
+
     s = datetime(2018, 9, 4, 21, 43, 26, tzinfo=UTC)
     got, why = checked_start_utc(s, [1536097411.1, 1536097773.0], NOW)
-    assert got is None and "2067-05-09T19:32:59Z, after today" in why and "no UTC times written" in why
+    assert got == UNIX_EPOCH and "t counts Unix seconds" in why and "after today" not in why
+    assert list(utc_strings([1536097405.9], got, 3)) == ["2018-09-04T21:43:25.900Z"]
+    # the same clock with a start_utc a day off its Unix date: no reading dates it, still refused
+    got, why = checked_start_utc(s + (s - s.replace(day=3)), [1536097411.1, 1536097773.0], NOW)
+    assert got is None and "after today" in why and "no UTC times written" in why
     # a GPS-seconds-of-week log with start_utc at the start of its week is fine
     week = datetime(2020, 7, 5, tzinfo=UTC)
     assert checked_start_utc(week, [243258.5, 243551.7], NOW) == (week, "")

@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pandas as pd
+import pytest
 from matplotlib.figure import Figure
 
 from tests.report import synth
@@ -49,6 +50,25 @@ def test_without_the_flags_check_there_is_no_flag_row(tmp_path):
     assert not any("flagged" in v for _, v in headline_rows(build_context(r)))
 
 
+def _box_lines(fig):
+    """The verdict box's lines, top to bottom (the texts right of the verdict badge)."""
+    texts = sorted((t for t in fig.texts if abs(t.get_position()[0] - 0.285) < 1e-9), key=lambda t: -t.get_position()[1])
+    return [t.get_text() for t in texts]
+
+
+def test_verdict_reasons_sit_on_a_fixed_line_pitch(tmp_path):
+    # session 26: on the rtklibexplorer drive's page 1 the third line of a reason (after "[time]" and "±" in the
+    # line above) sat on the next reason: one multi-line text spaced the lines by their glyphs
+    reasons = ["gps/imu: the GPS positions are time-stamped 0.115 ± 0.006 s early against the IMU (estimated by the filter, "
+               "whose output is on the GPS clock), their velocities 0.013 ± 0.006 s late: one [time] gps_offset_s cannot "
+               "put both right", "forward and backward runs disagree"]
+    fig = Figure()
+    _verdict_box(fig, build_context(_drive_run(tmp_path, {"verdict": "suspect", "reasons": reasons, "checks": {}})), 0.95)
+    ys = sorted((t.get_position()[1] for t in fig.texts if abs(t.get_position()[0] - 0.285) < 1e-9), reverse=True)
+    assert len(ys) == 4 and all(t.get_va() == "baseline" for t in fig.texts if abs(t.get_position()[0] - 0.285) < 1e-9)
+    np.testing.assert_allclose(-np.diff(ys), -np.diff(ys)[0], rtol=1e-12)  # every line one pitch below the last
+
+
 def test_every_reason_is_in_full_in_the_verdict_checks_when_page_1_cuts_them(tmp_path):
     words = "the filter's sigmas are too small for this log so positions may be off by more than their sigmas"
     reasons = [f"reason {i}: {words}; {words}" for i in range(4)]  # ~200 characters each, 2 lines each on page 1
@@ -56,7 +76,8 @@ def test_every_reason_is_in_full_in_the_verdict_checks_when_page_1_cuts_them(tmp
     ctx = build_context(_drive_run(tmp_path, q))
     fig = Figure()
     _verdict_box(fig, ctx, 0.95)
-    box = next(t.get_text() for t in fig.texts if t.get_text().startswith("- reason 0"))
+    box = "\n".join(_box_lines(fig))
+    assert box.startswith("- reason 0")
     assert "reason 3" not in box  # page 1 has room for six lines: reasons 3 and 4 do not fit
     assert box.splitlines()[-1].strip().startswith("... (2 more reasons and every reason in full")
     sec = verdict_checks_section(ctx, only_failed=True)
@@ -237,3 +258,39 @@ def test_page_1_attitude_error_leads_with_the_total_angle(tmp_path):
     total = float(value.split("RMS total angle ")[1].split(" deg")[0])
     assert abs(total - np.sqrt(0.5**2 + 0.3**2 + 2.0**2)) < 0.02, value
     assert value.endswith("(roll 0.500, pitch 0.300, yaw 2.000)"), value
+
+
+def test_attitude_page_1_draws_the_total_angle_bound_not_the_euler_yaw_sd(tmp_path):
+    # audit (session 25): BROAD 02's page 1 drew "stated 95 % heading bound" from sigma_yaw, an Euler SD of 204 deg
+    # near pitch -90 deg beside a total attitude error of ~0.5 deg; the run's att95_deg bounds the angle page 1 plots
+    from tpos_cli.report.summary import _attitude_strip
+
+    s = synth.write_session(tmp_path / "s", kind="target", truth=False)
+    traj = synth.trajectory_rows("fkf", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.0, 0.0, 0.0], sigma=(0.5, 0.5, 0.5))
+    traj["sigma_yaw"] = np.where(np.arange(len(traj)) == 100, 204.0, 0.7)
+    traj["att95_deg"] = 1.9
+    ctx = build_context(synth.write_run(tmp_path / "r", s, traj))
+    fig = Figure()
+    _attitude_strip(fig, ctx, 0.9, 0.5)
+    (line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_linestyle() == "--"]
+    assert "total angle" in line.get_label() and "heading" not in line.get_label()
+    np.testing.assert_allclose(line.get_ydata(), 1.9)
+
+
+def test_the_total_angle_panel_gets_the_total_angle_bound(tmp_path):
+    # session 26: the attitude page's total-angle panel had no band (the Euler SDs bound no total angle); its band
+    # is the run's att95_deg, from 0 (an angle is not negative)
+    from matplotlib.collections import PolyCollection
+
+    from tpos_cli.report.timeplots import attitude_section
+
+    s = synth.write_session(tmp_path / "s", movement=True)
+    traj = synth.trajectory_rows("smoothed", np.arange(0.0, 20.0 + 1e-9, 0.1), [0.3, 0.4, 0.0], rpy_err_deg=(0.5, -0.3, 2.0),
+                                 sigma=(0.5, 0.5, 0.5))
+    traj["sigma_roll"], traj["sigma_pitch"], traj["sigma_yaw"], traj["att95_deg"] = 0.4, 0.4, 0.9, 2.5
+    sec = attitude_section(build_context(synth.write_run(tmp_path / "r", s, traj)))
+    fig = Figure()
+    sec.draw(fig, 0.9, 0.1)
+    (band,) = [c for c in fig.axes[3].collections if isinstance(c, PolyCollection)]
+    y = np.concatenate([p.vertices[:, 1] for p in band.get_paths()])
+    assert y.min() == 0.0 and y.max() == pytest.approx(2.5)

@@ -16,7 +16,7 @@ from tpos_cli.report.projection import UtmZone
 COLUMN_DOC = {
     "id": "target name",
     "t": "logger clock, s",
-    "time_utc": "UTC (session start_utc + t)",
+    "time_utc": "UTC (session start_utc + t; 1970-01-01 + t for a clock in Unix seconds)",
     "lat": "WGS-84 latitude, deg",
     "lon": "WGS-84 longitude, deg",
     "h": "WGS-84 ellipsoidal height, m",
@@ -34,7 +34,12 @@ COLUMN_DOC = {
     "sigma_vd": "down velocity SD, m/s",
     "sigma_roll": "roll SD, deg",
     "sigma_pitch": "pitch SD, deg",
-    "sigma_yaw": "yaw SD, deg",
+    "sigma_yaw": "yaw SD, deg (Euler angle: large near pitch +-90 deg however good the attitude)",
+    "sigma_tilt_n": "SD of the attitude error about north, deg",
+    "sigma_tilt_e": "SD of the attitude error about east, deg",
+    "sigma_heading": "heading SD: SD of the attitude error about down, deg (defined at any pitch)",
+    "att95_deg": "95 % bound of the total attitude error angle, deg (at least 95 %: sqrt(chi2_3(0.95) x the "
+    "largest eigenvalue of the attitude-error covariance))",
     "cov_ne_m2": "north-east covariance, m^2",
     "cov_nu_m2": "north-up covariance, m^2",
     "cov_eu_m2": "east-up covariance, m^2",
@@ -103,10 +108,12 @@ class ExportMeta:
 
     @property
     def description(self) -> str:
+        from tpos_cli.report.format import UNIX_EPOCH
+
         time = (
-            "UTC from the session's start_utc"
-            if self.start_utc
-            else "no UTC (the session gives no usable start_utc): times are the logger clock t"
+            "no UTC (the session gives no usable start_utc): times are the logger clock t" if not self.start_utc
+            else "UTC as 1970-01-01 + t (t counts Unix seconds; the session's start_utc names the first epoch)"
+            if self.start_utc == UNIX_EPOCH else "UTC from the session's start_utc"
         )
         return (
             f"tpos {self.tpos_version} export of run {self.run_dir} (pipeline {self.pipeline}, config sha256 "

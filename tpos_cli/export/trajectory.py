@@ -15,7 +15,8 @@ from tpos_cli.report.projection import UtmZone, to_utm, zone_for
 from tpos_cli.report.targets import horizontal_ellipse
 
 BASE = ("t", "lat", "lon", "h", "vn", "ve", "vd", "roll", "pitch", "yaw")
-SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_vn", "sigma_ve", "sigma_vd", "sigma_roll", "sigma_pitch", "sigma_yaw")
+SIGMAS = ("sigma_n", "sigma_e", "sigma_u", "sigma_vn", "sigma_ve", "sigma_vd", "sigma_roll", "sigma_pitch", "sigma_yaw",
+          "sigma_tilt_n", "sigma_tilt_e", "sigma_heading", "att95_deg")
 
 
 MAX_TICKS_PER_EPOCH = 4  # above this the tick grid is not built (see `epochs_at_rate`)

@@ -51,7 +51,9 @@ class Series:
     rpy_deg: np.ndarray  # (N, 3)
     sigma_neu_m: np.ndarray  # (N, 3)
     cov_ne_m2: np.ndarray  # (N,), zeros when not written
-    sigma_rpy_deg: np.ndarray  # (N, 3)
+    sigma_rpy_deg: np.ndarray  # (N, 3) Euler-angle SDs: singular at pitch +-90 deg
+    sigma_heading_deg: np.ndarray  # (N,) SD of the attitude error about down (NaN when the run wrote none)
+    att95_deg: np.ndarray  # (N,) 95 % bound of the total attitude error angle (`trajectory.attitude_error_sigmas`)
     flag: np.ndarray  # (N,) bool: forward/backward disagreement flagged by the chain
     outage: np.ndarray  # (N,) bool
 
@@ -102,6 +104,7 @@ def solution_series(trajectory: Columns | pd.DataFrame | None) -> dict[str, Seri
     sig_neu = np.column_stack([_col(d, "sigma_n"), _col(d, "sigma_e"), sig_u])
     cov_ne = np.nan_to_num(_col(d, "cov_ne_m2", 0.0))
     sig_rpy = np.column_stack([_col(d, "sigma_roll"), _col(d, "sigma_pitch"), _col(d, "sigma_yaw")])
+    sig_heading, att95 = _col(d, "sigma_heading"), _col(d, "att95_deg")
     flag, outage = _flag(d, "flag"), _flag(d, "outage")
     out = {}
     for name, idx in _by_solution(np.asarray(column(d, "solution"))).items():
@@ -114,6 +117,8 @@ def solution_series(trajectory: Columns | pd.DataFrame | None) -> dict[str, Seri
             sigma_neu_m=sig_neu[rows],
             cov_ne_m2=cov_ne[rows],
             sigma_rpy_deg=sig_rpy[rows],
+            sigma_heading_deg=sig_heading[rows],
+            att95_deg=att95[rows],
             flag=flag[rows],
             outage=outage[rows],
         )
@@ -199,7 +204,7 @@ def separation(a: Series, b: Series) -> Separation:
 @dataclass(frozen=True)
 class GpsQuality:
     t: np.ndarray  # logger clock
-    fix: np.ndarray  # 0 none, 1 autonomous, 2 SBAS/WAAS
+    fix: np.ndarray  # 0 none, 1 autonomous, 2 differential (`report.fixes.differential_name`)
     nsat: np.ndarray | None
     hdop: np.ndarray | None
     sigma_h_m: np.ndarray | None  # reported horizontal SD, sqrt(s_n^2 + s_e^2)

@@ -20,6 +20,7 @@ from tpos_cli.io.columns import records
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import KIND_TITLES, ReportContext
+from tpos_cli.report.fixes import differential_name
 from tpos_cli.report.format import fmt_duration, fmt_len, pct
 from tpos_cli.report.planview import plan_aspect, plan_view
 from tpos_cli.report.sections import PAGE_BOTTOM, PAGE_TOP, Section
@@ -66,8 +67,11 @@ def _static_rows(ctx: ReportContext) -> list[tuple[str, str]]:
                 f"{abs(p[0]):.6f} {'N' if p[0] >= 0 else 'S'}, {abs(p[1]):.6f} {'E' if p[1] >= 0 else 'W'}, h {p[2]:.3f} m (ellipsoid)",
             )
         )
-    if best is not None and np.isfinite(best.sigma_rpy_deg[:, 2]).any():
-        rows.append((f"Heading, 95 % ({best.name})", f"median {qc.Z95 * np.nanmedian(best.sigma_rpy_deg[:, 2]):.3f} deg over the session"))
+    # the heading's SD is the attitude error's about down; the Euler yaw SD of a run written before that column
+    heading_sd = best.sigma_heading_deg if best is not None and np.isfinite(best.sigma_heading_deg).any() else (
+        None if best is None else best.sigma_rpy_deg[:, 2])
+    if heading_sd is not None and np.isfinite(heading_sd).any():
+        rows.append((f"Heading, 95 % ({best.name})", f"median {qc.Z95 * np.nanmedian(heading_sd):.3f} deg over the session"))
     if ctx.mag is not None:
         m = ctx.mag
         dist = float(np.sum(np.diff(m.disturbed, axis=1))) if len(m.disturbed) else 0.0
@@ -189,10 +193,11 @@ def headline_rows(ctx: ReportContext) -> list[tuple[str, str]]:
         # a run that thins the fixes (drive-smooth: [drive_smooth] gps_max_rate_hz) says how many it used,
         # so that "14 of 290 rejected" below does not read as 290 of the log's 1174
         used_text = f" ({used} used)" if isinstance(used, int) and 0 < used < n_fix else ""
+        differential = differential_name(g.fix, g.sigma_h_m)
         rows.append(
             (
                 "GPS",
-                f"{n_fix} fixes{used_text}, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} SBAS/WAAS; "
+                f"{n_fix} fixes{used_text}, {pct(np.mean(g.fix[g.fix > 0] == 2)) if n_fix else 'n/a'} {differential}; "
                 f"{len(w)} outage{'s' if len(w) != 1 else ''}" + (f", longest {fmt_duration(longest)}" if len(w) else ""),
             )
         )
@@ -317,8 +322,13 @@ def _verdict_box(fig: Figure, ctx: ReportContext, top: float) -> float:
         n_more = sum(1 for ln in wrapped[5:] if ln.startswith("- "))
         more = f"{n_more} more reason{'s' if n_more != 1 else ''} and " if n_more else ""
         wrapped = wrapped[:5] + [f"  ... ({more}every reason in full under \"The verdict's checks\")"]
-    fig.text(0.285, top - 0.002, "\n".join(wrapped), ha="left", va="top", fontsize=7.6, linespacing=1.35)
-    return top - max(0.068, 0.004 + len(wrapped) * 7.6 * 1.35 / 72 / L.A4_IN[1])
+    # one text per line, baselines on a fixed pitch: a multi-line or top-aligned text places each line by its own
+    # glyphs' extent, and a line of the rtklibexplorer drive's reasons sat on the next reason (session 26)
+    pitch = 7.6 * 1.35 / 72 / L.A4_IN[1]
+    ascent = 7.6 * 0.8 / 72 / L.A4_IN[1]  # the first baseline below the top: a capital's height
+    for i, ln in enumerate(wrapped):
+        fig.text(0.285, top - 0.002 - ascent - i * pitch, ln, ha="left", va="baseline", fontsize=7.6)
+    return top - max(0.068, 0.004 + len(wrapped) * pitch)
 
 
 def provenance_lines(ctx: ReportContext, summary: dict) -> list[str]:
@@ -371,7 +381,11 @@ def _attitude_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
     s = ctx.series[ctx.best]
     se = ctx.errors(s.name)
     x = ctx.x(s.t)
-    drawn = [qc.Z95 * s.sigma_rpy_deg[:, 2]]
+    # the bound of the total angle the error is (att95_deg); a run written before it has only the Euler yaw SD,
+    # singular at pitch +-90 deg (BROAD 02: 204 deg there for a 0.5 deg error), named as what it is
+    total = np.isfinite(s.att95_deg).any()
+    drawn = [s.att95_deg if total else qc.Z95 * s.sigma_rpy_deg[:, 2]]
+    what = "stated 95 % bound, total angle" if total else "stated 95 % bound, Euler yaw"
     if se is not None and se.att_err_deg is not None:
         L.plot_series(
             ax, ctx.x(se.t), se.att_err_deg["att_deg"], color=L.COLORS[0], lw=0.8, label=f"{s.name}: attitude error (total angle)"
@@ -379,8 +393,8 @@ def _attitude_strip(fig: Figure, ctx: ReportContext, top: float, bottom: float) 
         drawn.append(se.att_err_deg["att_deg"])
         ylabel = "attitude error, deg"
     else:
-        ylabel = "heading 95 % bound, deg"
-    L.plot_series(ax, x, drawn[0], color="k", lw=1.0, ls="--", label=f"{s.name}: stated 95 % heading bound")
+        ylabel = f"attitude 95 % bound ({'total angle' if total else 'Euler yaw'}), deg"
+    L.plot_series(ax, x, drawn[0], color="k", lw=1.0, ls="--", label=f"{s.name}: {what}")
     if ctx.mag is not None and len(ctx.mag.disturbed):
         L.shade(ax, ctx.mag.disturbed, ctx.t_ref, ctx.time_scale, L.DISTURB_COLOR, "magnetic disturbance", alpha=0.55)
     ax.set_xlim(*ctx.time_limits)

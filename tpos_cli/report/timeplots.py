@@ -15,13 +15,13 @@ from tpos_cli.io.columns import as_text, column, flags, no_value
 from tpos_cli.report import layout as L
 from tpos_cli.report import qc
 from tpos_cli.report.context import ReportContext
+from tpos_cli.report.fixes import fix_names
 from tpos_cli.report.health import nis_band
 from tpos_cli.report.sections import Section
 from tpos_cli.report.summary import consistency_text
 from tpos_cli.report.tables import NIS_TABLE_NOTE, nis_columns
 
 PANEL_H = 0.18  # one time panel with its share of legend and tick-label space, figure fraction
-FIX_NAMES = {0: "none", 1: "autonomous", 2: "SBAS/WAAS"}
 LEGEND_H = 0.028  # a legend line above an axis
 TICKS_H = 0.022  # tick labels under an axis
 XLABEL_H = 0.045  # tick labels and the time label under the last axis
@@ -205,6 +205,7 @@ def gps_section(ctx: ReportContext) -> Section | None:
     if g is None:
         return None
     panels, constants = [], []
+    names = fix_names(g.fix, g.sigma_h_m)
     for label, y, style, fmt in (
         ("fix type", g.fix, "step", "{:.0f}"),
         ("satellites used", g.nsat, "step", "{:.0f}"),
@@ -216,7 +217,7 @@ def gps_section(ctx: ReportContext) -> Section | None:
         v = y[np.isfinite(y)]
         if v.size and np.ptp(v) == 0:
             constants.append(
-                f"{label.split(',')[0]} {FIX_NAMES.get(int(v[0]), fmt.format(v[0])) if label == 'fix type' else fmt.format(v[0])}"
+                f"{label.split(',')[0]} {names.get(int(v[0]), fmt.format(v[0])) if label == 'fix type' else fmt.format(v[0])}"
             )
         else:
             panels.append((label, y, style))
@@ -246,7 +247,7 @@ def gps_section(ctx: ReportContext) -> Section | None:
                         ax.plot(x[i], y[i], color=L.COLORS[0], lw=0.9)
                 mark_time(ax, ctx, legend=ax is axes[0])
                 if label == "fix type":
-                    ax.set_yticks([0, 1, 2], [FIX_NAMES[k] for k in (0, 1, 2)])
+                    ax.set_yticks([0, 1, 2], [names[k] for k in (0, 1, 2)])
                     ax.set_ylim(-0.3, 2.3)
             _finish(axes, ctx, [p[0] for p in panels])
         if note:
@@ -277,7 +278,7 @@ def attitude_section(ctx: ReportContext) -> Section | None:
     title = "Attitude error against truth" if truth else f"Attitude: the solutions against {best}"
     sub = (
         "Solution minus truth, wrap-aware, and the total angle of the error rotation (free of the Euler convention near "
-        "pitch +/-90 deg); band: the 95 % bound (1.96 sigma) " + best + " states."
+        "pitch +/-90 deg); band: the 95 % bound " + best + " states (1.96 Euler sigma; the total angle's: att95_deg)."
         if truth
         else f"Each solution minus {best}, wrap-aware (no truth); band: the 95 % bound (1.96 sigma) {best} states."
     )
@@ -292,10 +293,11 @@ def attitude_section(ctx: ReportContext) -> Section | None:
         axes = panel_axes(fig, len(names), top, bottom)
         x = ctx.x(ref.t)
         for k, (ax, name) in enumerate(zip(axes, names)):
-            band = qc.Z95 * ref.sigma_rpy_deg[:, k] if k < 3 else np.full(ref.t.size, np.nan)
+            band = qc.Z95 * ref.sigma_rpy_deg[:, k] if k < 3 else ref.att95_deg  # the total angle's: one-sided
             if np.isfinite(band).any():
                 i = L.decimate(band)
-                ax.fill_between(x[i], -band[i], band[i], color="0.87", lw=0, label=f"{best}: 95 % bound")
+                ax.fill_between(x[i], -band[i] if k < 3 else 0.0 * band[i], band[i], color="0.87", lw=0,
+                                label=f"{best}: 95 % bound")
             drawn = [band]
             for s in _draw_order(ctx, shown):
                 if truth:

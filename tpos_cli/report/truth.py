@@ -19,6 +19,7 @@ import numpy as np
 
 from tpos_cli.frames.geodetic import lla_to_ned, ned_to_lla
 from tpos_cli.io.columns import column
+from tpos_cli.report.fixes import differential_name
 
 GAP_FACTOR = 2.5  # a gap is > 2.5 median intervals: one missed sample plus clock jitter is not a gap
 
@@ -287,11 +288,12 @@ def _truth_from_gps(session, withheld, mask_windows) -> TrajectoryTruth | None:
         for a, b in mask:  # --mask-gps T0:T1 is a closed window
             indep |= (t >= a) & (t <= b)
     gap = median_gap_limit(t)
-    n_waas = int(np.sum(fix == 2))
+    n_diff = int(np.sum(fix == 2))
+    diff_name = differential_name(fix, sh)
     med_sh = float(np.nanmedian(sh)) if np.any(np.isfinite(sh)) else float("nan")
     quality = f"median reported horizontal SD {med_sh:.2g} m" if np.isfinite(med_sh) else "no reported SD"
     desc = (
-        f"GPS fixes as truth ({t.size} fixes, {n_waas} SBAS/WAAS, {t.size - n_waas} autonomous; {quality}); "
+        f"GPS fixes as truth ({t.size} fixes, {n_diff} {diff_name}, {t.size - n_diff} autonomous; {quality}); "
         + (
             f"{int(indep.sum())} fixes withheld by --mask-gps are independent truth; the others were processing input"
             if mask.size
