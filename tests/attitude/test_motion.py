@@ -88,6 +88,18 @@ def test_fit_resolves_a_band_reaching_below_the_default_segment():
     assert fit.sd_m == pytest.approx(0.05, rel=0.20)
 
 
+def _moving_run(path, fit, seed):
+    """(g, lf1 solution) of 60 s of the simulated device (`_rpy`) carried along `path` ((t, p, a) of the hand,
+    61 s), its filter's hand model the fitted oscillator `fit`, never still."""
+    tp, p, _ = path
+    spl = CubicSpline(tp, p, axis=0)
+    rng = np.random.default_rng(100 + seed)
+    g = make(_rpy, duration_s=60.0, seed=seed, bias_rps=rng.normal(0, 3e-5, 3), pos_fn=lambda s: spl(s))
+    st = replace(_setup(g, rng), motion_freq_hz=fit.freq_hz, motion_damping=fit.damping, motion_sd_m=fit.sd_m)
+    return g, run_full("lf1", g.t, g.gyro, g.acc, g.mag, None, st, K.USE_ACC | K.USE_MAG | K.USE_MOTION,
+                       still=np.zeros(g.t.size, dtype=bool))
+
+
 def test_fit_refuses_a_psd_without_the_oscillator_shape():
     t = np.arange(60000) * 0.01
     white = np.random.default_rng(5).normal(0, 0.1, (t.size, 3))  # flat PSD: no roll-off anywhere
@@ -169,13 +181,7 @@ def test_hand_check_is_not_over_confident_on_a_hand_that_one_oscillator_cannot_f
     fit = fit_oscillator(t, a_meas, np.ones(t.size, bool), band_hz=(lo_hz, hi_hz), acc_noise_mps2=0.02)
     nis, n_eff = [], 0.0
     for seed in range(4):
-        tp, p, _ = _two_oscillator_path(61.0, 0.01, seed=300 + 2 * seed)
-        spl = CubicSpline(tp, p, axis=0)
-        rng = np.random.default_rng(100 + seed)
-        g = make(_rpy, duration_s=60.0, seed=seed, bias_rps=rng.normal(0, 3e-5, 3), pos_fn=lambda s: spl(s))
-        st = replace(_setup(g, rng), motion_freq_hz=fit.freq_hz, motion_damping=fit.damping, motion_sd_m=fit.sd_m)
-        sol = run_full("lf1", g.t, g.gyro, g.acc, g.mag, None, st, K.USE_ACC | K.USE_MAG | K.USE_MOTION,
-                       still=np.zeros(g.t.size, dtype=bool))
+        _, sol = _moving_run(_two_oscillator_path(61.0, 0.01, seed=300 + 2 * seed), fit, seed)
         x = sol.nis["acc"][np.isfinite(sol.nis["acc"])][200:]  # after the first 10 s of hand checks
         nis.append(x)
         n_eff += effective_sample_size(x)
@@ -202,13 +208,7 @@ def test_one_oscillator_fitted_to_a_hand_with_a_wandering_mean_is_not_over_confi
     fit = fit_oscillator(t, a_meas, np.ones(t.size, bool), band_hz=(lo_hz, hi_hz), acc_noise_mps2=0.02)
     nees = []
     for seed in range(4):
-        tp, p, _ = _anchored_path(0.6, 0.3, 0.03, 0.10, 1.0, 61.0, 0.01, seed=300 + seed)
-        spl = CubicSpline(tp, p, axis=0)
-        rng = np.random.default_rng(100 + seed)
-        g = make(_rpy, duration_s=60.0, seed=seed, bias_rps=rng.normal(0, 3e-5, 3), pos_fn=lambda s: spl(s))
-        st = replace(_setup(g, rng), motion_freq_hz=fit.freq_hz, motion_damping=fit.damping, motion_sd_m=fit.sd_m)
-        sol = run_full("lf1", g.t, g.gyro, g.acc, g.mag, None, st, K.USE_ACC | K.USE_MAG | K.USE_MOTION,
-                       still=np.zeros(g.t.size, dtype=bool))
+        g, sol = _moving_run(_anchored_path(0.6, 0.3, 0.03, 0.10, 1.0, 61.0, 0.01, seed=300 + seed), fit, seed)
         nees.append(_nees(sol, g.C)[np.arange(1000, g.t.size, 500)])  # every 5 s from 10 s: nearly independent
     nees = np.concatenate(nees)
     # 4 runs x 11 epochs of a 3-dof NEES: below the 97.5 % point of the mean (never over-confident)
