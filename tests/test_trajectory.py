@@ -1,7 +1,9 @@
 """Contract trajectory rows (`tpos_cli.trajectory`): Euler-angle sigmas, column layout."""
 
 import numpy as np
+import pytest
 from numpy.testing import assert_allclose
+from scipy.stats import chi2
 
 from tpos_cli.frames.rotation import euler_to_dcm
 from tpos_cli.trajectory import Solution, solution_table, trajectory_table
@@ -66,6 +68,7 @@ def test_navigation_frame_attitude_sigmas_stay_finite_where_euler_yaw_is_singula
     df = trajectory_table("x", [0.0, 1.0], [45.0, 7.0, 100.0], None, C, P_att_rad2=np.stack([P, P]))
     assert df["sigma_yaw"].iloc[1] > 50 * df["sigma_yaw"].iloc[0]  # the Euler SD blows up near pitch -90
     assert_allclose(df[["sigma_tilt_n", "sigma_tilt_e", "sigma_heading"]].to_numpy(), [[0.2, 0.3, 0.5]] * 2, rtol=1e-12)
+    assert CHI2_3DOF_95 == pytest.approx(chi2.ppf(0.95, 3), rel=1e-12)  # the constant is scipy's quantile
     assert_allclose(df["att95_deg"], np.sqrt(CHI2_3DOF_95) * 0.5, rtol=1e-12)
     # the total-angle bound holds with at least 95 % (exactly for an isotropic P): 2e5 draws, 3 binomial SDs ~0.15 %
     rng = np.random.default_rng(0)
