@@ -203,7 +203,10 @@ def _check_advice(tmp: Path, d: Path, run: Path, v: dict, overrides: dict | None
             note += " (scored at the antenna)"
         else:
             before, after = _report_h_rms(run), _report_h_rms(tmp / "runs" / fixed.name)
-        print(f"{'':93s}advice [{section}] {key} = {value}{note}: smoothed horizontal RMS against truth {before} -> {after} m"
+        def m(v):
+            return "n/a" if v is None else f"{v:.3f}"
+
+        print(f"{'':93s}advice [{section}] {key} = {value}{note}: smoothed horizontal RMS against truth {m(before)} -> {m(after)} m"
               + ("   <- WORSE" if before is not None and after is not None and after > before else ""))
         if key == "lever_arm_m" and receiver:
             # the default run estimated the lever arm itself, so the fix mostly moves its prior: the
@@ -212,7 +215,7 @@ def _check_advice(tmp: Path, d: Path, run: Path, v: dict, overrides: dict | None
             process_session(d, None, tmp / "runs" / f"{d.name}_nolever", overrides=off)
             process_session(fixed, None, tmp / "runs" / f"{fixed.name}_nolever", overrides=off)
             b, a = (_h_rms_at_antenna(x, tmp / "runs" / f"{x.name}_nolever") for x in (d, fixed))
-            print(f"{'':93s}  the same without lever-arm states (lever_arm = off): {b} -> {a} m"
+            print(f"{'':93s}  the same without lever-arm states (lever_arm = off): {m(b)} -> {m(a)} m"
                   + ("   <- WORSE" if a > b else ""))
 
 
