@@ -47,6 +47,14 @@ FLOAT_SIGMA_V_M = 0.25
 FLOAT_TAU_S = 5.0
 
 
+def rtk_floor(sigma_h_m) -> bool | None:
+    """Whether fixes stating horizontal SDs `sigma_h_m` (m) come from an RTK receiver: the median of the
+    stated ones (finite, positive) is a centimetre floor, at most `RTK_FLOOR_MAX_M`; None when none states one."""
+    sig = np.asarray(sigma_h_m, dtype=float)
+    stated = sig[np.isfinite(sig) & (sig > 0)]
+    return bool(np.median(stated) <= RTK_FLOOR_MAX_M) if stated.size else None
+
+
 def float_fixes(sigma_h_m, factor: float = FLOAT_SD_FACTOR) -> np.ndarray:
     """(M,) bool, the fixes in time order: stretches of fixes whose receiver raised its stated
     horizontal SD (RTK float or degraded epochs). A stretch is a run of consecutive fixes stating
@@ -56,15 +64,13 @@ def float_fixes(sigma_h_m, factor: float = FLOAT_SD_FACTOR) -> np.ndarray:
     2.5 x peaks; geometry alone stays under `factor`). Non-finite or non-positive SDs (not stated)
     end a stretch and are never float; `factor` 0 turns the class off; half the fixes at least must
     state an SD (else there is no floor to be raised from), and their median must be a centimetre
-    floor (at most `RTK_FLOOR_MAX_M`: an RTK receiver's)."""
+    floor (`rtk_floor`: an RTK receiver's)."""
     sig = np.asarray(sigma_h_m, dtype=float)
     stated = np.isfinite(sig) & (sig > 0)
     out = np.zeros(sig.size, dtype=bool)
-    if factor <= 0 or stated.sum() < max(1, 0.5 * sig.size):
+    if factor <= 0 or stated.sum() < max(1, 0.5 * sig.size) or not rtk_floor(sig):
         return out
     med = np.median(sig[stated])
-    if med > RTK_FLOOR_MAX_M:
-        return out
     above = stated & (sig > med + FLOAT_SD_Z * 1.4826 * np.median(np.abs(sig[stated] - med)))
     seed = stated & (sig > factor * med)
     for a, b in zip(*true_runs(above)):  # runs [a, b) of fixes above the fence

@@ -11,17 +11,13 @@ import numpy as np
 
 
 def differential_name(fix, sigma_h_m) -> str:
-    """What fix = 2 is in this log, from the median stated horizontal SD (m) of those fixes: a
-    centimetre floor (at most `fusion.rtk_float.RTK_FLOOR_MAX_M`, the test the GPS model uses) is RTK,
-    not SBAS (a metre class); a larger one SBAS/WAAS as the spec says; no stated SD: not known."""
-    from tpos_cli.fusion.rtk_float import RTK_FLOOR_MAX_M
+    """What fix = 2 is in this log, from the stated horizontal SDs (m) of those fixes: a centimetre floor
+    (`fusion.rtk_float.rtk_floor`, the test the GPS model uses) is RTK, not SBAS (a metre class); a larger
+    one SBAS/WAAS as the spec says; no stated SD: not known."""
+    from tpos_cli.fusion.rtk_float import rtk_floor
 
-    if sigma_h_m is None:
-        return "differential"
-    sd = np.asarray(sigma_h_m, dtype=float)[np.asarray(fix) == 2]
-    if not np.isfinite(sd).any():
-        return "differential"
-    return "RTK" if float(np.nanmedian(sd)) <= RTK_FLOOR_MAX_M else "SBAS/WAAS"
+    rtk = None if sigma_h_m is None else rtk_floor(np.asarray(sigma_h_m, dtype=float)[np.asarray(fix) == 2])
+    return "differential" if rtk is None else "RTK" if rtk else "SBAS/WAAS"
 
 
 def fix_names(fix, sigma_h_m) -> dict[int, str]:
