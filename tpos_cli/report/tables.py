@@ -21,13 +21,13 @@ from tpos_cli.report.context import ReportContext
 from tpos_cli.report.format import checked_start_utc, length_unit, utc_strings
 from tpos_cli.report.sections import Section
 from tpos_cli.report.solutions import rank_solutions
+from tpos_cli.trajectory import CHI2_3DOF_95
 
 if TYPE_CHECKING:
     import pandas as pd
 
 FONT = 7.2
 NEES3_99 = 11.345  # chi2_3(0.99): a shot outside its 99 % ellipsoid
-NEES3_95 = 7.815  # chi2_3(0.95)
 MAX_ROWS = 40
 
 
@@ -226,7 +226,7 @@ def target_truth_section(ctx: ReportContext) -> Section | None:
                 "rmsu": np.sqrt(np.mean(d["err_u_m"] ** 2)),
                 "max3": d["err_3d_m"].max(),
                 "nees": np.nanmean(nees) / 3.0,
-                "in95": np.mean(nees <= NEES3_95),
+                "in95": np.mean(nees <= CHI2_3DOF_95),
             }
         )
     r = from_records(rows, list(rows[0]))
